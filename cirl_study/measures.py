@@ -1,0 +1,77 @@
+"""The study's dependent measures (paper section 4.2; DESIGN §4), exact and batched.
+
+All three compare the true reward weights :math:`\\theta` with the robot's estimate
+:math:`\\hat\\theta` on the deployment phase: ``T`` steps from a start cell drawn
+uniformly from all cells. Expectations over the start are taken exactly, by
+averaging over every cell.
+
+* ``regret``: :math:`\\frac{1}{|S|}\\sum_s V^*_\\theta(s) - V^{\\pi_{\\hat\\theta}}_\\theta(s)`,
+  where :math:`\\pi_{\\hat\\theta}` is the optimal (hard-max) ``T``-step policy for
+  :math:`r_{\\hat\\theta}` and values sum :math:`r_\\theta(s_t)` for ``t = 1..T``.
+* ``kl``: :math:`\\frac{1}{|S|}\\sum_s KL(P(\\cdot \\mid s, \\theta, \\lambda) \\,\\|\\,
+  P(\\cdot \\mid s, \\hat\\theta, \\lambda))` between the MaxEnt trajectory distributions,
+  by the chain rule as the occupancy-weighted sum of per-step policy KLs,
+  :math:`\\sum_t \\sum_s d_t(s)\\, KL(\\pi_t(\\cdot \\mid s) \\| \\hat\\pi_t(\\cdot \\mid s))`,
+  computed backwards for every start at once:
+  :math:`D_T = 0`, :math:`D_t(s) = \\sum_a \\pi_t(a \\mid s)[\\log \\pi_t(a \\mid s)
+  - \\log \\hat\\pi_t(a \\mid s) + D_{t+1}(s')]`.
+* ``reward_l2``: :math:`\\lVert \\Phi\\theta - \\Phi\\hat\\theta \\rVert_2` over all cells.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+from cirl_study.planning import (
+    IntArray,
+    evaluate_policy,
+    optimal_plan,
+    soft_value_iteration,
+)
+
+FloatArray = NDArray[np.float64]
+
+
+def _cell_rewards(features: FloatArray, theta: FloatArray) -> FloatArray:
+    return np.einsum("bsk,bk->bs", features, theta)
+
+
+def regret(
+    theta: FloatArray, theta_hat: FloatArray, features: FloatArray, successors: IntArray, horizon: int
+) -> FloatArray:
+    """Mean over start cells of :math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta`, ``(B,)``."""
+    true_rewards = _cell_rewards(features, theta)
+    best = optimal_plan(true_rewards, successors, horizon).values[0]
+    robot = optimal_plan(_cell_rewards(features, theta_hat), successors, horizon).actions
+    achieved = evaluate_policy(true_rewards, successors, robot)[0]
+    return (best - achieved).mean(axis=1)
+
+
+def trajectory_kl(
+    theta: FloatArray,
+    theta_hat: FloatArray,
+    features: FloatArray,
+    successors: IntArray,
+    horizon: int,
+    rationality: float,
+) -> FloatArray:
+    """Mean over start cells of the KL between MaxEnt trajectory distributions, ``(B,)``."""
+    true = soft_value_iteration(_cell_rewards(features, theta), successors, horizon, rationality)
+    estimate = soft_value_iteration(
+        _cell_rewards(features, theta_hat), successors, horizon, rationality
+    )
+    available = successors >= 0
+    gather = np.where(available, successors, 0)
+    log_ratio = np.zeros_like(true.log_policy)  # unavailable moves (log 0 - log 0) add nothing
+    np.subtract(true.log_policy, estimate.log_policy, out=log_ratio, where=available)
+    batch, cells = theta.shape[0], successors.shape[0]
+    divergence = np.zeros((batch, cells))
+    for t in range(horizon - 1, -1, -1):
+        divergence = (true.policy[t] * (log_ratio[t] + divergence[:, gather])).sum(axis=-1)
+    return divergence.mean(axis=1)
+
+
+def reward_l2(theta: FloatArray, theta_hat: FloatArray, features: FloatArray) -> FloatArray:
+    """:math:`\\lVert \\Phi(\\theta - \\hat\\theta) \\rVert_2` over all cells, ``(B,)``."""
+    return np.linalg.norm(_cell_rewards(features, theta - theta_hat), axis=1)
