@@ -47,7 +47,7 @@ def rollout(successors: IntArray, start: int | IntArray, actions: IntArray) -> I
 
 
 def follow_policy(successors: IntArray, start: IntArray, policy: IntArray) -> IntArray:
-    """States visited by a deterministic time-indexed policy ``(T, B, S)`` from ``start`` ``(B,)``."""
+    """States visited by a deterministic policy ``(T, B, S)`` from the cells ``start`` ``(B,)``."""
     horizon, batch, _ = policy.shape
     states = np.empty((batch, horizon + 1), dtype=np.int64)
     states[:, 0] = start
@@ -60,7 +60,7 @@ def follow_policy(successors: IntArray, start: IntArray, policy: IntArray) -> In
 def expert_paths(
     theta: FloatArray, features: FloatArray, successors: IntArray, start: int, horizon: int
 ) -> IntArray:
-    """Demonstration by expert: the ``T``-step path from ``start`` maximising :math:`\\theta^\\top\\phi(\\tau)`.
+    """Expert demonstration: the path from ``start`` maximising :math:`\\theta^\\top\\phi(\\tau)`.
 
     Ties go to the lowest action index at each step (see
     :func:`cirl_study.planning.optimal_plan`).
@@ -79,7 +79,11 @@ def best_response_target(
     horizon: int,
     rationality: float,
 ) -> FloatArray:
-    """The counts the best response aims at: :math:`\\phi_\\theta + \\theta / (2\\eta)`, ``(B, K)``."""
+    """The counts the best response aims at, :math:`\\phi_\\theta + \\theta / (2\\eta)` ``(B, K)``.
+
+    :math:`\\phi_\\theta` is the robot's expected demonstration counts under the true
+    :math:`\\theta` (:func:`cirl_study.irl.trajectory_moments`).
+    """
     _, expected, _ = trajectory_moments(theta, features, successors, start, horizon, rationality)
     return expected + theta / (2.0 * np.asarray(eta, dtype=np.float64)[:, None])
 

@@ -42,13 +42,14 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
 
 from cirl_study.planning import (
     IntArray,
-    soft_value_iteration,
-    state_visitation,
-    future_feature_counts,
+    backward_future_counts,
+    forward_visitation,
+    soft_backup,
 )
 
 FloatArray = NDArray[np.float64]
@@ -81,10 +82,56 @@ class _Moments:
     covariance: FloatArray  # (B, K, K)  Cov[phi(tau)]
 
 
-def _start_distribution(batch: int, cells: int, start: int) -> FloatArray:
-    distribution = np.zeros((batch, cells))
-    distribution[:, start] = 1.0
-    return distribution
+@njit(cache=True)
+def _log_partition(scaled, successors, start, horizon):  # pragma: no cover - compiled
+    batch, cells = scaled.shape
+    actions = successors.shape[1]
+    values = np.empty((horizon + 1, cells))
+    log_policy = np.empty((horizon, cells, actions))
+    policy = np.empty((horizon, cells, actions))
+    log_z = np.empty(batch)
+    for b in range(batch):
+        soft_backup(scaled[b], successors, horizon, values, log_policy, policy)
+        log_z[b] = values[0, start]
+    return log_z
+
+
+@njit(cache=True)
+def _trajectory_moments(scaled, features, successors, start, horizon):  # pragma: no cover
+    batch, cells, k = features.shape
+    actions = successors.shape[1]
+    values = np.empty((horizon + 1, cells))
+    log_policy = np.empty((horizon, cells, actions))
+    policy = np.empty((horizon, cells, actions))
+    visitation = np.empty((horizon + 1, cells))
+    future = np.empty((horizon + 1, cells, k))
+    log_z = np.empty(batch)
+    mean = np.empty((batch, k))
+    covariance = np.empty((batch, k, k))
+    for b in range(batch):
+        phi = features[b]
+        soft_backup(scaled[b], successors, horizon, values, log_policy, policy)
+        visitation[0, :] = 0.0
+        visitation[0, start] = 1.0
+        forward_visitation(policy, successors, visitation)
+        backward_future_counts(policy, successors, phi, future)
+        log_z[b] = values[0, start]
+        mean[b] = future[0, start]
+        # E[phi phi^T] = sum_t sum_s d_t(s) sym(phi(s) (phi(s) + 2 F_t(s))^T)
+        second = np.zeros((k, k))
+        for t in range(1, horizon + 1):
+            for s in range(cells):
+                d = visitation[t, s]
+                if d == 0.0:
+                    continue
+                for i in range(k):
+                    weight = d * phi[s, i]
+                    for j in range(k):
+                        second[i, j] += weight * (phi[s, j] + 2.0 * future[t, s, j])
+        for i in range(k):
+            for j in range(k):
+                covariance[b, i, j] = 0.5 * (second[i, j] + second[j, i]) - mean[b, i] * mean[b, j]
+    return log_z, mean, covariance
 
 
 def demo_log_likelihood(
@@ -96,10 +143,13 @@ def demo_log_likelihood(
     horizon: int,
     rationality: float,
 ) -> FloatArray:
-    """:math:`L(\\theta) = \\lambda\\,\\theta^\\top\\phi(\\tau_{demo}) - \\log Z(\\theta)`, ``(B,)``."""
-    rewards = np.einsum("bsk,bk->bs", features, theta)
-    plan = soft_value_iteration(rewards, successors, horizon, rationality)
-    return rationality * np.einsum("bk,bk->b", theta, demo_counts) - plan.values[0][:, start]
+    """Demonstration log-likelihood, ``(B,)``.
+
+    :math:`L(\\theta) = \\lambda\\,\\theta^\\top\\phi(\\tau_{demo}) - \\log Z(\\theta)`.
+    """
+    scaled = rationality * np.einsum("bsk,bk->bs", features, theta)
+    log_z = _log_partition(scaled, successors, start, horizon)
+    return rationality * np.einsum("bk,bk->b", theta, demo_counts) - log_z
 
 
 def trajectory_moments(
@@ -115,24 +165,14 @@ def trajectory_moments(
     Returns:
         ``log_z (B,)``, ``mean (B, K)`` and ``covariance (B, K, K)``.
     """
-    rewards = np.einsum("bsk,bk->bs", features, theta)
-    plan = soft_value_iteration(rewards, successors, horizon, rationality)
-    policy = plan.policy
-    batch, cells = rewards.shape
-    visitation = state_visitation(policy, successors, _start_distribution(batch, cells, start))
-    future = future_feature_counts(policy, successors, features)
-    mean = future[0][:, start]
-    # sum_t sum_s d_t(s) phi(s) (phi(s) + 2 F_t(s))^T, symmetrised, is E[phi phi^T]:
-    # one batched (K, T*S) @ (T*S, K) product per trial.
-    k = features.shape[-1]
-    weighted = (visitation[1:, :, :, None] * features[None]).transpose(1, 0, 2, 3)
-    ahead = (features[None] + 2.0 * future[1:]).transpose(1, 0, 2, 3)
-    cross = np.matmul(
-        weighted.reshape(batch, -1, k).transpose(0, 2, 1), ahead.reshape(batch, -1, k)
+    scaled = rationality * np.einsum("bsk,bk->bs", features, theta)
+    return _trajectory_moments(
+        scaled,
+        np.ascontiguousarray(features, dtype=np.float64),
+        np.ascontiguousarray(successors, dtype=np.int64),
+        int(start),
+        int(horizon),
     )
-    second = 0.5 * (cross + cross.transpose(0, 2, 1))
-    covariance = second - mean[:, :, None] * mean[:, None, :]
-    return plan.values[0][:, start], mean, covariance
 
 
 def _moments(
@@ -151,21 +191,26 @@ def _moments(
     return _Moments(log_likelihood, mean, covariance)
 
 
-def _newton_direction(gradient: FloatArray, hessian_neg: FloatArray, free: NDArray[np.bool_]):
-    """Solve ``(H_FF + mu I) d_F = g_F`` with ``d = 0`` off the free set, for a batch.
+def _search_direction(
+    gradient: FloatArray, hessian_neg: FloatArray, near_active: NDArray[np.bool_]
+) -> FloatArray:
+    """Bertsekas's projected-Newton direction for a batch.
 
-    ``hessian_neg`` is the positive semi-definite :math:`-\\nabla^2 L`; the small ridge
-    ``mu`` keeps the system solvable where the covariance is singular.
+    On the free set ``F`` it solves ``(H_FF + mu I) d_F = g_F`` (a Newton step; the tiny
+    ridge ``mu`` keeps the system solvable where the covariance is singular); on the
+    epsilon-active set it takes the diagonally scaled gradient step
+    ``d_k = g_k / (H_kk + mu)``. Both parts are ascent directions, which is what the
+    line search needs.
     """
     k = gradient.shape[-1]
-    eye = np.eye(k)
-    pair_free = free[:, :, None] & free[:, None, :]
-    matrix = np.where(pair_free, hessian_neg, 0.0)
-    scale = np.trace(matrix, axis1=1, axis2=2) / k
-    ridge = 1e-10 * scale + 1e-300
-    matrix = matrix + np.where(free[:, :, None], ridge[:, None, None] * eye, eye)
-    rhs = np.where(free, gradient, 0.0)
-    return np.linalg.solve(matrix, rhs[..., None])[..., 0]
+    free = ~near_active
+    diagonal = np.diagonal(hessian_neg, axis1=1, axis2=2)
+    ridge = 1e-10 * diagonal.mean(axis=1) + 1e-300
+    matrix = np.where(free[:, :, None] & free[:, None, :], hessian_neg, 0.0)
+    matrix = matrix + np.eye(k) * np.where(free, ridge[:, None], 1.0)[:, None, :]
+    newton = np.linalg.solve(matrix, np.where(free, gradient, 0.0)[..., None])[..., 0]
+    scaled_gradient = gradient / (diagonal + ridge[:, None])
+    return np.where(free, newton, scaled_gradient)
 
 
 def fit_maxent_irl(
@@ -176,8 +221,8 @@ def fit_maxent_irl(
     horizon: int,
     rationality: float,
     *,
-    tolerance: float = 1e-8,
-    max_iterations: int = 100,
+    tolerance: float = 1e-6,
+    max_iterations: int = 200,
 ) -> IRLFit:
     """MAP estimate of :math:`\\theta` in :math:`[-1, 1]^K` for a batch of demonstrations.
 
@@ -215,31 +260,40 @@ def fit_maxent_irl(
     problem = (successors, start, horizon, rationality)
 
     moments = _moments(theta, demo_counts, features, *problem)
-    for _ in range(max_iterations + 1):
+    while True:
         gradient = rationality * (demo_counts[running] - moments.mean)
         th = theta[running]
-        binding = ((th <= low) & (gradient < 0)) | ((th >= high) & (gradient > 0))
-        projected = np.where(binding, 0.0, gradient)
+        # Projected gradient: zero where a bound blocks the ascent direction.
+        projected = np.clip(th + gradient, low, high) - th
         done = np.abs(projected).max(axis=1) <= tolerance * rationality
         log_likelihood[running] = moments.log_likelihood
         converged[running] = done
-        stalled = iterations[running] >= max_iterations
-        keep = ~(done | stalled)
+        keep = ~done & (iterations[running] < max_iterations)
         if not keep.any():
             break
-        running, gradient, th, binding = running[keep], gradient[keep], th[keep], binding[keep]
-        current = moments.log_likelihood[keep]
-        direction = _newton_direction(
-            gradient, rationality**2 * moments.covariance[keep], ~binding
+        running, gradient, th = running[keep], gradient[keep], th[keep]
+        # Epsilon-active set (Bertsekas 1982): near a bound and pushed against it.
+        epsilon = np.minimum(1e-3, np.linalg.norm(projected[keep], axis=1))[:, None]
+        near_active = ((th <= low + epsilon) & (gradient < 0)) | (
+            (th >= high - epsilon) & (gradient > 0)
+        )
+        direction = _search_direction(
+            gradient, rationality**2 * moments.covariance[keep], near_active
         )
         step, accepted = _armijo_search(
-            th, direction, gradient, current, demo_counts[running], features[running], problem
+            th,
+            direction,
+            gradient,
+            near_active,
+            moments.log_likelihood[keep],
+            demo_counts[running],
+            features[running],
+            problem,
         )
         iterations[running] += 1
-        theta[running] = np.where(accepted[:, None], step, th)
-        # A trial whose line search failed cannot improve further at this precision.
-        stuck = ~accepted
-        iterations[running[stuck]] = max_iterations
+        theta[running] = step
+        # No ascent at floating-point resolution: the fit cannot improve further.
+        iterations[running[~accepted]] = max_iterations
         moments = _moments(theta[running], demo_counts[running], features[running], *problem)
     return IRLFit(theta, log_likelihood, iterations, converged)
 
@@ -248,32 +302,42 @@ def _armijo_search(
     theta: FloatArray,
     direction: FloatArray,
     gradient: FloatArray,
+    near_active: NDArray[np.bool_],
     current: FloatArray,
     demo_counts: FloatArray,
     features: FloatArray,
     problem: tuple[IntArray, int, int, float],
     *,
     sufficient: float = 1e-4,
-    max_halvings: int = 40,
+    max_halvings: int = 30,
 ) -> tuple[FloatArray, NDArray[np.bool_]]:
-    """Backtracking along the projection arc :math:`P(\\theta + \\alpha d)`.
+    """Backtracking along the projection arc :math:`\\theta(\\alpha) = P(\\theta + \\alpha d)`.
 
-    Accepts the first :math:`\\alpha \\in \\{1, 1/2, \\dots\\}` with
-    :math:`L(\\theta_\\alpha) \\ge L(\\theta) + \\sigma \\nabla L^\\top (\\theta_\\alpha - \\theta)`
-    and a strict increase in :math:`\\theta`. Returns the accepted points and which trials
-    found one.
+    Accepts the first :math:`\\alpha \\in \\{1, 1/2, \\dots\\}` with (Bertsekas 1982)
+
+    .. math::
+
+        L(\\theta(\\alpha)) - L(\\theta) \\ge \\sigma \\Big[\\alpha \\sum_{k \\in F} g_k d_k
+        + \\sum_{k \\in A} g_k (\\theta_k(\\alpha) - \\theta_k)\\Big],
+
+    ``F`` the free and ``A`` the epsilon-active coordinates. Returns the new points (the
+    old ones where no step was accepted) and which trials accepted a step.
     """
     low, high = BOX
     result = theta.copy()
     accepted = np.zeros(len(theta), dtype=bool)
     searching = np.arange(len(theta))
+    free_slope = np.where(near_active, 0.0, gradient * direction).sum(axis=1)
     alpha = 1.0
     for _ in range(max_halvings):
         candidate = np.clip(theta[searching] + alpha * direction[searching], low, high)
         moved = candidate - theta[searching]
-        value = demo_log_likelihood(candidate, demo_counts[searching], features[searching], *problem)
-        increase = np.einsum("bk,bk->b", gradient[searching], moved)
-        ok = (value >= current[searching] + sufficient * increase) & (np.abs(moved).max(1) > 0)
+        active_slope = np.where(near_active[searching], gradient[searching] * moved, 0.0).sum(1)
+        predicted = alpha * free_slope[searching] + active_slope
+        value = demo_log_likelihood(
+            candidate, demo_counts[searching], features[searching], *problem
+        )
+        ok = (value - current[searching] >= sufficient * predicted) & (np.abs(moved).max(1) > 0)
         result[searching[ok]] = candidate[ok]
         accepted[searching[ok]] = True
         searching = searching[~ok]

@@ -38,7 +38,11 @@ def _cell_rewards(features: FloatArray, theta: FloatArray) -> FloatArray:
 
 
 def regret(
-    theta: FloatArray, theta_hat: FloatArray, features: FloatArray, successors: IntArray, horizon: int
+    theta: FloatArray,
+    theta_hat: FloatArray,
+    features: FloatArray,
+    successors: IntArray,
+    horizon: int,
 ) -> FloatArray:
     """Mean over start cells of :math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta`, ``(B,)``."""
     true_rewards = _cell_rewards(features, theta)

@@ -46,9 +46,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numpy.typing import NDArray
-
 from numba import njit
+from numpy.typing import NDArray
 
 from cirl_study.planning import IntArray
 
@@ -93,38 +92,38 @@ def suffix_extremes(cell_values, successors, horizon):  # pragma: no cover - com
     """Min and max of :math:`\\sum_{u=1}^{r} v(s_u)` over ``r``-step paths from each cell.
 
     Args:
-        cell_values: ``(B, S, J, K)`` per-cell vectors ``v(s)``; every coordinate is
+        cell_values: ``(B, S, M)`` per-cell vectors ``v(s)``; every coordinate is
             optimised separately.
         successors: ``(S, A)`` successor table.
         horizon: largest ``r``.
 
     Returns:
-        ``low, high``, each ``(B, horizon + 1, S, J, K)``; index ``r`` holds the extremes
+        ``low, high``, each ``(B, horizon + 1, S, M)``; index ``r`` holds the extremes
         over ``r``-step suffixes (``r = 0`` gives zeros):
         ``low[r, s] = min over available s -> s' of v(s') + low[r - 1, s']``.
     """
-    batch, cells, bases, k = cell_values.shape
-    low = np.zeros((batch, horizon + 1, cells, bases, k))
-    high = np.zeros((batch, horizon + 1, cells, bases, k))
+    batch, cells, m = cell_values.shape
+    low = np.zeros((batch, horizon + 1, cells, m))
+    high = np.zeros((batch, horizon + 1, cells, m))
     for b in range(batch):
+        values = cell_values[b]
         for r in range(1, horizon + 1):
+            low_prev, high_prev = low[b, r - 1], high[b, r - 1]
+            low_now, high_now = low[b, r], high[b, r]
             for s in range(cells):
-                for j in range(bases):
-                    for i in range(k):
-                        low[b, r, s, j, i] = np.inf
-                        high[b, r, s, j, i] = -np.inf
+                first = True
                 for a in range(successors.shape[1]):
                     nxt = successors[s, a]
                     if nxt < 0:
                         continue
-                    for j in range(bases):
-                        for i in range(k):
-                            value_low = cell_values[b, nxt, j, i] + low[b, r - 1, nxt, j, i]
-                            value_high = cell_values[b, nxt, j, i] + high[b, r - 1, nxt, j, i]
-                            if value_low < low[b, r, s, j, i]:
-                                low[b, r, s, j, i] = value_low
-                            if value_high > high[b, r, s, j, i]:
-                                high[b, r, s, j, i] = value_high
+                    for i in range(m):
+                        value_low = values[nxt, i] + low_prev[nxt, i]
+                        value_high = values[nxt, i] + high_prev[nxt, i]
+                        if first or value_low < low_now[s, i]:
+                            low_now[s, i] = value_low
+                        if first or value_high > high_now[s, i]:
+                            high_now[s, i] = value_high
+                    first = False
     return low, high
 
 
@@ -145,15 +144,20 @@ def _prepare(
         batch, features.shape[1], -1, k
     )
     rotated_target = np.matmul(flat, target[:, :, None]).reshape(batch, -1, k)
-    low, high = suffix_extremes(rotated_features, successors, horizon)
-    return _Problem(rotated_features, rotated_target, low, high)
+    low, high = suffix_extremes(
+        rotated_features.reshape(batch, features.shape[1], -1), successors, horizon
+    )
+    shape = (batch, horizon + 1, features.shape[1], -1, k)
+    return _Problem(rotated_features, rotated_target, low.reshape(shape), high.reshape(shape))
 
 
 @njit(cache=True)
-def _bound(counts, target, low, high):  # pragma: no cover - compiled
+def _bound(counts, target, low, high, b, remaining, cell, limit):  # pragma: no cover
     """max over bases j of sum_k dist(w_j.(g - c), [low_j, high_j])^2 for one prefix.
 
-    ``low`` and ``high`` are the ``(J, K)`` suffix extremes of the prefix's last cell.
+    ``counts`` are the prefix's rotated counts ``(J, K)``; ``low[b, remaining, cell]`` and
+    ``high[b, remaining, cell]`` the suffix extremes from its last cell. Returns early,
+    with a valid bound above ``limit``, as soon as one basis exceeds ``limit``.
     """
     bases, k = counts.shape
     best = 0.0
@@ -161,12 +165,17 @@ def _bound(counts, target, low, high):  # pragma: no cover - compiled
         total = 0.0
         for i in range(k):
             gap = target[j, i] - counts[j, i]
-            if gap < low[j, i]:
-                total += (low[j, i] - gap) ** 2
-            elif gap > high[j, i]:
-                total += (gap - high[j, i]) ** 2
+            lo = low[b, remaining, cell, j, i]
+            if gap < lo:
+                total += (lo - gap) ** 2
+            else:
+                hi = high[b, remaining, cell, j, i]
+                if gap > hi:
+                    total += (gap - hi) ** 2
         if total > best:
             best = total
+            if best > limit:
+                return best
     return best
 
 
@@ -213,7 +222,10 @@ def _search(successors, start, horizon, rotated_features, rotated_target, low, h
                             path[depth] = a
                             best_actions[b, :] = path
                         continue
-                    bound = _bound(child, target, low[b, remaining, nxt], high[b, remaining, nxt])
+                    limit = best * (1 + slack) + slack
+                    bound = _bound(child, target, low, high, b, remaining, nxt, limit)
+                    if bound > limit:
+                        continue
                     pos = m  # insertion sort by bound; ties keep action order
                     while pos > 0 and order_bound[depth, pos - 1] > bound:
                         order[depth, pos] = order[depth, pos - 1]

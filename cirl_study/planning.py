@@ -22,8 +22,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
-from scipy import sparse
 
 FloatArray = NDArray[np.float64]
 IntArray = NDArray[np.int64]
@@ -63,6 +63,60 @@ def _successor_gather(successors: IntArray) -> tuple[IntArray, NDArray[np.bool_]
     return np.where(available, successors, 0), available
 
 
+@njit(cache=True)
+def soft_backup(scaled, successors, horizon, values, log_policy, policy):  # pragma: no cover
+    """Soft value iteration for one reward vector, written into the output arrays.
+
+    ``scaled`` is :math:`\\lambda r` ``(S,)``; fills ``values (T+1, S)``,
+    ``log_policy (T, S, A)`` and ``policy (T, S, A)`` (``-inf`` / 0 where unavailable).
+    """
+    cells, actions = successors.shape
+    values[horizon, :] = 0.0
+    for t in range(horizon - 1, -1, -1):
+        for s in range(cells):
+            top = -np.inf
+            for a in range(actions):
+                nxt = successors[s, a]
+                if nxt >= 0:
+                    q = scaled[nxt] + values[t + 1, nxt]
+                    log_policy[t, s, a] = q
+                    if q > top:
+                        top = q
+                else:
+                    log_policy[t, s, a] = -np.inf
+            total = 0.0
+            for a in range(actions):
+                if successors[s, a] >= 0:
+                    weight = np.exp(log_policy[t, s, a] - top)
+                    policy[t, s, a] = weight
+                    total += weight
+                else:
+                    policy[t, s, a] = 0.0
+            value = top + np.log(total)
+            values[t, s] = value
+            for a in range(actions):
+                policy[t, s, a] /= total
+                log_policy[t, s, a] -= value
+
+
+@njit(cache=True)
+def _soft_value_iteration(scaled, successors, horizon):  # pragma: no cover - compiled
+    batch, cells = scaled.shape
+    actions = successors.shape[1]
+    values = np.empty((horizon + 1, batch, cells))
+    log_policy = np.empty((horizon, batch, cells, actions))
+    policy = np.empty((horizon, batch, cells, actions))
+    one_values = np.empty((horizon + 1, cells))
+    one_log_policy = np.empty((horizon, cells, actions))
+    one_policy = np.empty((horizon, cells, actions))
+    for b in range(batch):
+        soft_backup(scaled[b], successors, horizon, one_values, one_log_policy, one_policy)
+        values[:, b] = one_values
+        log_policy[:, b] = one_log_policy
+        policy[:, b] = one_policy
+    return values, log_policy, policy
+
+
 def soft_value_iteration(
     cell_rewards: FloatArray, successors: IntArray, horizon: int, rationality: float
 ) -> SoftPlan:
@@ -77,31 +131,64 @@ def soft_value_iteration(
     Returns:
         The soft policy and values; see :class:`SoftPlan`.
     """
-    gather, available = _successor_gather(successors)
-    blocked = np.where(available, 0.0, -np.inf)
-    scaled = rationality * np.asarray(cell_rewards, dtype=np.float64)
-    batch, cells = scaled.shape
-    values = np.zeros((horizon + 1, batch, cells))
-    log_policy = np.empty((horizon, batch, cells, successors.shape[1]))
-    policy = np.empty_like(log_policy)
-    for t in range(horizon - 1, -1, -1):
-        q = (scaled + values[t + 1])[:, gather] + blocked
-        top = q.max(axis=-1, keepdims=True)
-        weights = np.exp(q - top)
-        total = weights.sum(axis=-1, keepdims=True)
-        values[t] = (top + np.log(total))[..., 0]
-        log_policy[t] = q - values[t][..., None]
-        policy[t] = weights / total
+    scaled = rationality * np.ascontiguousarray(cell_rewards, dtype=np.float64)
+    values, log_policy, policy = _soft_value_iteration(
+        scaled, np.ascontiguousarray(successors, dtype=np.int64), horizon
+    )
     return SoftPlan(log_policy=log_policy, policy=policy, values=values)
 
 
-def transition_matrix(successors: IntArray) -> sparse.csr_array:
-    """Sparse ``(S, S * A)`` 0/1 matrix: entry ``(s', s * A + a)`` is 1 iff ``s -> s'`` by ``a``."""
-    cells, actions = successors.shape
-    pairs = np.flatnonzero(successors.ravel() >= 0)
-    return sparse.csr_array(
-        (np.ones(pairs.size), (successors.ravel()[pairs], pairs)), shape=(cells, cells * actions)
-    )
+@njit(cache=True)
+def forward_visitation(policy, successors, visitation):  # pragma: no cover - compiled
+    """:math:`d_{t+1}(s') = \\sum_{s, a: s \\to_a s'} d_t(s)\\, \\pi_t(a \\mid s)` for one trial.
+
+    ``policy (T, S, A)``; ``visitation (T+1, S)`` must hold :math:`d_0` in row 0.
+    """
+    horizon, cells, actions = policy.shape
+    for t in range(horizon):
+        visitation[t + 1, :] = 0.0
+        for s in range(cells):
+            mass = visitation[t, s]
+            if mass == 0.0:
+                continue
+            for a in range(actions):
+                nxt = successors[s, a]
+                if nxt >= 0:
+                    visitation[t + 1, nxt] += mass * policy[t, s, a]
+
+
+@njit(cache=True)
+def backward_future_counts(policy, successors, features, future):  # pragma: no cover - compiled
+    """:math:`F_t(s) = \\sum_a \\pi_t(a \\mid s)[\\phi(s') + F_{t+1}(s')]` for one trial.
+
+    ``policy (T, S, A)``, ``features (S, K)``; fills ``future (T+1, S, K)``.
+    """
+    horizon, cells, actions = policy.shape
+    k = features.shape[1]
+    future[horizon, :, :] = 0.0
+    for t in range(horizon - 1, -1, -1):
+        for s in range(cells):
+            for i in range(k):
+                future[t, s, i] = 0.0
+            for a in range(actions):
+                nxt = successors[s, a]
+                if nxt < 0:
+                    continue
+                p = policy[t, s, a]
+                for i in range(k):
+                    future[t, s, i] += p * (features[nxt, i] + future[t + 1, nxt, i])
+
+
+@njit(cache=True)
+def _state_visitation(policy, successors, start_distribution):  # pragma: no cover - compiled
+    horizon, batch, cells, _ = policy.shape
+    visitation = np.empty((horizon + 1, batch, cells))
+    one = np.empty((horizon + 1, cells))
+    for b in range(batch):
+        one[0] = start_distribution[b]
+        forward_visitation(policy[:, b], successors, one)
+        visitation[:, b] = one
+    return visitation
 
 
 def state_visitation(
@@ -120,14 +207,22 @@ def state_visitation(
     Returns:
         ``(T + 1, B, S)`` array of :math:`d_t`.
     """
-    horizon, batch, cells, actions = policy.shape
-    moves = transition_matrix(successors)
-    visitation = np.empty((horizon + 1, batch, cells))
-    visitation[0] = start_distribution
-    for t in range(horizon):
-        flow = visitation[t][..., None] * policy[t]
-        visitation[t + 1] = (moves @ flow.reshape(batch, cells * actions).T).T
-    return visitation
+    return _state_visitation(
+        np.ascontiguousarray(policy, dtype=np.float64),
+        np.ascontiguousarray(successors, dtype=np.int64),
+        np.ascontiguousarray(start_distribution, dtype=np.float64),
+    )
+
+
+@njit(cache=True)
+def _future_feature_counts(policy, successors, features):  # pragma: no cover - compiled
+    horizon, batch, cells, _ = policy.shape
+    counts = np.empty((horizon + 1, batch, cells, features.shape[2]))
+    one = np.empty((horizon + 1, cells, features.shape[2]))
+    for b in range(batch):
+        backward_future_counts(policy[:, b], successors, features[b], one)
+        counts[:, b] = one
+    return counts
 
 
 def future_feature_counts(
@@ -148,19 +243,11 @@ def future_feature_counts(
     Returns:
         ``(T + 1, B, S, K)`` array of :math:`F_t`.
     """
-    gather, _ = _successor_gather(successors)
-    horizon, batch, cells, actions = policy.shape
-    k = features.shape[-1]
-    # Row of (trial b, successor of s by a) in the (B * S, K) flattening, for every (b, s, a).
-    rows = (np.arange(batch)[:, None, None] * cells + gather[None]).ravel()
-    counts = np.zeros((horizon + 1, batch, cells, k))
-    for t in range(horizon - 1, -1, -1):
-        ahead = np.take((features + counts[t + 1]).reshape(-1, k), rows, axis=0)
-        # Unavailable moves have probability 0, so their (arbitrary) rows do not count.
-        counts[t] = np.matmul(policy[t][:, :, None, :], ahead.reshape(batch, cells, actions, k))[
-            :, :, 0
-        ]
-    return counts
+    return _future_feature_counts(
+        np.ascontiguousarray(policy, dtype=np.float64),
+        np.ascontiguousarray(successors, dtype=np.int64),
+        np.ascontiguousarray(features, dtype=np.float64),
+    )
 
 
 def optimal_plan(cell_rewards: FloatArray, successors: IntArray, horizon: int) -> HardPlan:
@@ -182,7 +269,9 @@ def optimal_plan(cell_rewards: FloatArray, successors: IntArray, horizon: int) -
     return HardPlan(values=values, actions=actions)
 
 
-def evaluate_policy(cell_rewards: FloatArray, successors: IntArray, actions: IntArray) -> FloatArray:
+def evaluate_policy(
+    cell_rewards: FloatArray, successors: IntArray, actions: IntArray
+) -> FloatArray:
     """Values of a deterministic time-indexed policy under the given rewards.
 
     :math:`V_T = 0`, :math:`V_t(s) = r(s') + V_{t+1}(s')` with :math:`s'` the successor of
