@@ -81,6 +81,17 @@ class _Moments:
     mean: FloatArray  # (B, K)  E[phi(tau)]
     covariance: FloatArray  # (B, K, K)  Cov[phi(tau)]
 
+    def take(self, rows: NDArray[np.bool_]) -> _Moments:
+        return _Moments(self.log_likelihood[rows], self.mean[rows], self.covariance[rows])
+
+    def replace(self, rows: NDArray[np.bool_], other: _Moments) -> _Moments:
+        """A copy with ``rows`` taken from ``other`` (which holds exactly those rows)."""
+        merged = [field.copy() for field in (self.log_likelihood, self.mean, self.covariance)]
+        fields = (other.log_likelihood, other.mean, other.covariance)
+        for target, source in zip(merged, fields, strict=True):
+            target[rows] = source
+        return _Moments(*merged)
+
 
 @njit(cache=True)
 def _log_partition(scaled, successors, start, horizon):  # pragma: no cover - compiled
@@ -280,12 +291,16 @@ def fit_maxent_irl(
         direction = _search_direction(
             gradient, rationality**2 * moments.covariance[keep], near_active
         )
-        step, accepted = _armijo_search(
+        # The full step usually succeeds, and its moments are the next iteration's.
+        full_step = np.clip(th + direction, low, high)
+        at_full_step = _moments(full_step, demo_counts[running], features[running], *problem)
+        step, accepted, full = _armijo_search(
             th,
             direction,
             gradient,
             near_active,
             moments.log_likelihood[keep],
+            at_full_step.log_likelihood,
             demo_counts[running],
             features[running],
             problem,
@@ -294,7 +309,13 @@ def fit_maxent_irl(
         theta[running] = step
         # No ascent at floating-point resolution: the fit cannot improve further.
         iterations[running[~accepted]] = max_iterations
-        moments = _moments(theta[running], demo_counts[running], features[running], *problem)
+        shorter = accepted & ~full
+        moments = moments.take(keep).replace(full, at_full_step.take(full))
+        if shorter.any():
+            rows = running[shorter]
+            moments = moments.replace(
+                shorter, _moments(theta[rows], demo_counts[rows], features[rows], *problem)
+            )
     return IRLFit(theta, log_likelihood, iterations, converged)
 
 
@@ -304,13 +325,14 @@ def _armijo_search(
     gradient: FloatArray,
     near_active: NDArray[np.bool_],
     current: FloatArray,
+    at_full_step: FloatArray,
     demo_counts: FloatArray,
     features: FloatArray,
     problem: tuple[IntArray, int, int, float],
     *,
     sufficient: float = 1e-4,
     max_halvings: int = 30,
-) -> tuple[FloatArray, NDArray[np.bool_]]:
+) -> tuple[FloatArray, NDArray[np.bool_], NDArray[np.bool_]]:
     """Backtracking along the projection arc :math:`\\theta(\\alpha) = P(\\theta + \\alpha d)`.
 
     Accepts the first :math:`\\alpha \\in \\{1, 1/2, \\dots\\}` with (Bertsekas 1982)
@@ -320,28 +342,35 @@ def _armijo_search(
         L(\\theta(\\alpha)) - L(\\theta) \\ge \\sigma \\Big[\\alpha \\sum_{k \\in F} g_k d_k
         + \\sum_{k \\in A} g_k (\\theta_k(\\alpha) - \\theta_k)\\Big],
 
-    ``F`` the free and ``A`` the epsilon-active coordinates. Returns the new points (the
-    old ones where no step was accepted) and which trials accepted a step.
+    ``F`` the free and ``A`` the epsilon-active coordinates; ``at_full_step`` is
+    :math:`L(\\theta(1))`, already known. Returns the new points (the old ones where no step
+    was accepted), which trials accepted a step, and which accepted the full step.
     """
     low, high = BOX
     result = theta.copy()
     accepted = np.zeros(len(theta), dtype=bool)
     searching = np.arange(len(theta))
     free_slope = np.where(near_active, 0.0, gradient * direction).sum(axis=1)
+    full = np.zeros(len(theta), dtype=bool)
     alpha = 1.0
-    for _ in range(max_halvings):
+    for halving in range(max_halvings):
         candidate = np.clip(theta[searching] + alpha * direction[searching], low, high)
         moved = candidate - theta[searching]
         active_slope = np.where(near_active[searching], gradient[searching] * moved, 0.0).sum(1)
         predicted = alpha * free_slope[searching] + active_slope
-        value = demo_log_likelihood(
-            candidate, demo_counts[searching], features[searching], *problem
-        )
+        if halving == 0:
+            value = at_full_step
+        else:
+            value = demo_log_likelihood(
+                candidate, demo_counts[searching], features[searching], *problem
+            )
         ok = (value - current[searching] >= sufficient * predicted) & (np.abs(moved).max(1) > 0)
         result[searching[ok]] = candidate[ok]
         accepted[searching[ok]] = True
+        if halving == 0:
+            full[:] = ok
         searching = searching[~ok]
         if searching.size == 0:
             break
         alpha *= 0.5
-    return result, accepted
+    return result, accepted, full
