@@ -1,0 +1,17 @@
+"""Analysis of a run's trial records: statistics, claims, figures and the report.
+
+Everything here works on plain data: a list of trial records shaped like
+DESIGN.md section 7 (one dict per trial). Reading them from the MCAP logs is the
+job of :mod:`cirl_study.logs`.
+
+- :mod:`~cirl_study.analysis.table`: the tidy one-row-per-trial table and the design check.
+- :mod:`~cirl_study.analysis.statistics`: one function per statistical test.
+- :mod:`~cirl_study.analysis.results`: every number of the report, as JSON-ready data.
+- :mod:`~cirl_study.analysis.claims`: the paper's claims beside our measurements.
+- :mod:`~cirl_study.analysis.figures`: the figures, as deterministic PNG bytes.
+- :mod:`~cirl_study.analysis.report`: ``report.md``, ``results.json``, ``trials.csv``.
+
+The package itself imports nothing, so that importing one module (say the table) does
+not pay for the statistics libraries; the entry point is
+:func:`cirl_study.analysis.report.write_report`.
+"""

@@ -1,0 +1,43 @@
+"""Small helpers to write GitHub-flavoured Markdown: numbers, tables, heading anchors."""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Sequence
+
+
+def number(value: float | int | None, digits: int = 4) -> str:
+    """``value`` with ``digits`` significant digits; an undefined number as an en dash."""
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    if isinstance(value, int):
+        return str(value)
+    return f"{value:.{digits}g}"
+
+
+def p_value(value: float | None) -> str:
+    """A p-value with three significant digits; one that underflowed to 0 as ``< 1e-300``."""
+    if value is None:
+        return "–"
+    return "< 1e-300" if value == 0 else f"{value:.3g}"
+
+
+def interval(low: float | None, high: float | None, digits: int = 4) -> str:
+    """A confidence interval as ``[low, high]``."""
+    return f"[{number(low, digits)}, {number(high, digits)}]"
+
+
+def table(header: Sequence[str], rows: Sequence[Sequence[str]], numeric: Sequence[bool]) -> str:
+    """A Markdown table; ``numeric`` columns are right-aligned. ``|`` in a cell is escaped."""
+    align = ["---:" if flag else ":---" for flag in numeric]
+
+    def line(cells: Sequence[str]) -> str:
+        return "| " + " | ".join(str(cell).replace("|", "\\|") for cell in cells) + " |"
+
+    return "\n".join([line(header), line(align), *(line(row) for row in rows)])
+
+
+def anchor(heading: str) -> str:
+    """The anchor GitHub gives a heading: lower case, punctuation dropped, spaces as ``-``."""
+    return re.sub(r"[^a-z0-9 _-]", "", heading.strip().lower()).replace(" ", "-")

@@ -1,0 +1,481 @@
+"""The report of a run: ``report.md``, ``results.json``, ``trials.csv`` and the figures.
+
+:func:`write_report` turns trial records into a directory that reads well on GitHub:
+every claim of the paper with its verdict and links to the tables and figures that
+support it. The output is a deterministic function of the records (their order does
+not matter): no timestamps, no machine paths, and byte-identical files for identical
+input.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from cirl_study.analysis import figures
+from cirl_study.analysis.claims import evaluate_claims
+from cirl_study.analysis.markdown import anchor, interval, number, p_value, table
+from cirl_study.analysis.results import Results, analyse, plain
+from cirl_study.analysis.table import MAIN, POLICIES, check_design, trial_table
+from cirl_study.errors import UserError
+
+HEADINGS = {
+    "claims": "Claims",
+    "cells": "Cell means",
+    "anova": "Mixed ANOVA",
+    "simple_effects": "Simple effects of policy",
+    "tukey_hsd": "Tukey HSD",
+    "wilcoxon": "Wilcoxon signed-rank tests",
+    "cronbach_alpha": "Cronbach's alpha",
+    "lambda_sweep": "Lambda sweep",
+    "eta_cv": "Eta cross-validation",
+    "figure1": "Figure 1",
+    "rules": "How the verdicts are decided",
+}
+"""Section headings of ``report.md``, by the ``results.json`` key they present."""
+
+FIGURES = {
+    "figure1": ("figure1_reward_maps.png", "Figure 1"),
+    "figure2_measures": ("figure2_measures.png", "Figure 2, left"),
+    "figure2_lambda": ("figure2_lambda.png", "Figure 2, right"),
+    "eta_cv_curve": ("eta_cv.png", "eta curve"),
+}
+"""File name and link text of each figure, by key."""
+
+MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
+POLICY_NAMES = {"expert": "expert", "best_response": "best response"}
+VERDICTS = {True: "✅ reproduced", False: "❌ not reproduced", None: "➖ not tested"}
+
+
+def _link(key: str) -> str:
+    if key in HEADINGS:
+        return f"[{HEADINGS[key]}](#{anchor(HEADINGS[key])})"
+    if key in FIGURES:
+        name, label = FIGURES[key]
+        return f"[{label}]({name})"
+    return f"[{key}]({key})"
+
+
+def _heading(level: int, key: str) -> str:
+    return f"{'#' * level} {HEADINGS[key]}"
+
+
+def _verdict(claim: Mapping[str, Any]) -> str:
+    return VERDICTS[claim["reproduced"] if claim["tested"] else None]
+
+
+def _claims(results: Results) -> list[str]:
+    rows = [
+        [
+            str(position),
+            claim["claim"],
+            claim["measurement"],
+            _verdict(claim),
+            ", ".join(_link(key) for key in claim["evidence"]),
+        ]
+        for position, claim in enumerate(results["claims"], start=1)
+    ]
+    header = ["#", "The paper says", "We measured", "Verdict", "Evidence"]
+    return [
+        _heading(2, "claims"),
+        "",
+        table(header, rows, [True, False, False, False, False]),
+        "",
+        f"Each verdict is computed from the data by a fixed rule; see "
+        f"[{HEADINGS['rules']}](#{anchor(HEADINGS['rules'])}).",
+    ]
+
+
+def _cells(results: Results) -> list[str]:
+    rows = [
+        [
+            MEASURE_NAMES[row["measure"]],
+            str(row["num_features"]),
+            POLICY_NAMES[row["policy"]],
+            str(row["n"]),
+            number(row["mean"]),
+            interval(row["ci95_low"], row["ci95_high"]),
+        ]
+        for row in results["cells"]
+    ]
+    header = ["measure", "features", "policy", "n", "mean", "95% CI (t)"]
+    name, _ = FIGURES["figure2_measures"]
+    return [
+        _heading(3, "cells"),
+        "",
+        table(header, rows, [False, True, False, True, True, True]),
+        "",
+        f"![Figure 2, left: the three measures by policy and number of features]({name})",
+    ]
+
+
+def _anova(results: Results) -> list[str]:
+    rows = [
+        [
+            MEASURE_NAMES[row["measure"]],
+            row["effect"],
+            f"{row['df1']}, {row['df2']}",
+            number(row["F"]),
+            p_value(row["p"]),
+            number(row["np2"]),
+            number(row["ges"]),
+        ]
+        for row in results["anova"]
+    ]
+    header = ["measure", "effect", "df", "F", "p", "partial η²", "generalised η²"]
+    return [
+        _heading(3, "anova"),
+        "",
+        "Per measure: within subjects `policy`, between subjects `num_features` (a subject is "
+        "one reward draw, at one feature level only). With two policies sphericity holds, so "
+        "the p-values are uncorrected.",
+        "",
+        table(header, rows, [False, False, True, True, True, True, True]),
+    ]
+
+
+def _simple_effects(results: Results) -> list[str]:
+    rows = [
+        [
+            MEASURE_NAMES[row["measure"]],
+            str(row["num_features"]),
+            str(row["n"]),
+            number(row["mean_expert"]),
+            number(row["mean_best_response"]),
+            number(row["mean_diff"]),
+            interval(row["ci95_low"], row["ci95_high"]),
+            interval(row["boot_diff_low"], row["boot_diff_high"]),
+            f"t({row['df']}) = {number(row['t'])}",
+            p_value(row["p_holm"]),
+            f"{number(row['d_z'])} {interval(row['boot_d_z_low'], row['boot_d_z_high'], 3)}",
+        ]
+        for row in results["simple_effects"]
+    ]
+    header = [
+        "measure",
+        "features",
+        "n",
+        "expert",
+        "best response",
+        "difference",
+        "95% CI (t)",
+        "95% CI (bootstrap)",
+        "paired t",
+        "p (Holm)",
+        "d_z [bootstrap CI]",
+    ]
+    return [
+        _heading(3, "simple_effects"),
+        "",
+        "Paired t-tests of the difference best response minus expert (negative: the best "
+        "response did better) within each feature level, Holm-adjusted over the feature "
+        "levels of each measure; `d_z` = mean difference / SD of the differences; bootstrap "
+        "intervals are BCa with a fixed seed.",
+        "",
+        table(header, rows, [False, True, True, True, True, True, True, True, True, True, True]),
+    ]
+
+
+def _tukey(results: Results) -> list[str]:
+    def cell(level: int, policy: str) -> str:
+        return f"{POLICY_NAMES[policy]}, {level}"
+
+    rows = [
+        [
+            MEASURE_NAMES[row["measure"]],
+            cell(row["a_num_features"], row["a_policy"]),
+            cell(row["b_num_features"], row["b_policy"]),
+            number(row["diff"]),
+            number(row["se"]),
+            number(row["T"]),
+            p_value(row["p_tukey"]),
+            number(row["hedges"]),
+        ]
+        for row in results["tukey_hsd"]
+    ]
+    header = ["measure", "cell A", "cell B", "mean A − mean B", "SE", "T", "p (Tukey)", "Hedges g"]
+    return [
+        _heading(3, "tukey_hsd"),
+        "",
+        "As the paper ran it: all pairs of the policy × features cells, error pooled over the "
+        "cells. **This ignores the pairing** of the two policies within a reward draw, so it "
+        "treats within-subject comparisons as if they were between independent groups; the "
+        "simple effects above are the paired analysis. Cells are named `policy, features`.",
+        "",
+        table(header, rows, [False, False, False, True, True, True, True, True]),
+    ]
+
+
+def _wilcoxon(results: Results) -> list[str]:
+    rows = [
+        [
+            MEASURE_NAMES[row["measure"]],
+            str(row["num_features"]),
+            str(row["n"]),
+            number(row["W"]),
+            p_value(row["p"]),
+            number(row["rbc"]),
+            number(row["cles"]),
+        ]
+        for row in results["wilcoxon"]
+    ]
+    header = ["measure", "features", "n", "W", "p", "rank-biserial r", "CLES"]
+    return [
+        _heading(3, "wilcoxon"),
+        "",
+        "Non-parametric check of the simple effects: best response against expert, paired.",
+        "",
+        table(header, rows, [False, True, True, True, True, True, True]),
+    ]
+
+
+def _cronbach(results: Results) -> list[str]:
+    alpha = results["cronbach_alpha"]
+    rows = [
+        ["raw", number(alpha["raw"]), interval(*alpha["ci95"])],
+        ["standardised", number(alpha["standardized"]), interval(*alpha["ci95_standardized"])],
+    ]
+    return [
+        _heading(3, "cronbach_alpha"),
+        "",
+        f"Across the measures {', '.join(alpha['items'])}; rows: {alpha['rows']}. "
+        "Standardised alpha uses z-scored measures; intervals are Feldt's.",
+        "",
+        table(["alpha", "value", "95% CI"], rows, [False, True, True]),
+    ]
+
+
+def _grid_table(
+    frame: pd.DataFrame, x: str, x_label: str, columns: Sequence[tuple[str, Callable]]
+) -> str:
+    """One row per value of ``x``, one column per selector in ``columns``: ``mean [CI]``."""
+    rows = []
+    for value in sorted(frame[x].unique()):
+        at = frame[frame[x] == value]
+        cells = []
+        for _, select in columns:
+            match = at[select(at)]
+            cells.append(
+                "–"
+                if match.empty
+                else f"{number(match['mean'].iloc[0])} "
+                f"{interval(match['ci95_low'].iloc[0], match['ci95_high'].iloc[0], 3)}"
+            )
+        rows.append([f"{value:g}", *cells])
+    header = [x_label, *(label for label, _ in columns)]
+    return table(header, rows, [True] * len(header))
+
+
+def _lambda_sweep(results: Results) -> list[str]:
+    lines = [_heading(2, "lambda_sweep"), ""]
+    if not results["lambda_sweep"]:
+        return [*lines, "This run has no trials in the `lambda_sweep` block."]
+    sweep = pd.DataFrame(results["lambda_sweep"])
+    regret = sweep[sweep["measure"] == "regret"]
+    columns = [
+        (
+            f"{POLICY_NAMES[policy]}, {level}",
+            lambda at, level=level, policy=policy: (
+                (at["num_features"] == level) & (at["policy"] == policy)
+            ),
+        )
+        for level in sorted(regret["num_features"].unique())
+        for policy in POLICIES
+    ]
+    name, _ = FIGURES["figure2_lambda"]
+    return [
+        *lines,
+        "Mean regret [95% CI] of each policy at each rationality λ the robot assumes "
+        "(columns: `policy, features`); KL and L2 at every λ are in `results.json` "
+        "(`lambda_sweep`).",
+        "",
+        _grid_table(regret, "rationality", "λ", columns),
+        "",
+        f"![Figure 2, right: regret against lambda]({name})",
+    ]
+
+
+def _eta_cv(results: Results) -> list[str]:
+    lines = [_heading(2, "eta_cv"), ""]
+    if not results["eta_cv"]["means"]:
+        return [*lines, "This run has no trials in the `eta_cv` block."]
+    means = pd.DataFrame(results["eta_cv"]["means"])
+    columns = [
+        (f"{level} features", lambda at, level=level: at["num_features"] == level)
+        for level in sorted(means["num_features"].unique())
+    ]
+    chosen = ", ".join(
+        f"η = {row['eta']:g} at {row['num_features']} features (mean regret {number(row['mean'])})"
+        for row in results["eta_cv"]["chosen"]
+    )
+    name, _ = FIGURES["eta_cv_curve"]
+    return [
+        *lines,
+        f"Mean best-response regret [95% CI] per η, on reward draws disjoint from the main "
+        f"block's. Chosen (lowest mean regret): {chosen}.",
+        "",
+        _grid_table(means, "eta", "η", columns),
+        "",
+        f"![eta cross-validation]({name})",
+    ]
+
+
+def _figure1(results: Results) -> list[str]:
+    chosen = results["figure1"]
+    name, _ = FIGURES["figure1"]
+    return [
+        _heading(2, "figure1"),
+        "",
+        f"![Figure 1: true reward and both demonstrations over their MAP rewards]({name})",
+        "",
+        f"Reward draw `{chosen['subject']}` ({chosen['num_features']} features), chosen as "
+        f"{chosen['rule']}: regret {number(chosen['regret_expert'])} after the expert's "
+        f"demonstration, {number(chosen['regret_best_response'])} after the best response's. "
+        "Left: the true reward of each cell; middle and right: each demonstration (from the "
+        "white dot to the white square) over the MAP reward the robot inferred from it; crosses: "
+        "RBF centres.",
+    ]
+
+
+def _rules(results: Results) -> list[str]:
+    return [
+        _heading(2, "rules"),
+        "",
+        *(
+            f"- `{claim['id']}` ({claim['source']}): {claim['rule']}."
+            for claim in results["claims"]
+        ),
+        "",
+        "A claim is *not tested* when the run has no data for it. Every number of this report "
+        "is in [`results.json`](results.json) at full precision; the trials are in "
+        "[`trials.csv`](trials.csv).",
+    ]
+
+
+def render_markdown(results: Results) -> str:
+    """The text of ``report.md`` for ``results`` (with their ``claims``)."""
+    trials = results["trials"]
+    design = results["design"]
+    per_level = ", ".join(f"{n} at {k} features" for k, n in design["subjects_per_level"].items())
+    blocks = ", ".join(f"{n} in `{block}`" for block, n in trials.items() if block != "total")
+    lambdas = ", ".join(f"{value:g}" for value in design["main_rationality"])
+    etas = (
+        "; ".join(
+            f"{', '.join(f'{eta:g}' for eta in values)} at {level} features"
+            for level, values in design["main_eta"].items()
+            if values
+        )
+        or "–"
+    )
+    sections = [
+        [
+            f"# Reproduction report: `{results['pipeline']}`",
+            "",
+            "Cooperative Inverse Reinforcement Learning (Hadfield-Menell et al., NeurIPS 2016), "
+            "section 4: the paper's claims beside what this run measured.",
+            "",
+            f"Trials: {trials['total']} ({blocks}). Main study: reward draws {per_level}, each "
+            f"under both policies; robot rationality λ = {lambdas}; best-response η = {etas}. "
+            "All three measures are losses: lower is better.",
+        ],
+        _claims(results),
+        ["## Main study"],
+        _cells(results),
+        _anova(results),
+        _simple_effects(results),
+        _tukey(results),
+        _wilcoxon(results),
+        _cronbach(results),
+        _lambda_sweep(results),
+        _eta_cv(results),
+        _figure1(results),
+        _rules(results),
+    ]
+    return "\n\n".join("\n".join(section) for section in sections) + "\n"
+
+
+def _figure1_records(
+    records: Sequence[Mapping[str, Any]], subject: str
+) -> dict[str, Mapping[str, Any]]:
+    found = {
+        str(record["policy"]): record
+        for record in records
+        if record["block"] == MAIN and str(record["subject"]) == subject
+    }
+    return {policy: found[policy] for policy in POLICIES}
+
+
+def render_figures(records: Sequence[Mapping[str, Any]], results: Results) -> dict[str, bytes]:
+    """The PNG bytes of every figure the results support, by file name."""
+    chosen = results["figure1"]
+    pair = _figure1_records(records, chosen["subject"])
+    pngs = {
+        FIGURES["figure1"][0]: figures.reward_maps(
+            pair["expert"],
+            pair["best_response"],
+            f"Reward draw {chosen['subject']} ({chosen['num_features']} features)",
+        ),
+        FIGURES["figure2_measures"][0]: figures.measure_bars(pd.DataFrame(results["cells"])),
+    }
+    if results["lambda_sweep"]:
+        sweep = pd.DataFrame(results["lambda_sweep"])
+        pngs[FIGURES["figure2_lambda"][0]] = figures.lambda_curve(sweep)
+    if results["eta_cv"]["means"]:
+        pngs[FIGURES["eta_cv_curve"][0]] = figures.eta_curve(
+            pd.DataFrame(results["eta_cv"]["means"]), pd.DataFrame(results["eta_cv"]["chosen"])
+        )
+    return pngs
+
+
+def write_report(
+    records: Sequence[Mapping[str, Any]],
+    out_dir: Path | str,
+    pipeline_name: str,
+    theory: Mapping[str, Any] | None = None,
+) -> Results:
+    """Analyse trial records and write the report directory.
+
+    Writes ``report.md``, ``results.json`` (every number at full precision), ``trials.csv``
+    (the trial table) and the figures of :data:`FIGURES` into ``out_dir`` (created if
+    needed); a figure the run has no data for is not written, and a stale copy of it is
+    removed.
+
+    Args:
+        records: trial records shaped like DESIGN.md section 7, in any order.
+        out_dir: the report directory.
+        pipeline_name: the pipeline's name, shown in the report.
+        theory: optional extra claims (see :func:`cirl_study.analysis.claims.external_claims`);
+            stored under ``theory`` in ``results.json``.
+
+    Returns:
+        The content of ``results.json``.
+
+    Raises:
+        UserError: a record is malformed or the design is incomplete.
+    """
+    trials = trial_table(records)
+    check_design(trials)
+    results = analyse(trials, pipeline_name)
+    results["claims"] = evaluate_claims(results, theory)
+    if theory is not None:
+        results["theory"] = plain(theory)
+    pngs = render_figures(records, results)
+    out = Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "report.md").write_text(render_markdown(results), encoding="utf-8", newline="\n")
+        text = json.dumps(results, indent=2, ensure_ascii=False, allow_nan=False)
+        (out / "results.json").write_text(text + "\n", encoding="utf-8", newline="\n")
+        trials.to_csv(out / "trials.csv", index=False, lineterminator="\n")
+        for name, _ in FIGURES.values():
+            if name in pngs:
+                (out / name).write_bytes(pngs[name])
+            else:
+                (out / name).unlink(missing_ok=True)
+    except OSError as error:
+        raise UserError(f"cannot write the report to {out}: {error.strerror}") from None
+    return results

@@ -1,0 +1,144 @@
+"""Every number of the report, computed from the trial table as JSON-ready data.
+
+:func:`analyse` runs every test of :mod:`cirl_study.analysis.statistics` on the blocks
+they belong to and returns plain Python data (dicts, lists, ints, floats at full
+precision, ``None`` for an undefined number), which ``results.json`` stores as is and
+the claims and the report read from.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from cirl_study.analysis import statistics
+from cirl_study.analysis.table import ETA_CV, LAMBDA_SWEEP, MAIN, MEASURES, POLICIES
+from cirl_study.errors import UserError
+
+Results = dict[str, Any]
+"""The JSON-ready results of :func:`analyse` (the content of ``results.json``)."""
+
+
+def plain(value: Any) -> Any:
+    """``value`` as plain JSON data: numpy scalars unwrapped, NaN as ``None``.
+
+    Raises:
+        UserError: ``value`` holds something JSON cannot represent.
+    """
+    if isinstance(value, Mapping):
+        return {str(key): plain(item) for key, item in value.items()}
+    if isinstance(value, list | tuple | np.ndarray):
+        return [plain(item) for item in value]
+    if value is None or isinstance(value, bool | str):
+        return value
+    if isinstance(value, np.bool_):
+        return bool(value)
+    if isinstance(value, int | np.integer):
+        return int(value)
+    if isinstance(value, float | np.floating):
+        number = float(value)
+        return number if math.isfinite(number) else None
+    raise UserError(f"cannot store a {type(value).__name__} in results.json: {value!r}")
+
+
+def rows(frame: pd.DataFrame) -> list[dict[str, Any]]:
+    """The rows of ``frame`` as a list of plain dicts."""
+    return [plain(row) for row in frame.to_dict(orient="records")]
+
+
+def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
+    return pd.concat(frames, ignore_index=True)
+
+
+def figure1_subject(main: pd.DataFrame) -> dict[str, Any]:
+    """The reward draw shown in Figure 1: a typical one at the smallest feature level.
+
+    Among the subjects at the smallest feature level, the one whose regret improvement
+    ``regret(expert) - regret(best_response)`` is the median (the lower median for an
+    even count; ties broken by subject id).
+    """
+    level = int(main["num_features"].min())
+    paired = statistics.paired_by_subject(main, "regret", level)
+    improvement = (paired[POLICIES[0]] - paired[POLICIES[1]]).rename("improvement")
+    ordered = improvement.reset_index().sort_values(["improvement", "subject"], kind="mergesort")
+    chosen = ordered.iloc[(len(ordered) - 1) // 2]
+    subject = str(chosen["subject"])
+    return {
+        "subject": subject,
+        "num_features": level,
+        "regret_expert": float(paired.at[subject, POLICIES[0]]),
+        "regret_best_response": float(paired.at[subject, POLICIES[1]]),
+        "rule": (
+            f"the subject at num_features={level} whose regret improvement "
+            "(expert minus best response) is the median of its feature level"
+        ),
+    }
+
+
+def _trial_counts(table: pd.DataFrame) -> dict[str, int]:
+    """Trials in total and per block: the blocks of DESIGN.md first, then any other."""
+    sizes = table.groupby("block").size()
+    order = [b for b in (MAIN, LAMBDA_SWEEP, ETA_CV) if b in sizes.index]
+    order += [b for b in sizes.index if b not in order]
+    return {"total": len(table), **{str(block): int(sizes[block]) for block in order}}
+
+
+def _design(main: pd.DataFrame) -> dict[str, Any]:
+    subjects = main.groupby("num_features")["subject"].nunique()
+    return {
+        "feature_levels": [int(level) for level in subjects.index],
+        "subjects_per_level": {str(level): int(n) for level, n in subjects.items()},
+        "main_rationality": sorted({float(value) for value in main["rationality"]}),
+        "main_eta": {
+            str(level): sorted({float(value) for value in etas.dropna()})
+            for level, etas in main.groupby("num_features")["eta"]
+        },
+    }
+
+
+def analyse(table: pd.DataFrame, pipeline_name: str) -> Results:
+    """Run every analysis of DESIGN.md section 5 on a checked trial table.
+
+    Args:
+        table: the trial table, already accepted by
+            :func:`~cirl_study.analysis.table.check_design`.
+        pipeline_name: the pipeline's name, recorded in the results.
+
+    Returns:
+        Plain data with the keys ``pipeline, trials, design, anova, simple_effects,
+        tukey_hsd, wilcoxon, cells, cronbach_alpha, lambda_sweep, eta_cv, figure1``.
+        ``lambda_sweep`` is an empty list and ``eta_cv`` has empty lists when the run
+        has no trials in that block.
+    """
+    main = table[table["block"] == MAIN]
+    sweep = table[table["block"] == LAMBDA_SWEEP]
+    cv = table[table["block"] == ETA_CV]
+    alpha = statistics.cronbach_alpha(main[list(MEASURES)].reset_index(drop=True))
+    alpha["items"] = list(MEASURES)
+    alpha["rows"] = (
+        f"all {len(main)} trials of the main block, one row per trial (both policies, "
+        "every feature level), the three measures on their own scales"
+    )
+    eta_means, eta_chosen = (
+        statistics.eta_cross_validation(cv) if not cv.empty else (pd.DataFrame(), pd.DataFrame())
+    )
+    return {
+        "pipeline": pipeline_name,
+        "trials": _trial_counts(table),
+        "design": _design(main),
+        "anova": rows(_concat([statistics.mixed_anova(main, m) for m in MEASURES])),
+        "simple_effects": rows(_concat([statistics.simple_effects(main, m) for m in MEASURES])),
+        "tukey_hsd": rows(_concat([statistics.tukey_hsd(main, m) for m in MEASURES])),
+        "wilcoxon": rows(_concat([statistics.wilcoxon(main, m) for m in MEASURES])),
+        "cells": rows(
+            _concat([statistics.group_means(main, m, ["num_features", "policy"]) for m in MEASURES])
+        ),
+        "cronbach_alpha": plain(alpha),
+        "lambda_sweep": rows(statistics.lambda_sweep(sweep, MEASURES)) if not sweep.empty else [],
+        "eta_cv": {"means": rows(eta_means), "chosen": rows(eta_chosen)},
+        "figure1": figure1_subject(main),
+    }

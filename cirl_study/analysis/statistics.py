@@ -1,0 +1,347 @@
+"""The statistical tests of the study (DESIGN.md section 5), one function per test.
+
+Every function takes a slice of the trial table (:func:`cirl_study.analysis.table.trial_table`)
+and returns a tidy :class:`pandas.DataFrame` (or a dict) at full precision. Notation:
+``y_{s,p}`` is a measure of subject (reward draw) ``s`` under policy ``p``, subject ``s``
+belongs to exactly one feature level ``g(s)``; ``d_s = y_{s,br} - y_{s,expert}`` is its
+paired difference (negative: the best response did better, since every measure is a loss).
+
+The tests are computed by pingouin, scipy and statsmodels; this module only chooses
+them, feeds them and names their outputs. The bootstrap uses a fixed seed, so every
+number here is a deterministic function of the table.
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pandas as pd
+import pingouin as pg
+from scipy import stats
+from statsmodels.stats.multitest import multipletests
+
+from cirl_study.analysis.table import POLICIES
+
+CONFIDENCE = 0.95
+"""Level of every confidence interval."""
+
+BOOTSTRAP_RESAMPLES = 9999
+"""Resamples of every bootstrap confidence interval."""
+
+BOOTSTRAP_SEED = 2016
+"""Seed of the generator of every bootstrap (each interval starts afresh from it)."""
+
+EFFECTS: tuple[str, ...] = ("policy", "num_features", "policy:num_features")
+"""Effects of the mixed ANOVA, in the order they are reported."""
+
+_EXPERT, _BEST_RESPONSE = POLICIES
+
+
+def mixed_anova(main: pd.DataFrame, measure: str) -> pd.DataFrame:
+    """Two-way mixed (split-plot) ANOVA of one measure.
+
+    Within subjects: ``policy``; between subjects: ``num_features``; error terms: subjects
+    within feature levels for ``num_features``, the policy-by-subject residual for
+    ``policy`` and ``policy:num_features``. With two policies sphericity holds trivially,
+    so the p-values are uncorrected. Unbalanced feature levels give a type II ANOVA.
+
+    Effect sizes (Bakeman 2005): partial eta squared ``np2 = SS_effect / (SS_effect +
+    SS_error)`` and generalised eta squared ``ges = SS_effect / (SS_effect + SS_subjects +
+    SS_residual)`` (Olejnik & Algina 2003, every factor manipulated).
+
+    References:
+        Maxwell, Delaney & Kelley (2018), *Designing Experiments and Analyzing Data*, ch. 12.
+        Olejnik & Algina (2003), Psychological Methods 8(4):434-447.
+        Bakeman (2005), Behavior Research Methods 37(3):379-384.
+        ``pingouin.mixed_anova`` (checked against JASP and JAMOVI).
+
+    Returns:
+        One row per effect of :data:`EFFECTS`: ``measure, effect, df1, df2, SS, MS, F, p,
+        np2, ges``.
+    """
+    arguments = dict(
+        data=main,
+        dv=measure,
+        within="policy",
+        between="num_features",
+        subject="subject",
+        correction=False,
+    )
+    partial = pg.mixed_anova(**arguments, effsize="np2")
+    generalised = pg.mixed_anova(**arguments, effsize="ng2")
+    names = {"policy": "policy", "num_features": "num_features", "Interaction": EFFECTS[2]}
+    frame = pd.DataFrame(
+        {
+            "measure": measure,
+            "effect": partial["Source"].map(names),
+            "df1": partial["DF1"].astype(int),
+            "df2": partial["DF2"].astype(int),
+            "SS": partial["SS"],
+            "MS": partial["MS"],
+            "F": partial["F"],
+            "p": partial["p_unc"],
+            "np2": partial["np2"],
+            "ges": generalised["ng2"],
+        }
+    )
+    order = frame.sort_values("effect", key=lambda effect: effect.map(EFFECTS.index))
+    return order.reset_index(drop=True)
+
+
+def paired_by_subject(main: pd.DataFrame, measure: str, level: int) -> pd.DataFrame:
+    """Subjects x policies frame of ``measure`` at one feature level, subjects sorted."""
+    cell = main[main["num_features"] == level]
+    paired = cell.pivot(index="subject", columns="policy", values=measure)
+    return paired[list(POLICIES)].sort_index()
+
+
+def _d_z(differences: np.ndarray, axis: int = -1) -> np.ndarray:
+    """Cohen's ``d_z = mean(d) / sd(d)`` (``ddof = 1``) along ``axis``; ``sd = 0`` gives inf/NaN."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.mean(differences, axis=axis) / np.std(differences, axis=axis, ddof=1)
+
+
+def _mean(values: np.ndarray, axis: int = -1) -> np.ndarray:
+    return np.mean(values, axis=axis)
+
+
+def bootstrap_ci(values: np.ndarray, statistic) -> tuple[float, float]:
+    """BCa bootstrap confidence interval of ``statistic`` of one sample.
+
+    Uses :data:`BOOTSTRAP_RESAMPLES` resamples from a generator seeded with
+    :data:`BOOTSTRAP_SEED`, so the interval is a deterministic function of ``values``.
+    When the bootstrap distribution is degenerate (tiny samples, constant differences)
+    the interval is undefined: NaN, without a warning.
+
+    References:
+        Efron & Tibshirani (1993), *An Introduction to the Bootstrap*, ch. 14.
+        ``scipy.stats.bootstrap``.
+    """
+    with warnings.catch_warnings(), np.errstate(invalid="ignore", divide="ignore"):
+        warnings.simplefilter("ignore", stats.DegenerateDataWarning)
+        result = stats.bootstrap(
+            (np.asarray(values, dtype=np.float64),),
+            statistic,
+            n_resamples=BOOTSTRAP_RESAMPLES,
+            confidence_level=CONFIDENCE,
+            method="BCa",
+            rng=np.random.default_rng(BOOTSTRAP_SEED),
+        )
+    interval = result.confidence_interval
+    return float(interval.low), float(interval.high)
+
+
+def simple_effects(main: pd.DataFrame, measure: str) -> pd.DataFrame:
+    """Simple effects of ``policy`` within each feature level: paired t-tests.
+
+    At level ``g``: ``t = mean(d) / (sd(d) / sqrt(n))`` with ``n - 1`` degrees of freedom,
+    Holm-adjusted over the feature levels of this measure; effect size
+    ``d_z = mean(d) / sd(d)``; a t-based CI of ``mean(d)`` and BCa bootstrap CIs of
+    ``mean(d)`` and ``d_z``.
+
+    References:
+        Holm (1979), Scandinavian Journal of Statistics 6(2):65-70.
+        Lakens (2013), Frontiers in Psychology 4:863 (``d_z``).
+        ``scipy.stats.ttest_rel``, ``statsmodels.stats.multitest.multipletests``.
+
+    Returns:
+        One row per feature level: ``measure, num_features, n, mean_expert,
+        mean_best_response, mean_diff, ci95_low, ci95_high, t, df, p, p_holm, d_z,
+        boot_diff_low, boot_diff_high, boot_d_z_low, boot_d_z_high``.
+    """
+    rows = []
+    for level in sorted(main["num_features"].unique()):
+        paired = paired_by_subject(main, measure, level)
+        expert = paired[_EXPERT].to_numpy()
+        best = paired[_BEST_RESPONSE].to_numpy()
+        difference = best - expert
+        test = stats.ttest_rel(best, expert)
+        interval = test.confidence_interval(CONFIDENCE)
+        boot_diff = bootstrap_ci(difference, _mean)
+        boot_d_z = bootstrap_ci(difference, _d_z)
+        rows.append(
+            {
+                "measure": measure,
+                "num_features": int(level),
+                "n": len(difference),
+                "mean_expert": float(expert.mean()),
+                "mean_best_response": float(best.mean()),
+                "mean_diff": float(difference.mean()),
+                "ci95_low": float(interval.low),
+                "ci95_high": float(interval.high),
+                "t": float(test.statistic),
+                "df": int(test.df),
+                "p": float(test.pvalue),
+                "d_z": float(_d_z(difference)),
+                "boot_diff_low": boot_diff[0],
+                "boot_diff_high": boot_diff[1],
+                "boot_d_z_low": boot_d_z[0],
+                "boot_d_z_high": boot_d_z[1],
+            }
+        )
+    frame = pd.DataFrame(rows)
+    frame.insert(frame.columns.get_loc("p") + 1, "p_holm", holm(frame["p"].to_numpy()))
+    return frame
+
+
+def holm(p_values: np.ndarray) -> np.ndarray:
+    """Holm's step-down adjustment of a family of p-values (Holm 1979)."""
+    return multipletests(p_values, method="holm")[1]
+
+
+def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
+    """Tukey HSD over the ``num_features x policy`` cells, as the paper did it.
+
+    Every pair of cells is compared with ``q = sqrt(2) |mean_A - mean_B| / sqrt(MSE (1/n_A
+    + 1/n_B))`` against the studentized range distribution, ``MSE`` pooled over all
+    cells. This treats the cells as independent groups: it IGNORES THE PAIRING of the
+    two policies within a subject, so its within-level comparisons are conservative
+    compared with :func:`simple_effects`.
+
+    References:
+        Tukey (1949), Biometrics 5(2):99-114; Kramer (1956), Biometrics 12(3):307-310.
+        ``pingouin.pairwise_tukey`` (checked against R ``TukeyHSD``).
+
+    Returns:
+        One row per pair of cells: ``measure, a_num_features, a_policy, b_num_features,
+        b_policy, mean_a, mean_b, diff, se, T, p_tukey, hedges``.
+    """
+    table = pg.pairwise_tukey(data=main, dv=measure, between=["num_features", "policy"])
+    return pd.DataFrame(
+        {
+            "measure": measure,
+            "a_num_features": [int(a[0]) for a in table["A"]],
+            "a_policy": [a[1] for a in table["A"]],
+            "b_num_features": [int(b[0]) for b in table["B"]],
+            "b_policy": [b[1] for b in table["B"]],
+            "mean_a": table["mean_A"],
+            "mean_b": table["mean_B"],
+            "diff": table["diff"],
+            "se": table["se"],
+            "T": table["T"],
+            "p_tukey": table["p_tukey"],
+            "hedges": table["hedges"],
+        }
+    )
+
+
+def wilcoxon(main: pd.DataFrame, measure: str) -> pd.DataFrame:
+    """Wilcoxon signed-rank test of ``d`` within each feature level (non-parametric check).
+
+    ``W`` is the smaller of the signed-rank sums, ``p`` two-sided (normal approximation
+    for large ``n``, as ``scipy.stats.wilcoxon`` decides); ``rbc`` the matched-pairs
+    rank-biserial correlation, ``cles`` the common-language effect size.
+
+    References:
+        Wilcoxon (1945), Biometrics Bulletin 1(6):80-83.
+        Kerby (2014), Comprehensive Psychology 3 (rank-biserial correlation).
+        ``pingouin.wilcoxon``.
+
+    Returns:
+        One row per feature level: ``measure, num_features, n, W, p, rbc, cles``.
+    """
+    rows = []
+    for level in sorted(main["num_features"].unique()):
+        paired = paired_by_subject(main, measure, level)
+        result = pg.wilcoxon(paired[_BEST_RESPONSE].to_numpy(), paired[_EXPERT].to_numpy())
+        rows.append(
+            {
+                "measure": measure,
+                "num_features": int(level),
+                "n": len(paired),
+                "W": float(result["W_val"].iloc[0]),
+                "p": float(result["p_val"].iloc[0]),
+                "rbc": float(result["RBC"].iloc[0]),
+                "cles": float(result["CLES"].iloc[0]),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def group_means(rows: pd.DataFrame, measure: str, by: list[str]) -> pd.DataFrame:
+    """Mean of ``measure`` per group with a t-based confidence interval.
+
+    ``mean +- t_{(1 + CONFIDENCE) / 2, n - 1} * sd / sqrt(n)`` (NaN when ``n < 2``).
+
+    Returns:
+        One row per group, groups sorted: ``measure, *by, n, mean, sd, ci95_low, ci95_high``.
+    """
+    grouped = rows.groupby(by, sort=True)[measure]
+    frame = grouped.agg(n="count", mean="mean", sd="std").reset_index()
+    half = stats.t.ppf((1 + CONFIDENCE) / 2, frame["n"] - 1) * frame["sd"] / np.sqrt(frame["n"])
+    frame["ci95_low"], frame["ci95_high"] = frame["mean"] - half, frame["mean"] + half
+    frame.insert(0, "measure", measure)
+    frame["n"] = frame["n"].astype(int)
+    return frame
+
+
+def feldt_ci(alpha: float, n: int, k: int) -> tuple[float, float]:
+    """Feldt's confidence interval of coefficient alpha from ``n`` rows and ``k`` items.
+
+    ``1 - (1 - alpha) F_{(1 -+ CONFIDENCE) / 2}(n - 1, (n - 1)(k - 1))`` (upper quantiles).
+
+    References:
+        Feldt, Woodruff & Salih (1987), Applied Psychological Measurement 11(1):93-103.
+    """
+    df1, df2 = n - 1, (n - 1) * (k - 1)
+    tail = (1 - CONFIDENCE) / 2
+    low = 1 - (1 - alpha) * stats.f.isf(tail, df1, df2)
+    high = 1 - (1 - alpha) * stats.f.isf(1 - tail, df1, df2)
+    return float(low), float(high)
+
+
+def cronbach_alpha(items: pd.DataFrame) -> dict[str, float | int | list[float]]:
+    """Cronbach's alpha of the columns of ``items`` (one row per observation).
+
+    Raw: ``alpha = k / (k - 1) (1 - sum_i var(y_i) / var(sum_i y_i))``. Standardised: the
+    same on z-scored items, ``k rbar / (1 + (k - 1) rbar)`` with ``rbar`` the mean
+    inter-item correlation. Both with Feldt's interval (:func:`feldt_ci`).
+
+    References:
+        Cronbach (1951), Psychometrika 16(3):297-334.
+        ``pingouin.cronbach_alpha`` (checked against R ``psych::alpha``).
+
+    Returns:
+        ``raw, standardized, ci95, ci95_standardized, n_rows, n_items``.
+    """
+    n, k = items.shape
+    raw = float(pg.cronbach_alpha(data=items)[0])
+    standardised_items = (items - items.mean()) / items.std()
+    standardised = float(pg.cronbach_alpha(data=standardised_items)[0])
+    return {
+        "raw": raw,
+        "standardized": standardised,
+        "ci95": list(feldt_ci(raw, n, k)),
+        "ci95_standardized": list(feldt_ci(standardised, n, k)),
+        "n_rows": int(n),
+        "n_items": int(k),
+    }
+
+
+def lambda_sweep(sweep: pd.DataFrame, measures: tuple[str, ...]) -> pd.DataFrame:
+    """Mean of each measure with its CI per rationality ``lambda``, policy and feature level.
+
+    Returns:
+        :func:`group_means` rows grouped by ``rationality, policy, num_features``, one
+        block per measure.
+    """
+    by = ["rationality", "policy", "num_features"]
+    return pd.concat([group_means(sweep, measure, by) for measure in measures], ignore_index=True)
+
+
+def eta_cross_validation(cv: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Mean regret of the best response per ``eta`` and feature level, and the chosen ``eta``.
+
+    The chosen ``eta`` of a feature level has the lowest mean regret (DESIGN.md section 3);
+    a tie goes to the smallest ``eta``.
+
+    Returns:
+        ``(means, chosen)``: :func:`group_means` of regret by ``num_features, eta`` over the
+        best-response trials, and one row per feature level ``num_features, eta, mean``.
+    """
+    best = cv[(cv["policy"] == _BEST_RESPONSE) & cv["eta"].notna()]
+    means = group_means(best, "regret", ["num_features", "eta"])
+    ordered = means.sort_values(["num_features", "mean", "eta"], kind="mergesort")
+    chosen = ordered.groupby("num_features", sort=True).head(1)
+    return means, chosen[["num_features", "eta", "mean"]].reset_index(drop=True)

@@ -1,0 +1,61 @@
+"""``cirl-study analyze RUN``: the paper's statistics, figures and claims from a run's logs."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from pathlib import Path
+from typing import Annotated, Any
+
+import typer
+
+REPORTS_DIRECTORY = Path("reports")
+"""Parent of the default report directory ``reports/<pipeline name>``."""
+
+
+def analyze(
+    run: Annotated[
+        Path,
+        typer.Argument(
+            help="Run directory holding the *.mcap log files, e.g. data/runs/paper.",
+            show_default=False,
+        ),
+    ],
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out",
+            metavar="DIR",
+            show_default="reports/<pipeline name>",
+            help="Report directory: report.md, results.json, trials.csv and the figures.",
+        ),
+    ] = None,
+) -> None:
+    """Analyse a run's logs: the paper's statistics, figures and claims, with verdicts.
+
+    Mixed ANOVAs, simple effects, Tukey HSD, Wilcoxon tests, Cronbach's alpha, the lambda
+    sweep and the eta cross-validation, written as report.md, results.json, trials.csv and
+    PNG figures. Reads only the run's MCAP logs: a damaged file is salvaged with a warning
+    on stderr, an incomplete design is refused. Identical logs give an identical report.
+    """
+    # The statistics and plotting libraries load only when an analysis is asked for.
+    from cirl_study.analysis.report import write_report
+    from cirl_study.logs import read_run
+
+    contents = read_run(run)
+    for warning in contents.warnings:
+        typer.echo(f"warning: {warning}", err=True)
+    target = out if out is not None else REPORTS_DIRECTORY / contents.pipeline_name
+    results = write_report(contents.records, target, contents.pipeline_name)
+    claims = results["claims"]
+    reproduced = sum(claim["reproduced"] for claim in claims)
+    untested = sum(not claim["tested"] for claim in claims)
+    typer.echo(
+        f"report of {len(contents.records)} trials written to {target}: {len(claims)} claims, "
+        f"{reproduced} reproduced, {len(claims) - reproduced - untested} not reproduced, "
+        f"{untested} not tested"
+    )
+
+
+def register(app: typer.Typer, wrap: Callable[[Callable[..., Any]], Callable[..., Any]]) -> None:
+    """Add the ``analyze`` command to ``app``."""
+    app.command("analyze")(wrap(analyze))

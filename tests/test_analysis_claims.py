@@ -1,0 +1,199 @@
+"""The claim rows and their verdict rules (cirl_study.analysis.claims).
+
+Starting from real results of a synthetic study, the numbers a rule reads are set so
+that every claim holds; then each test breaks exactly one condition and checks that
+exactly that claim flips.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable
+
+import pytest
+from analysis_fixtures import synthetic_records
+
+from cirl_study.analysis.claims import evaluate_claims
+from cirl_study.analysis.results import analyse
+from cirl_study.analysis.table import MEASURES, trial_table
+from cirl_study.errors import UserError
+
+CLAIM_IDS = [
+    "policy_effect",
+    "policy_f_above_962",
+    "interaction_kl_l2",
+    "cronbach_alpha",
+    "tukey_br_ahead",
+    "lambda_intermediate",
+]
+
+
+def _anova(results: dict, measure: str, effect: str) -> dict:
+    return next(r for r in results["anova"] if r["measure"] == measure and r["effect"] == effect)
+
+
+def _cell(results: dict, measure: str, level: int, policy: str) -> dict:
+    return next(
+        r
+        for r in results["cells"]
+        if r["measure"] == measure and r["num_features"] == level and r["policy"] == policy
+    )
+
+
+def _within_level_tukey(results: dict) -> list[dict]:
+    return [r for r in results["tukey_hsd"] if r["a_num_features"] == r["b_num_features"]]
+
+
+@pytest.fixture(scope="module")
+def holding() -> dict:
+    """Results of a synthetic study, edited so that every paper claim holds."""
+    results = analyse(trial_table(synthetic_records(subjects_per_level=10)), "synthetic")
+    for measure in MEASURES:
+        _anova(results, measure, "policy").update(F=1000.0, p=1e-12)
+        _anova(results, measure, "policy:num_features").update(p=1e-3)
+        for level, gap in ((3, 2.0), (10, 1.0)):
+            best = _cell(results, measure, level, "best_response")["mean"]
+            _cell(results, measure, level, "expert")["mean"] = best + gap
+    results["cronbach_alpha"]["ci95"] = [0.40, 0.50]
+    for row in _within_level_tukey(results):
+        row["p_tukey"] = 1e-6
+    return results
+
+
+def _verdicts(results: dict) -> dict[str, bool]:
+    return {claim["id"]: claim["reproduced"] for claim in evaluate_claims(results)}
+
+
+def test_every_paper_claim_has_a_row_and_holds_when_its_numbers_do(holding):
+    claims = evaluate_claims(holding)
+    assert [claim["id"] for claim in claims] == CLAIM_IDS
+    for claim in claims:
+        assert claim["tested"] and claim["reproduced"]
+        assert claim["claim"] and claim["rule"] and claim["measurement"] and claim["evidence"]
+        assert claim["source"].startswith("paper, section 4.")
+
+
+def _policy_p(results):
+    _anova(results, "kl", "policy")["p"] = 2e-4
+
+
+def _expert_better(results):
+    for level, gap in ((3, -1.0), (10, -2.0)):  # the gap still shrinks with more features
+        best = _cell(results, "reward_l2", level, "best_response")["mean"]
+        _cell(results, "reward_l2", level, "expert")["mean"] = best + gap
+
+
+def _small_f(results):
+    _anova(results, "regret", "policy")["F"] = 961.0
+
+
+def _no_interaction(results):
+    _anova(results, "reward_l2", "policy:num_features")["p"] = 0.2
+
+
+def _gap_larger_with_more_features(results):
+    best = _cell(results, "kl", 10, "best_response")["mean"]
+    _cell(results, "kl", 10, "expert")["mean"] = best + 5.0
+
+
+def _alpha_elsewhere(results):
+    results["cronbach_alpha"]["ci95"] = [0.48, 0.60]
+
+
+def _tukey_not_significant(results):
+    _within_level_tukey(results)[-1]["p_tukey"] = 0.06
+
+
+def _tukey_expert_ahead(results):
+    row = _within_level_tukey(results)[0]
+    row["mean_a"], row["mean_b"] = row["mean_b"], row["mean_a"]
+
+
+def _lambda_minimum_at_an_end(results):
+    for row in results["lambda_sweep"]:
+        if row["measure"] == "regret" and row["rationality"] == 100.0:
+            row.update(mean=0.01, ci95_low=0.0, ci95_high=0.02)
+
+
+def _lambda_minimum_not_clear(results):
+    for row in results["lambda_sweep"]:
+        if row["measure"] == "regret" and row["rationality"] == 1.0:
+            row["ci95_high"] = 10.0
+
+
+@pytest.mark.parametrize(
+    ("edit", "flipped"),
+    [
+        (_policy_p, "policy_effect"),
+        (_expert_better, "policy_effect"),
+        (_small_f, "policy_f_above_962"),
+        (_no_interaction, "interaction_kl_l2"),
+        (_gap_larger_with_more_features, "interaction_kl_l2"),
+        (_alpha_elsewhere, "cronbach_alpha"),
+        (_tukey_not_significant, "tukey_br_ahead"),
+        (_tukey_expert_ahead, "tukey_br_ahead"),
+        (_lambda_minimum_at_an_end, "lambda_intermediate"),
+        (_lambda_minimum_not_clear, "lambda_intermediate"),
+    ],
+)
+def test_breaking_one_condition_flips_only_its_claim(holding, edit: Callable, flipped: str):
+    results = copy.deepcopy(holding)
+    edit(results)
+    assert _verdicts(results) == {claim: claim != flipped for claim in CLAIM_IDS}
+
+
+def test_the_regret_interaction_does_not_decide_the_kl_l2_claim(holding):
+    results = copy.deepcopy(holding)
+    _anova(results, "regret", "policy:num_features")["p"] = 0.9
+    assert _verdicts(results)["interaction_kl_l2"]
+
+
+@pytest.mark.parametrize("lambdas", [[], [0.01, 1.0]])
+def test_the_lambda_claim_is_not_tested_without_a_sweep_of_three_lambdas(holding, lambdas):
+    results = copy.deepcopy(holding)
+    results["lambda_sweep"] = [r for r in results["lambda_sweep"] if r["rationality"] in lambdas]
+    claim = evaluate_claims(results)[-1]
+    assert claim["id"] == "lambda_intermediate"
+    assert not claim["tested"] and not claim["reproduced"]
+
+
+def _theory_claim(**changes) -> dict:
+    claim = {
+        "id": "office_supplies_instructive",
+        "source": "paper, section 3.3",
+        "claim": "The instructive demonstration differs from the expert's.",
+        "rule": "the optimal demonstration is not the expert's",
+        "measurement": "optimal demonstration (0, 2); expert (2, 0)",
+        "reproduced": True,
+        "values": {"theta": [0.5, 0.4]},
+        "evidence": ["theory"],
+    }
+    claim.update(changes)
+    return claim
+
+
+def test_theory_claims_are_appended_after_the_papers(holding):
+    theory = {"claims": [_theory_claim(), _theory_claim(id="untested", tested=False)]}
+    claims = evaluate_claims(holding, theory)
+    assert [claim["id"] for claim in claims] == [
+        *CLAIM_IDS,
+        "office_supplies_instructive",
+        "untested",
+    ]
+    assert claims[-2]["reproduced"] and claims[-2]["tested"]
+    assert not claims[-1]["reproduced"] and not claims[-1]["tested"]
+
+
+@pytest.mark.parametrize(
+    ("theory", "message"),
+    [
+        ({"claims": "none"}, "a list under 'claims'"),
+        ({"claims": [_theory_claim(reproduced="yes")]}, "'reproduced' and 'tested' must be"),
+        ({"claims": [_theory_claim(rule="")]}, "'rule' must be a non-empty string"),
+        ({"claims": [_theory_claim(evidence="theory")]}, "'evidence' must be a list"),
+        ({"claims": [_theory_claim(id="cronbach_alpha")]}, "'cronbach_alpha' is already used"),
+    ],
+)
+def test_malformed_theory_results_are_user_errors(holding, theory, message):
+    with pytest.raises(UserError, match=message):
+        evaluate_claims(holding, theory)

@@ -1,0 +1,137 @@
+"""The report directory (cirl_study.analysis.report.write_report)."""
+
+from __future__ import annotations
+
+import json
+import random
+import re
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from analysis_fixtures import synthetic_records
+
+from cirl_study.analysis import statistics
+from cirl_study.analysis.markdown import anchor
+from cirl_study.analysis.report import write_report
+from cirl_study.analysis.table import trial_table
+from cirl_study.errors import UserError
+
+FILES = {
+    "report.md",
+    "results.json",
+    "trials.csv",
+    "figure1_reward_maps.png",
+    "figure2_measures.png",
+    "figure2_lambda.png",
+    "eta_cv.png",
+}
+
+
+@pytest.fixture(scope="module")
+def records() -> list[dict]:
+    return synthetic_records(subjects_per_level=8)
+
+
+@pytest.fixture(scope="module")
+def reports(records, tmp_path_factory) -> tuple[Path, Path]:
+    """The same records written twice, the second time shuffled, to two directories."""
+    first = tmp_path_factory.mktemp("first") / "paper"
+    second = tmp_path_factory.mktemp("second") / "paper"
+    write_report(records, first, "paper")
+    shuffled = records[:]
+    random.Random(3).shuffle(shuffled)
+    write_report(shuffled, second, "paper")
+    return first, second
+
+
+def test_the_report_is_byte_identical_for_identical_trials(reports):
+    first, second = reports
+    assert {path.name for path in first.iterdir()} == FILES
+    for name in FILES:
+        assert (first / name).read_bytes() == (second / name).read_bytes(), name
+
+
+def test_no_machine_paths_in_the_report(reports):
+    first, _ = reports
+    for name in ("report.md", "results.json", "trials.csv"):
+        text = (first / name).read_text(encoding="utf-8")
+        assert str(first.parent) not in text and "/tmp" not in text
+
+
+def test_results_json_holds_every_section_at_full_precision(reports, records):
+    first, _ = reports
+    results = json.loads((first / "results.json").read_text(encoding="utf-8"))
+    assert {"anova", "cronbach_alpha", "cells", "lambda_sweep", "eta_cv", "claims"} <= set(results)
+    assert {"raw", "standardized", "ci95", "rows"} <= set(results["cronbach_alpha"])
+    assert "main block" in results["cronbach_alpha"]["rows"]
+    for row in results["anova"]:
+        assert {"measure", "effect", "df1", "df2", "F", "p", "np2", "ges"} <= set(row)
+    assert {(r["measure"], r["effect"]) for r in results["anova"]} == {
+        (m, e) for m in ("regret", "kl", "reward_l2") for e in statistics.EFFECTS
+    }
+    table = trial_table(records)
+    expected = statistics.mixed_anova(table[table["block"] == "main"], "kl")
+    got = [r for r in results["anova"] if r["measure"] == "kl"]
+    assert [r["F"] for r in got] == expected["F"].tolist()  # exact: nothing rounded
+    assert all(isinstance(claim["reproduced"], bool) for claim in results["claims"])
+    assert results["eta_cv"]["chosen"] and results["lambda_sweep"]
+
+
+def test_trials_csv_is_the_trial_table(reports, records):
+    first, _ = reports
+    written = pd.read_csv(first / "trials.csv", dtype={"subject": str})
+    table = trial_table(records)
+    assert list(written.columns) == list(table.columns)
+    assert written["trial_id"].tolist() == table["trial_id"].tolist()
+    assert written["reward_l2"].tolist() == table["reward_l2"].tolist()
+
+
+def test_every_claim_has_a_verdict_and_every_link_resolves(reports):
+    first, _ = reports
+    text = (first / "report.md").read_text(encoding="utf-8")
+    results = json.loads((first / "results.json").read_text(encoding="utf-8"))
+    claims_table = text.split("## Claims")[1].split("\n## ")[0]
+    verdict_rows = re.findall(r"(✅ reproduced|❌ not reproduced|➖ not tested)", claims_table)
+    assert len(verdict_rows) == len(results["claims"]) == 6
+    anchors = {anchor(line.lstrip("#")) for line in text.splitlines() if line.startswith("#")}
+    for target in re.findall(r"\]\(([^)]+)\)", text):
+        if target.startswith("#"):
+            assert target[1:] in anchors, target
+        else:
+            assert (first / target).is_file(), target
+
+
+def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path):
+    out = tmp_path / "report"
+    out.mkdir()
+    (out / "figure2_lambda.png").write_bytes(b"stale")
+    main_only = [record for record in records if record["block"] == "main"]
+    theory = {
+        "claims": [
+            {
+                "id": "office_supplies",
+                "source": "paper, section 3.3",
+                "claim": "An instructive demonstration.",
+                "rule": "computed by the theory module",
+                "measurement": "(0, 2) vs (2, 0)",
+                "reproduced": True,
+            }
+        ]
+    }
+    results = write_report(main_only, out, "main-only", theory=theory)
+    assert {path.name for path in out.iterdir()} == FILES - {"figure2_lambda.png", "eta_cv.png"}
+    lambda_claim = next(c for c in results["claims"] if c["id"] == "lambda_intermediate")
+    assert not lambda_claim["tested"]
+    text = (out / "report.md").read_text(encoding="utf-8")
+    assert "➖ not tested" in text and "no trials in the `lambda_sweep` block" in text
+    assert results["claims"][-1]["id"] == "office_supplies"
+    assert results["theory"] == theory
+
+
+def test_an_incomplete_design_writes_nothing(records, tmp_path):
+    unpaired = [r for r in records if not (r["block"] == "main" and r["subject"] == "k10-s002")]
+    unpaired.append(next(r for r in records if r["block"] == "main" and r["subject"] == "k10-s002"))
+    with pytest.raises(UserError, match="k10-s002"):
+        write_report(unpaired, tmp_path / "out", "paper")
+    assert not (tmp_path / "out").exists()

@@ -1,0 +1,258 @@
+"""The statistical tests (cirl_study.analysis.statistics).
+
+Two kinds of check: published reference values for datasets bundled with pingouin
+(computed by JASP, JAMOVI and R, as quoted in pingouin's own test-suite), and an
+independent computation of the mixed ANOVA for two policies from t-tests on the
+per-subject differences and means.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pingouin as pg
+import pytest
+from analysis_fixtures import synthetic_records
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import stats
+
+from cirl_study.analysis import statistics
+from cirl_study.analysis.table import MEASURES, trial_table
+
+ANOVA_ORDER = ["num_features", "policy", "policy:num_features"]
+"""pingouin's (and the references') row order: between, within, interaction."""
+
+
+def _as_study(data: pd.DataFrame, score: str, within: str, between: str, subject: str):
+    return data.rename(
+        columns={score: "score", within: "policy", between: "num_features", subject: "subject"}
+    )
+
+
+def test_mixed_anova_matches_jasp_and_jamovi_on_the_balanced_dataset():
+    # pingouin's test_parametric: SS, df, F and np2 from JASP; ges from JAMOVI.
+    data = _as_study(pg.read_dataset("mixed_anova"), "Scores", "Time", "Group", "Subject")
+    anova = statistics.mixed_anova(data, "score").set_index("effect").loc[ANOVA_ORDER]
+    np.testing.assert_array_equal(anova["df1"], [1, 2, 2])
+    np.testing.assert_array_equal(anova["df2"], [58, 116, 116])
+    np.testing.assert_allclose(anova["SS"], [5.45996, 7.62843, 5.16719], atol=5e-6)
+    np.testing.assert_allclose(anova["F"], [5.05171, 4.02739, 2.72800], atol=5e-6)
+    np.testing.assert_allclose(anova["np2"], [0.08012, 0.06493, 0.04492], atol=5e-6)
+    np.testing.assert_allclose(anova["ges"], [0.03067, 0.04234, 0.02908], atol=5e-6)
+
+
+def test_mixed_anova_matches_jasp_on_the_unbalanced_dataset():
+    # Three groups of unequal size, four time points (JASP, type II).
+    data = _as_study(
+        pg.read_dataset("mixed_anova_unbalanced"), "Scores", "Time", "Group", "Subject"
+    )
+    anova = statistics.mixed_anova(data, "score").set_index("effect").loc[ANOVA_ORDER]
+    np.testing.assert_array_equal(anova["df1"], [2, 3, 6])
+    np.testing.assert_array_equal(anova["df2"], [23, 69, 69])
+    np.testing.assert_allclose(anova["F"], [2.3026, 1.7071, 0.8877], atol=5e-5)
+    np.testing.assert_allclose(anova["p"], [0.1226, 0.1736, 0.5088], atol=5e-5)
+    np.testing.assert_allclose(anova["np2"], [0.1668, 0.0691, 0.0717], atol=5e-5)
+    np.testing.assert_allclose(anova["ges"], [0.0371, 0.0566, 0.0587], atol=5e-5)
+
+
+def _two_policy_study(sizes: tuple[int, int], seed: int) -> pd.DataFrame:
+    """A random split-plot data set with feature levels 3 and 10 of the given sizes."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for level, size, shift in ((3, sizes[0], 0.0), (10, sizes[1], rng.normal())):
+        for index in range(size):
+            person = rng.normal(shift, 1.0)
+            for policy, effect in (("expert", 0.0), ("best_response", rng.normal(-0.5, 0.3))):
+                score = person + effect + rng.normal(0, 0.7)
+                rows.append((f"{level}-{index}", level, policy, score))
+    return pd.DataFrame(rows, columns=["subject", "num_features", "policy", "score"])
+
+
+def _from_t_tests(data: pd.DataFrame) -> dict[str, dict[str, float]]:
+    """F, p, np2 and ges of each effect from t-tests on per-subject differences and means.
+
+    ``d = y_br - y_expert`` and ``m = (y_br + y_expert) / 2`` per subject. The interaction
+    is the two-sample (pooled) t-test of ``d`` between the levels, the between effect
+    the same on ``m``, and the policy effect the test of ``mean(d) = 0`` against the
+    pooled within-level variance of ``d``; each ``F = t^2``.
+    """
+    wide = data.pivot(index="subject", columns="policy", values="score")
+    level = data.groupby("subject")["num_features"].first().loc[wide.index]
+    d = wide["best_response"] - wide["expert"]
+    m = (wide["best_response"] + wide["expert"]) / 2
+    n = len(d)
+    low, high = (level == 3), (level == 10)
+    within_d = d - d.groupby(level).transform("mean")
+    within_m = m - m.groupby(level).transform("mean")
+    t = {
+        "policy": d.mean() / np.sqrt((within_d**2).sum() / (n - 2) / n),
+        "num_features": stats.ttest_ind(m[low], m[high]).statistic,
+        "policy:num_features": stats.ttest_ind(d[low], d[high]).statistic,
+    }
+    ss = {
+        "policy": n * d.mean() ** 2 / 2,
+        "num_features": 2 * (m.groupby(level).transform("mean") - m.mean()).pow(2).sum(),
+        "policy:num_features": (d.groupby(level).transform("mean") - d.mean()).pow(2).sum() / 2,
+    }
+    ss_subjects, ss_residual = 2 * (within_m**2).sum(), (within_d**2).sum() / 2
+    return {
+        effect: {
+            "F": t[effect] ** 2,
+            "p": 2 * stats.t.sf(abs(t[effect]), n - 2),
+            "np2": t[effect] ** 2 / (t[effect] ** 2 + n - 2),
+            "ges": ss[effect] / (ss[effect] + ss_subjects + ss_residual),
+        }
+        for effect in ANOVA_ORDER
+    }
+
+
+@settings(max_examples=10, deadline=None)
+@given(sizes=st.tuples(st.integers(3, 12), st.integers(3, 12)), seed=st.integers(0, 2**32 - 1))
+def test_mixed_anova_equals_t_tests_on_differences_and_means(sizes, seed):
+    data = _two_policy_study(sizes, seed)
+    anova = statistics.mixed_anova(data, "score").set_index("effect")
+    expected = _from_t_tests(data)
+    for effect in ANOVA_ORDER:
+        assert anova.at[effect, "df1"] == 1
+        assert anova.at[effect, "df2"] == sum(sizes) - 2
+        for column in ("F", "p", "np2", "ges"):
+            assert anova.at[effect, column] == pytest.approx(expected[effect][column], rel=1e-9)
+
+
+@pytest.fixture(scope="module")
+def main() -> pd.DataFrame:
+    table = trial_table(synthetic_records(subjects_per_level=9, lambdas=(1.0,), etas=(1.0,)))
+    return table[table["block"] == "main"]
+
+
+def test_simple_effects_are_paired_t_tests_with_holm_and_d_z(main):
+    frame = statistics.simple_effects(main, "regret").set_index("num_features")
+    for level in (3, 10):
+        wide = main[main["num_features"] == level].pivot(
+            index="subject", columns="policy", values="regret"
+        )
+        d = (wide["best_response"] - wide["expert"]).to_numpy()
+        n, mean, sd = len(d), d.mean(), d.std(ddof=1)
+        t = mean / (sd / np.sqrt(n))
+        half = stats.t.ppf(0.975, n - 1) * sd / np.sqrt(n)
+        row = frame.loc[level]
+        assert row["t"] == pytest.approx(t) and row["df"] == n - 1
+        assert row["p"] == pytest.approx(2 * stats.t.sf(abs(t), n - 1))
+        assert row["d_z"] == pytest.approx(mean / sd) == pytest.approx(t / np.sqrt(n))
+        assert (row["ci95_low"], row["ci95_high"]) == pytest.approx((mean - half, mean + half))
+        assert row["boot_diff_low"] < mean < row["boot_diff_high"]
+        assert row["boot_d_z_low"] < mean / sd < row["boot_d_z_high"]
+    p = frame["p"].to_numpy()
+    smaller = min(1.0, 2 * p.min())
+    holm = np.where(p == p.min(), smaller, max(smaller, p.max()))
+    np.testing.assert_allclose(frame["p_holm"], holm)
+    again = statistics.simple_effects(main, "regret").set_index("num_features")
+    assert again.equals(frame)  # the bootstrap is seeded
+
+
+def test_tukey_hsd_matches_r_tukeyhsd_on_the_penguins():
+    # R: TukeyHSD(aov(body_mass_g ~ species * sex), which = "species:sex"), as quoted by
+    # pingouin's test_pairwise. Species become feature levels 1-3; female < male sorts
+    # like best_response < expert, so the cells keep R's order.
+    penguins = pg.read_dataset("penguins").dropna(subset=["sex", "body_mass_g"])
+    data = pd.DataFrame(
+        {
+            "num_features": penguins["species"].map({"Adelie": 1, "Chinstrap": 2, "Gentoo": 3}),
+            "policy": penguins["sex"].map({"female": "best_response", "male": "expert"}),
+            "mass": penguins["body_mass_g"],
+        }
+    )
+    tukey = statistics.tukey_hsd(data, "mass")
+    assert len(tukey) == 15
+    assert tuple(tukey.loc[0, ["a_num_features", "a_policy", "b_num_features", "b_policy"]]) == (
+        1,
+        "best_response",
+        1,
+        "expert",
+    )
+    rows = [0, 1, 6, 9]
+    np.testing.assert_allclose(
+        tukey.loc[rows, "diff"], [-674.6575342, -158.3702659, 104.5225624, -411.7647059]
+    )
+    np.testing.assert_allclose(
+        tukey.loc[rows, "p_tukey"], [0, 0.1376213087, 0.5812048336, 0.0000012196], atol=1e-8
+    )
+
+
+def test_wilcoxon_tests_the_paired_differences_per_level(main):
+    frame = statistics.wilcoxon(main, "kl").set_index("num_features")
+    for level in (3, 10):
+        wide = main[main["num_features"] == level].pivot(
+            index="subject", columns="policy", values="kl"
+        )
+        expected = stats.wilcoxon(wide["best_response"] - wide["expert"])
+        assert frame.at[level, "W"] == expected.statistic
+        assert frame.at[level, "p"] == pytest.approx(expected.pvalue)
+        assert frame.at[level, "n"] == len(wide)
+
+
+def test_group_means_use_the_t_interval():
+    rows = pd.DataFrame({"g": ["a", "a", "a", "b", "c", "c"], "y": [1.0, 2.0, 4.0, 5.0, 2.0, 2.0]})
+    frame = statistics.group_means(rows, "y", ["g"]).set_index("g")
+    half = stats.t.ppf(0.975, 2) * np.std([1, 2, 4], ddof=1) / np.sqrt(3)
+    assert frame.at["a", "mean"] == pytest.approx(7 / 3)
+    assert frame.at["a", "ci95_low"] == pytest.approx(7 / 3 - half)
+    assert frame.at["a", "ci95_high"] == pytest.approx(7 / 3 + half)
+    assert frame.at["b", "n"] == 1 and np.isnan(frame.at["b", "ci95_low"])
+    assert frame.at["c", "ci95_low"] == frame.at["c", "ci95_high"] == 2.0
+
+
+def test_cronbach_alpha_matches_r_psych():
+    # R: psych::alpha on pingouin's cronbach_alpha dataset: 0.592, 95% CI [0.195, 0.840].
+    data = pg.read_dataset("cronbach_alpha").pivot(index="Subj", columns="Items", values="Scores")
+    alpha = statistics.cronbach_alpha(data)
+    assert round(alpha["raw"], 3) == 0.592
+    assert [round(bound, 3) for bound in alpha["ci95"]] == [0.195, 0.840]
+    assert alpha["n_rows"] == len(data) and alpha["n_items"] == data.shape[1]
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), rows=st.integers(5, 40), k=st.integers(2, 5))
+def test_cronbach_alpha_closed_forms(seed, rows, k):
+    rng = np.random.default_rng(seed)
+    items = pd.DataFrame(
+        rng.normal(size=(rows, 1)) + rng.normal(size=(rows, k)) * rng.uniform(0.2, 3.0, size=k)
+    )
+    values = items.to_numpy()
+    raw = k / (k - 1) * (1 - values.var(axis=0, ddof=1).sum() / values.sum(axis=1).var(ddof=1))
+    correlations = np.corrcoef(values, rowvar=False)
+    mean_r = correlations[np.triu_indices(k, 1)].mean()
+    alpha = statistics.cronbach_alpha(items)
+    assert alpha["raw"] == pytest.approx(raw, rel=1e-9, abs=1e-12)
+    assert alpha["standardized"] == pytest.approx(
+        k * mean_r / (1 + (k - 1) * mean_r), rel=1e-9, abs=1e-12
+    )
+    low, high = alpha["ci95"]
+    quantiles = stats.f.ppf([0.975, 0.025], rows - 1, (rows - 1) * (k - 1))
+    assert (low, high) == pytest.approx(tuple(1 - (1 - raw) * quantiles))
+
+
+def test_eta_cross_validation_picks_the_lowest_mean_and_the_smaller_eta_on_ties():
+    cv = pd.DataFrame(
+        {
+            "policy": ["best_response"] * 8 + ["expert"],
+            "num_features": [3, 3, 3, 3, 10, 10, 10, 10, 3],
+            "eta": [0.1, 0.1, 1.0, 1.0, 0.1, 0.1, 1.0, 1.0, np.nan],
+            "regret": [1.0, 3.0, 1.5, 2.5, 1.0, 2.0, 0.5, 1.5, 0.0],
+        }
+    )
+    means, chosen = statistics.eta_cross_validation(cv)
+    assert list(means["n"]) == [2, 2, 2, 2]
+    assert chosen.to_dict("list") == {
+        "num_features": [3, 10],
+        "eta": [0.1, 1.0],
+        "mean": [2.0, 1.0],
+    }
+
+
+def test_lambda_sweep_has_one_row_per_measure_lambda_policy_and_level():
+    table = trial_table(synthetic_records(subjects_per_level=3, lambdas=(0.1, 1.0, 10.0)))
+    sweep = statistics.lambda_sweep(table[table["block"] == "lambda_sweep"], MEASURES)
+    assert len(sweep) == 3 * 3 * 2 * 2
+    assert set(sweep["n"]) == {3}
