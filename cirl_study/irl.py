@@ -49,6 +49,7 @@ from cirl_study.planning import (
     IntArray,
     backward_future_counts,
     forward_visitation,
+    reachable_cells,
     soft_backup,
 )
 
@@ -101,8 +102,9 @@ def _log_partition(scaled, successors, start, horizon):  # pragma: no cover - co
     log_policy = np.empty((horizon, cells, actions))
     policy = np.empty((horizon, cells, actions))
     log_z = np.empty(batch)
+    needed = reachable_cells(successors, start, horizon)
     for b in range(batch):
-        soft_backup(scaled[b], successors, horizon, values, log_policy, policy)
+        soft_backup(scaled[b], successors, horizon, values, log_policy, policy, needed)
         log_z[b] = values[0, start]
     return log_z
 
@@ -119,13 +121,14 @@ def _trajectory_moments(scaled, features, successors, start, horizon):  # pragma
     log_z = np.empty(batch)
     mean = np.empty((batch, k))
     covariance = np.empty((batch, k, k))
+    needed = reachable_cells(successors, start, horizon)
     for b in range(batch):
         phi = features[b]
-        soft_backup(scaled[b], successors, horizon, values, log_policy, policy)
+        soft_backup(scaled[b], successors, horizon, values, log_policy, policy, needed)
         visitation[0, :] = 0.0
         visitation[0, start] = 1.0
         forward_visitation(policy, successors, visitation)
-        backward_future_counts(policy, successors, phi, future)
+        backward_future_counts(policy, successors, phi, future, needed)
         log_z[b] = values[0, start]
         mean[b] = future[0, start]
         # E[phi phi^T] = sum_t sum_s d_t(s) sym(phi(s) (phi(s) + 2 F_t(s))^T)

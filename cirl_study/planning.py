@@ -64,16 +64,38 @@ def _successor_gather(successors: IntArray) -> tuple[IntArray, NDArray[np.bool_]
 
 
 @njit(cache=True)
-def soft_backup(scaled, successors, horizon, values, log_policy, policy):  # pragma: no cover
+def reachable_cells(successors, start, horizon):  # pragma: no cover - compiled
+    """``(T + 1, S)`` mask: ``[t, s]`` is true iff ``s`` can be reached in exactly ``t`` steps."""
+    cells, actions = successors.shape
+    reachable = np.zeros((horizon + 1, cells), dtype=np.bool_)
+    reachable[0, start] = True
+    for t in range(horizon):
+        for s in range(cells):
+            if reachable[t, s]:
+                for a in range(actions):
+                    if successors[s, a] >= 0:
+                        reachable[t + 1, successors[s, a]] = True
+    return reachable
+
+
+@njit(cache=True)
+def soft_backup(
+    scaled, successors, horizon, values, log_policy, policy, needed
+):  # pragma: no cover
     """Soft value iteration for one reward vector, written into the output arrays.
 
     ``scaled`` is :math:`\\lambda r` ``(S,)``; fills ``values (T+1, S)``,
-    ``log_policy (T, S, A)`` and ``policy (T, S, A)`` (``-inf`` / 0 where unavailable).
+    ``log_policy (T, S, A)`` and ``policy (T, S, A)`` (``-inf`` / 0 where unavailable)
+    at the steps and cells where ``needed (T + 1, S)`` is true (all of them, or those
+    reachable from the start: a needed cell's successors must be needed at the next step).
+    Entries that are not needed are left undefined.
     """
     cells, actions = successors.shape
     values[horizon, :] = 0.0
     for t in range(horizon - 1, -1, -1):
         for s in range(cells):
+            if not needed[t, s]:
+                continue
             top = -np.inf
             for a in range(actions):
                 nxt = successors[s, a]
@@ -109,8 +131,11 @@ def _soft_value_iteration(scaled, successors, horizon):  # pragma: no cover - co
     one_values = np.empty((horizon + 1, cells))
     one_log_policy = np.empty((horizon, cells, actions))
     one_policy = np.empty((horizon, cells, actions))
+    everywhere = np.ones((horizon + 1, cells), dtype=np.bool_)
     for b in range(batch):
-        soft_backup(scaled[b], successors, horizon, one_values, one_log_policy, one_policy)
+        soft_backup(
+            scaled[b], successors, horizon, one_values, one_log_policy, one_policy, everywhere
+        )
         values[:, b] = one_values
         log_policy[:, b] = one_log_policy
         policy[:, b] = one_policy
@@ -158,16 +183,19 @@ def forward_visitation(policy, successors, visitation):  # pragma: no cover - co
 
 
 @njit(cache=True)
-def backward_future_counts(policy, successors, features, future):  # pragma: no cover - compiled
+def backward_future_counts(policy, successors, features, future, needed):  # pragma: no cover
     """:math:`F_t(s) = \\sum_a \\pi_t(a \\mid s)[\\phi(s') + F_{t+1}(s')]` for one trial.
 
-    ``policy (T, S, A)``, ``features (S, K)``; fills ``future (T+1, S, K)``.
+    ``policy (T, S, A)``, ``features (S, K)``; fills ``future (T+1, S, K)`` where
+    ``needed (T + 1, S)`` is true (see :func:`soft_backup`).
     """
     horizon, cells, actions = policy.shape
     k = features.shape[1]
     future[horizon, :, :] = 0.0
     for t in range(horizon - 1, -1, -1):
         for s in range(cells):
+            if not needed[t, s]:
+                continue
             for i in range(k):
                 future[t, s, i] = 0.0
             for a in range(actions):
@@ -219,8 +247,9 @@ def _future_feature_counts(policy, successors, features):  # pragma: no cover - 
     horizon, batch, cells, _ = policy.shape
     counts = np.empty((horizon + 1, batch, cells, features.shape[2]))
     one = np.empty((horizon + 1, cells, features.shape[2]))
+    everywhere = np.ones((horizon + 1, cells), dtype=np.bool_)
     for b in range(batch):
-        backward_future_counts(policy[:, b], successors, features[b], one)
+        backward_future_counts(policy[:, b], successors, features[b], one, everywhere)
         counts[:, b] = one
     return counts
 
