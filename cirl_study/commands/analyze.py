@@ -39,13 +39,16 @@ def analyze(
     """
     # The statistics and plotting libraries load only when an analysis is asked for.
     from cirl_study.analysis.report import write_report
+    from cirl_study.analysis.theory_claims import office_supplies_claims
+    from cirl_study.games import office_supplies_results
     from cirl_study.logs import read_run
 
     contents = read_run(run)
     for warning in contents.warnings:
         typer.echo(f"warning: {warning}", err=True)
     target = out if out is not None else REPORTS_DIRECTORY / contents.pipeline_name
-    results = write_report(contents.records, target, contents.pipeline_name)
+    theory = office_supplies_claims(office_supplies_results())
+    results = write_report(contents.records, target, contents.pipeline_name, theory=theory)
     claims = results["claims"]
     reproduced = sum(claim["reproduced"] for claim in claims)
     untested = sum(not claim["tested"] for claim in claims)
