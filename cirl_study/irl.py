@@ -29,10 +29,13 @@ second moment from the future counts :math:`F_t` (see
     \\big[\\phi(s)\\phi(s)^\\top + \\phi(s) F_t(s)^\\top + F_t(s) \\phi(s)^\\top\\big].
 
 The box-constrained problem is solved for a whole batch at once by the projected
-Newton method (Bertsekas, 1982): variables at a bound whose gradient points out
-of the box are held fixed, a Newton step is taken on the others, the step is
-projected back onto the box, and an Armijo backtracking line search along the
-projection arc guarantees ascent. Iteration stops when the projected gradient,
+Newton method (Bertsekas, 1982): a Newton step is taken on the free variables, the
+step is projected back onto the box, and an Armijo backtracking line search along the
+projection arc guarantees ascent. A Levenberg-Marquardt ridge on the Newton system, raised
+whenever the full step fails and lowered when it succeeds, keeps the method robust where the
+covariance is nearly singular (nearly collinear features, tiny or huge lambda). Variables
+within a small epsilon of a bound and pushed against it take a scaled gradient step instead
+of a Newton step (the epsilon-active set). Iteration stops when the projected gradient,
 in feature-count units (:math:`\\lVert \\nabla L \\rVert_\\infty / \\lambda`), falls
 below ``tolerance``.
 """
@@ -57,6 +60,9 @@ FloatArray = NDArray[np.float64]
 
 BOX = (-1.0, 1.0)
 """Support of the uniform prior on each reward weight."""
+
+MIN_DAMPING, MAX_DAMPING = 1e-10, 1e10
+"""Range of the Levenberg-Marquardt ridge, relative to the mean curvature."""
 
 
 @dataclass(frozen=True)
@@ -132,16 +138,23 @@ def _trajectory_moments(scaled, features, successors, start, horizon):  # pragma
         log_z[b] = values[0, start]
         mean[b] = future[0, start]
         # E[phi phi^T] = sum_t sum_s d_t(s) sym(phi(s) (phi(s) + 2 F_t(s))^T)
+        #              = sum_s sym(phi(s) (D(s) phi(s) + 2 G(s))^T),
+        # with D(s) = sum_t d_t(s) and G(s) = sum_t d_t(s) F_t(s), t = 1..T.
         second = np.zeros((k, k))
-        for t in range(1, horizon + 1):
-            for s in range(cells):
+        for s in range(cells):
+            occupancy = 0.0
+            ahead = np.zeros(k)
+            for t in range(1, horizon + 1):
                 d = visitation[t, s]
-                if d == 0.0:
-                    continue
-                for i in range(k):
-                    weight = d * phi[s, i]
+                if d != 0.0:
+                    occupancy += d
                     for j in range(k):
-                        second[i, j] += weight * (phi[s, j] + 2.0 * future[t, s, j])
+                        ahead[j] += d * future[t, s, j]
+            if occupancy == 0.0:
+                continue
+            for i in range(k):
+                for j in range(k):
+                    second[i, j] += phi[s, i] * (occupancy * phi[s, j] + 2.0 * ahead[j])
         for i in range(k):
             for j in range(k):
                 covariance[b, i, j] = 0.5 * (second[i, j] + second[j, i]) - mean[b, i] * mean[b, j]
@@ -206,20 +219,23 @@ def _moments(
 
 
 def _search_direction(
-    gradient: FloatArray, hessian_neg: FloatArray, near_active: NDArray[np.bool_]
+    gradient: FloatArray,
+    hessian_neg: FloatArray,
+    near_active: NDArray[np.bool_],
+    damping: FloatArray,
 ) -> FloatArray:
-    """Bertsekas's projected-Newton direction for a batch.
+    """Bertsekas's projected-Newton direction for a batch, with Levenberg-Marquardt damping.
 
-    On the free set ``F`` it solves ``(H_FF + mu I) d_F = g_F`` (a Newton step; the tiny
-    ridge ``mu`` keeps the system solvable where the covariance is singular); on the
-    epsilon-active set it takes the diagonally scaled gradient step
-    ``d_k = g_k / (H_kk + mu)``. Both parts are ascent directions, which is what the
-    line search needs.
+    On the free set ``F`` it solves ``(H_FF + mu I) d_F = g_F``; on the epsilon-active set
+    it takes the diagonally scaled gradient step ``d_k = g_k / (H_kk + mu)``. Both parts are
+    ascent directions, which is what the line search needs. The ridge
+    ``mu = damping * mean(diag H)`` keeps the system solvable where the covariance is
+    singular and, when large, turns the step towards (scaled) gradient ascent.
     """
     k = gradient.shape[-1]
     free = ~near_active
     diagonal = np.diagonal(hessian_neg, axis1=1, axis2=2)
-    ridge = 1e-10 * diagonal.mean(axis=1) + 1e-300
+    ridge = damping * diagonal.mean(axis=1) + 1e-300
     matrix = np.where(free[:, :, None] & free[:, None, :], hessian_neg, 0.0)
     matrix = matrix + np.eye(k) * np.where(free, ridge[:, None], 1.0)[:, None, :]
     newton = np.linalg.solve(matrix, np.where(free, gradient, 0.0)[..., None])[..., 0]
@@ -272,6 +288,8 @@ def fit_maxent_irl(
     converged = np.zeros(batch, dtype=bool)
     running = np.arange(batch)
     problem = (successors, start, horizon, rationality)
+    # Relative ridge of each trial: raised when the full step fails, lowered when it succeeds.
+    damping = np.full(batch, MIN_DAMPING)
 
     moments = _moments(theta, demo_counts, features, *problem)
     while True:
@@ -292,7 +310,7 @@ def fit_maxent_irl(
             (th >= high - epsilon) & (gradient > 0)
         )
         direction = _search_direction(
-            gradient, rationality**2 * moments.covariance[keep], near_active
+            gradient, rationality**2 * moments.covariance[keep], near_active, damping[running]
         )
         # The full step usually succeeds, and its moments are the next iteration's.
         full_step = np.clip(th + direction, low, high)
@@ -310,6 +328,11 @@ def fit_maxent_irl(
         )
         iterations[running] += 1
         theta[running] = step
+        damping[running] = np.where(
+            full,
+            np.maximum(damping[running] / 10, MIN_DAMPING),
+            np.minimum(damping[running] * 100, MAX_DAMPING),
+        )
         # No ascent at floating-point resolution: the fit cannot improve further.
         iterations[running[~accepted]] = max_iterations
         shorter = accepted & ~full

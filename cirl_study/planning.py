@@ -123,22 +123,15 @@ def soft_backup(
 
 @njit(cache=True)
 def _soft_value_iteration(scaled, successors, horizon):  # pragma: no cover - compiled
+    """Batch-major ``(B, T + 1, S)``, ``(B, T, S, A)`` x 2 results of :func:`soft_backup`."""
     batch, cells = scaled.shape
     actions = successors.shape[1]
-    values = np.empty((horizon + 1, batch, cells))
-    log_policy = np.empty((horizon, batch, cells, actions))
-    policy = np.empty((horizon, batch, cells, actions))
-    one_values = np.empty((horizon + 1, cells))
-    one_log_policy = np.empty((horizon, cells, actions))
-    one_policy = np.empty((horizon, cells, actions))
+    values = np.empty((batch, horizon + 1, cells))
+    log_policy = np.empty((batch, horizon, cells, actions))
+    policy = np.empty((batch, horizon, cells, actions))
     everywhere = np.ones((horizon + 1, cells), dtype=np.bool_)
     for b in range(batch):
-        soft_backup(
-            scaled[b], successors, horizon, one_values, one_log_policy, one_policy, everywhere
-        )
-        values[:, b] = one_values
-        log_policy[:, b] = one_log_policy
-        policy[:, b] = one_policy
+        soft_backup(scaled[b], successors, horizon, values[b], log_policy[b], policy[b], everywhere)
     return values, log_policy, policy
 
 
@@ -160,7 +153,12 @@ def soft_value_iteration(
     values, log_policy, policy = _soft_value_iteration(
         scaled, np.ascontiguousarray(successors, dtype=np.int64), horizon
     )
-    return SoftPlan(log_policy=log_policy, policy=policy, values=values)
+    # Computed trial by trial (batch-major); returned as (T, B, ...) views.
+    return SoftPlan(
+        log_policy=log_policy.transpose(1, 0, 2, 3),
+        policy=policy.transpose(1, 0, 2, 3),
+        values=values.transpose(1, 0, 2),
+    )
 
 
 @njit(cache=True)
