@@ -1,0 +1,160 @@
+"""The trial records and provenance of one log file, with every content fault found.
+
+Built on :func:`~cirl_study.logs.scan.scan_file` (storage damage: CRCs, truncation, summary).
+Content checks: the ``provenance`` metadata record; the schema name and encodings of every
+channel; each ``/cirl/trial`` payload is strict canonical JSON (no NaN) of a complete and
+consistent record (:func:`~cirl_study.logs.record_checks.record_faults`); no trial id twice;
+in an undamaged file, trial log times follow the documented layout and the replay topics hold
+as many messages as the records imply.
+"""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from cirl_study.logs.episode import replay_counts
+from cirl_study.logs.format import (
+    GRID_SCHEMA_NAME,
+    MESSAGE_ENCODING,
+    PIPELINE_NAME_KEY,
+    PROVENANCE_METADATA_NAME,
+    SCHEMA_ENCODING,
+    TRIAL_SCHEMA_NAME,
+    TRIAL_TOPIC,
+    canonical_json,
+    trial_duration_ns,
+)
+from cirl_study.logs.record_checks import record_faults
+from cirl_study.logs.scan import FileScan, scan_file
+
+
+@dataclass
+class FileContents:
+    """Decoded content of one log file.
+
+    ``records`` are the readable trial records in file order; ``damage`` the storage faults
+    (a damaged file still yields the records of its intact chunks); ``content_faults`` what is
+    wrong with the content that could be read.
+    """
+
+    scan: FileScan
+    records: list[dict[str, Any]] = field(default_factory=list)
+    provenance: dict[str, str] | None = None
+    content_faults: list[str] = field(default_factory=list)
+
+    @property
+    def path(self) -> Path:
+        return self.scan.path
+
+    @property
+    def damage(self) -> list[str]:
+        return self.scan.faults
+
+    @property
+    def faults(self) -> list[str]:
+        """All faults: storage damage first, then content."""
+        return [*self.damage, *self.content_faults]
+
+
+def read_file_contents(path: Path) -> FileContents:
+    """Scan ``path``, decode its trials and provenance, and check its content."""
+    contents = FileContents(scan=scan_file(path))
+    if not contents.scan.readable:
+        return contents
+    faults = contents.content_faults
+    _read_provenance(contents)
+    faults.extend(_channel_faults(contents.scan))
+    trial_messages = contents.scan.topic_messages(TRIAL_TOPIC)
+    seen: set[str] = set()
+    for index, message in enumerate(trial_messages):
+        label = f"trial message {index}"
+        try:
+            record = json.loads(message.data, parse_constant=_reject_constant)
+        except ValueError as error:
+            faults.append(f"{label}: not valid JSON ({error})")
+            continue
+        if isinstance(record, dict) and isinstance(record.get("trial_id"), str):
+            label = f"trial {record['trial_id']}"
+        problems = record_faults(record)
+        faults.extend(f"{label}: {problem}" for problem in problems)
+        if problems:
+            continue
+        if canonical_json(record) != message.data:
+            faults.append(f"{label}: payload is not canonical JSON")
+        if record["trial_id"] in seen:
+            faults.append(f"{label}: logged twice in this file")
+        seen.add(record["trial_id"])
+        contents.records.append(record)
+    if not contents.damage and len(contents.records) == len(trial_messages):
+        faults.extend(_layout_faults(contents.scan, contents.records))
+    return contents
+
+
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"{name} is not a JSON number")
+
+
+def _read_provenance(contents: FileContents) -> None:
+    records = [m for m in contents.scan.metadata if m.name == PROVENANCE_METADATA_NAME]
+    if len(records) != 1:
+        contents.content_faults.append(
+            f"{len(records)} {PROVENANCE_METADATA_NAME!r} metadata records, expected 1"
+        )
+    if records:
+        contents.provenance = dict(records[0].metadata)
+        if PIPELINE_NAME_KEY not in contents.provenance:
+            contents.content_faults.append(f"provenance has no {PIPELINE_NAME_KEY!r}")
+
+
+def _channel_faults(scan: FileScan) -> list[str]:
+    faults = []
+    trial_channels = scan.channel_ids(TRIAL_TOPIC)
+    if len(trial_channels) != 1:
+        faults.append(f"{len(trial_channels)} channels on {TRIAL_TOPIC}, expected 1")
+    channels = {**scan.summary_channels, **scan.channels}
+    schemas = {**scan.summary_schemas, **scan.schemas}
+    for channel in channels.values():
+        schema = schemas.get(channel.schema_id)
+        if channel.message_encoding != MESSAGE_ENCODING:
+            faults.append(f"{channel.topic}: message encoding {channel.message_encoding!r}")
+        if schema is None:
+            faults.append(f"{channel.topic}: no schema")
+            continue
+        if schema.encoding != SCHEMA_ENCODING:
+            faults.append(f"{channel.topic}: schema encoding {schema.encoding!r}")
+        expected = TRIAL_SCHEMA_NAME if channel.topic == TRIAL_TOPIC else None
+        if channel.topic.startswith("/cirl/reward/"):
+            expected = GRID_SCHEMA_NAME
+        if expected is not None and schema.name != expected:
+            faults.append(f"{channel.topic}: schema {schema.name!r}, expected {expected!r}")
+        try:
+            json.loads(schema.data)
+        except ValueError:
+            faults.append(f"{channel.topic}: schema {schema.name!r} is not valid JSON")
+    return faults
+
+
+def _layout_faults(scan: FileScan, records: list[dict[str, Any]]) -> list[str]:
+    """Trial log times and replay-topic message counts implied by the records."""
+    faults = []
+    start_ns = 0
+    for record, message in zip(records, scan.topic_messages(TRIAL_TOPIC), strict=True):
+        if message.log_time != start_ns:
+            faults.append(
+                f"trial {record['trial_id']}: logged at {message.log_time} ns, "
+                f"expected {start_ns} ns from its position in the file"
+            )
+            break
+        start_ns += trial_duration_ns(record["learning_steps"], record["deployment_steps"])
+    expected: Counter[str] = Counter()
+    for record in records:
+        expected.update(replay_counts(record))
+    for topic, count in sorted(expected.items()):
+        found = len(scan.topic_messages(topic))
+        if found != count:
+            faults.append(f"{topic}: {found} messages, the trial records imply {count}")
+    return faults

@@ -1,0 +1,87 @@
+"""Fixed names, encodings and the time layout of the study's MCAP log files.
+
+A run directory holds one or more complete files ``*.mcap``. A file being written lives
+under the temporary name ``<final name>.tmp`` in the same directory and is renamed to its
+final name only when it is complete, so a reader that lists ``*.mcap`` never sees a partial
+file.
+
+Topics (all JSON messages described by JSON schemas, see :mod:`cirl_study.logs.schemas`):
+
+* ``/cirl/trial`` (``cirl_study.Trial``): one message per trial, the record of DESIGN.md
+  section 7, serialised by :func:`canonical_json` so that equal records give equal bytes.
+* ``/cirl/demonstration`` (``cirl_study.DemonstrationStep``): the human's path, one message
+  per step ``t = 0..T_learn``.
+* ``/cirl/deployment`` (``cirl_study.DeploymentStep``): the robot's deployment rollouts from a
+  few start cells, one message per step ``t = 0..T_deploy`` holding every rollout's cell.
+* ``/cirl/reward/true`` and ``/cirl/reward/map`` (``foxglove.Grid``): the reward maps
+  ``r_theta(s) = theta . phi(s)`` and ``r_theta_hat(s)`` over all cells.
+
+Time layout: trial ``k`` of a file occupies the interval starting at ``start_k`` with
+``start_0 = 0`` and ``start_{k+1} = start_k + (T_learn + T_deploy + 2) * STEP_NS``. The trial
+message and both reward maps are logged at ``start_k``, demonstration step ``t`` at
+``start_k + t * STEP_NS`` and deployment step ``t`` at
+``start_k + (T_learn + 1 + t) * STEP_NS``. Times therefore depend only on the sequence of
+records in the file, never on the wall clock.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+TRIAL_TOPIC = "/cirl/trial"
+DEMONSTRATION_TOPIC = "/cirl/demonstration"
+DEPLOYMENT_TOPIC = "/cirl/deployment"
+TRUE_REWARD_TOPIC = "/cirl/reward/true"
+MAP_REWARD_TOPIC = "/cirl/reward/map"
+
+TRIAL_SCHEMA_NAME = "cirl_study.Trial"
+DEMONSTRATION_SCHEMA_NAME = "cirl_study.DemonstrationStep"
+DEPLOYMENT_SCHEMA_NAME = "cirl_study.DeploymentStep"
+GRID_SCHEMA_NAME = "foxglove.Grid"
+
+SCHEMA_ENCODING = "jsonschema"
+MESSAGE_ENCODING = "json"
+
+PROVENANCE_METADATA_NAME = "provenance"
+PIPELINE_NAME_KEY = "pipeline_name"
+
+#: One game step lasts one second of log time, so Foxglove replays an episode at 1 step/s.
+STEP_NS = 1_000_000_000
+
+LOG_SUFFIX = ".mcap"
+TEMP_SUFFIX = ".tmp"
+
+
+_CANONICAL = json.JSONEncoder(sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def canonical_json(value: Any) -> bytes:
+    """Serialise ``value`` as canonical JSON bytes: sorted keys, no spaces, no NaN/inf.
+
+    The bytes are those of ``json.dumps(value, sort_keys=True, separators=(",", ":"),
+    allow_nan=False)``: two equal records (whatever their key order) give identical bytes, so
+    logged payloads can be compared byte for byte across runs, engines and worker counts.
+    """
+    return _CANONICAL.encode(value).encode()
+
+
+def temp_path(path: Path) -> Path:
+    """The temporary name under which the file ``path`` is written until it is complete."""
+    return path.with_name(path.name + TEMP_SUFFIX)
+
+
+def log_files(run_dir: Path) -> list[Path]:
+    """The complete log files of a run directory, sorted by name."""
+    return sorted(p for p in run_dir.glob(f"*{LOG_SUFFIX}") if p.is_file())
+
+
+def temp_files(run_dir: Path) -> list[Path]:
+    """Unfinished (temporary) log files left in a run directory by an interrupted run."""
+    return sorted(p for p in run_dir.glob(f"*{LOG_SUFFIX}{TEMP_SUFFIX}") if p.is_file())
+
+
+def trial_duration_ns(learning_steps: int, deployment_steps: int) -> int:
+    """Length of a trial's interval of log time (see the module docstring)."""
+    return (learning_steps + deployment_steps + 2) * STEP_NS

@@ -1,0 +1,101 @@
+"""Verdicts on a run's log files, one per file and one for the run (``cirl-study validate``).
+
+A file is OK when :func:`~cirl_study.logs.scan.scan_file` finds no storage fault (magic,
+framing, chunk / data-section / summary CRCs, summary counts and indexes) and
+:func:`~cirl_study.logs.contents.read_file_contents` no content fault (provenance, schemas and
+encodings, every record complete and consistent, time layout, replay counts). The run is OK
+when every file is, no unfinished temporary file is left, and
+:func:`~cirl_study.logs.run_checks.run_faults` finds nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from cirl_study.errors import UserError
+from cirl_study.logs.contents import read_file_contents
+from cirl_study.logs.format import log_files, temp_files
+from cirl_study.logs.run_checks import run_faults
+
+#: Faults shown on a verdict line before the rest are only counted.
+SHOWN_FAULTS = 3
+
+
+@dataclass(frozen=True)
+class FileVerdict:
+    """The verdict on one log file: its readable trial count and every fault found."""
+
+    path: Path
+    trials: int
+    faults: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.faults
+
+    def line(self) -> str:
+        """``OK path: N trials`` or ``FAIL path: reason; ...``."""
+        if self.ok:
+            return f"OK {self.path}: {self.trials} trials"
+        return f"FAIL {self.path}: {_summary(self.faults)}"
+
+
+@dataclass(frozen=True)
+class RunVerdict:
+    """The verdict on a run: one per file plus the run-level faults."""
+
+    run_dir: Path
+    files: tuple[FileVerdict, ...]
+    faults: tuple[str, ...]
+
+    @property
+    def ok(self) -> bool:
+        return not self.faults and all(verdict.ok for verdict in self.files)
+
+    @property
+    def trials(self) -> int:
+        return sum(verdict.trials for verdict in self.files)
+
+    def line(self) -> str:
+        """The run-level verdict line."""
+        totals = f"{len(self.files)} file(s), {self.trials} trials"
+        if self.ok:
+            return f"OK run {self.run_dir}: {totals}, design complete"
+        bad = sum(not verdict.ok for verdict in self.files)
+        reasons = [f"{bad} faulty file(s)"] if bad else []
+        return f"FAIL run {self.run_dir}: {totals}; {_summary((*reasons, *self.faults))}"
+
+
+def validate_file(path: str | Path) -> FileVerdict:
+    """Check one log file (see the module docstring)."""
+    contents = read_file_contents(Path(path))
+    return FileVerdict(Path(path), len(contents.records), tuple(contents.faults))
+
+
+def validate_run(run_dir: str | Path) -> RunVerdict:
+    """Check every complete file of ``run_dir`` and the run as a whole."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise UserError(f"{run_dir}: no such run directory")
+    verdicts, files = [], []
+    for path in log_files(run_dir):
+        contents = read_file_contents(path)
+        verdicts.append(FileVerdict(path, len(contents.records), tuple(contents.faults)))
+        files.append((path, contents.records, contents.provenance))
+    faults = run_faults(files)
+    if not verdicts:
+        faults.insert(0, "no complete log files (*.mcap)")
+    unfinished = temp_files(run_dir)
+    if unfinished:
+        faults.append(
+            f"{len(unfinished)} unfinished temporary file(s) of an interrupted run "
+            f"(e.g. {unfinished[0].name}); run the pipeline again to complete the run"
+        )
+    return RunVerdict(run_dir, tuple(verdicts), tuple(faults))
+
+
+def _summary(faults: tuple[str, ...]) -> str:
+    shown = "; ".join(faults[:SHOWN_FAULTS])
+    rest = len(faults) - SHOWN_FAULTS
+    return shown if rest <= 0 else f"{shown}; and {rest} more"

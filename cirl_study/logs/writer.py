@@ -1,0 +1,160 @@
+"""Writing the trials of a run to an MCAP file, atomically.
+
+The file is written under the temporary name ``<path>.tmp`` in the same directory; only a
+clean exit from the ``with`` block finishes it (summary, indexes, CRCs), syncs it to disk and
+renames it to ``path``. An exception or a killed process leaves only the temporary file,
+which readers ignore.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from types import TracebackType
+from typing import IO, Any, Self
+
+import mcap
+from mcap.writer import CompressionType, Writer
+
+from cirl_study import __version__
+from cirl_study.logs.episode import episode_messages
+from cirl_study.logs.format import (
+    DEMONSTRATION_SCHEMA_NAME,
+    DEMONSTRATION_TOPIC,
+    DEPLOYMENT_SCHEMA_NAME,
+    DEPLOYMENT_TOPIC,
+    GRID_SCHEMA_NAME,
+    MAP_REWARD_TOPIC,
+    MESSAGE_ENCODING,
+    PIPELINE_NAME_KEY,
+    PROVENANCE_METADATA_NAME,
+    SCHEMA_ENCODING,
+    TRIAL_SCHEMA_NAME,
+    TRIAL_TOPIC,
+    TRUE_REWARD_TOPIC,
+    canonical_json,
+    temp_path,
+    trial_duration_ns,
+)
+from cirl_study.logs.schemas import (
+    DEMONSTRATION_SCHEMA,
+    DEPLOYMENT_SCHEMA,
+    GRID_SCHEMA,
+    TRIAL_SCHEMA,
+)
+
+#: (topic, schema name, JSON schema) of every channel, in the order they are registered.
+CHANNELS: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    (TRIAL_TOPIC, TRIAL_SCHEMA_NAME, TRIAL_SCHEMA),
+    (TRUE_REWARD_TOPIC, GRID_SCHEMA_NAME, GRID_SCHEMA),
+    (MAP_REWARD_TOPIC, GRID_SCHEMA_NAME, GRID_SCHEMA),
+    (DEMONSTRATION_TOPIC, DEMONSTRATION_SCHEMA_NAME, DEMONSTRATION_SCHEMA),
+    (DEPLOYMENT_TOPIC, DEPLOYMENT_SCHEMA_NAME, DEPLOYMENT_SCHEMA),
+)
+
+#: Chunks are closed once they hold this many uncompressed bytes; a truncated file loses at
+#: most the chunk being written.
+CHUNK_SIZE = 1 << 20
+
+LIBRARY = f"cirl-study {__version__}; python mcap {mcap.__version__}"
+
+
+class TrialLogWriter:
+    """One MCAP log file of a run: ``with TrialLogWriter(path, provenance) as log: log.write(r)``.
+
+    ``provenance`` (string to string, with a ``pipeline_name`` key) becomes the file's
+    ``provenance`` metadata record. Each :meth:`write` logs one trial record (DESIGN.md
+    section 7) with its reward maps and its step-by-step replay; log times follow the layout of
+    :mod:`cirl_study.logs.format`. Chunks are zstd-compressed; chunk, data-section and summary
+    CRCs are all written.
+    """
+
+    def __init__(
+        self, path: str | Path, provenance: Mapping[str, str], *, chunk_size: int = CHUNK_SIZE
+    ) -> None:
+        if not all(isinstance(k, str) and isinstance(v, str) for k, v in provenance.items()):
+            raise TypeError("provenance must map strings to strings")
+        if PIPELINE_NAME_KEY not in provenance:
+            raise ValueError(f"provenance needs a {PIPELINE_NAME_KEY!r} entry")
+        self.path = Path(path)
+        self.temp_path = temp_path(self.path)
+        self.provenance = dict(provenance)
+        self.chunk_size = chunk_size
+        self.trial_count = 0
+        self._clock_ns = 0
+        self._file: IO[bytes] | None = None
+        self._writer: Writer | None = None
+        self._channel_ids: dict[str, int] = {}
+        self._sequences: dict[str, int] = {}
+
+    def __enter__(self) -> Self:
+        if self.path.exists():
+            raise FileExistsError(f"{self.path} already exists")
+        self._file = open(self.temp_path, "wb")  # noqa: SIM115 - closed in __exit__
+        self._writer = Writer(
+            self._file,
+            chunk_size=self.chunk_size,
+            compression=CompressionType.ZSTD,
+            enable_data_crcs=True,
+        )
+        self._writer.start(profile="", library=LIBRARY)
+        self._writer.add_metadata(PROVENANCE_METADATA_NAME, self.provenance)
+        schema_ids: dict[str, int] = {}
+        for topic, name, schema in CHANNELS:
+            if name not in schema_ids:
+                schema_ids[name] = self._writer.register_schema(
+                    name=name, encoding=SCHEMA_ENCODING, data=canonical_json(schema)
+                )
+            self._channel_ids[topic] = self._writer.register_channel(
+                topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=schema_ids[name]
+            )
+            self._sequences[topic] = 0
+        return self
+
+    def write(self, record: Mapping[str, Any]) -> None:
+        """Log one trial record (and its replay topics) as the next trial of the file."""
+        if self._writer is None:
+            raise RuntimeError("TrialLogWriter.write called outside its `with` block")
+        for message in episode_messages(record, self._clock_ns):
+            self._writer.add_message(
+                channel_id=self._channel_ids[message.topic],
+                log_time=message.log_time,
+                publish_time=message.log_time,
+                data=canonical_json(message.payload),
+                sequence=self._sequences[message.topic],
+            )
+            self._sequences[message.topic] += 1
+        self._clock_ns += trial_duration_ns(record["learning_steps"], record["deployment_steps"])
+        self.trial_count += 1
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        assert self._file is not None and self._writer is not None
+        try:
+            if exc_type is None:
+                self._writer.finish()
+                self._file.flush()
+                os.fsync(self._file.fileno())
+        finally:
+            self._file.close()
+            self._writer = None
+        if exc_type is None:
+            os.replace(self.temp_path, self.path)
+            _sync_directory(self.path.parent)
+
+
+def _sync_directory(directory: Path) -> None:
+    """Make a rename inside ``directory`` durable (a no-op where directories cannot be opened)."""
+    try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)

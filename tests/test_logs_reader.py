@@ -1,0 +1,141 @@
+"""`read_run` and `completed_trial_ids`: what analysis and resume read from a run."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+from test_logs_helpers import make_record, make_study
+
+from cirl_study.errors import UserError
+from cirl_study.logs import TrialLogWriter, completed_trial_ids, read_run
+from cirl_study.logs.scan import scan_file
+
+PROVENANCE = {"pipeline_name": "smoke", "git_commit": "abc"}
+
+
+def write(path: Path, records: list[dict], provenance: dict | None = None) -> Path:
+    with TrialLogWriter(path, provenance or PROVENANCE, chunk_size=2500) as log:
+        for record in records:
+            log.write(record)
+    return path
+
+
+@pytest.fixture
+def run(tmp_path: Path) -> Path:
+    directory = tmp_path / "run"
+    directory.mkdir()
+    return directory
+
+
+def test_records_of_every_file_sorted_by_trial_id(run: Path) -> None:
+    study = make_study(subjects=2)
+    write(run / "b.mcap", study[:5])
+    write(run / "a.mcap", study[5:])
+    contents = read_run(run)
+    assert contents.records == sorted(study, key=lambda r: r["trial_id"])
+    assert contents.provenance == [PROVENANCE, PROVENANCE]
+    assert contents.pipeline_name == "smoke"
+    assert contents.warnings == []
+    assert completed_trial_ids(run) == {r["trial_id"] for r in study}
+
+
+def test_temporary_files_are_ignored(run: Path) -> None:
+    study = make_study(subjects=1)
+    write(run / "a.mcap", study[:2])
+    with pytest.raises(KeyboardInterrupt), TrialLogWriter(run / "b.mcap", PROVENANCE) as log:
+        log.write(study[2])
+        raise KeyboardInterrupt
+    assert (run / "b.mcap.tmp").exists()
+    assert completed_trial_ids(run) == {r["trial_id"] for r in study[:2]}
+    contents = read_run(run)
+    assert contents.records == sorted(study[:2], key=lambda r: r["trial_id"])
+    assert contents.warnings == [
+        f"{run}: 1 unfinished temporary file(s) of an interrupted run ignored; "
+        "run the pipeline again to complete the run"
+    ]
+
+
+def test_a_truncated_file_is_salvaged_with_a_warning(run: Path) -> None:
+    study = make_study(subjects=3)
+    path = write(run / "a.mcap", study)
+    chunks = scan_file(path).chunk_offsets
+    assert len(chunks) >= 4
+    data = path.read_bytes()
+    path.write_bytes(data[: chunks[3] + 50])  # cut inside the fourth chunk
+    contents = read_run(run)
+    recovered = contents.records
+    assert 0 < len(recovered) < len(study)
+    by_position = {r["trial_id"]: i for i, r in enumerate(study)}
+    assert sorted(by_position[r["trial_id"]] for r in recovered) == list(range(len(recovered)))
+    (warning,) = contents.warnings
+    assert warning.startswith(f"{path}: damaged (truncated: the chunk record at byte {chunks[3]} ")
+    assert warning.endswith(
+        f"recovered {len(recovered)} trial(s) (how many were lost is unknown) "
+        "from 3 intact chunk(s) of 3 read"
+    )
+
+
+def test_a_damaged_chunk_is_skipped_and_counted(run: Path) -> None:
+    study = make_study(subjects=3)
+    path = write(run / "a.mcap", study)
+    chunk = scan_file(path).chunk_offsets[2]
+    data = bytearray(path.read_bytes())
+    data[chunk + 100] ^= 0xFF
+    path.write_bytes(bytes(data))
+    contents = read_run(run)
+    assert 0 < len(contents.records) < len(study)
+    assert all(r in study for r in contents.records)
+    (warning,) = contents.warnings
+    assert warning.startswith(f"{path}: damaged (damaged chunk at byte {chunk}: ")
+    assert f"recovered {len(contents.records)} trial(s) of {len(study)} from " in warning
+    with pytest.raises(UserError, match=f"{path} is damaged"):
+        completed_trial_ids(run)
+
+
+def test_a_trial_in_two_files_is_refused(run: Path) -> None:
+    record = make_record(1)
+    write(run / "a.mcap", [record])
+    write(run / "b.mcap", [record])
+    message = (
+        f"trial {record['trial_id']} is logged twice: in {run / 'a.mcap'} and in {run / 'b.mcap'}"
+    )
+    with pytest.raises(UserError) as error:
+        read_run(run)
+    assert str(error.value) == message
+    with pytest.raises(UserError, match="logged twice"):
+        completed_trial_ids(run)
+
+
+def test_a_faulty_record_is_refused(run: Path) -> None:
+    record = make_record(1)
+    record["policy"] = "oracle"
+    write(run / "a.mcap", [record])
+    with pytest.raises(UserError, match=r"unusable \(trial .*'oracle' is not one of"):
+        read_run(run)
+
+
+def test_files_of_two_pipelines_are_refused(run: Path) -> None:
+    write(run / "a.mcap", [make_record(1)])
+    write(run / "b.mcap", [make_record(2)], {"pipeline_name": "paper"})
+    with pytest.raises(UserError, match=r"log files of 2 pipelines \(paper, smoke\)"):
+        read_run(run)
+
+
+@pytest.mark.parametrize(
+    ("setup", "message"),
+    [
+        (lambda run: run.rmdir(), "no such run directory"),
+        (lambda run: None, "no complete log files"),
+        (lambda run: (run / "a.mcap").write_bytes(b"PK\x03\x04"), "not an MCAP file"),
+    ],
+)
+def test_unreadable_runs_are_user_errors(run: Path, setup, message: str) -> None:
+    setup(run)
+    with pytest.raises(UserError, match=message):
+        read_run(run)
+
+
+def test_resume_of_a_fresh_run(tmp_path: Path) -> None:
+    assert completed_trial_ids(tmp_path / "not-yet") == set()
+    assert completed_trial_ids(tmp_path) == set()
