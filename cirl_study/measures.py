@@ -72,7 +72,9 @@ def trajectory_kl(
     batch, cells = theta.shape[0], successors.shape[0]
     divergence = np.zeros((batch, cells))
     for t in range(horizon - 1, -1, -1):
-        divergence = (true.policy[t] * (log_ratio[t] + divergence[:, gather])).sum(axis=-1)
+        # Each per-step KL is >= 0; clipping removes only rounding below zero.
+        step = np.maximum((true.policy[t] * log_ratio[t]).sum(axis=-1), 0.0)
+        divergence = step + (true.policy[t] * divergence[:, gather]).sum(axis=-1)
     return divergence.mean(axis=1)
 
 

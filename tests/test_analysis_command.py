@@ -31,7 +31,7 @@ def test_analyze_writes_the_report_under_reports_by_default(tmp_path, monkeypatc
     result = CliRunner().invoke(app, ["analyze", str(run)])
     assert result.exit_code == 0, result.output
     out = tmp_path / "reports" / "synthetic"
-    assert f"report of {len(records)} trials written to reports/synthetic: 6 claims" in (
+    assert f"report of {len(records)} trials written to reports/synthetic: 10 claims" in (
         result.output
     )
     results = json.loads((out / "results.json").read_text(encoding="utf-8"))
