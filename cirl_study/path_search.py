@@ -49,7 +49,7 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from cirl_study.planning import IntArray
+from cirl_study.planning import IntArray, reachable_cells
 
 FloatArray = NDArray[np.float64]
 
@@ -88,7 +88,7 @@ def _principal_axes(features: FloatArray) -> FloatArray:
 
 
 @njit(cache=True)
-def suffix_extremes(cell_values, successors, horizon):  # pragma: no cover - compiled
+def suffix_extremes(cell_values, successors, horizon, needed):  # pragma: no cover - compiled
     """Min and max of :math:`\\sum_{u=1}^{r} v(s_u)` over ``r``-step paths from each cell.
 
     Args:
@@ -96,6 +96,9 @@ def suffix_extremes(cell_values, successors, horizon):  # pragma: no cover - com
             optimised separately.
         successors: ``(S, A)`` successor table.
         horizon: largest ``r``.
+        needed: ``(horizon + 1, S)`` mask of the ``(r, s)`` entries to compute; the
+            successors of a needed ``(r, s)`` must be needed at ``r - 1`` (entries that are
+            not needed are left undefined).
 
     Returns:
         ``low, high``, each ``(B, horizon + 1, S, M)``; index ``r`` holds the extremes
@@ -111,6 +114,8 @@ def suffix_extremes(cell_values, successors, horizon):  # pragma: no cover - com
             low_prev, high_prev = low[b, r - 1], high[b, r - 1]
             low_now, high_now = low[b, r], high[b, r]
             for s in range(cells):
+                if not needed[r, s]:
+                    continue
                 first = True
                 for a in range(successors.shape[1]):
                     nxt = successors[s, a]
@@ -128,7 +133,12 @@ def suffix_extremes(cell_values, successors, horizon):  # pragma: no cover - com
 
 
 def _prepare(
-    features: FloatArray, target: FloatArray, direction: FloatArray, successors: IntArray, horizon
+    features: FloatArray,
+    target: FloatArray,
+    direction: FloatArray,
+    successors: IntArray,
+    start: int,
+    horizon: int,
 ) -> _Problem:
     batch, _, k = features.shape
     bases = np.stack(
@@ -144,8 +154,10 @@ def _prepare(
         batch, features.shape[1], -1, k
     )
     rotated_target = np.matmul(flat, target[:, :, None]).reshape(batch, -1, k)
+    # A prefix with r steps left ends in a cell reachable from the start in T - r steps.
+    needed = reachable_cells(successors, start, horizon)[::-1].copy()
     low, high = suffix_extremes(
-        rotated_features.reshape(batch, features.shape[1], -1), successors, horizon
+        rotated_features.reshape(batch, features.shape[1], -1), successors, horizon, needed
     )
     shape = (batch, horizon + 1, features.shape[1], -1, k)
     return _Problem(rotated_features, rotated_target, low.reshape(shape), high.reshape(shape))
@@ -286,7 +298,9 @@ def nearest_paths(
     if direction is None:
         direction = target
     successors = np.ascontiguousarray(successors, dtype=np.int64)
-    problem = _prepare(features, target, np.asarray(direction, float), successors, horizon)
+    problem = _prepare(
+        features, target, np.asarray(direction, float), successors, int(start), horizon
+    )
     return _search(
         successors,
         int(start),
