@@ -1,0 +1,210 @@
+"""The humans (DESIGN section 3) against exhaustive enumeration of every path."""
+
+import brute_force as bf
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cirl_study.humans import best_response_paths, best_response_target, expert_paths
+from cirl_study.path_search import nearest_paths
+
+PAPER = {"width": 10, "height": 10, "start": bf.cell(10, 5, 5), "horizon": 9}
+
+
+def _batch(features, size):
+    return np.ascontiguousarray(np.broadcast_to(features, (size, *features.shape)))
+
+
+def _assert_paths(paths, width, height, start, horizon):
+    paths = np.asarray(paths)
+    assert paths.shape[1] == horizon + 1
+    for row in paths:
+        assert bf.is_path(width, height, row, start, horizon), row
+
+
+def _tol(value):
+    return 1e-9 * max(1.0, abs(value))
+
+
+# ---- expert ---------------------------------------------------------------------------------
+
+
+@given(instance=bf.instances(max_side=4, max_horizon=5, max_features=4))
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_expert_is_the_argmax_over_all_paths(instance):
+    theta = np.array(instance.theta)
+    paths = expert_paths(
+        theta[None],
+        instance.features[None],
+        bf.move_table(instance.width, instance.height),
+        instance.start,
+        instance.horizon,
+    )
+    _assert_paths(paths, instance.width, instance.height, instance.start, instance.horizon)
+    _, best = bf.expert(instance.counts, theta)
+    got = bf.path_rewards(bf.feature_counts(paths, instance.features), theta)[0]
+    assert got == pytest.approx(best, rel=1e-12, abs=1e-12)
+
+
+@given(
+    width=st.integers(1, 4),
+    height=st.integers(2, 4),
+    horizon=st.integers(1, 5),
+    data=st.data(),
+)
+@settings(max_examples=30, deadline=None)
+def test_expert_breaks_exact_ties_by_the_first_path_in_action_order(width, height, horizon, data):
+    # Integer cell rewards (features = identity): sums are exact and ties are real. Lowest action
+    # index at every step picks the lexicographically first optimal action sequence.
+    cells = width * height
+    rewards = np.array(data.draw(st.lists(st.integers(0, 2), min_size=cells, max_size=cells)))
+    start = data.draw(st.integers(0, cells - 1))
+    paths = bf.enumerate_paths(width, height, start, horizon)
+    best, _ = bf.expert(bf.feature_counts(paths, np.eye(cells)), rewards)
+    got = expert_paths(
+        rewards[None].astype(float),
+        np.eye(cells)[None],
+        bf.move_table(width, height),
+        start,
+        horizon,
+    )
+    np.testing.assert_array_equal(got[0], paths[best])
+
+
+def test_expert_at_the_paper_size():
+    rng = np.random.default_rng(20)
+    for k in (3, 10):
+        features = bf.rbf_features(10, 10, rng.uniform(0, 9, size=(k, 2)), 2.0)
+        counts = bf.feature_counts_fast(**PAPER, features=features)
+        thetas = rng.uniform(-1, 1, size=(3, k))
+        paths = expert_paths(
+            thetas, _batch(features, 3), bf.move_table(10, 10), PAPER["start"], PAPER["horizon"]
+        )
+        _assert_paths(paths, 10, 10, PAPER["start"], PAPER["horizon"])
+        got = bf.feature_counts(paths, features)
+        for b in range(3):
+            _, best = bf.expert_fast(counts, thetas[b])
+            assert got[b] @ thetas[b] == pytest.approx(best, rel=1e-12, abs=1e-12)
+
+
+# ---- best response --------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("rationality", [1e-4, 1.0, 1e3])
+def test_best_response_target_equals_enumeration(rationality):
+    width, height, start, horizon = 4, 4, 5, 5
+    rng = np.random.default_rng(3)
+    features = bf.rbf_features(width, height, rng.uniform(0, 3, size=(3, 2)), 1.5)
+    counts = bf.feature_counts(bf.enumerate_paths(width, height, start, horizon), features)
+    thetas = rng.uniform(-1, 1, size=(3, 3))
+    etas = np.array([0.05, 0.5, 5.0])
+    got = best_response_target(
+        thetas, etas, _batch(features, 3), bf.move_table(width, height), start, horizon, rationality
+    )
+    for b in range(3):
+        want = bf.expected_features(counts, thetas[b], rationality) + thetas[b] / (2 * etas[b])
+        np.testing.assert_allclose(got[b], want, rtol=1e-10, atol=1e-12)
+
+
+@given(
+    instance=bf.instances(max_side=4, max_horizon=5, max_features=4),
+    log10_eta=st.floats(-2.0, 1.0),
+)
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_best_response_is_the_argmax_over_all_paths(instance, log10_eta):
+    theta, eta = np.array(instance.theta), 10.0**log10_eta
+    paths = best_response_paths(
+        theta[None],
+        np.array([eta]),
+        instance.features[None],
+        bf.move_table(instance.width, instance.height),
+        instance.start,
+        instance.horizon,
+        instance.rationality,
+    )
+    _assert_paths(paths, instance.width, instance.height, instance.start, instance.horizon)
+    _, best = bf.best_response(instance.counts, theta, eta, instance.rationality)
+    phi_theta = bf.expected_features(instance.counts, theta, instance.rationality)
+    got_counts = bf.feature_counts(paths, instance.features)
+    got = bf.best_response_objective(got_counts, theta, eta, phi_theta)[0]
+    assert got == pytest.approx(best, abs=_tol(best))
+
+
+@pytest.mark.parametrize(
+    "num_features, eta, rationality",
+    [(3, 0.1, 1.0), (3, 2.0, 1e-4), (10, 0.5, 1.0), (10, 0.05, 1e3)],
+)
+def test_best_response_at_the_paper_size(num_features, eta, rationality):
+    rng = np.random.default_rng(num_features * 100 + int(eta * 100))
+    features = bf.rbf_features(10, 10, rng.uniform(0, 9, size=(num_features, 2)), 2.0)
+    counts = bf.feature_counts_fast(**PAPER, features=features)
+    thetas = rng.uniform(-1, 1, size=(2, num_features))
+    paths = best_response_paths(
+        thetas,
+        np.full(2, eta),
+        _batch(features, 2),
+        bf.move_table(10, 10),
+        PAPER["start"],
+        PAPER["horizon"],
+        rationality,
+    )
+    _assert_paths(paths, 10, 10, PAPER["start"], PAPER["horizon"])
+    got_counts = bf.feature_counts(paths, features)
+    for b in range(2):
+        _, best, phi_theta = bf.best_response_fast(counts, thetas[b], eta, rationality)
+        got = bf.best_response_objective(got_counts[b : b + 1], thetas[b], eta, phi_theta)[0]
+        assert got == pytest.approx(best, abs=_tol(best))
+
+
+def test_best_response_differs_from_the_expert_and_a_wrong_target_is_caught():
+    # The reference can tell the best response from nearby wrong answers on this instance.
+    width, height, start, horizon, rationality, eta = 4, 4, 5, 5, 1.0, 0.2
+    rng = np.random.default_rng(12)
+    features = bf.rbf_features(width, height, rng.uniform(0, 3, size=(3, 2)), 1.5)
+    counts = bf.feature_counts(bf.enumerate_paths(width, height, start, horizon), features)
+    theta = rng.uniform(-1, 1, size=3)
+    phi_theta = bf.expected_features(counts, theta, rationality)
+    objective = bf.best_response_objective(counts, theta, eta, phi_theta)
+    best = objective.max()
+    expert, _ = bf.expert(counts, theta)
+    assert objective[expert] < best - 1e-3
+    nearest_mean = int(np.argmin(((counts - phi_theta) ** 2).sum(axis=1)))  # theta / (2 eta) lost
+    assert objective[nearest_mean] < best - 1e-3
+
+
+# ---- the exact nearest-path search on arbitrary targets -------------------------------------
+
+
+@given(
+    instance=bf.instances(max_side=4, max_horizon=5, max_features=4),
+    data=st.data(),
+)
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_nearest_paths_is_the_argmin_over_all_paths(instance, data):
+    k = len(instance.theta)
+    kind = data.draw(st.sampled_from(["random", "far", "on a path"]))
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    if kind == "on a path":
+        target = instance.counts[rng.integers(len(instance.counts))]
+    else:
+        scale = instance.horizon * (1.0 if kind == "random" else 50.0)
+        target = rng.uniform(-scale, scale, size=k)
+    direction = rng.normal(size=(1, k)) if data.draw(st.booleans()) else None
+    actions, values, _ = nearest_paths(
+        instance.features[None],
+        target[None],
+        bf.move_table(instance.width, instance.height),
+        instance.start,
+        instance.horizon,
+        direction=direction,
+    )
+    squared = ((instance.counts - target) ** 2).sum(axis=1)
+    best = squared.min()
+    states = [instance.start]
+    for a in actions[0]:
+        states.append(bf.move(instance.width, instance.height, states[-1], bf.ACTIONS[a]))
+    assert bf.is_path(instance.width, instance.height, states, instance.start, instance.horizon)
+    got = ((bf.feature_counts([states], instance.features)[0] - target) ** 2).sum()
+    assert got == pytest.approx(best, abs=_tol(best))
+    assert values[0] == pytest.approx(best, abs=_tol(best))

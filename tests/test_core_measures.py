@@ -1,0 +1,177 @@
+"""The per-trial measures (DESIGN section 4) against enumeration over every start and path."""
+
+import brute_force as bf
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cirl_study.measures import regret, reward_l2, trajectory_kl
+
+_unit = st.floats(-1.0, 1.0, allow_subnormal=False)
+
+
+def _game(width, height, num_features, seed):
+    rng = np.random.default_rng(seed)
+    centers = rng.uniform([0, 0], [width - 1, height - 1], size=(num_features, 2))
+    return rng, bf.rbf_features(width, height, centers, rng.uniform(0.8, 2.5))
+
+
+def _measure(fn, theta, theta_hat, features, *args):
+    """Call a batched measure on a batch of one trial."""
+    return fn(np.atleast_2d(theta), np.atleast_2d(theta_hat), features[None], *args)[0]
+
+
+def _regret(theta, theta_hat, features, width, height, horizon):
+    return _measure(regret, theta, theta_hat, features, bf.move_table(width, height), horizon)
+
+
+def _kl(theta, theta_hat, features, width, height, horizon, rationality):
+    table = bf.move_table(width, height)
+    return _measure(trajectory_kl, theta, theta_hat, features, table, horizon, rationality)
+
+
+def _theta_hat(instance, data):
+    """A second reward vector: the truth, a random one, its negation or a box vertex."""
+    kind = data.draw(st.sampled_from(["same", "random", "negated", "vertex"]))
+    k = len(instance.theta)
+    if kind == "same":
+        return np.array(instance.theta)
+    if kind == "negated":
+        return -np.array(instance.theta)
+    if kind == "vertex":
+        return np.array(data.draw(st.lists(st.sampled_from([-1.0, 1.0]), min_size=k, max_size=k)))
+    return np.array(data.draw(st.lists(_unit, min_size=k, max_size=k)))
+
+
+small = bf.instances(max_side=3, max_horizon=3, max_features=3)
+
+
+# ---- regret ---------------------------------------------------------------------------------
+
+
+@given(instance=small, data=st.data())
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_regret_equals_enumeration_and_is_non_negative(instance, data):
+    theta, theta_hat = np.array(instance.theta), _theta_hat(instance, data)
+    w, h, T = instance.width, instance.height, instance.horizon
+    got = _regret(theta, theta_hat, instance.features, w, h, T)
+    want = bf.regret(w, h, instance.features, theta, theta_hat, T)
+    assert got == pytest.approx(want, abs=1e-12)
+    assert got >= -1e-12
+
+
+@given(instance=small)
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_regret_is_zero_for_the_true_reward(instance):
+    theta = np.array(instance.theta)
+    got = _regret(
+        theta, theta, instance.features, instance.width, instance.height, instance.horizon
+    )
+    assert abs(got) <= 1e-12
+
+
+@pytest.mark.parametrize("width, height, horizon", [(4, 4, 5), (3, 5, 4), (5, 5, 3)])
+def test_regret_on_fixed_grids(width, height, horizon):
+    rng, features = _game(width, height, 4, seed=width * height + horizon)
+    for _ in range(3):
+        theta, theta_hat = rng.uniform(-1, 1, size=(2, 4))
+        want = bf.regret(width, height, features, theta, theta_hat, horizon)
+        got = _regret(theta, theta_hat, features, width, height, horizon)
+        assert got == pytest.approx(want, rel=1e-12, abs=1e-12)
+    assert bf.regret(width, height, features, theta, -theta, horizon) > 1e-3  # it can fail
+
+
+def test_regret_is_a_batched_function():
+    rng, features = _game(4, 3, 3, seed=9)
+    thetas, theta_hats = rng.uniform(-1, 1, size=(2, 5, 3))
+    batch = regret(
+        thetas, theta_hats, np.broadcast_to(features, (5, 12, 3)), bf.move_table(4, 3), 4
+    )
+    assert batch.shape == (5,)
+    for b in range(5):
+        assert batch[b] == pytest.approx(_regret(thetas[b], theta_hats[b], features, 4, 3, 4))
+
+
+# ---- KL -------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("rationality", [1e-4, 1.0, 1e3])
+@pytest.mark.parametrize("width, height, horizon", [(4, 4, 4), (3, 5, 4)])
+def test_kl_equals_enumeration_on_fixed_grids(width, height, horizon, rationality):
+    rng, features = _game(width, height, 3, seed=horizon + width)
+    for _ in range(2):
+        theta, theta_hat = rng.uniform(-1, 1, size=(2, 3))
+        want = bf.kl(width, height, features, theta, theta_hat, horizon, rationality)
+        got = _kl(theta, theta_hat, features, width, height, horizon, rationality)
+        assert got == pytest.approx(want, rel=1e-9, abs=1e-13)
+        assert want > 0
+
+
+@given(instance=small, data=st.data())
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_kl_equals_enumeration_and_is_non_negative(instance, data):
+    theta, theta_hat = np.array(instance.theta), _theta_hat(instance, data)
+    w, h, T, lam = instance.width, instance.height, instance.horizon, instance.rationality
+    got = _kl(theta, theta_hat, instance.features, w, h, T, lam)
+    want = bf.kl(w, h, instance.features, theta, theta_hat, T, lam)
+    assert got == pytest.approx(want, rel=1e-8, abs=1e-12)
+    assert got >= 0.0
+
+
+@given(instance=small)
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_kl_is_zero_for_the_true_reward(instance):
+    theta = np.array(instance.theta)
+    w, h, T, lam = instance.width, instance.height, instance.horizon, instance.rationality
+    assert abs(_kl(theta, theta, instance.features, w, h, T, lam)) <= 1e-12
+
+
+def test_kl_is_not_symmetric_and_the_reference_sees_it():
+    # Swapping the arguments changes the value: a KL computed the wrong way round fails the tests.
+    rng, features = _game(3, 3, 2, seed=1)
+    theta, theta_hat = np.array([1.0, -0.2]), np.array([-0.3, 0.9])
+    forward = bf.kl(3, 3, features, theta, theta_hat, 3, 2.0)
+    backward = bf.kl(3, 3, features, theta_hat, theta, 3, 2.0)
+    assert abs(forward - backward) > 1e-3
+    assert _kl(theta, theta_hat, features, 3, 3, 3, 2.0) == pytest.approx(forward, rel=1e-10)
+
+
+# ---- reward L2 ------------------------------------------------------------------------------
+
+
+@given(instance=small, data=st.data())
+@settings(max_examples=40, deadline=None)
+def test_reward_l2_equals_exact_arithmetic(instance, data):
+    theta, theta_hat = np.array(instance.theta), _theta_hat(instance, data)
+    got = _measure(reward_l2, theta, theta_hat, instance.features)
+    want = bf.reward_l2(instance.features, theta, theta_hat)
+    assert got == pytest.approx(want, rel=1e-12, abs=1e-15)
+    assert _measure(reward_l2, theta_hat, theta, instance.features) == pytest.approx(got)
+    assert _measure(reward_l2, theta, theta, instance.features) == 0.0
+
+
+def test_reward_l2_by_hand():
+    features = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
+    # Phi (theta - theta_hat) = (1, -2, -1) for theta - theta_hat = (1, -2): norm sqrt(6)
+    got = _measure(reward_l2, np.array([0.5, -1.0]), np.array([-0.5, 1.0]), features)
+    assert got == pytest.approx(np.sqrt(6.0), rel=1e-15)
+    assert bf.reward_l2(features, [0.5, -1.0], [-0.5, 1.0]) == pytest.approx(np.sqrt(6), rel=1e-15)
+
+
+@pytest.mark.parametrize(
+    "width, height, centers, sigma, theta, theta_hat, rationality",
+    [
+        # found by hypothesis: the true KL is ~1e-18; summing p (log p - log q) in floating point
+        # gives about -9e-17 here and -3e-169 in the second case
+        (1, 3, [(0.0, 0.0)], 3.0, [5.960464477539063e-08], [-5.960464477539063e-08], 1.0),
+        (1, 2, [(0.0, 0.0)] * 3, 1.0, [0.0, 0.0, -1.0], [0.0, 0.0, -0.5], 1e3),
+    ],
+)
+def test_kl_is_never_negative_even_when_it_rounds_to_nothing(
+    width, height, centers, sigma, theta, theta_hat, rationality
+):
+    features = bf.rbf_features(width, height, centers, sigma)
+    got = _kl(np.array(theta), np.array(theta_hat), features, width, height, 1, rationality)
+    assert got >= 0.0
+    assert got == pytest.approx(0.0, abs=1e-15)

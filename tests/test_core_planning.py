@@ -1,0 +1,234 @@
+"""Soft and hard planning (DESIGN sections 2 and 4) against brute-force path enumeration."""
+
+import brute_force as bf
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from cirl_study.planning import (
+    evaluate_policy,
+    future_feature_counts,
+    optimal_plan,
+    soft_value_iteration,
+    state_visitation,
+)
+
+RATIONALITIES = (1e-4, 1.0, 1e3)
+GRIDS = ((4, 4), (3, 5))
+
+
+def _random_game(width, height, num_features, seed):
+    """Random RBF features and a few reward vectors theta in the box."""
+    rng = np.random.default_rng(seed)
+    centers = rng.uniform([0, 0], [width - 1, height - 1], size=(num_features, 2))
+    features = bf.rbf_features(width, height, centers, rng.uniform(0.8, 2.5))
+    thetas = rng.uniform(-1, 1, size=(3, num_features))
+    return features, thetas
+
+
+def _path_log_prob(log_policy, b, path, table):
+    """``sum_t log pi_t(a_t | s_t)`` of one path under batch member ``b``."""
+    total = 0.0
+    for t, (here, there) in enumerate(zip(path[:-1], path[1:], strict=True)):
+        action = int(np.flatnonzero(table[here] == there)[0])
+        total += log_policy[t, b, here, action]
+    return total
+
+
+def _tolerance(rationality):
+    """Absolute tolerance for log-probabilities whose terms are of size ``lambda * T``."""
+    return 1e-10 * max(1.0, rationality)
+
+
+@pytest.mark.parametrize("width, height", GRIDS)
+@pytest.mark.parametrize("rationality", RATIONALITIES)
+def test_log_partition_equals_enumeration_from_every_start(width, height, rationality):
+    features, thetas = _random_game(width, height, 3, seed=width * 10 + height)
+    table = bf.move_table(width, height)
+    horizon = 5 if rationality == 1.0 else 4
+    plan = soft_value_iteration(thetas @ features.T, table, horizon, rationality)
+    assert plan.values.shape == (horizon + 1, len(thetas), width * height)
+    np.testing.assert_array_equal(plan.values[horizon], 0.0)
+    for s in range(width * height):
+        counts = bf.feature_counts(bf.enumerate_paths(width, height, s, horizon), features)
+        for b, theta in enumerate(thetas):
+            want = bf.log_partition(counts, theta, rationality)
+            got = plan.values[0][b, s]
+            assert got == pytest.approx(want, rel=1e-12, abs=_tolerance(rationality))
+
+
+@pytest.mark.parametrize("width, height", GRIDS)
+@pytest.mark.parametrize("rationality", RATIONALITIES)
+@pytest.mark.parametrize("horizon", [1, 3, 5])
+def test_path_probabilities_equal_enumeration(width, height, rationality, horizon):
+    features, thetas = _random_game(width, height, 4, seed=horizon)
+    table = bf.move_table(width, height)
+    start = bf.cell(width, 1, 2)
+    plan = soft_value_iteration(thetas @ features.T, table, horizon, rationality)
+    paths = bf.enumerate_paths(width, height, start, horizon)
+    counts = bf.feature_counts(paths, features)
+    for b, theta in enumerate(thetas):
+        want = bf.path_log_probs(counts, theta, rationality)
+        got = np.array([_path_log_prob(plan.log_policy, b, p, table) for p in paths])
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=_tolerance(rationality))
+        np.testing.assert_allclose(np.exp(got), np.exp(want), rtol=1e-9, atol=1e-14)
+    # unavailable moves carry no probability, available ones all of it
+    np.testing.assert_array_equal(
+        np.isneginf(plan.log_policy), np.broadcast_to(table < 0, plan.log_policy.shape)
+    )
+    np.testing.assert_allclose(plan.policy.sum(axis=-1), 1.0, rtol=1e-12)
+
+
+def test_zero_reward_gives_the_uniform_path_distribution():
+    table = bf.move_table(3, 4)
+    plan = soft_value_iteration(np.zeros((1, 12)), table, 5, 1.0)
+    for s in range(12):
+        assert plan.values[0][0, s] == pytest.approx(np.log(bf.count_paths(3, 4, s, 5)), rel=1e-14)
+
+
+def test_soft_values_survive_extreme_rationality():
+    features, thetas = _random_game(4, 4, 3, seed=3)
+    for rationality in (1e-8, 1e5):
+        plan = soft_value_iteration(thetas @ features.T, bf.move_table(4, 4), 5, rationality)
+        assert np.isfinite(plan.values).all()
+        assert np.isfinite(plan.policy).all()
+
+
+@pytest.mark.parametrize("rationality", RATIONALITIES)
+def test_state_visitation_equals_enumerated_occupancy(rationality):
+    width, height, horizon = 4, 4, 4
+    features, thetas = _random_game(width, height, 3, seed=11)
+    table = bf.move_table(width, height)
+    plan = soft_value_iteration(thetas @ features.T, table, horizon, rationality)
+    start = bf.cell(width, 2, 1)
+    point = np.zeros((len(thetas), width * height))
+    point[:, start] = 1.0
+    got = state_visitation(plan.policy, table, point)
+    paths = np.array(bf.enumerate_paths(width, height, start, horizon))
+    counts = bf.feature_counts(paths, features)
+    for b, theta in enumerate(thetas):
+        want = bf.occupancy(paths, bf.path_log_probs(counts, theta, rationality), width * height)
+        np.testing.assert_allclose(got[:, b], want, rtol=1e-9, atol=1e-13)
+    np.testing.assert_allclose(got.sum(axis=-1), 1.0, rtol=1e-12)
+
+
+def test_state_visitation_from_a_uniform_start_is_the_mean_of_point_starts():
+    width, height, horizon = 3, 3, 3
+    features, thetas = _random_game(width, height, 2, seed=5)
+    table = bf.move_table(width, height)
+    plan = soft_value_iteration(thetas[:1] @ features.T, table, horizon, 1.0)
+    uniform = np.full((1, 9), 1 / 9)
+    got = state_visitation(plan.policy, table, uniform)[:, 0]
+    want = np.zeros_like(got)
+    for s in range(9):
+        paths = np.array(bf.enumerate_paths(width, height, s, horizon))
+        logp = bf.path_log_probs(bf.feature_counts(paths, features), thetas[0], 1.0)
+        want += bf.occupancy(paths, logp, 9) / 9
+    np.testing.assert_allclose(got, want, rtol=1e-10, atol=1e-14)
+
+
+@pytest.mark.parametrize("rationality", RATIONALITIES)
+def test_expected_future_counts_equal_enumeration(rationality):
+    width, height, horizon = 3, 5, 4
+    features, thetas = _random_game(width, height, 3, seed=2)
+    table = bf.move_table(width, height)
+    plan = soft_value_iteration(thetas @ features.T, table, horizon, rationality)
+    batch_features = np.broadcast_to(features, (len(thetas), *features.shape))
+    future = future_feature_counts(plan.policy, table, batch_features)
+    assert future.shape == (horizon + 1, len(thetas), width * height, 3)
+    np.testing.assert_array_equal(future[horizon], 0.0)
+    for s in range(width * height):
+        counts = bf.feature_counts(bf.enumerate_paths(width, height, s, horizon), features)
+        for b, theta in enumerate(thetas):
+            want = bf.expected_features(counts, theta, rationality)
+            np.testing.assert_allclose(future[0][b, s], want, rtol=1e-10, atol=1e-13)
+
+
+@pytest.mark.parametrize("width, height", GRIDS)
+@pytest.mark.parametrize("horizon", [1, 2, 5])
+def test_optimal_plan_equals_enumeration(width, height, horizon):
+    features, thetas = _random_game(width, height, 5, seed=horizon + width)
+    table = bf.move_table(width, height)
+    plan = optimal_plan(thetas @ features.T, table, horizon)
+    assert plan.actions.shape == (horizon, len(thetas), width * height)
+    for b, theta in enumerate(thetas):
+        best = bf.optimal_values(width, height, features, theta, horizon)
+        np.testing.assert_allclose(plan.values[0][b], best, rtol=1e-13, atol=1e-13)
+        for s in range(width * height):
+            achieved = bf.policy_value(width, height, features, theta, plan.actions[:, b], s)
+            assert achieved == pytest.approx(best[s], rel=1e-13, abs=1e-13)
+        np.testing.assert_array_equal(
+            plan.actions[:, b], bf.greedy_actions(width, height, features, theta, horizon)
+        )
+
+
+@given(
+    width=st.integers(1, 4),
+    height=st.integers(2, 4),
+    horizon=st.integers(1, 4),
+    data=st.data(),
+)
+@settings(max_examples=30, deadline=None)
+def test_optimal_plan_breaks_exact_ties_by_the_lowest_action(width, height, horizon, data):
+    # Small integer rewards: every sum is exact, so ties are real and must go to the lowest index.
+    cells = width * height
+    rewards = np.array(data.draw(st.lists(st.integers(0, 2), min_size=cells, max_size=cells)))
+    plan = optimal_plan(rewards[None].astype(float), bf.move_table(width, height), horizon)
+    want = bf.greedy_actions(width, height, np.eye(cells), rewards, horizon)
+    np.testing.assert_array_equal(plan.actions[:, 0], want)
+
+
+def test_optimal_plan_of_a_constant_reward_always_stays():
+    plan = optimal_plan(np.ones((2, 12)), bf.move_table(4, 3), 3)
+    np.testing.assert_array_equal(plan.actions, 0)
+
+
+@given(width=st.integers(1, 4), height=st.integers(2, 4), horizon=st.integers(1, 4), data=st.data())
+@settings(max_examples=30, deadline=None)
+def test_evaluate_policy_equals_rollout(width, height, horizon, data):
+    cells = width * height
+    table = bf.move_table(width, height)
+    seed = data.draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    rewards = rng.normal(size=(2, cells))
+    # a random available action in every (t, b, s)
+    choice = rng.random((horizon, 2, cells, 5)) * (table >= 0)
+    actions = choice.argmax(axis=-1)
+    values = evaluate_policy(rewards, table, actions)
+    assert values.shape == (horizon + 1, 2, cells)
+    eye = np.eye(cells)
+    for b in range(2):
+        for s in range(cells):
+            want = bf.policy_value(width, height, eye, rewards[b], actions[:, b], s)
+            assert values[0][b, s] == pytest.approx(want, rel=1e-13, abs=1e-13)
+
+
+def test_evaluate_policy_refuses_an_unavailable_action():
+    actions = np.zeros((2, 1, 9), dtype=np.int64)
+    actions[1, 0, 0] = 4  # W from [0, 0]
+    with pytest.raises(ValueError):
+        evaluate_policy(np.zeros((1, 9)), bf.move_table(3, 3), actions)
+
+
+# ---- the references can tell right from wrong ----------------------------------------------
+
+
+def test_reference_log_partition_notices_a_counted_start_cell():
+    features, thetas = _random_game(4, 4, 3, seed=1)
+    start = 5
+    paths = np.array(bf.enumerate_paths(4, 4, start, 3))
+    right = bf.log_partition(bf.feature_counts(paths, features), thetas[0], 1.0)
+    counted = bf.feature_counts(paths, features) + features[start]
+    wrong = bf.log_partition(counted, thetas[0], 1.0)
+    assert abs(right - wrong) == pytest.approx(abs(features[start] @ thetas[0]), rel=1e-12)
+    assert abs(right - wrong) > 1e-3
+
+
+def test_reference_policy_value_notices_a_suboptimal_policy():
+    features, thetas = _random_game(4, 4, 3, seed=4)
+    best = bf.optimal_values(4, 4, features, thetas[0], 3)
+    stay = np.zeros((3, 16), dtype=np.int64)
+    gaps = [best[s] - bf.policy_value(4, 4, features, thetas[0], stay, s) for s in range(16)]
+    assert min(gaps) >= -1e-12
+    assert max(gaps) > 1e-2
