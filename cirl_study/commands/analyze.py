@@ -12,24 +12,26 @@ REPORTS_DIRECTORY = Path("reports")
 """Parent of the default report directory ``reports/<pipeline name>``."""
 
 
-def analyze(
-    run: Annotated[
-        Path,
-        typer.Argument(
-            help="Run directory holding the *.mcap log files, e.g. data/runs/paper.",
-            show_default=False,
-        ),
-    ],
-    out: Annotated[
-        Path | None,
-        typer.Option(
-            "--out",
-            metavar="DIR",
-            show_default="reports/<pipeline name>",
-            help="Report directory: report.md, results.json, trials.csv and the figures.",
-        ),
-    ] = None,
-) -> None:
+RunArgument = Annotated[
+    Path,
+    typer.Argument(
+        help="Run directory holding the *.mcap log files, e.g. data/runs/paper.",
+        show_default=False,
+    ),
+]
+
+ReportDirectoryOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--out",
+        metavar="DIR",
+        show_default="reports/<pipeline name>",
+        help="Report directory: report.md, results.json, trials.csv and the figures.",
+    ),
+]
+
+
+def analyze(run: RunArgument, out: ReportDirectoryOption = None) -> None:
     """Analyse a run's logs: the paper's statistics, figures and claims, with verdicts.
 
     Mixed ANOVAs, simple effects, Tukey HSD, Wilcoxon tests, Cronbach's alpha, the lambda

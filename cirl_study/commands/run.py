@@ -1,0 +1,176 @@
+"""``cirl-study run``: run (or resume) a pipeline and log every trial."""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from enum import StrEnum
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+from rich.console import Console
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    ProgressColumn,
+    Task,
+    TextColumn,
+    TimeElapsedColumn,
+    TimeRemainingColumn,
+)
+from rich.text import Text
+
+from cirl_study.pipeline import load_pipeline, resolve_pipeline
+
+if TYPE_CHECKING:
+    from cirl_study.runner import ProgressHooks, RunResult
+
+
+class EngineName(StrEnum):
+    """The engines ``--engine`` accepts."""
+
+    local = "local"
+    dask = "dask"
+
+
+class _RateColumn(ProgressColumn):
+    """Trials per second, averaged over the last half minute."""
+
+    def render(self, task: Task) -> Text:
+        speed = task.finished_speed or task.speed
+        return Text("- trials/s" if speed is None else f"{speed:.0f} trials/s")
+
+
+@contextmanager
+def _progress_bar() -> Iterator[ProgressHooks]:
+    """A progress bar on stderr, shown from the first ``start`` until the block ends."""
+    bar = Progress(
+        TextColumn("trials"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        _RateColumn(),
+        TimeElapsedColumn(),
+        TextColumn("elapsed,"),
+        TimeRemainingColumn(),
+        TextColumn("left"),
+        console=Console(stderr=True),
+    )
+    task: list[Any] = []
+
+    def start(total: int, done: int) -> None:
+        bar.start()
+        task.append(bar.add_task("trials", total=total, completed=done))
+
+    def advance(count: int) -> None:
+        bar.advance(task[0], count)
+
+    from cirl_study.runner import ProgressHooks
+
+    try:
+        yield ProgressHooks(start, advance)
+    finally:
+        if task:
+            bar.stop()
+
+
+def _summary(result: RunResult, engine: str) -> str:
+    """Three lines: what is logged where, how fast, and the etas cross-validation chose."""
+    rate = result.played / result.seconds if result.seconds > 0 else 0.0
+    etas = "; ".join(
+        f"K={k} -> {choice.eta:g} (mean regret {choice.mean_regret[choice.eta]:.4g})"
+        for k, choice in sorted(result.etas.items())
+    )
+    return "\n".join(
+        [
+            f"run {result.run_id}: {result.total} trials logged in {result.out_dir} "
+            f"({result.files} files); {result.played} played now, "
+            f"{result.resumed} were already logged",
+            f"{result.seconds:.1f} s, {rate:.0f} trials/s, {engine}",
+            f"eta by cross-validation: {etas}",
+        ]
+    )
+
+
+PipelineArgument = Annotated[
+    str,
+    typer.Argument(
+        metavar="PIPELINE",
+        help="Pipeline file, or the name of one in pipelines/ (looked up in "
+        "./pipelines, then in the pipelines/ directory of the cirl-study source tree).",
+    ),
+]
+
+RunDirectoryOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--out",
+        metavar="DIR",
+        show_default="data/runs/<pipeline name>",
+        help="Run directory for the MCAP logs. Running again into the same directory "
+        "resumes: trials already logged are skipped. A directory holding another "
+        "pipeline's logs is refused.",
+    ),
+]
+
+WorkersOption = Annotated[
+    int | None,
+    typer.Option(
+        "--workers",
+        metavar="N",
+        help="Trials played at once: worker processes of the local pool, or workers of "
+        "the local Dask cluster; 1 plays in this process. Results do not depend on it.",
+        show_default="all cores",
+    ),
+]
+
+EngineOption = Annotated[
+    EngineName,
+    typer.Option(
+        "--engine",
+        help="Where trials are played: 'local' (a process pool on this machine) or "
+        "'dask' (Dask distributed; needs pip install 'cirl-study\\[dask]'). "
+        "Results do not depend on it.",
+    ),
+]
+
+SchedulerOption = Annotated[
+    str | None,
+    typer.Option(
+        "--scheduler",
+        metavar="ADDRESS",
+        help="With --engine dask: address of a running Dask scheduler "
+        "(e.g. tcp://10.0.0.1:8786), whose workers must have cirl-study installed. "
+        "Without it a local Dask cluster is started.",
+    ),
+]
+
+
+def run(
+    pipeline: PipelineArgument = "paper",
+    out: RunDirectoryOption = None,
+    workers: WorkersOption = None,
+    engine: EngineOption = EngineName.local,
+    scheduler: SchedulerOption = None,
+) -> None:
+    """Run a study pipeline and log every trial to MCAP (resumable).
+
+    Plays the eta cross-validation first, picks per number of features the eta with the
+    lowest mean regret, then plays the main study and the lambda sweep. Progress goes to
+    stderr, a summary to stdout.
+    """
+    # The engine and the runner import the numerical core: only when a run is asked for.
+    from cirl_study.engines import make_engine
+    from cirl_study.runner import default_out_dir, run_pipeline
+
+    spec = load_pipeline(resolve_pipeline(pipeline))
+    chosen = make_engine(engine.value, workers, scheduler)
+    with _progress_bar() as hooks:
+        result = run_pipeline(spec, out or default_out_dir(spec), chosen, hooks)
+    typer.echo(_summary(result, chosen.description))
+
+
+def register(app: typer.Typer, wrap: Callable[[Callable[..., Any]], Callable[..., Any]]) -> None:
+    """Add ``run`` to the ``cirl-study`` command line."""
+    app.command("run")(wrap(run))

@@ -1,0 +1,177 @@
+"""Identity and seeds: ids unique and disjoint, streams from identity only, eta choice."""
+
+from __future__ import annotations
+
+import hashlib
+import struct
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from cirl_study.errors import UserError
+from cirl_study.pipeline import Pipeline, load_pipeline
+from cirl_study.plan import (
+    choose_etas,
+    draw_subject,
+    eta_cv_trials,
+    study_trials,
+    trial_counts,
+    trial_id,
+    trial_seed,
+)
+
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
+ETAS = {3: 0.1, 10: 10.0}
+
+
+@pytest.fixture(scope="module")
+def smoke() -> Pipeline:
+    return load_pipeline(SMOKE)
+
+
+def all_trials(pipeline: Pipeline) -> list[Any]:
+    return eta_cv_trials(pipeline) + study_trials(pipeline, ETAS)
+
+
+def test_ids_are_unique_and_counts_match(smoke: Pipeline) -> None:
+    trials = all_trials(smoke)
+    assert len({t.trial_id for t in trials}) == len(trials) == sum(trial_counts(smoke).values())
+    assert len({t.seed for t in trials}) == len(trials)
+    by_block = {b: sum(t.block == b for t in trials) for b in trial_counts(smoke)}
+    assert by_block == trial_counts(smoke)
+
+
+def test_subjects_unique_across_levels_and_cv_disjoint_from_test(smoke: Pipeline) -> None:
+    cv = eta_cv_trials(smoke)
+    test = study_trials(smoke, ETAS)
+    cv_subjects = {t.subject for t in cv}
+    test_subjects = {t.subject for t in test}
+    assert not cv_subjects & test_subjects
+    assert len(cv_subjects) == 2 * smoke.eta_cv.subjects
+    assert len(test_subjects) == 2 * smoke.main.subjects
+    # a subject id names one feature level, and its draws are distinct from every other's
+    levels = {}
+    thetas = {}
+    for t in cv + test:
+        assert levels.setdefault(t.subject, t.num_features) == t.num_features
+        thetas.setdefault(t.subject, t.theta)
+    assert len(set(thetas.values())) == len(thetas)
+    assert "cv-k03-s0001" in cv_subjects and "main-k10-s0004" in test_subjects
+
+
+def test_one_subject_is_one_reward_draw_for_every_trial(smoke: Pipeline) -> None:
+    draws: dict[str, tuple[Any, Any]] = {}
+    for t in all_trials(smoke):
+        assert draws.setdefault(t.subject, (t.theta, t.setting)) == (t.theta, t.setting)
+    sweep_subjects = {t.subject for t in study_trials(smoke, ETAS) if t.block == "lambda_sweep"}
+    main_subjects = {t.subject for t in study_trials(smoke, ETAS) if t.block == "main"}
+    assert sweep_subjects <= main_subjects
+
+
+def test_draws_lie_in_their_ranges(smoke: Pipeline) -> None:
+    game = smoke.game
+    for t in all_trials(smoke):
+        centers = np.asarray(t.setting.centers)
+        assert centers.shape == (t.num_features, 2)
+        assert np.all(centers >= 0) and np.all(centers[:, 0] <= game.width - 1)
+        assert np.all(centers[:, 1] <= game.height - 1)
+        assert np.all(np.abs(t.theta) <= 1) and len(t.theta) == t.num_features
+        assert t.setting.start == game.start and t.setting.sigma == game.sigma
+
+
+def test_policies_and_etas(smoke: Pipeline) -> None:
+    for t in eta_cv_trials(smoke):
+        assert t.policy == "best_response" and t.eta in smoke.eta_cv.etas
+    for t in study_trials(smoke, ETAS):
+        assert t.eta == (ETAS[t.num_features] if t.policy == "best_response" else None)
+        assert t.rationality in (smoke.main.rationality, *smoke.lambda_sweep.rationalities)
+
+
+def test_seed_is_the_documented_function_of_root_seed_and_id() -> None:
+    ident = "main:main-k03-s0001:expert:lambda=1.0"
+    words = struct.unpack(
+        "<4I", hashlib.blake2b(f"trial:{ident}".encode(), digest_size=16).digest()
+    )
+    sequence = np.random.SeedSequence(entropy=7, spawn_key=words)
+    assert trial_seed(7, ident) == int(sequence.generate_state(1, np.uint64)[0]) >> 11
+    assert trial_seed(7, ident) < 2**53
+    assert trial_seed(8, ident) != trial_seed(7, ident)
+
+
+def test_trial_id_spells_out_the_identity() -> None:
+    assert trial_id("main", "main-k03-s0001", "expert", 1, None) == (
+        "main:main-k03-s0001:expert:lambda=1.0"
+    )
+    assert trial_id("lambda_sweep", "main-k10-s0042", "best_response", 1e-3, 0.316) == (
+        "lambda_sweep:main-k10-s0042:best_response:lambda=0.001:eta=0.316"
+    )
+
+
+def by_id(trials: list[Any]) -> dict[str, Any]:
+    return {t.trial_id: t for t in trials}
+
+
+def test_nothing_depends_on_the_order_of_the_lists(smoke: Pipeline) -> None:
+    shuffled = replace(
+        smoke,
+        game=replace(smoke.game, feature_levels=smoke.game.feature_levels[::-1]),
+        eta_cv=replace(smoke.eta_cv, etas=smoke.eta_cv.etas[::-1]),
+        lambda_sweep=replace(
+            smoke.lambda_sweep, rationalities=smoke.lambda_sweep.rationalities[::-1]
+        ),
+    )
+    assert [t.trial_id for t in all_trials(shuffled)] != [t.trial_id for t in all_trials(smoke)]
+    assert by_id(all_trials(shuffled)) == by_id(all_trials(smoke))
+
+
+def test_more_subjects_keep_the_first_draws(smoke: Pipeline) -> None:
+    bigger = replace(smoke, main=replace(smoke.main, subjects=9))
+    small, large = by_id(study_trials(smoke, ETAS)), by_id(study_trials(bigger, ETAS))
+    assert small.items() <= large.items()
+    assert draw_subject(bigger, "main", 3, 2) == draw_subject(smoke, "main", 3, 2)
+
+
+def test_another_root_seed_draws_anew(smoke: Pipeline) -> None:
+    other = replace(smoke, seed=smoke.seed + 1)
+    assert draw_subject(other, "main", 3, 1).theta != draw_subject(smoke, "main", 3, 1).theta
+
+
+def cv_records(trials: list[Any], regret: dict[tuple[int, float], list[float]]) -> dict:
+    """Records whose regrets are taken, per (K, eta), from ``regret`` in subject order."""
+    position: dict[tuple[int, float], int] = {}
+    records = {}
+    for t in trials:
+        key = (t.num_features, t.eta)
+        i = position.get(key, 0)
+        position[key] = i + 1
+        records[t.trial_id] = {"trial_id": t.trial_id, "measures": {"regret": regret[key][i]}}
+    return records
+
+
+def test_choose_etas_lowest_mean_then_smaller_eta(smoke: Pipeline) -> None:
+    trials = eta_cv_trials(smoke)  # 3 subjects at etas 0.1, 1, 10 per level
+    regret = {
+        (3, 0.1): [3.0, 3.0, 3.0],
+        (3, 1.0): [1.0, 5.0, 0.0],  # mean 2: the lowest
+        (3, 10.0): [2.0, 2.0, 2.1],
+        (10, 0.1): [4.0, 4.0, 4.0],
+        (10, 1.0): [1.0, 2.0, 3.0],  # mean 2: ties with 10.0 and is smaller
+        (10, 10.0): [2.0, 2.0, 2.0],
+    }
+    choices = choose_etas(trials, cv_records(trials, regret))
+    assert {k: c.eta for k, c in choices.items()} == {3: 1.0, 10: 1.0}
+    assert choices[3].mean_regret == {0.1: 3.0, 1.0: 2.0, 10.0: 6.1 / 3}
+    # the same records read in another order choose the same
+    reversed_records = dict(reversed(list(cv_records(trials, regret).items())))
+    assert choose_etas(trials[::-1], reversed_records) == choices
+
+
+def test_choose_etas_needs_every_cv_record(smoke: Pipeline) -> None:
+    trials = eta_cv_trials(smoke)
+    records = cv_records(trials, {(t.num_features, t.eta): [1.0] * 3 for t in trials})
+    del records[trials[4].trial_id]
+    with pytest.raises(UserError, match=f"{trials[4].trial_id} is missing"):
+        choose_etas(trials, records)
