@@ -28,6 +28,7 @@ from cirl_study.planning import (
     evaluate_policy,
     optimal_plan,
     soft_value_iteration,
+    successor_gather,
 )
 
 FloatArray = NDArray[np.float64]
@@ -65,8 +66,7 @@ def trajectory_kl(
     estimate = soft_value_iteration(
         _cell_rewards(features, theta_hat), successors, horizon, rationality
     )
-    available = successors >= 0
-    gather = np.where(available, successors, 0)
+    gather, available = successor_gather(successors)
     log_ratio = np.zeros_like(true.log_policy)  # unavailable moves (log 0 - log 0) add nothing
     np.subtract(true.log_policy, estimate.log_policy, out=log_ratio, where=available)
     batch, cells = theta.shape[0], successors.shape[0]

@@ -57,7 +57,7 @@ class HardPlan:
     actions: IntArray
 
 
-def _successor_gather(successors: IntArray) -> tuple[IntArray, NDArray[np.bool_]]:
+def successor_gather(successors: IntArray) -> tuple[IntArray, NDArray[np.bool_]]:
     """Successor indices safe for fancy indexing, and the mask of available moves."""
     available = successors >= 0
     return np.where(available, successors, 0), available
@@ -283,7 +283,7 @@ def optimal_plan(cell_rewards: FloatArray, successors: IntArray, horizon: int) -
     :math:`V^*_T = 0`, :math:`V^*_t(s) = \\max_a r(s') + V^*_{t+1}(s')`; ties go to the
     lowest action index, so the policy is a deterministic function of the rewards.
     """
-    gather, available = _successor_gather(successors)
+    gather, available = successor_gather(successors)
     rewards = np.asarray(cell_rewards, dtype=np.float64)
     batch, cells = rewards.shape
     values = np.zeros((horizon + 1, batch, cells))
