@@ -27,7 +27,7 @@ from typing import Any
 
 import numpy as np
 
-from cirl_study.gridworld import ACTIONS, Gridworld, rbf_features
+from cirl_study.gridworld import Gridworld, path_actions, rbf_features
 from cirl_study.humans import best_response_paths, expert_paths, follow_policy
 from cirl_study.irl import fit_maxent_irl
 from cirl_study.measures import regret, reward_l2, trajectory_kl
@@ -149,8 +149,7 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[dict[str, Any]]:
     records = []
     for b, spec in enumerate(specs):
         cells = [list(grid.coords(s)) for s in demos[b]]
-        actions = [ACTIONS[int(np.flatnonzero(successors[u] == v)[0])] for u, v in
-                   zip(demos[b, :-1], demos[b, 1:], strict=True)]  # fmt: skip
+        actions = path_actions(grid, demos[b])
         records.append(
             {
                 "trial_id": spec.trial_id,
