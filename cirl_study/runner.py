@@ -26,12 +26,10 @@ from operator import attrgetter
 from pathlib import Path
 from typing import Any
 
-from mcap.reader import make_reader
-
 from cirl_study.engines import Engine
 from cirl_study.errors import UserError
-from cirl_study.logs import TrialLogWriter, collect_provenance, completed_trial_ids, read_run
-from cirl_study.logs.format import LOG_SUFFIX, PROVENANCE_METADATA_NAME, log_files, temp_files
+from cirl_study.logs import TrialLogWriter, collect_provenance, logged_trials, read_run
+from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
 from cirl_study.pipeline import Pipeline
 from cirl_study.plan import EtaChoice, choose_etas, eta_cv_trials, study_trials, trial_counts
 from cirl_study.trial import TrialSpec
@@ -103,30 +101,21 @@ def batch_file_name(batch: Sequence[TrialSpec]) -> str:
     return f"{batch[0].block}-{digest.hexdigest()}{LOG_SUFFIX}"
 
 
-def _pipeline_hash(path: Path) -> str | None:
-    """The ``pipeline_sha256`` of a log file's provenance (``None`` if it has none)."""
-    with path.open("rb") as stream:
-        for metadata in make_reader(stream).iter_metadata():
-            if metadata.name == PROVENANCE_METADATA_NAME:
-                return metadata.metadata.get("pipeline_sha256")
-    return None
-
-
 def prepare_run_directory(out_dir: Path, provenance: dict[str, str]) -> set[str]:
     """Make ``out_dir`` ready for this pipeline's run; return the ids of the trials it holds.
 
-    Creates the directory; refuses damaged log files (:func:`completed_trial_ids`) and log
-    files written from another pipeline file (or another version of it), since a run's
-    records must all come from one specification; deletes the temporary files of an
-    interrupted run.
+    Creates the directory; refuses damaged log files and log files written from another
+    pipeline file (or another version of it), since a run's records must all come from one
+    specification (both from one read of each file, :func:`~cirl_study.logs.logged_trials`);
+    deletes the temporary files of an interrupted run.
     """
     if out_dir.exists() and not out_dir.is_dir():
         raise UserError(f"{out_dir}: exists and is not a directory")
     out_dir.mkdir(parents=True, exist_ok=True)
-    done = completed_trial_ids(out_dir)
+    logged = logged_trials(out_dir)
     ours = provenance["pipeline_sha256"]
-    for path in log_files(out_dir):
-        theirs = _pipeline_hash(path)
+    for path, their_provenance in logged.provenance.items():
+        theirs = their_provenance.get("pipeline_sha256")
         if theirs != ours:
             raise UserError(
                 f"{out_dir}: holds logs of another pipeline ({path.name} was written from "
@@ -135,7 +124,7 @@ def prepare_run_directory(out_dir: Path, provenance: dict[str, str]) -> set[str]
             )
     for path in temp_files(out_dir):
         path.unlink()
-    return done
+    return logged.trial_ids
 
 
 @dataclass

@@ -131,15 +131,23 @@ def read_run(run_dir: str | Path) -> RunContents:
     )
 
 
-def completed_trial_ids(run_dir: str | Path) -> set[str]:
-    """Ids of the trials already logged in complete files of ``run_dir`` (for resuming).
+@dataclass(frozen=True)
+class LoggedTrials:
+    """What a run directory already holds, for resuming: trial ids and each file's provenance."""
+
+    trial_ids: set[str]
+    provenance: dict[Path, dict[str, str]]
+
+
+def logged_trials(run_dir: str | Path) -> LoggedTrials:
+    """The trials already logged in complete files of ``run_dir``, reading each file once.
 
     An absent directory has none. A damaged or faulty file is refused rather than guessed
     at, so that a resumed run neither loses nor duplicates a trial.
     """
     run_dir = Path(run_dir)
     if not run_dir.exists():
-        return set()
+        return LoggedTrials(set(), {})
     files = []
     for path in _complete_files(run_dir, require_any=False):
         contents = _read_file(path)
@@ -149,7 +157,18 @@ def completed_trial_ids(run_dir: str | Path) -> set[str]:
                 "to run its trials again"
             )
         files.append(contents)
-    return {record["trial_id"] for record in _without_duplicates(files)}
+    return LoggedTrials(
+        trial_ids={record["trial_id"] for record in _without_duplicates(files)},
+        provenance={contents.path: contents.provenance or {} for contents in files},
+    )
+
+
+def completed_trial_ids(run_dir: str | Path) -> set[str]:
+    """Ids of the trials already logged in complete files of ``run_dir``.
+
+    See :func:`logged_trials`, which also gives each file's provenance.
+    """
+    return logged_trials(run_dir).trial_ids
 
 
 def _complete_files(run_dir: Path, *, require_any: bool = True) -> list[Path]:
