@@ -8,7 +8,7 @@ Plays ``--trials`` trials (10x10 grid, start [5, 5], 9 + 9 steps, sigma and lamb
 from ``pipelines/paper.toml``, centres and theta drawn as the pipeline draws them)
 for K = 3 and K = 10 in one process on one core, ``--repeats`` times, and prints the
 median wall time per trial of each stage and of the whole best-response and expert
-trial (:func:`cirl_study.trial.play_trials`). The first (compiling) call is not timed.
+trial (:func:`cirl_study.core.trial.play_trials`). The first (compiling) call is not timed.
 """
 
 from __future__ import annotations
@@ -22,12 +22,14 @@ from pathlib import Path
 
 import numpy as np
 
-from cirl_study.gridworld import Gridworld, rbf_features
-from cirl_study.humans import best_response_paths, best_response_target, expert_paths
-from cirl_study.irl import fit_maxent_irl
-from cirl_study.measures import regret, reward_l2, trajectory_kl
-from cirl_study.path_search import nearest_paths
-from cirl_study.trial import GameSetting, TrialSpec, play_trials
+from cirl_study.core.gridworld import Gridworld, rbf_features
+from cirl_study.core.humans import best_response_paths, best_response_target, expert_paths
+from cirl_study.core.maxent import MaxEnt, Phase
+from cirl_study.core.measures import regret, reward_l2, trajectory_kl
+from cirl_study.core.path_search import nearest_paths
+from cirl_study.core.robot import map_estimate
+from cirl_study.core.trial import play_trials
+from cirl_study.record import BEST_RESPONSE, EXPERT, Grid, RBFFeatures, TrialSpec
 
 PAPER = Path(__file__).resolve().parents[1] / "pipelines" / "paper.toml"
 
@@ -51,58 +53,55 @@ def stages_for(k: int, n: int, game: dict, rationality: float, eta_value: float)
         game["learning_steps"],
         game["deployment_steps"],
     )
-    succ = grid.successors
     rng = np.random.default_rng(k)
     centers = rng.uniform(0, [game["width"] - 1, game["height"] - 1], size=(n, k, 2))
     theta = rng.uniform(-1, 1, size=(n, k))
     eta = np.full(n, eta_value)
     phi = rbf_features(grid, centers, game["sigma"])
-    br = best_response_paths(theta, eta, phi, succ, start, steps, rationality)
-    counts = phi[np.arange(n)[:, None], br[:, 1:]].sum(axis=1)
-    fit = fit_maxent_irl(counts, phi, succ, start, steps, rationality)
-    target = best_response_target(theta, eta, phi, succ, start, steps, rationality)
-    setting = [
-        GameSetting(game["width"], game["height"], tuple(game["start"]), steps, deploy,
-                    tuple(map(tuple, centers[i])), game["sigma"])
-        for i in range(n)
-    ]  # fmt: skip
+    learning = MaxEnt(Phase(grid.successors, start, steps), phi, rationality)
+    deployment = MaxEnt(Phase(grid.successors, None, deploy), phi, rationality)
+    br = best_response_paths(learning, theta, eta)
+    counts = learning.path_counts(br)
+    fit = map_estimate(learning, counts)
+    target = best_response_target(learning, theta, eta)
     specs = {
         policy: [
             TrialSpec(
-                f"{policy}-{i}",
-                "bench",
-                "main",
-                f"s{i}",
-                policy,
-                k,
-                rationality,
-                None if policy == "expert" else eta_value,
-                i,
-                tuple(theta[i]),
-                setting[i],
+                trial_id=f"{policy}-{i}",
+                run_id="bench",
+                block="main",
+                subject=f"s{i}",
+                policy=policy,
+                num_features=k,
+                rationality=rationality,
+                eta=None if policy == EXPERT else eta_value,
+                seed=i,
+                grid=Grid(width=game["width"], height=game["height"]),
+                start=tuple(game["start"]),
+                learning_steps=steps,
+                deployment_steps=deploy,
+                features=RBFFeatures(
+                    centers=tuple((float(x), float(y)) for x, y in centers[i]),
+                    sigma=game["sigma"],
+                ),
+                theta=tuple(float(v) for v in theta[i]),
             )
             for i in range(n)
-        ]  # fmt: skip
-        for policy in ("expert", "best_response")
+        ]
+        for policy in (EXPERT, BEST_RESPONSE)
     }
     return {
-        "expert demonstration": lambda: expert_paths(theta, phi, succ, start, steps),
-        "best-response target (phi_theta)": lambda: best_response_target(
-            theta, eta, phi, succ, start, steps, rationality
-        ),
-        "best-response search": lambda: nearest_paths(
-            phi, target, succ, start, steps, direction=theta
-        ),
-        "MaxEnt IRL (best-response demos)": lambda: fit_maxent_irl(
-            counts, phi, succ, start, steps, rationality
-        ),
+        "expert demonstration": lambda: expert_paths(learning, theta),
+        "best-response target (phi_theta)": lambda: best_response_target(learning, theta, eta),
+        "best-response search": lambda: nearest_paths(phi, target, learning.phase, direction=theta),
+        "MaxEnt IRL (best-response demos)": lambda: map_estimate(learning, counts),
         "measures": lambda: (
-            regret(theta, fit.theta_hat, phi, succ, deploy),
-            trajectory_kl(theta, fit.theta_hat, phi, succ, deploy, rationality),
-            reward_l2(theta, fit.theta_hat, phi),
+            regret(deployment, theta, fit.theta_hat),
+            trajectory_kl(deployment, theta, fit.theta_hat),
+            reward_l2(phi, theta, fit.theta_hat),
         ),
-        "whole trial, expert": lambda: play_trials(specs["expert"]),
-        "whole trial, best response": lambda: play_trials(specs["best_response"]),
+        "whole trial, expert": lambda: play_trials(specs[EXPERT]),
+        "whole trial, best response": lambda: play_trials(specs[BEST_RESPONSE]),
     }
 
 

@@ -33,7 +33,7 @@ def children_cpu_seconds() -> float:
 def time_run(pipeline: str, options: list[str]) -> tuple[float, float]:
     """Wall-clock and CPU seconds of one ``cirl-study run`` into a fresh directory."""
     with tempfile.TemporaryDirectory(prefix="bench-run-") as out:
-        command = [sys.executable, "-m", "cirl_study.cli", "run", pipeline, "--out", out]
+        command = [sys.executable, "-m", "cirl_study", "run", pipeline, "--out", out]
         cpu = children_cpu_seconds()
         began = time.perf_counter()
         done = subprocess.run([*command, *options], capture_output=True, text=True, check=False)

@@ -1,47 +1,51 @@
 """The ``cirl-study`` command line (a typer application).
 
-Each command lives in the module that owns its job; this file only wires
-them together and turns :class:`~cirl_study.errors.UserError` into a
-one-line message and a non-zero exit code.
+Each command lives in its own module of :mod:`cirl_study.commands`, as a typer app with one
+``@app.command()``; this file merges them into one application (typer's ``add_typer`` without
+a name) and is the one place where a :class:`~cirl_study.errors.UserError` becomes a one-line
+message and a non-zero exit code, and Ctrl-C becomes ``interrupted`` and exit code 130.
 """
 
 from __future__ import annotations
 
-import functools
-import sys
-from collections.abc import Callable
 from typing import Annotated, Any
 
 import typer
+from typer.core import TyperGroup
 
 from cirl_study import __version__
+from cirl_study.commands import analyze, compare, office_supplies, reproduce, run, validate
 from cirl_study.errors import UserError
+
+INTERRUPTED_EXIT_CODE = 130
+"""Exit code after Ctrl-C (128 + SIGINT), as shells report it."""
+
+
+class _Commands(TyperGroup):
+    """The commands of ``cirl-study``, with user errors reported in one line, never a traceback."""
+
+    def invoke(self, ctx: Any) -> Any:
+        try:
+            return super().invoke(ctx)
+        except UserError as error:
+            typer.echo(f"error: {error}", err=True)
+            raise typer.Exit(error.exit_code) from None
+        except KeyboardInterrupt:
+            typer.echo("interrupted", err=True)
+            raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
+
 
 app = typer.Typer(
     name="cirl-study",
+    cls=_Commands,
     help="Reproduce, question and extend Cooperative Inverse Reinforcement Learning "
     "(Hadfield-Menell et al., NeurIPS 2016).",
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
 )
-
-
-def user_errors_as_one_line(command: Callable[..., Any]) -> Callable[..., Any]:
-    """Wrap a command so that a :class:`UserError` prints one line and exits non-zero."""
-
-    @functools.wraps(command)
-    def wrapper(*args: Any, **kwargs: Any) -> Any:
-        try:
-            return command(*args, **kwargs)
-        except UserError as error:
-            typer.echo(f"error: {error}", err=True)
-            raise typer.Exit(code=error.exit_code) from None
-        except KeyboardInterrupt:
-            typer.echo("interrupted", err=True)
-            raise typer.Exit(code=130) from None
-
-    return wrapper
+for command in (run, validate, analyze, reproduce, compare, office_supplies):
+    app.add_typer(command.app)
 
 
 def _print_version(value: bool) -> None:
@@ -60,14 +64,3 @@ def main(
     ] = False,
 ) -> None:
     """Reproduce, question and extend Cooperative Inverse Reinforcement Learning."""
-
-
-# --- commands -------------------------------------------------------------
-# Each command module registers itself on `app` when imported below.
-from cirl_study.commands import register_all  # noqa: E402
-
-register_all(app, user_errors_as_one_line)
-
-
-if __name__ == "__main__":  # pragma: no cover
-    sys.exit(app())

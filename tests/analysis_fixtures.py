@@ -1,19 +1,21 @@
-"""Synthetic trial records shaped like DESIGN.md section 7, for the analysis tests.
+"""Synthetic trial records (docs/design.md §7), for the analysis tests.
 
 The measures are drawn, not computed from a game: they only need the structure the
 analysis relies on (paired subjects, unique subject ids across feature levels, a
 policy effect, a lambda curve with an interior minimum, an eta curve with a known
-minimum). Everything is a deterministic function of the arguments.
+minimum). Everything is a deterministic function of the arguments. Each record is built
+as plain data and validated into a :class:`~cirl_study.record.TrialRecord`.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Any
 
 import numpy as np
 
-POLICIES = ("expert", "best_response")
+from cirl_study.core.gridworld import Gridworld, rbf_features
+from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord, from_builtins
+
 WIDTH, HEIGHT, START, STEPS, SIGMA = 6, 5, (3, 2), 4, 1.5
 MOVES = {"N": (0, 1), "S": (0, -1), "E": (1, 0), "W": (-1, 0)}
 
@@ -40,10 +42,7 @@ def _centers(rng: np.random.Generator, count: int) -> list[list[float]]:
 
 def _reward_l2(theta: np.ndarray, theta_hat: np.ndarray, centers: list[list[float]]) -> float:
     """``||Phi theta - Phi theta_hat||_2`` over every cell, ``Phi`` the RBF feature matrix."""
-    xs, ys = np.meshgrid(np.arange(WIDTH), np.arange(HEIGHT))
-    cells = np.stack([xs.ravel(), ys.ravel()], axis=1).astype(float)
-    squared = ((cells[:, None, :] - np.asarray(centers)[None, :, :]) ** 2).sum(axis=-1)
-    phi = np.exp(-squared / (2 * SIGMA**2))
+    phi = rbf_features(Gridworld(WIDTH, HEIGHT), centers, SIGMA)
     return float(np.linalg.norm(phi @ (theta - theta_hat)))
 
 
@@ -59,35 +58,37 @@ def _record(
     theta: list[float],
     centers: list[list[float]],
     scale: float,
-) -> dict[str, Any]:
+) -> TrialRecord:
     """One trial whose losses grow with ``scale``: regret and KL drawn around it, theta_hat
     off theta by noise of that size, reward_l2 computed from theta and theta_hat."""
     eta_part = "none" if eta is None else f"{eta:g}"
     theta_hat = np.clip(np.asarray(theta) + rng.normal(0, 0.3 * scale, len(theta)), -1, 1)
-    return {
-        "trial_id": f"{block}/{subject}/{policy}/lambda={rationality:g}/eta={eta_part}",
-        "run_id": "synthetic-run",
-        "block": block,
-        "subject": subject,
-        "policy": policy,
-        "num_features": num_features,
-        "rationality": rationality,
-        "eta": eta,
-        "seed": int(rng.integers(0, 2**32)),
-        "grid": {"width": WIDTH, "height": HEIGHT},
-        "start": list(START),
-        "learning_steps": STEPS,
-        "deployment_steps": STEPS,
-        "features": {"kind": "rbf", "centers": centers, "sigma": SIGMA},
-        "theta": theta,
-        "theta_hat": [float(v) for v in theta_hat],
-        "demonstration": _walk(rng),
-        "measures": {
-            "regret": scale * float(np.exp(rng.normal(0, 0.3))),
-            "kl": 2.7 * scale * float(np.exp(rng.normal(0, 0.3))),
-            "reward_l2": _reward_l2(np.asarray(theta), theta_hat, centers),
-        },
-    }
+    return from_builtins(
+        {
+            "trial_id": f"{block}/{subject}/{policy}/lambda={rationality:g}/eta={eta_part}",
+            "run_id": "synthetic-run",
+            "block": block,
+            "subject": subject,
+            "policy": policy,
+            "num_features": num_features,
+            "rationality": rationality,
+            "eta": eta,
+            "seed": int(rng.integers(0, 2**32)),
+            "grid": {"width": WIDTH, "height": HEIGHT},
+            "start": list(START),
+            "learning_steps": STEPS,
+            "deployment_steps": STEPS,
+            "features": {"kind": "rbf", "centers": centers, "sigma": SIGMA},
+            "theta": theta,
+            "theta_hat": [float(v) for v in theta_hat],
+            "demonstration": _walk(rng),
+            "measures": {
+                "regret": scale * float(np.exp(rng.normal(0, 0.3))),
+                "kl": 2.7 * scale * float(np.exp(rng.normal(0, 0.3))),
+                "reward_l2": _reward_l2(np.asarray(theta), theta_hat, centers),
+            },
+        }
+    )
 
 
 def synthetic_records(
@@ -98,7 +99,7 @@ def synthetic_records(
     etas: tuple[float, ...] = (0.1, 1.0, 10.0),
     cv_subjects: int = 4,
     policy_effect: float = 0.8,
-) -> list[dict[str, Any]]:
+) -> list[TrialRecord]:
     """Records of a small study: ``main``, ``lambda_sweep`` and ``eta_cv`` blocks.
 
     The records pass the log format's consistency checks, so they can be written to MCAP.
@@ -114,7 +115,7 @@ def synthetic_records(
             1.5 times larger at the smallest feature level.
     """
     rng = np.random.default_rng(seed)
-    records: list[dict[str, Any]] = []
+    records: list[TrialRecord] = []
     for level in levels:
         gap = policy_effect * (1.5 if level == min(levels) else 1.0)
         for index in range(subjects_per_level):
@@ -122,8 +123,8 @@ def synthetic_records(
             theta = [float(v) for v in rng.uniform(-1, 1, level)]
             centers = _centers(rng, level)
             base = rng.normal(0, 0.5)
-            for policy in POLICIES:
-                best = policy == "best_response"
+            for policy in PAPER_POLICIES:
+                best = policy == BEST_RESPONSE
                 common = dict(
                     subject=subject,
                     policy=policy,
@@ -154,7 +155,7 @@ def synthetic_records(
                         rng,
                         block="eta_cv",
                         subject=f"cv-k{level}-s{index:03d}",
-                        policy="best_response",
+                        policy=BEST_RESPONSE,
                         num_features=level,
                         rationality=1.0,
                         eta=eta,

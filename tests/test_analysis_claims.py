@@ -15,8 +15,8 @@ from analysis_fixtures import synthetic_records
 
 from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.results import analyse
-from cirl_study.analysis.table import MEASURES, trial_table
 from cirl_study.errors import UserError
+from cirl_study.record import MEASURES
 
 CLAIM_IDS = [
     "policy_effect",
@@ -47,7 +47,7 @@ def _within_level_tukey(results: dict) -> list[dict]:
 @pytest.fixture(scope="module")
 def holding() -> dict:
     """Results of a synthetic study, edited so that every paper claim holds."""
-    results = analyse(trial_table(synthetic_records(subjects_per_level=10)), "synthetic")
+    results = analyse(synthetic_records(subjects_per_level=10), "synthetic")
     for measure in MEASURES:
         _anova(results, measure, "policy").update(F=1000.0, p=1e-12)
         _anova(results, measure, "policy:num_features").update(p=1e-3)

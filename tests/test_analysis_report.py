@@ -7,6 +7,7 @@ import random
 import re
 from pathlib import Path
 
+import msgspec
 import pandas as pd
 import pytest
 from analysis_fixtures import synthetic_records
@@ -16,6 +17,8 @@ from cirl_study.analysis.markdown import anchor
 from cirl_study.analysis.report import write_report
 from cirl_study.analysis.table import trial_table
 from cirl_study.errors import UserError
+from cirl_study.record import TrialRecord
+from cirl_study.study.eta_cv import choose_etas
 
 FILES = {
     "report.md",
@@ -29,7 +32,7 @@ FILES = {
 
 
 @pytest.fixture(scope="module")
-def records() -> list[dict]:
+def records() -> list[TrialRecord]:
     return synthetic_records(subjects_per_level=8)
 
 
@@ -78,6 +81,46 @@ def test_results_json_holds_every_section_at_full_precision(reports, records):
     assert results["eta_cv"]["chosen"] and results["lambda_sweep"]
 
 
+def test_the_chosen_eta_is_the_runs_choice_and_the_main_block_used_it(reports, records):
+    first, _ = reports
+    results = json.loads((first / "results.json").read_text(encoding="utf-8"))
+    choices = choose_etas(records)
+    assert results["eta_cv"]["chosen"] == [
+        {"num_features": k, "eta": c.eta, "mean": c.mean_regret[c.eta]}
+        for (_, k), c in sorted(choices.items())
+    ]
+    assert results["eta_cv"]["main_block"] == [
+        {"num_features": k, "main_etas": [1.0], "chosen_eta": c.eta, "agree": True}
+        for (_, k), c in sorted(choices.items())
+    ]
+    assert [c.eta for c in choices.values()] == [1.0, 1.0]
+    text = (first / "report.md").read_text(encoding="utf-8")
+    assert "The main block used the cross-validated η." in text
+    assert "not played with the cross-validated η" not in text
+
+
+def test_a_main_block_played_with_another_eta_is_flagged(records, tmp_path):
+    """The main block's best response at 10 features played with eta = 10, cross-validated 1."""
+    changed = [
+        msgspec.structs.replace(r, eta=10.0)
+        if r.block == "main" and r.policy == "best_response" and r.num_features == 10
+        else r
+        for r in records
+    ]
+    results = write_report(changed, tmp_path, "paper")
+    assert results["eta_cv"]["main_block"] == [
+        {"num_features": 3, "main_etas": [1.0], "chosen_eta": 1.0, "agree": True},
+        {"num_features": 10, "main_etas": [10.0], "chosen_eta": 1.0, "agree": False},
+    ]
+    section = (tmp_path / "report.md").read_text(encoding="utf-8").split("## Eta")[1]
+    sentence = (
+        "**The main block's best response was not played with the cross-validated η**: "
+        "η = 10 at 10 features (cross-validated: η = 1)."
+    )
+    assert sentence in section
+    assert "The main block used the cross-validated η." not in section
+
+
 def test_trials_csv_is_the_trial_table(reports, records):
     first, _ = reports
     written = pd.read_csv(first / "trials.csv", dtype={"subject": str})
@@ -106,7 +149,7 @@ def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path
     out = tmp_path / "report"
     out.mkdir()
     (out / "figure2_lambda.png").write_bytes(b"stale")
-    main_only = [record for record in records if record["block"] == "main"]
+    main_only = [record for record in records if record.block == "main"]
     theory = {
         "claims": [
             {
@@ -127,11 +170,19 @@ def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path
     assert "➖ not tested" in text and "no trials in the `lambda_sweep` block" in text
     assert results["claims"][-1]["id"] == "office_supplies"
     assert results["theory"] == theory
+    assert results["eta_cv"] == {
+        "means": [],
+        "chosen": [],
+        "main_block": [
+            {"num_features": k, "main_etas": [1.0], "chosen_eta": None, "agree": None}
+            for k in (3, 10)
+        ],
+    }
 
 
 def test_an_incomplete_design_writes_nothing(records, tmp_path):
-    unpaired = [r for r in records if not (r["block"] == "main" and r["subject"] == "k10-s002")]
-    unpaired.append(next(r for r in records if r["block"] == "main" and r["subject"] == "k10-s002"))
+    unpaired = [r for r in records if not (r.block == "main" and r.subject == "k10-s002")]
+    unpaired.append(next(r for r in records if r.block == "main" and r.subject == "k10-s002"))
     with pytest.raises(UserError, match="k10-s002"):
         write_report(unpaired, tmp_path / "out", "paper")
     assert not (tmp_path / "out").exists()

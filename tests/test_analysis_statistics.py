@@ -18,7 +18,8 @@ from hypothesis import strategies as st
 from scipy import stats
 
 from cirl_study.analysis import statistics
-from cirl_study.analysis.table import MEASURES, trial_table
+from cirl_study.analysis.table import trial_table
+from cirl_study.record import MEASURES
 
 ANOVA_ORDER = ["num_features", "policy", "policy:num_features"]
 """pingouin's (and the references') row order: between, within, interaction."""
@@ -233,7 +234,8 @@ def test_cronbach_alpha_closed_forms(seed, rows, k):
     assert (low, high) == pytest.approx(tuple(1 - (1 - raw) * quantiles))
 
 
-def test_eta_cross_validation_picks_the_lowest_mean_and_the_smaller_eta_on_ties():
+def test_eta_means_are_the_best_responses_mean_regret_per_level_and_eta():
+    # The choice of eta is cirl_study.study.eta_cv.choose_etas; here only the curve.
     cv = pd.DataFrame(
         {
             "policy": ["best_response"] * 8 + ["expert"],
@@ -242,13 +244,14 @@ def test_eta_cross_validation_picks_the_lowest_mean_and_the_smaller_eta_on_ties(
             "regret": [1.0, 3.0, 1.5, 2.5, 1.0, 2.0, 0.5, 1.5, 0.0],
         }
     )
-    means, chosen = statistics.eta_cross_validation(cv)
-    assert list(means["n"]) == [2, 2, 2, 2]
-    assert chosen.to_dict("list") == {
-        "num_features": [3, 10],
-        "eta": [0.1, 1.0],
-        "mean": [2.0, 1.0],
+    means = statistics.eta_means(cv)
+    assert means[["num_features", "eta", "n", "mean"]].to_dict("list") == {
+        "num_features": [3, 3, 10, 10],
+        "eta": [0.1, 1.0, 0.1, 1.0],
+        "n": [2, 2, 2, 2],
+        "mean": [2.0, 2.0, 1.5, 1.0],
     }
+    assert means.equals(statistics.group_means(cv.iloc[:8], "regret", ["num_features", "eta"]))
 
 
 def test_lambda_sweep_has_one_row_per_measure_lambda_policy_and_level():

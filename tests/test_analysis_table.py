@@ -2,19 +2,21 @@
 
 from __future__ import annotations
 
-import copy
 import math
 import random
+import re
 
+import msgspec
 import pytest
 from analysis_fixtures import synthetic_records
 
 from cirl_study.analysis.table import COLUMNS, check_design, trial_table
 from cirl_study.errors import UserError
+from cirl_study.record import TrialRecord, from_builtins, to_builtins
 
 
 @pytest.fixture(scope="module")
-def records() -> list[dict]:
+def records() -> list[TrialRecord]:
     return synthetic_records(subjects_per_level=3, lambdas=(0.1, 10.0), etas=(1.0,), cv_subjects=1)
 
 
@@ -22,14 +24,20 @@ def test_one_row_per_record_with_the_documented_columns(records):
     table = trial_table(records)
     assert list(table.columns) == list(COLUMNS)
     assert len(table) == len(records)
-    by_id = {record["trial_id"]: record for record in records}
+    by_id = {record.trial_id: record for record in records}
     for row in table.itertuples(index=False):
         record = by_id[row.trial_id]
-        assert row.subject == record["subject"] and row.policy == record["policy"]
-        assert row.regret == record["measures"]["regret"]
-        assert row.kl == record["measures"]["kl"]
-        assert row.reward_l2 == record["measures"]["reward_l2"]
-        assert math.isnan(row.eta) if record["eta"] is None else row.eta == record["eta"]
+        assert row.subject == record.subject and row.policy == record.policy
+        assert row.regret == record.measures.regret
+        assert row.kl == record.measures.kl
+        assert row.reward_l2 == record.measures.reward_l2
+        assert math.isnan(row.eta) if record.eta is None else row.eta == record.eta
+
+
+def test_columns_have_the_trials_csv_dtypes(records):
+    dtypes = trial_table(records).dtypes
+    assert all(dtypes[name].kind == "i" for name in ("num_features", "seed"))
+    assert all(dtypes[name].kind == "f" for name in ("rationality", "eta", "regret", "kl"))
 
 
 def test_row_order_is_sorted_and_independent_of_record_order(records):
@@ -44,78 +52,91 @@ def test_row_order_is_sorted_and_independent_of_record_order(records):
 
 
 @pytest.mark.parametrize(
-    ("path", "value", "message"),
+    ("path", "value", "where"),
     [
-        (("measures",), {"regret": 1.0, "kl": 1.0}, "missing field 'measures.reward_l2'"),
-        (("measures", "kl"), "high", "'measures.kl' must be a finite number"),
-        (("measures", "kl"), math.inf, "'measures.kl' must be a finite number"),
-        (("num_features",), 2.5, "'num_features' must be a positive integer"),
-        (("rationality",), 0, "'rationality' must be a positive number"),
-        (("eta",), "none", "'eta' must be a number or null"),
-        (("seed",), True, "'seed' must be an integer"),
-        (("subject",), "", "'subject' must be a non-empty string"),
+        (("measures",), {"regret": 1.0, "kl": 1.0}, "$.measures"),
+        (("measures", "kl"), "high", "$.measures.kl"),
+        (("measures", "kl"), math.inf, "$.measures"),
+        (("num_features",), 2.5, "$.num_features"),
+        (("rationality",), 0, "$.rationality"),
+        (("eta",), "none", "$.eta"),
+        (("seed",), True, "$.seed"),
+        (("subject",), "", "$.subject"),
     ],
 )
-def test_a_malformed_record_is_a_one_line_user_error(records, path, value, message):
-    broken = copy.deepcopy(records)
-    target = broken[3]
+def test_malformed_data_is_refused_before_it_becomes_a_record(records, path, value, where):
+    """The table trusts its records: the types refuse what it used to check field by field."""
+    broken = to_builtins(records[3])
+    target = broken
     for key in path[:-1]:
         target = target[key]
     target[path[-1]] = value
-    with pytest.raises(UserError, match="trial record 3") as error:
-        trial_table(broken)
-    assert message in str(error.value) and "\n" not in str(error.value)
+    with pytest.raises(msgspec.ValidationError, match=re.escape(f"at `{where}`")):
+        from_builtins(broken)
 
 
 def test_a_complete_design_passes(records):
-    check_design(trial_table(records))
+    check_design(records)
 
 
 def _without(records, predicate):
     return [record for record in records if not predicate(record)]
 
 
-def test_check_design_names_a_missing_cell(records):
+def _refused(records, pattern: str) -> str:
+    with pytest.raises(UserError, match=pattern) as error:
+        check_design(records)
+    message = str(error.value)
+    assert message.startswith("the run's design cannot be analysed: ") and "\n" not in message
+    return message
+
+
+def test_check_design_names_the_subjects_of_a_missing_cell(records):
     kept = _without(
-        records,
-        lambda r: r["block"] == "main" and r["policy"] == "expert" and r["num_features"] == 10,
+        records, lambda r: r.block == "main" and r.policy == "expert" and r.num_features == 10
     )
-    with pytest.raises(UserError, match=r"missing cells .*policy=expert, num_features=10"):
-        check_design(trial_table(kept))
+    message = _refused(kept, r"main block incomplete: 3 subject\(s\)")
+    assert "k10-s000 has {'best_response': 1}" in message
 
 
 def test_check_design_names_an_unpaired_subject(records):
     kept = _without(
-        records,
-        lambda r: r["block"] == "main" and r["subject"] == "k3-s001" and r["policy"] == "expert",
+        records, lambda r: r.block == "main" and r.subject == "k3-s001" and r.policy == "expert"
     )
-    with pytest.raises(UserError, match=r"k3-s001 \(expert x0, best_response x1\)"):
-        check_design(trial_table(kept))
+    _refused(kept, r"main block incomplete: 1 subject\(s\) .*k3-s001 has \{'best_response': 1\}")
 
 
-def test_check_design_names_duplicated_trial_ids(records):
-    duplicated = [*records, copy.deepcopy(records[5])]
-    with pytest.raises(UserError, match=f"duplicated trial ids: {records[5]['trial_id']}"):
-        check_design(trial_table(duplicated))
+def test_check_design_names_repeated_trial_ids(records):
+    _refused([*records, records[5]], f"1 trial id\\(s\\) repeated: {records[5].trial_id}")
 
 
 def test_check_design_refuses_a_subject_at_two_feature_levels(records):
-    moved = copy.deepcopy(records)
-    for record in moved:
-        if record["block"] == "main" and record["subject"] == "k10-s000":
-            record["subject"] = "k3-s000"
-            record["trial_id"] += "-moved"
-    with pytest.raises(UserError, match="more than one feature level: k3-s000"):
-        check_design(trial_table(moved))
+    moved = [
+        msgspec.structs.replace(r, subject="k3-s000", trial_id=f"{r.trial_id}-moved")
+        if r.block == "main" and r.subject == "k10-s000"
+        else r
+        for r in records
+    ]
+    _refused(moved, r"disagree with their subject's draw: k3-s000 \(num_features")
 
 
-def test_check_design_needs_two_feature_levels_and_known_policies(records):
-    single = _without(records, lambda r: r["num_features"] == 10)
-    with pytest.raises(UserError, match="only num_features=3"):
-        check_design(trial_table(single))
-    renamed = copy.deepcopy(records)
-    next(r for r in renamed if r["block"] == "main")["policy"] = "random"
-    with pytest.raises(UserError, match="unknown policies random"):
-        check_design(trial_table(renamed))
-    with pytest.raises(UserError, match="no trials in the 'main' block"):
-        check_design(trial_table(_without(records, lambda r: r["block"] == "main")))
+def test_check_design_refuses_cross_validation_draws_reused_in_the_test_blocks(records):
+    cv = next(r for r in records if r.block == "eta_cv")
+    reused = [*records, msgspec.structs.replace(cv, block="lambda_sweep", trial_id="reused")]
+    _refused(reused, f"eta_cv subject\\(s\\) also used in the test blocks: {cv.subject}")
+
+
+def test_check_design_needs_two_feature_levels_and_the_papers_policies(records):
+    _refused(_without(records, lambda r: r.num_features == 10), "only num_features=3")
+    _refused(
+        _without(records, lambda r: r.block == "main" and r.policy == "expert"),
+        "the main block plays best_response; the analysis needs exactly expert, best_response",
+    )
+    renamed = [
+        msgspec.structs.replace(r, policy="random")
+        if r.block == "main" and r.policy == "expert"
+        else r
+        for r in records
+    ]
+    _refused(renamed, "the main block plays best_response, random; the analysis needs")
+    _refused(_without(records, lambda r: r.block == "main"), "no trials in the main block")

@@ -6,7 +6,7 @@ import pytest
 
 from cirl_study.analysis.claims import external_claims
 from cirl_study.analysis.theory_claims import office_supplies_claims
-from cirl_study.games import office_supplies_results
+from cirl_study.theory import office_supplies_results
 
 
 @pytest.fixture(scope="module")

@@ -1,15 +1,16 @@
-"""The gridworld (DESIGN section 1) against the independent reference in ``brute_force``."""
+"""The gridworld (docs/design.md §1) against the independent reference in ``path_enumeration``."""
 
-import brute_force as bf
 import numpy as np
+import path_enumeration as bf
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cirl_study.gridworld import (
+from cirl_study.core.gridworld import (
     ACTION_STEPS,
     ACTIONS,
     Gridworld,
+    action_between,
     path_actions,
     path_states,
     rbf_features,
@@ -58,8 +59,46 @@ def test_index_and_coords_round_trip(width, height, data):
 
 @pytest.mark.parametrize("x, y", [(-1, 0), (0, -1), (4, 0), (0, 3)])
 def test_index_outside_the_grid_is_refused(x, y):
+    assert not Gridworld(4, 3).contains(x, y)
     with pytest.raises(ValueError):
         Gridworld(4, 3).index(x, y)
+
+
+@given(width=sides, height=sides, x=st.integers(-3, 9), y=st.integers(-3, 9))
+@settings(max_examples=80, deadline=None)
+def test_contains_equals_the_reference_cells(width, height, x, y):
+    grid = Gridworld(width, height)
+    on_grid = {bf.xy(width, s) for s in range(width * height)}
+    assert grid.contains(x, y) == ((x, y) in on_grid)
+    if grid.contains(x, y):
+        assert grid.index(x, y) == bf.cell(width, x, y)
+    else:
+        with pytest.raises(ValueError):
+            grid.index(x, y)
+
+
+@pytest.mark.parametrize("width, height", [(3, 3), (4, 2), (1, 3), (1, 1)])
+def test_action_between_equals_the_reference_moves(width, height):
+    # Every ordered pair of cells: the action is the reference's unique move between them, if any.
+    for here in range(width * height):
+        for there in range(width * height):
+            moves = [a for a in bf.ACTIONS if bf.move(width, height, here, a) == there]
+            assert len(moves) <= 1
+            got = action_between(bf.xy(width, here), bf.xy(width, there))
+            assert got == (moves[0] if moves else None), (here, there)
+
+
+@given(
+    cell=st.tuples(st.integers(-5, 5), st.integers(-5, 5)),
+    step=st.tuples(st.integers(-2, 2), st.integers(-2, 2)),
+)
+@settings(max_examples=80, deadline=None)
+def test_action_between_reads_the_step_whatever_the_grid(cell, step):
+    # The relation knows no grid: any two cells one reference step apart (or equal) give its name.
+    names = [name for name in bf.ACTIONS if bf.STEPS[name] == step]
+    following = (cell[0] + step[0], cell[1] + step[1])
+    assert action_between(cell, following) == (names[0] if names else None)
+    assert action_between(list(cell), list(following)) == action_between(cell, following)
 
 
 @given(
@@ -107,6 +146,8 @@ def test_every_path_round_trips_through_its_actions(width, height, start, horizo
         actions = path_actions(grid, states)
         assert len(actions) == horizon
         assert path_states(grid, start, actions) == list(states)
+        cells = [bf.xy(width, s) for s in states]
+        assert [action_between(a, b) for a, b in zip(cells[:-1], cells[1:], strict=True)] == actions
         seen.add(tuple(actions))
     assert len(seen) == len(paths) == bf.count_paths(width, height, start, horizon)
 

@@ -1,19 +1,36 @@
-"""The humans (DESIGN section 3) against exhaustive enumeration of every path."""
+"""The humans (docs/design.md §3) against exhaustive enumeration of every path."""
 
-import brute_force as bf
 import numpy as np
+import path_enumeration as bf
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cirl_study.humans import best_response_paths, best_response_target, expert_paths
-from cirl_study.path_search import nearest_paths
+from cirl_study.core.humans import (
+    HUMANS,
+    Human,
+    best_response_paths,
+    best_response_target,
+    expert_paths,
+    register_human,
+)
+from cirl_study.core.maxent import MaxEnt, Phase
+from cirl_study.core.path_search import NearestPaths, nearest_paths
+from cirl_study.record import BEST_RESPONSE, EXPERT
 
 PAPER = {"width": 10, "height": 10, "start": bf.cell(10, 5, 5), "horizon": 9}
 
 
 def _batch(features, size):
     return np.ascontiguousarray(np.broadcast_to(features, (size, *features.shape)))
+
+
+def _model(features, width, height, start, horizon, rationality=1.0):
+    """The learning-phase model of a batch ``(B, S, K)`` (or one trial's ``(S, K)``) of features."""
+    features = np.asarray(features)
+    if features.ndim == 2:
+        features = features[None]
+    return MaxEnt(Phase(bf.move_table(width, height), start, horizon), features, rationality)
 
 
 def _assert_paths(paths, width, height, start, horizon):
@@ -34,13 +51,15 @@ def _tol(value):
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 def test_expert_is_the_argmax_over_all_paths(instance):
     theta = np.array(instance.theta)
-    paths = expert_paths(
-        theta[None],
-        instance.features[None],
-        bf.move_table(instance.width, instance.height),
+    model = _model(
+        instance.features,
+        instance.width,
+        instance.height,
         instance.start,
         instance.horizon,
+        instance.rationality,
     )
+    paths = expert_paths(model, theta[None])
     _assert_paths(paths, instance.width, instance.height, instance.start, instance.horizon)
     _, best = bf.expert(instance.counts, theta)
     got = bf.path_rewards(bf.feature_counts(paths, instance.features), theta)[0]
@@ -62,13 +81,8 @@ def test_expert_breaks_exact_ties_by_the_first_path_in_action_order(width, heigh
     start = data.draw(st.integers(0, cells - 1))
     paths = bf.enumerate_paths(width, height, start, horizon)
     best, _ = bf.expert(bf.feature_counts(paths, np.eye(cells)), rewards)
-    got = expert_paths(
-        rewards[None].astype(float),
-        np.eye(cells)[None],
-        bf.move_table(width, height),
-        start,
-        horizon,
-    )
+    model = _model(np.eye(cells), width, height, start, horizon)
+    got = expert_paths(model, rewards[None].astype(float))
     np.testing.assert_array_equal(got[0], paths[best])
 
 
@@ -78,14 +92,25 @@ def test_expert_at_the_paper_size():
         features = bf.rbf_features(10, 10, rng.uniform(0, 9, size=(k, 2)), 2.0)
         counts = bf.feature_counts_fast(**PAPER, features=features)
         thetas = rng.uniform(-1, 1, size=(3, k))
-        paths = expert_paths(
-            thetas, _batch(features, 3), bf.move_table(10, 10), PAPER["start"], PAPER["horizon"]
-        )
+        model = _model(_batch(features, 3), 10, 10, PAPER["start"], PAPER["horizon"])
+        paths = expert_paths(model, thetas)
         _assert_paths(paths, 10, 10, PAPER["start"], PAPER["horizon"])
         got = bf.feature_counts(paths, features)
         for b in range(3):
             _, best = bf.expert_fast(counts, thetas[b])
             assert got[b] @ thetas[b] == pytest.approx(best, rel=1e-12, abs=1e-12)
+
+
+def test_the_expert_ignores_the_robot_s_rationality():
+    rng = np.random.default_rng(4)
+    features = bf.rbf_features(5, 4, rng.uniform(0, 4, size=(3, 2)), 1.5)
+    thetas = rng.uniform(-1, 1, size=(4, 3))
+    paths = [
+        expert_paths(_model(_batch(features, 4), 5, 4, 7, 5, rationality), thetas)
+        for rationality in (1e-4, 1.0, 1e3)
+    ]
+    np.testing.assert_array_equal(paths[0], paths[1])
+    np.testing.assert_array_equal(paths[0], paths[2])
 
 
 # ---- best response --------------------------------------------------------------------------
@@ -99,9 +124,8 @@ def test_best_response_target_equals_enumeration(rationality):
     counts = bf.feature_counts(bf.enumerate_paths(width, height, start, horizon), features)
     thetas = rng.uniform(-1, 1, size=(3, 3))
     etas = np.array([0.05, 0.5, 5.0])
-    got = best_response_target(
-        thetas, etas, _batch(features, 3), bf.move_table(width, height), start, horizon, rationality
-    )
+    model = _model(_batch(features, 3), width, height, start, horizon, rationality)
+    got = best_response_target(model, thetas, etas)
     for b in range(3):
         want = bf.expected_features(counts, thetas[b], rationality) + thetas[b] / (2 * etas[b])
         np.testing.assert_allclose(got[b], want, rtol=1e-10, atol=1e-12)
@@ -114,15 +138,15 @@ def test_best_response_target_equals_enumeration(rationality):
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 def test_best_response_is_the_argmax_over_all_paths(instance, log10_eta):
     theta, eta = np.array(instance.theta), 10.0**log10_eta
-    paths = best_response_paths(
-        theta[None],
-        np.array([eta]),
-        instance.features[None],
-        bf.move_table(instance.width, instance.height),
+    model = _model(
+        instance.features,
+        instance.width,
+        instance.height,
         instance.start,
         instance.horizon,
         instance.rationality,
     )
+    paths = best_response_paths(model, theta[None], np.array([eta]))
     _assert_paths(paths, instance.width, instance.height, instance.start, instance.horizon)
     _, best = bf.best_response(instance.counts, theta, eta, instance.rationality)
     phi_theta = bf.expected_features(instance.counts, theta, instance.rationality)
@@ -140,15 +164,8 @@ def test_best_response_at_the_paper_size(num_features, eta, rationality):
     features = bf.rbf_features(10, 10, rng.uniform(0, 9, size=(num_features, 2)), 2.0)
     counts = bf.feature_counts_fast(**PAPER, features=features)
     thetas = rng.uniform(-1, 1, size=(2, num_features))
-    paths = best_response_paths(
-        thetas,
-        np.full(2, eta),
-        _batch(features, 2),
-        bf.move_table(10, 10),
-        PAPER["start"],
-        PAPER["horizon"],
-        rationality,
-    )
+    model = _model(_batch(features, 2), 10, 10, PAPER["start"], PAPER["horizon"], rationality)
+    paths = best_response_paths(model, thetas, np.full(2, eta))
     _assert_paths(paths, 10, 10, PAPER["start"], PAPER["horizon"])
     got_counts = bf.feature_counts(paths, features)
     for b in range(2):
@@ -191,20 +208,57 @@ def test_nearest_paths_is_the_argmin_over_all_paths(instance, data):
         scale = instance.horizon * (1.0 if kind == "random" else 50.0)
         target = rng.uniform(-scale, scale, size=k)
     direction = rng.normal(size=(1, k)) if data.draw(st.booleans()) else None
-    actions, values, _ = nearest_paths(
+    found = nearest_paths(
         instance.features[None],
         target[None],
-        bf.move_table(instance.width, instance.height),
-        instance.start,
-        instance.horizon,
+        Phase(bf.move_table(instance.width, instance.height), instance.start, instance.horizon),
         direction=direction,
     )
+    assert isinstance(found, NearestPaths)
+    assert found.actions.shape == (1, instance.horizon)
+    assert found.values.shape == found.visited.shape == (1,)
+    assert found.visited[0] >= 1
     squared = ((instance.counts - target) ** 2).sum(axis=1)
     best = squared.min()
     states = [instance.start]
-    for a in actions[0]:
+    for a in found.actions[0]:
         states.append(bf.move(instance.width, instance.height, states[-1], bf.ACTIONS[a]))
     assert bf.is_path(instance.width, instance.height, states, instance.start, instance.horizon)
     got = ((bf.feature_counts([states], instance.features)[0] - target) ** 2).sum()
     assert got == pytest.approx(best, abs=_tol(best))
-    assert values[0] == pytest.approx(best, abs=_tol(best))
+    assert found.values[0] == pytest.approx(best, abs=_tol(best))
+
+
+def test_nearest_paths_needs_a_move_and_a_start():
+    features, target = np.ones((1, 4, 2)), np.zeros((1, 2))
+    with pytest.raises(ValueError):
+        nearest_paths(features, target, Phase(bf.move_table(2, 2), 0, 0))
+    with pytest.raises(ValueError):
+        nearest_paths(features, target, Phase(bf.move_table(2, 2), None, 2))
+
+
+# ---- the registry ---------------------------------------------------------------------------
+
+
+def test_the_paper_s_humans_are_registered_by_name():
+    assert not HUMANS[EXPERT].takes_eta
+    assert HUMANS[BEST_RESPONSE].takes_eta
+    width, height, start, horizon, rationality = 4, 4, 5, 4, 1.0
+    rng = np.random.default_rng(9)
+    features = bf.rbf_features(width, height, rng.uniform(0, 3, size=(3, 2)), 1.5)
+    model = _model(_batch(features, 3), width, height, start, horizon, rationality)
+    thetas, etas = rng.uniform(-1, 1, size=(3, 3)), np.array([0.1, 1.0, 10.0])
+    np.testing.assert_array_equal(
+        HUMANS[EXPERT].demonstrate(model, thetas, None), expert_paths(model, thetas)
+    )
+    np.testing.assert_array_equal(
+        HUMANS[BEST_RESPONSE].demonstrate(model, thetas, etas),
+        best_response_paths(model, thetas, etas),
+    )
+
+
+def test_a_policy_name_is_registered_once():
+    expert = HUMANS[EXPERT]
+    with pytest.raises(ValueError):
+        register_human(EXPERT, Human(lambda model, theta, eta: None, takes_eta=False))
+    assert HUMANS[EXPERT] is expert

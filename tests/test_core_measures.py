@@ -1,12 +1,13 @@
-"""The per-trial measures (DESIGN section 4) against enumeration over every start and path."""
+"""The per-trial measures (docs/design.md §4) against enumeration over every start and path."""
 
-import brute_force as bf
 import numpy as np
+import path_enumeration as bf
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cirl_study.measures import regret, reward_l2, trajectory_kl
+from cirl_study.core.maxent import MaxEnt, Phase
+from cirl_study.core.measures import regret, reward_l2, trajectory_kl
 
 _unit = st.floats(-1.0, 1.0, allow_subnormal=False)
 
@@ -17,18 +18,27 @@ def _game(width, height, num_features, seed):
     return rng, bf.rbf_features(width, height, centers, rng.uniform(0.8, 2.5))
 
 
-def _measure(fn, theta, theta_hat, features, *args):
-    """Call a batched measure on a batch of one trial."""
-    return fn(np.atleast_2d(theta), np.atleast_2d(theta_hat), features[None], *args)[0]
+def _deployment(features, width, height, horizon, rationality=1.0, start=None):
+    """The deployment-phase model of a batch ``(B, S, K)`` (or one trial's ``(S, K)``)."""
+    features = np.asarray(features)
+    if features.ndim == 2:
+        features = features[None]
+    return MaxEnt(Phase(bf.move_table(width, height), start, horizon), features, rationality)
 
 
-def _regret(theta, theta_hat, features, width, height, horizon):
-    return _measure(regret, theta, theta_hat, features, bf.move_table(width, height), horizon)
+def _regret(theta, theta_hat, features, width, height, horizon, rationality=1.0):
+    """Regret of a batch of one trial (regret ignores the rationality)."""
+    model = _deployment(features, width, height, horizon, rationality)
+    return regret(model, np.atleast_2d(theta), np.atleast_2d(theta_hat))[0]
 
 
 def _kl(theta, theta_hat, features, width, height, horizon, rationality):
-    table = bf.move_table(width, height)
-    return _measure(trajectory_kl, theta, theta_hat, features, table, horizon, rationality)
+    model = _deployment(features, width, height, horizon, rationality)
+    return trajectory_kl(model, np.atleast_2d(theta), np.atleast_2d(theta_hat))[0]
+
+
+def _l2(theta, theta_hat, features):
+    return reward_l2(features[None], np.atleast_2d(theta), np.atleast_2d(theta_hat))[0]
 
 
 def _theta_hat(instance, data):
@@ -85,12 +95,21 @@ def test_regret_on_fixed_grids(width, height, horizon):
 def test_regret_is_a_batched_function():
     rng, features = _game(4, 3, 3, seed=9)
     thetas, theta_hats = rng.uniform(-1, 1, size=(2, 5, 3))
-    batch = regret(
-        thetas, theta_hats, np.broadcast_to(features, (5, 12, 3)), bf.move_table(4, 3), 4
-    )
+    batch = regret(_deployment(np.broadcast_to(features, (5, 12, 3)), 4, 3, 4), thetas, theta_hats)
     assert batch.shape == (5,)
     for b in range(5):
         assert batch[b] == pytest.approx(_regret(thetas[b], theta_hats[b], features, 4, 3, 4))
+
+
+@pytest.mark.parametrize("rationality", [1e-4, 1.0, 1e3])
+def test_regret_ignores_the_rationality_and_the_phase_start(rationality):
+    rng, features = _game(4, 3, 3, seed=10)
+    thetas, theta_hats = rng.uniform(-1, 1, size=(2, 4, 3))
+    batch = np.broadcast_to(features, (4, 12, 3))
+    reference = regret(_deployment(batch, 4, 3, 3), thetas, theta_hats)
+    for start in (None, 0, 7):
+        model = _deployment(batch, 4, 3, 3, rationality, start=start)
+        np.testing.assert_array_equal(regret(model, thetas, theta_hats), reference)
 
 
 # ---- KL -------------------------------------------------------------------------------------
@@ -137,6 +156,20 @@ def test_kl_is_not_symmetric_and_the_reference_sees_it():
     assert _kl(theta, theta_hat, features, 3, 3, 3, 2.0) == pytest.approx(forward, rel=1e-10)
 
 
+def test_kl_averages_over_every_start_whatever_the_phase_start():
+    # The measures take the expectation over a uniform start: a start in the phase plays no part.
+    rng, features = _game(3, 4, 2, seed=12)
+    thetas, theta_hats = rng.uniform(-1, 1, size=(2, 3, 2))
+    batch = np.broadcast_to(features, (3, 12, 2))
+    everywhere = trajectory_kl(_deployment(batch, 3, 4, 3, 2.0), thetas, theta_hats)
+    for start in (0, 5):
+        model = _deployment(batch, 3, 4, 3, 2.0, start=start)
+        np.testing.assert_array_equal(trajectory_kl(model, thetas, theta_hats), everywhere)
+    for b in range(3):
+        want = bf.kl(3, 4, features, thetas[b], theta_hats[b], 3, 2.0)
+        assert everywhere[b] == pytest.approx(want, rel=1e-9, abs=1e-13)
+
+
 # ---- reward L2 ------------------------------------------------------------------------------
 
 
@@ -144,17 +177,17 @@ def test_kl_is_not_symmetric_and_the_reference_sees_it():
 @settings(max_examples=40, deadline=None)
 def test_reward_l2_equals_exact_arithmetic(instance, data):
     theta, theta_hat = np.array(instance.theta), _theta_hat(instance, data)
-    got = _measure(reward_l2, theta, theta_hat, instance.features)
+    got = _l2(theta, theta_hat, instance.features)
     want = bf.reward_l2(instance.features, theta, theta_hat)
     assert got == pytest.approx(want, rel=1e-12, abs=1e-15)
-    assert _measure(reward_l2, theta_hat, theta, instance.features) == pytest.approx(got)
-    assert _measure(reward_l2, theta, theta, instance.features) == 0.0
+    assert _l2(theta_hat, theta, instance.features) == pytest.approx(got)
+    assert _l2(theta, theta, instance.features) == 0.0
 
 
 def test_reward_l2_by_hand():
     features = np.array([[1.0, 0.0], [0.0, 1.0], [1.0, 1.0]])
     # Phi (theta - theta_hat) = (1, -2, -1) for theta - theta_hat = (1, -2): norm sqrt(6)
-    got = _measure(reward_l2, np.array([0.5, -1.0]), np.array([-0.5, 1.0]), features)
+    got = _l2(np.array([0.5, -1.0]), np.array([-0.5, 1.0]), features)
     assert got == pytest.approx(np.sqrt(6.0), rel=1e-15)
     assert bf.reward_l2(features, [0.5, -1.0], [-0.5, 1.0]) == pytest.approx(np.sqrt(6), rel=1e-15)
 

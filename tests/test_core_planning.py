@@ -1,15 +1,18 @@
-"""Soft and hard planning (DESIGN sections 2 and 4) against brute-force path enumeration."""
+"""Soft and hard planning (docs/design.md §2 and §4) against brute-force path enumeration."""
 
-import brute_force as bf
 import numpy as np
+import path_enumeration as bf
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from cirl_study.planning import (
+from cirl_study.core.planning import (
     evaluate_policy,
+    follow_policy,
     future_feature_counts,
     optimal_plan,
+    reachable_cells,
+    rollout,
     soft_value_iteration,
     state_visitation,
 )
@@ -209,6 +212,61 @@ def test_evaluate_policy_refuses_an_unavailable_action():
     actions[1, 0, 0] = 4  # W from [0, 0]
     with pytest.raises(ValueError):
         evaluate_policy(np.zeros((1, 9)), bf.move_table(3, 3), actions)
+
+
+# ---- following actions and policies ----------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "width, height, start, horizon", [(3, 3, 4, 4), (4, 2, 0, 4), (1, 3, 1, 3)]
+)
+def test_rollout_of_every_action_sequence_is_its_reference_path(width, height, start, horizon):
+    paths = np.array(bf.enumerate_paths(width, height, start, horizon))
+    table = bf.move_table(width, height)
+    actions = np.array(
+        [
+            [int(np.flatnonzero(table[a] == b)[0]) for a, b in zip(p[:-1], p[1:], strict=True)]
+            for p in paths
+        ]
+    )
+    np.testing.assert_array_equal(rollout(table, start, actions), paths)
+
+
+def test_rollout_refuses_an_action_sequence_that_leaves_the_grid():
+    table = bf.move_table(3, 3)
+    with pytest.raises(ValueError):
+        rollout(table, bf.cell(3, 2, 2), np.array([[0, 3]]))  # stay, then E off the edge
+
+
+@given(width=st.integers(1, 4), height=st.integers(2, 4), horizon=st.integers(1, 4), data=st.data())
+@settings(max_examples=30, deadline=None)
+def test_follow_policy_equals_the_reference_rollout(width, height, horizon, data):
+    cells = width * height
+    table = bf.move_table(width, height)
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    policy = (rng.random((horizon, 3, cells, 5)) * (table >= 0)).argmax(axis=-1)
+    starts = rng.integers(cells, size=3)
+    paths = follow_policy(table, starts, policy)
+    assert paths.shape == (3, horizon + 1)
+    rewards = rng.normal(size=cells)
+    for b in range(3):
+        want = [int(starts[b])]
+        for t in range(horizon):
+            want.append(bf.move(width, height, want[-1], bf.ACTIONS[policy[t, b, want[-1]]]))
+        np.testing.assert_array_equal(paths[b], want)
+        value = bf.policy_value(width, height, np.eye(cells), rewards, policy[:, b], want[0])
+        assert rewards[paths[b, 1:]].sum() == pytest.approx(value, rel=1e-13, abs=1e-13)
+
+
+@pytest.mark.parametrize(
+    "width, height, start, horizon", [(4, 4, 5, 4), (3, 5, 0, 3), (1, 3, 1, 3), (1, 1, 0, 2)]
+)
+def test_reachable_cells_equal_the_cells_of_enumerated_paths(width, height, start, horizon):
+    got = reachable_cells(bf.move_table(width, height), start, horizon)
+    want = np.zeros((horizon + 1, width * height), dtype=bool)
+    for path in bf.enumerate_paths(width, height, start, horizon):
+        want[np.arange(horizon + 1), list(path)] = True
+    np.testing.assert_array_equal(got, want)
 
 
 # ---- the references can tell right from wrong ----------------------------------------------

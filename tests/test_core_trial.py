@@ -1,22 +1,38 @@
-"""One whole trial (DESIGN sections 1-4 and 7), re-derived from its record by brute force."""
+"""One whole trial (docs/design.md §1-4 and §7), re-derived from its record by brute force."""
 
 import json
 
-import brute_force as bf
+import msgspec
 import numpy as np
+import path_enumeration as bf
 import pytest
 
-from cirl_study.trial import GameSetting, TrialSpec, play_trials
-
-SETTING = GameSetting(
-    width=4,
-    height=4,
-    start=(1, 2),
-    learning_steps=4,
-    deployment_steps=3,
-    centers=((0.5, 2.0), (3.0, 1.0), (2.0, 3.5)),
-    sigma=1.5,
+from cirl_study.core.humans import HUMANS, Human, register_human
+from cirl_study.core.trial import check_playable, play_trials
+from cirl_study.record import (
+    MAP,
+    MEASURES,
+    Deployment,
+    FitDiagnostics,
+    Grid,
+    Measures,
+    RBFFeatures,
+    TrialRecord,
+    TrialSpec,
+    decode,
+    encode,
+    to_builtins,
 )
+
+CENTERS = ((0.5, 2.0), (3.0, 1.0), (2.0, 3.5))
+SIGMA = 1.5
+GAME = {
+    "grid": Grid(width=4, height=4),
+    "start": (1, 2),
+    "learning_steps": 4,
+    "deployment_steps": 3,
+    "features": RBFFeatures(centers=CENTERS, sigma=SIGMA),
+}
 
 TOP_LEVEL = {
     "trial_id",
@@ -34,6 +50,7 @@ TOP_LEVEL = {
     "deployment_steps",
     "features",
     "theta",
+    "robot",
     "theta_hat",
     "demonstration",
     "measures",
@@ -42,7 +59,7 @@ TOP_LEVEL = {
 }
 
 
-def _spec(policy, theta, *, eta=0.5, rationality=1.0, trial_id=None, setting=SETTING):
+def _spec(policy, theta, *, eta=0.5, rationality=1.0, trial_id=None, game=None):
     return TrialSpec(
         trial_id=trial_id or f"t-{policy}-{theta[0]:.3f}-{rationality:g}",
         run_id="run-test",
@@ -54,7 +71,7 @@ def _spec(policy, theta, *, eta=0.5, rationality=1.0, trial_id=None, setting=SET
         eta=eta if policy == "best_response" else None,
         seed=7,
         theta=tuple(float(v) for v in theta),
-        setting=setting,
+        **(game or GAME),
     )
 
 
@@ -76,56 +93,86 @@ def played():
 
 def _context(record):
     """Everything the brute-force reference needs, read back from the record alone."""
-    width, height = record["grid"]["width"], record["grid"]["height"]
-    feats = record["features"]
-    assert feats["kind"] == "rbf"
-    features = bf.rbf_features(width, height, feats["centers"], feats["sigma"])
-    start = bf.cell(width, *record["start"])
+    width, height = record.grid.width, record.grid.height
+    assert record.features.kind == "rbf"
+    features = bf.rbf_features(width, height, record.features.centers, record.features.sigma)
+    start = bf.cell(width, *record.start)
     return width, height, features, start
+
+
+def _demo_states(record):
+    return [bf.cell(record.grid.width, x, y) for x, y in record.demonstration.states]
+
+
+def _assert_box_map(record):
+    """``theta_hat`` is the box MAP of the record's demonstration, with its exact LL."""
+    width, height, features, start = _context(record)
+    horizon, rationality = record.learning_steps, record.rationality
+    counts = bf.feature_counts(bf.enumerate_paths(width, height, start, horizon), features)
+    demo = bf.feature_counts([_demo_states(record)], features)[0]
+    theta_hat = np.array(record.theta_hat)
+    assert np.all(np.abs(theta_hat) <= 1.0)
+    slope = demo - bf.expected_features(counts, theta_hat, rationality)
+    outward = ((theta_hat >= 1.0) & (slope > 0)) | ((theta_hat <= -1.0) & (slope < 0))
+    assert np.abs(np.where(outward, 0.0, slope)).max() <= 1e-6
+    assert record.irl.converged is True
+    ll = bf.log_likelihood(demo, counts, theta_hat, rationality)
+    assert record.irl.log_likelihood == pytest.approx(ll, rel=1e-10, abs=1e-10)
 
 
 def test_record_has_every_field_of_the_contract_and_is_plain_json(played):
     specs, records = played
     assert len(records) == len(specs)
     for spec, record in zip(specs, records, strict=True):
-        assert set(record) >= TOP_LEVEL
-        assert json.loads(json.dumps(record, allow_nan=False)) == record
-        assert record["trial_id"] == spec.trial_id and record["policy"] == spec.policy
-        assert record["run_id"] == spec.run_id and record["subject"] == spec.subject
-        assert record["block"] == spec.block and record["seed"] == spec.seed
-        assert record["num_features"] == 3 == len(record["theta"]) == len(record["theta_hat"])
-        assert record["rationality"] == spec.rationality
-        assert record["eta"] == (spec.eta if spec.policy == "best_response" else None)
-        assert record["grid"] == {"width": 4, "height": 4}
-        assert record["start"] == [1, 2]
-        assert (record["learning_steps"], record["deployment_steps"]) == (4, 3)
-        assert record["features"]["centers"] == [list(c) for c in SETTING.centers]
-        assert record["features"]["sigma"] == SETTING.sigma
-        assert record["theta"] == list(spec.theta)
-        assert set(record["measures"]) >= {"regret", "kl", "reward_l2"}
-        assert set(record["irl"]) >= {"log_likelihood", "iterations", "converged"}
-        assert set(record["deployment"]) >= {"starts", "paths"}
+        assert isinstance(record, TrialRecord)
+        data = json.loads(encode(record))  # what a reader of the log sees
+        assert set(data) >= TOP_LEVEL
+        assert json.loads(json.dumps(data, allow_nan=False)) == data
+        assert json.loads(json.dumps(to_builtins(record), allow_nan=False)) == data
+        assert decode(encode(record)) == record  # valid against the record's schema
+        assert record.spec() == spec
+        assert record.trial_id == spec.trial_id and record.policy == spec.policy
+        assert record.run_id == spec.run_id and record.subject == spec.subject
+        assert record.block == spec.block and record.seed == spec.seed
+        assert record.num_features == 3 == len(record.theta) == len(record.theta_hat)
+        assert record.rationality == spec.rationality
+        assert record.eta == (spec.eta if spec.policy == "best_response" else None)
+        assert record.robot == MAP
+        assert record.grid == Grid(width=4, height=4)
+        assert data["grid"] == {"width": 4, "height": 4}
+        assert record.start == (1, 2) and data["start"] == [1, 2]
+        assert (record.learning_steps, record.deployment_steps) == (4, 3)
+        assert record.features.centers == CENTERS
+        assert data["features"]["centers"] == [list(c) for c in CENTERS]
+        assert record.features.sigma == SIGMA
+        assert record.theta == spec.theta
+        assert isinstance(record.measures, Measures)
+        assert set(data["measures"]) >= set(MEASURES) == {"regret", "kl", "reward_l2"}
+        assert isinstance(record.irl, FitDiagnostics)
+        assert set(data["irl"]) >= {"log_likelihood", "iterations", "converged"}
+        assert isinstance(record.deployment, Deployment)
+        assert set(data["deployment"]) >= {"starts", "paths"}
 
 
 def test_demonstration_is_the_policy_s_optimal_path(played):
     _, records = played
     for record in records:
         width, height, features, start = _context(record)
-        horizon = record["learning_steps"]
-        demo = record["demonstration"]
-        states = [bf.cell(width, x, y) for x, y in demo["states"]]
+        horizon = record.learning_steps
+        demo = record.demonstration
+        states = _demo_states(record)
         assert bf.is_path(width, height, states, start, horizon)
-        assert len(demo["actions"]) == horizon
-        for here, there, name in zip(states[:-1], states[1:], demo["actions"], strict=True):
+        assert len(demo.actions) == horizon
+        for here, there, name in zip(states[:-1], states[1:], demo.actions, strict=True):
             assert bf.move(width, height, here, name) == there
         counts = bf.feature_counts(bf.enumerate_paths(width, height, start, horizon), features)
         got = bf.feature_counts([states], features)
-        theta = np.array(record["theta"])
-        if record["policy"] == "expert":
+        theta = np.array(record.theta)
+        if record.policy == "expert":
             _, best = bf.expert(counts, theta)
             assert got[0] @ theta == pytest.approx(best, rel=1e-12, abs=1e-12)
         else:
-            eta, rationality = record["eta"], record["rationality"]
+            eta, rationality = record.eta, record.rationality
             _, best = bf.best_response(counts, theta, eta, rationality)
             phi_theta = bf.expected_features(counts, theta, rationality)
             value = bf.best_response_objective(got, theta, eta, phi_theta)[0]
@@ -135,73 +182,59 @@ def test_demonstration_is_the_policy_s_optimal_path(played):
 def test_theta_hat_is_the_box_map_of_the_demonstration(played):
     _, records = played
     for record in records:
-        width, height, features, start = _context(record)
-        horizon, rationality = record["learning_steps"], record["rationality"]
-        counts = bf.feature_counts(bf.enumerate_paths(width, height, start, horizon), features)
-        states = [bf.cell(width, x, y) for x, y in record["demonstration"]["states"]]
-        demo = bf.feature_counts([states], features)[0]
-        theta_hat = np.array(record["theta_hat"])
-        assert np.all(np.abs(theta_hat) <= 1.0)
-        slope = demo - bf.expected_features(counts, theta_hat, rationality)
-        outward = ((theta_hat >= 1.0) & (slope > 0)) | ((theta_hat <= -1.0) & (slope < 0))
-        assert np.abs(np.where(outward, 0.0, slope)).max() <= 1e-6
-        assert record["irl"]["converged"] is True
-        ll = bf.log_likelihood(demo, counts, theta_hat, rationality)
-        assert record["irl"]["log_likelihood"] == pytest.approx(ll, rel=1e-10, abs=1e-10)
+        _assert_box_map(record)
 
 
 def test_measures_equal_the_brute_force_measures_of_the_record(played):
     _, records = played
     for record in records:
         width, height, features, _ = _context(record)
-        theta, theta_hat = record["theta"], record["theta_hat"]
-        horizon, rationality = record["deployment_steps"], record["rationality"]
-        measures = record["measures"]
+        theta, theta_hat = record.theta, record.theta_hat
+        horizon, rationality = record.deployment_steps, record.rationality
+        measures = record.measures
         want_regret = bf.regret(width, height, features, theta, theta_hat, horizon)
         want_kl = bf.kl(width, height, features, theta, theta_hat, horizon, rationality)
-        assert measures["regret"] == pytest.approx(want_regret, abs=1e-12)
-        assert measures["kl"] == pytest.approx(want_kl, rel=1e-8, abs=1e-12)
-        assert measures["reward_l2"] == pytest.approx(
+        assert measures.regret == pytest.approx(want_regret, abs=1e-12)
+        assert measures.kl == pytest.approx(want_kl, rel=1e-8, abs=1e-12)
+        assert measures.reward_l2 == pytest.approx(
             bf.reward_l2(features, theta, theta_hat), rel=1e-12
         )
-        assert measures["regret"] >= -1e-12 and measures["kl"] >= 0.0
+        assert measures.regret >= -1e-12 and measures.kl >= 0.0
 
 
 def test_deployment_paths_are_optimal_for_theta_hat(played):
     _, records = played
     for record in records:
         width, height, features, _ = _context(record)
-        horizon = record["deployment_steps"]
-        best = bf.optimal_values(width, height, features, record["theta_hat"], horizon)
-        deployment = record["deployment"]
-        assert len(deployment["starts"]) == len(deployment["paths"]) >= 1
-        for start_xy, path in zip(deployment["starts"], deployment["paths"], strict=True):
+        horizon = record.deployment_steps
+        best = bf.optimal_values(width, height, features, record.theta_hat, horizon)
+        deployment = record.deployment
+        assert len(deployment.starts) == len(deployment.paths) >= 1
+        for start_xy, path in zip(deployment.starts, deployment.paths, strict=True):
             start = bf.cell(width, *start_xy)
             states = [bf.cell(width, x, y) for x, y in path]
             assert bf.is_path(width, height, states, start, horizon)
-            value = bf.feature_counts([states], features)[0] @ np.array(record["theta_hat"])
+            value = bf.feature_counts([states], features)[0] @ np.array(record.theta_hat)
             assert value == pytest.approx(best[start], abs=1e-12)
 
 
 def test_a_record_depends_only_on_its_spec(played):
     specs, records = played
     # alone, in another order, and in a batch with other grids and horizons
-    other = GameSetting(
-        width=3,
-        height=5,
-        start=(1, 1),
-        learning_steps=3,
-        deployment_steps=2,
-        centers=((0.0, 0.0), (2.0, 4.0)),
-        sigma=1.0,
-    )
-    stranger = _spec("best_response", (0.2, -0.9), eta=2.0, trial_id="stranger", setting=other)
+    other = {
+        "grid": Grid(width=3, height=5),
+        "start": (1, 1),
+        "learning_steps": 3,
+        "deployment_steps": 2,
+        "features": RBFFeatures(centers=((0.0, 0.0), (2.0, 4.0)), sigma=1.0),
+    }
+    stranger = _spec("best_response", (0.2, -0.9), eta=2.0, trial_id="stranger", game=other)
     assert play_trials([specs[3]]) == [records[3]]
     shuffled = play_trials([specs[5], stranger, specs[1], specs[3]])
     assert shuffled[0] == records[5]
     assert shuffled[2] == records[1]
     assert shuffled[3] == records[3]
-    assert shuffled[1]["trial_id"] == "stranger" and shuffled[1]["grid"]["height"] == 5
+    assert shuffled[1].trial_id == "stranger" and shuffled[1].grid.height == 5
 
 
 def test_the_true_reward_is_not_recovered_by_a_broken_demonstration(played):
@@ -209,7 +242,140 @@ def test_the_true_reward_is_not_recovered_by_a_broken_demonstration(played):
     _, records = played
     record = records[1]
     width, height, features, _ = _context(record)
-    wrong = [-v for v in record["theta_hat"]]
-    assert record["measures"]["reward_l2"] != pytest.approx(
-        bf.reward_l2(features, record["theta"], wrong), rel=1e-6
+    wrong = [-v for v in record.theta_hat]
+    assert record.measures.reward_l2 != pytest.approx(
+        bf.reward_l2(features, record.theta, wrong), rel=1e-6
     )
+
+
+# ---- what play_trials refuses ---------------------------------------------------------------
+
+
+def _expert():
+    return _spec("expert", (0.4, -0.7, 0.1), trial_id="expert")
+
+
+def _best_response():
+    return _spec("best_response", (0.4, -0.7, 0.1), eta=0.3, trial_id="best-response")
+
+
+UNPLAYABLE = {
+    "unknown policy": (lambda: _spec("novice", (0.4, -0.7, 0.1)), "unknown policy"),
+    "unknown robot": (lambda: msgspec.structs.replace(_expert(), robot="bayes"), "unknown robot"),
+    "eta given to the expert": (lambda: msgspec.structs.replace(_expert(), eta=0.5), "eta"),
+    "eta missing for the best response": (
+        lambda: msgspec.structs.replace(_best_response(), eta=None),
+        "eta",
+    ),
+    "theta too short": (
+        lambda: msgspec.structs.replace(_expert(), theta=(0.4, -0.7)),
+        "num_features",
+    ),
+    "num_features wrong": (
+        lambda: msgspec.structs.replace(_best_response(), num_features=2),
+        "num_features",
+    ),
+    "a centre too many": (
+        lambda: msgspec.structs.replace(
+            _expert(), features=RBFFeatures(centers=(*CENTERS, (1.0, 1.0)), sigma=SIGMA)
+        ),
+        "num_features",
+    ),
+    "start off the grid": (lambda: msgspec.structs.replace(_expert(), start=(4, 0)), "outside"),
+}
+
+
+def test_playable_specs_pass_the_check():
+    for spec in [*_specs(), _expert(), _best_response()]:
+        assert check_playable(spec) is None
+
+
+@pytest.mark.parametrize("case", UNPLAYABLE)
+def test_an_unplayable_spec_is_refused(case):
+    make, message = UNPLAYABLE[case]
+    spec = make()
+    with pytest.raises(ValueError, match=message):
+        check_playable(spec)
+    # One bad spec refuses the whole batch, wherever it is.
+    with pytest.raises(ValueError, match=message):
+        play_trials([_expert(), spec, _best_response()])
+
+
+# ---- a human policy added by registration ---------------------------------------------------
+
+LAST_PATH, STAY_PUT = "test-last-path", "test-stay-put"
+
+
+def _last_path(model, theta, eta):
+    """At every step the highest-index available action: the lexicographically last path."""
+    assert eta is None
+    phase = model.phase
+    rows = np.arange(len(theta))
+    paths = np.empty((len(theta), phase.horizon + 1), dtype=np.int64)
+    paths[:, 0] = phase.start_cell
+    for t in range(phase.horizon):
+        moves = phase.successors[paths[:, t]]  # (B, A)
+        last = moves.shape[1] - 1 - np.argmax((moves >= 0)[:, ::-1], axis=1)
+        paths[:, t + 1] = moves[rows, last]
+    return paths
+
+
+@pytest.fixture
+def toy_humans():
+    """Register two toy policies for one test; yields the etas the one with a trade-off got."""
+    received = []
+
+    def stay_put(model, theta, eta):
+        received.append(np.array(eta))
+        return np.full((len(theta), model.phase.horizon + 1), model.phase.start_cell)
+
+    try:
+        register_human(LAST_PATH, Human(_last_path, takes_eta=False))
+        register_human(STAY_PUT, Human(stay_put, takes_eta=True))
+        yield received
+    finally:
+        HUMANS.pop(LAST_PATH, None)
+        HUMANS.pop(STAY_PUT, None)
+
+
+def test_a_registered_human_is_played_by_name(toy_humans):
+    theta = (0.4, -0.7, 0.1)
+    specs = [
+        _spec(LAST_PATH, theta, trial_id="last"),
+        _spec(STAY_PUT, theta, trial_id="stay-1"),
+        _spec(STAY_PUT, (-0.2, 0.5, 0.9), trial_id="stay-2"),
+    ]
+    specs[1] = msgspec.structs.replace(specs[1], eta=0.3)
+    specs[2] = msgspec.structs.replace(specs[2], eta=2.0)
+    last, stay_1, stay_2 = play_trials(specs)
+
+    width, height, _, start = _context(last)
+    want = bf.enumerate_paths(width, height, start, last.learning_steps)[-1]
+    assert last.policy == LAST_PATH and last.eta is None
+    assert last.demonstration.states == tuple(bf.xy(width, s) for s in want)
+    assert want != (start,) * (last.learning_steps + 1)  # it is not the trivial path
+    for here, there, name in zip(want[:-1], want[1:], last.demonstration.actions, strict=True):
+        assert bf.move(width, height, here, name) == there
+
+    for record in (stay_1, stay_2):
+        assert record.policy == STAY_PUT
+        assert record.demonstration.states == (record.start,) * (record.learning_steps + 1)
+        assert record.demonstration.actions == ("stay",) * record.learning_steps
+    assert (stay_1.eta, stay_2.eta) == (0.3, 2.0)
+    # one batch, the trials' own etas in order
+    assert len(toy_humans) == 1
+    np.testing.assert_array_equal(toy_humans[0], [0.3, 2.0])
+
+    for record in (last, stay_1, stay_2):  # the rest of the trial is played on that demonstration
+        _assert_box_map(record)
+        assert decode(encode(record)) == record
+
+
+def test_a_registered_human_is_checked_like_the_paper_s(toy_humans):
+    theta = (0.4, -0.7, 0.1)
+    with pytest.raises(ValueError, match="eta"):
+        check_playable(msgspec.structs.replace(_spec(LAST_PATH, theta), eta=0.3))
+    with pytest.raises(ValueError, match="eta"):
+        check_playable(_spec(STAY_PUT, theta))  # eta is None for a policy that needs it
+    with pytest.raises(ValueError):
+        register_human(LAST_PATH, Human(_last_path, takes_eta=False))

@@ -1,7 +1,7 @@
-"""Fabricated trial records shaped like DESIGN.md section 7, for the log-layer tests.
+"""Fabricated trial records (docs/design.md §7), for the log-layer tests.
 
 The records are consistent by construction (paths are walks on the grid, ``reward_l2`` is
-computed cell by cell with :func:`math.exp`, independently of :mod:`cirl_study.logs.rewards`),
+computed cell by cell with :func:`math.exp`, independently of the package's RBF features),
 so any fault a test finds in them was put there by the test.
 """
 
@@ -12,6 +12,7 @@ import random
 from typing import Any
 
 from cirl_study.logs import record_faults
+from cirl_study.record import TrialRecord, from_builtins
 
 STEPS = {"stay": (0, 0), "N": (0, 1), "S": (0, -1), "E": (1, 0), "W": (-1, 0)}
 
@@ -31,12 +32,12 @@ def _walk(rng: random.Random, start: list[int], steps: int, width: int, height: 
     return states, actions
 
 
-def brute_force_reward(record: dict[str, Any], theta: list[float], x: int, y: int) -> float:
+def brute_force_reward(features: dict[str, Any], theta: list[float], x: int, y: int) -> float:
     """``theta . phi([x, y])`` from the definition, one centre at a time."""
-    sigma = record["features"]["sigma"]
+    sigma = features["sigma"]
     return math.fsum(
         w * math.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * sigma**2))
-        for w, (cx, cy) in zip(theta, record["features"]["centers"], strict=True)
+        for w, (cx, cy) in zip(theta, features["centers"], strict=True)
     )
 
 
@@ -52,7 +53,7 @@ def make_record(
     deployment_steps: int = 3,
     rollouts: int = 2,
     run_id: str = "run-test",
-) -> dict[str, Any]:
+) -> TrialRecord:
     """A consistent trial record; the reward draw depends only on ``(subject, num_features)``."""
     draw = random.Random(f"{subject}/{num_features}")
     centers = [
@@ -89,16 +90,16 @@ def make_record(
     difference = [a - b for a, b in zip(record["theta"], record["theta_hat"], strict=True)]
     l2 = math.sqrt(
         math.fsum(
-            brute_force_reward(record, difference, x, y) ** 2
+            brute_force_reward(record["features"], difference, x, y) ** 2
             for x in range(width)
             for y in range(height)
         )
     )
     record["measures"] = {"regret": rng.uniform(0, 2), "kl": rng.uniform(0, 3), "reward_l2": l2}
-    return record
+    return from_builtins(record)
 
 
-def make_study(subjects: int = 3, num_features: tuple[int, ...] = (3, 10)) -> list[dict[str, Any]]:
+def make_study(subjects: int = 3, num_features: tuple[int, ...] = (3, 10)) -> list[TrialRecord]:
     """A complete small main block: every subject under both policies."""
     return [
         make_record(subject, policy, num_features=k)

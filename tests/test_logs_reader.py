@@ -1,20 +1,22 @@
-"""`read_run` and `completed_trial_ids`: what analysis and resume read from a run."""
+"""`read_run` and `logged_trials`: what analysis and resume read from a run."""
 
 from __future__ import annotations
 
 from pathlib import Path
 
+import msgspec
 import pytest
 from test_logs_helpers import make_record, make_study
 
 from cirl_study.errors import UserError
-from cirl_study.logs import TrialLogWriter, completed_trial_ids, read_run
+from cirl_study.logs import TrialLogWriter, logged_trials, read_run
 from cirl_study.logs.scan import scan_file
+from cirl_study.record import TrialRecord
 
 PROVENANCE = {"pipeline_name": "smoke", "git_commit": "abc"}
 
 
-def write(path: Path, records: list[dict], provenance: dict | None = None) -> Path:
+def write(path: Path, records: list[TrialRecord], provenance: dict | None = None) -> Path:
     with TrialLogWriter(path, provenance or PROVENANCE, chunk_size=2500) as log:
         for record in records:
             log.write(record)
@@ -33,11 +35,11 @@ def test_records_of_every_file_sorted_by_trial_id(run: Path) -> None:
     write(run / "b.mcap", study[:5])
     write(run / "a.mcap", study[5:])
     contents = read_run(run)
-    assert contents.records == sorted(study, key=lambda r: r["trial_id"])
+    assert contents.records == sorted(study, key=lambda r: r.trial_id)
     assert contents.provenance == [PROVENANCE, PROVENANCE]
     assert contents.pipeline_name == "smoke"
     assert contents.warnings == []
-    assert completed_trial_ids(run) == {r["trial_id"] for r in study}
+    assert logged_trials(run).trial_ids == {r.trial_id for r in study}
 
 
 def test_temporary_files_are_ignored(run: Path) -> None:
@@ -47,9 +49,9 @@ def test_temporary_files_are_ignored(run: Path) -> None:
         log.write(study[2])
         raise KeyboardInterrupt
     assert (run / "b.mcap.tmp").exists()
-    assert completed_trial_ids(run) == {r["trial_id"] for r in study[:2]}
+    assert logged_trials(run).trial_ids == {r.trial_id for r in study[:2]}
     contents = read_run(run)
-    assert contents.records == sorted(study[:2], key=lambda r: r["trial_id"])
+    assert contents.records == sorted(study[:2], key=lambda r: r.trial_id)
     assert contents.warnings == [
         f"{run}: 1 unfinished temporary file(s) of an interrupted run ignored; "
         "run the pipeline again to complete the run"
@@ -66,8 +68,8 @@ def test_a_truncated_file_is_salvaged_with_a_warning(run: Path) -> None:
     contents = read_run(run)
     recovered = contents.records
     assert 0 < len(recovered) < len(study)
-    by_position = {r["trial_id"]: i for i, r in enumerate(study)}
-    assert sorted(by_position[r["trial_id"]] for r in recovered) == list(range(len(recovered)))
+    by_position = {r.trial_id: i for i, r in enumerate(study)}
+    assert sorted(by_position[r.trial_id] for r in recovered) == list(range(len(recovered)))
     (warning,) = contents.warnings
     assert warning.startswith(f"{path}: damaged (truncated: the chunk record at byte {chunks[3]} ")
     assert warning.endswith(
@@ -90,7 +92,7 @@ def test_a_damaged_chunk_is_skipped_and_counted(run: Path) -> None:
     assert warning.startswith(f"{path}: damaged (damaged chunk at byte {chunk}: ")
     assert f"recovered {len(contents.records)} trial(s) of {len(study)} from " in warning
     with pytest.raises(UserError, match=f"{path} is damaged"):
-        completed_trial_ids(run)
+        logged_trials(run)
 
 
 def test_a_trial_in_two_files_is_refused(run: Path) -> None:
@@ -98,20 +100,19 @@ def test_a_trial_in_two_files_is_refused(run: Path) -> None:
     write(run / "a.mcap", [record])
     write(run / "b.mcap", [record])
     message = (
-        f"trial {record['trial_id']} is logged twice: in {run / 'a.mcap'} and in {run / 'b.mcap'}"
+        f"trial {record.trial_id} is logged twice: in {run / 'a.mcap'} and in {run / 'b.mcap'}"
     )
     with pytest.raises(UserError) as error:
         read_run(run)
     assert str(error.value) == message
     with pytest.raises(UserError, match="logged twice"):
-        completed_trial_ids(run)
+        logged_trials(run)
 
 
 def test_a_faulty_record_is_refused(run: Path) -> None:
-    record = make_record(1)
-    record["policy"] = "oracle"
+    record = msgspec.structs.replace(make_record(1), policy="oracle")
     write(run / "a.mcap", [record])
-    with pytest.raises(UserError, match=r"unusable \(trial .*'oracle' is not one of"):
+    with pytest.raises(UserError, match=r"unusable \(trial .*'oracle' is not a known human"):
         read_run(run)
 
 
@@ -137,5 +138,5 @@ def test_unreadable_runs_are_user_errors(run: Path, setup, message: str) -> None
 
 
 def test_resume_of_a_fresh_run(tmp_path: Path) -> None:
-    assert completed_trial_ids(tmp_path / "not-yet") == set()
-    assert completed_trial_ids(tmp_path) == set()
+    assert logged_trials(tmp_path / "not-yet").trial_ids == set()
+    assert logged_trials(tmp_path).trial_ids == set()

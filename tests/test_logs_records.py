@@ -1,4 +1,4 @@
-"""Record checks (DESIGN.md section 7) and the JSON-schema subset they rest on."""
+"""Trial payloads: decoded into the typed record (docs/design.md §7), then checked."""
 
 from __future__ import annotations
 
@@ -7,19 +7,15 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_logs_helpers import make_record
 
-from cirl_study.logs import record_faults
-from cirl_study.logs.json_schema import compile_validator, schema_errors, unsupported_keywords
-from cirl_study.logs.schemas import (
-    DEMONSTRATION_SCHEMA,
-    DEPLOYMENT_SCHEMA,
-    GRID_SCHEMA,
-    TRIAL_SCHEMA,
-)
+from cirl_study.logs import decode_trial
+from cirl_study.logs.schemas import CHANNELS
+from cirl_study.record import TRIAL_SCHEMA, TrialRecord, encode
 
 REQUIRED = [
     "trial_id", "run_id", "block", "subject", "policy", "num_features", "rationality", "eta",
@@ -28,51 +24,33 @@ REQUIRED = [
 ]  # fmt: skip
 
 
+def faults_of(record: dict[str, Any]) -> list[str]:
+    """The faults :func:`decode_trial` finds in the JSON of ``record``."""
+    return decode_trial(json.dumps(record).encode())[1]
+
+
+def plain_record(*args: Any, **kwargs: Any) -> dict[str, Any]:
+    """A fabricated record as the plain JSON object the log holds."""
+    return json.loads(encode(make_record(*args, **kwargs)))
+
+
 def test_schema_requires_exactly_the_design_fields() -> None:
-    assert TRIAL_SCHEMA["required"] == REQUIRED
+    definition = TRIAL_SCHEMA["$defs"]["TrialRecord"]
+    assert sorted(definition["required"]) == sorted(REQUIRED)
+    assert {"robot", "irl", "deployment"} <= set(definition["properties"]) - set(REQUIRED)
 
 
-@pytest.mark.parametrize(
-    "schema", [TRIAL_SCHEMA, DEMONSTRATION_SCHEMA, DEPLOYMENT_SCHEMA, GRID_SCHEMA]
-)
-def test_schemas_use_only_keywords_the_validator_checks(schema: dict[str, Any]) -> None:
-    assert unsupported_keywords(schema) == set()
+def test_every_channel_declares_a_json_schema() -> None:
+    for topic, name, schema in CHANNELS:
+        assert topic.startswith("/cirl/") and name
+        assert json.loads(encode(schema)) == schema
 
 
-def test_unsupported_keywords_are_found() -> None:
-    schema = {"type": "object", "properties": {"a": {"pattern": "x", "items": {"oneOf": []}}}}
-    assert unsupported_keywords(schema) == {"pattern", "oneOf"}
-
-
-@pytest.mark.parametrize(
-    ("value", "schema", "valid"),
-    [
-        (True, {"type": "number"}, False),
-        (True, {"type": "integer"}, False),
-        (2.0, {"type": "integer"}, True),
-        (2.5, {"type": "integer"}, False),
-        (None, {"type": ["number", "null"], "exclusiveMinimum": 0}, True),
-        (0, {"type": ["number", "null"], "exclusiveMinimum": 0}, False),
-        (-1, {"type": "number", "minimum": -1, "maximum": 1}, True),
-        (1.0000001, {"type": "number", "minimum": -1, "maximum": 1}, False),
-        ([1, 2, 3], {"type": "array", "maxItems": 2}, False),
-        ([], {"type": "array", "minItems": 1}, False),
-        ("", {"type": "string", "minLength": 1}, False),
-        ("N", {"enum": ["N", "S"]}, True),
-        ("W", {"enum": ["N", "S"]}, False),
-        (1, {"enum": [True]}, False),
-        ({"a": 1}, {"type": "object", "required": ["a", "b"]}, False),
-        ({"a": "x"}, {"type": "object", "properties": {"a": {"type": "integer"}}}, False),
-        (
-            [[0, 1], [0, "1"]],
-            {"type": "array", "items": {"type": "array", "items": {"type": "integer"}}},
-            False,
-        ),
-    ],
-)
-def test_schema_subset(value: Any, schema: dict[str, Any], valid: bool) -> None:
-    assert (schema_errors(value, schema) == []) is valid
-    assert compile_validator(schema)(value) is valid
+def test_a_sound_record_round_trips_byte_for_byte() -> None:
+    record = make_record(1, "best_response")
+    data = encode(record)
+    assert decode_trial(data) == (record, [])
+    assert encode(msgspec.json.decode(data, type=TrialRecord)) == data
 
 
 JSON = st.recursive(
@@ -104,10 +82,12 @@ def _locations(value: Any, path: tuple = ()) -> list[tuple]:
 @given(
     data=st.data(), replacement=JSON, operation=st.sampled_from(["set", "grow", "shrink", "drop"])
 )
-def test_fast_validator_agrees_with_the_explained_one(
+def test_any_damage_is_a_fault_or_a_record_that_round_trips(
     data: st.DataObject, replacement: Any, operation: str
 ) -> None:
-    record = make_record(1, "best_response")
+    """Whatever a payload holds, decoding never raises: it names a fault, or gives a record
+    whose canonical JSON decodes to the same record."""
+    record = plain_record(1, "best_response")
     location = data.draw(st.sampled_from(_locations(record)[1:]))
     *parents, last = location
     target = record
@@ -122,23 +102,51 @@ def test_fast_validator_agrees_with_the_explained_one(
         del target[last]
     else:
         target[last] = replacement
-    for schema in (TRIAL_SCHEMA, DEMONSTRATION_SCHEMA, GRID_SCHEMA):
-        assert compile_validator(schema)(record) is (schema_errors(record, schema) == [])
+    decoded, faults = decode_trial(json.dumps(record).encode())
+    if decoded is None:
+        assert len(faults) == 1 and faults[0].startswith("not a trial record: ")
+    else:
+        assert decode_trial(encode(decoded))[0] == decoded
 
 
 def test_errors_name_the_path() -> None:
-    record = make_record(1)
+    record = plain_record(1)
     record["demonstration"]["states"][2] = [1, "2"]
-    assert record_faults(record) == [
-        "record.demonstration.states[2][1]: expected integer, got string"
+    assert faults_of(record) == [
+        "not a trial record: Expected `int`, got `str` - at `$.demonstration.states[2][1]`"
     ]
 
 
 @pytest.mark.parametrize("field", REQUIRED)
 def test_every_missing_field_is_a_fault(field: str) -> None:
-    record = make_record(1)
+    record = plain_record(1)
     del record[field]
-    assert record_faults(record) == [f"record: missing field {field!r}"]
+    assert faults_of(record) == [f"not a trial record: Object missing required field `{field}`"]
+
+
+@pytest.mark.parametrize(
+    ("path", "value", "message"),
+    [
+        ("policy", "", "Expected `str` of length >= 1"),
+        ("block", "warmup", "Invalid enum value 'warmup'"),
+        ("rationality", 0.0, "Expected `float` > 0.0"),
+        ("theta_hat", [1.5, 0.0, 0.0], "Expected `float` <= 1.0"),
+        ("measures", {"regret": 1.0, "kl": 1.0, "reward_l2": -1.0}, "Expected `float` >= 0.0"),
+        ("demonstration", {"states": [[2, 2]], "actions": ["up"]}, "Invalid enum value 'up'"),
+        ("num_features", True, "Expected `int`, got `bool`"),
+    ],
+)
+def test_values_out_of_range_are_faults(path: str, value: Any, message: str) -> None:
+    record = plain_record(1)
+    record[path] = value
+    (fault,) = faults_of(record)
+    assert message in fault, fault
+
+
+def test_not_a_number_has_no_record() -> None:
+    text = encode(make_record(1)).replace(b'"kl":', b'"kl":NaN,"x":', 1)
+    (fault,) = decode_trial(text)[1]
+    assert fault.startswith("not a trial record: ")
 
 
 def _set(path: str, value: Any) -> Callable[[dict[str, Any]], None]:
@@ -174,6 +182,8 @@ def _reverse_deploy(record: dict[str, Any]) -> None:
 
 
 INCONSISTENT = {
+    "unknown policy": (_set("policy", "oracle"), "policy 'oracle' is not a known human policy"),
+    "unknown robot": (_set("robot", "oracle"), "robot 'oracle' is not a known robot"),
     "eta for the expert": (_set("eta", 0.5), "eta is 0.5 for policy expert"),
     "no eta for best response": (
         lambda r: r.update(policy="best_response"),
@@ -196,33 +206,33 @@ INCONSISTENT = {
 @pytest.mark.parametrize("case", sorted(INCONSISTENT))
 def test_inconsistent_records_are_faults(case: str) -> None:
     change, expected = INCONSISTENT[case]
-    record = make_record(2)
+    record = plain_record(2)
     change(record)
-    faults = record_faults(record)
+    faults = faults_of(record)
     assert any(expected in fault for fault in faults), faults
 
 
 def test_a_path_that_jumps_is_a_fault() -> None:
-    record = make_record(1, learning_steps=3)
+    record = plain_record(1, learning_steps=3)
     states = record["demonstration"]["states"]
     states[2] = [states[1][0] + 2, states[1][1]] if states[1][0] < 2 else [0, states[1][1]]
-    assert any("jumps from" in fault for fault in record_faults(record))
+    assert any("jumps from" in fault for fault in faults_of(record))
 
 
 def test_rounding_below_zero_is_tolerated() -> None:
-    record = make_record(1)
+    record = plain_record(1)
     record["measures"]["kl"] = -1e-12
-    assert record_faults(record) == []
+    assert faults_of(record) == []
 
 
 def test_records_of_both_policies_pass() -> None:
     for policy in ("expert", "best_response"):
         for k in (1, 3, 10):
-            assert record_faults(make_record(4, policy, num_features=k)) == []
+            assert faults_of(plain_record(4, policy, num_features=k)) == []
 
 
 def test_the_documented_example_record_is_valid() -> None:
     text = (Path(__file__).parents[1] / "docs" / "log-format.md").read_text()
     example = json.loads(text.split("```json\n", 1)[1].split("```", 1)[0])
     assert list(example)[: len(REQUIRED)] == REQUIRED
-    assert record_faults(example) == []
+    assert faults_of(example) == []

@@ -5,6 +5,7 @@ from __future__ import annotations
 import shutil
 from pathlib import Path
 
+import msgspec
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -15,11 +16,12 @@ from cirl_study.cli import app
 from cirl_study.errors import UserError
 from cirl_study.logs import TrialLogWriter, validate_file, validate_run
 from cirl_study.logs.scan import scan_file
+from cirl_study.record import TrialRecord
 
 PROVENANCE = {"pipeline_name": "test"}
 
 
-def write(path: Path, records: list[dict], chunk_size: int = 3000) -> Path:
+def write(path: Path, records: list[TrialRecord], chunk_size: int = 3000) -> Path:
     with TrialLogWriter(path, PROVENANCE, chunk_size=chunk_size) as log:
         for record in records:
             log.write(record)
@@ -101,27 +103,31 @@ def test_not_an_mcap_file(tmp_path: Path) -> None:
     )
 
 
-def test_a_record_missing_a_field_fails(tmp_path: Path) -> None:
-    record = make_record(1)
-    del record["measures"]
+def test_a_record_missing_a_field_fails(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    record = msgspec.structs.replace(make_record(1), measures=None)
+    # A log written by some other tool: our writer refuses a record it could not read back.
+    monkeypatch.setattr("cirl_study.logs.writer.decode", lambda data: None)
     verdict = validate_file(write(tmp_path / "a.mcap", [make_record(2), record]))
-    assert verdict.faults == (f"trial {record['trial_id']}: record: missing field 'measures'",)
+    assert verdict.faults == (
+        f"trial {record.trial_id}: not a trial record: "
+        "Expected `object`, got `null` - at `$.measures`",
+    )
     assert verdict.trials == 1
 
 
 def test_an_inconsistent_record_fails(tmp_path: Path) -> None:
-    record = make_record(1)
-    record["eta"] = 2.0
+    record = msgspec.structs.replace(make_record(1), eta=2.0)
     verdict = validate_file(write(tmp_path / "a.mcap", [record]))
     assert verdict.faults == (
-        f"trial {record['trial_id']}: eta is 2.0 for policy expert (null exactly for the expert)",
+        f"trial {record.trial_id}: eta is 2.0 for policy expert "
+        "(null exactly for a policy without a trade-off)",
     )
 
 
 def test_a_trial_twice_in_one_file_fails(tmp_path: Path) -> None:
     record = make_record(1)
     verdict = validate_file(write(tmp_path / "a.mcap", [record, record]))
-    assert verdict.faults == (f"trial {record['trial_id']}: logged twice in this file",)
+    assert verdict.faults == (f"trial {record.trial_id}: logged twice in this file",)
 
 
 def test_a_sound_run(run: Path) -> None:
@@ -144,27 +150,28 @@ def test_a_duplicate_trial_across_files_fails(run: Path) -> None:
     verdict = validate_run(run)
     assert all(v.ok for v in verdict.files)
     assert verdict.faults == (
-        f"1 trial id(s) logged in two files: {study[0]['trial_id']} in a.mcap and b.mcap",
+        f"1 trial id(s) logged in two files: {study[0].trial_id} in a.mcap and b.mcap",
     )
     assert verdict.line().startswith(f"FAIL run {run}: 2 file(s), 5 trials; 1 trial id(s)")
 
 
 def test_an_incomplete_design_fails(run: Path) -> None:
     study = make_study(subjects=2)
-    write(
-        run / "a.mcap", [r for r in study if r["subject"] != "k3-s0001" or r["policy"] == "expert"]
-    )
+    write(run / "a.mcap", [r for r in study if r.subject != "k3-s0001" or r.policy == "expert"])
     (fault,) = validate_run(run).faults
     assert fault == (
-        "main block incomplete: 1 subject(s) without exactly one trial per policy: "
-        "k3-s0001 has {'expert': 1}"
+        "main block incomplete: 1 subject(s) without exactly one trial of each policy "
+        "(best_response, expert): k3-s0001 has {'expert': 1}"
     )
 
 
 def test_a_subject_is_one_reward_draw(run: Path) -> None:
     expert, best = make_record(1), make_record(1, "best_response")
-    best["theta"] = [-w for w in best["theta"]]
-    best["theta_hat"] = [-w for w in best["theta_hat"]]
+    best = msgspec.structs.replace(
+        best,
+        theta=tuple(-w for w in best.theta),
+        theta_hat=tuple(-w for w in best.theta_hat),
+    )
     write(run / "a.mcap", [expert, best])
     (fault,) = validate_run(run).faults
     assert fault.startswith("1 record(s) disagree with their subject's draw: k3-s0001 (theta of")

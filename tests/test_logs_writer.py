@@ -7,12 +7,13 @@ import json
 import random
 from pathlib import Path
 
+import msgspec
 import numpy as np
 import pytest
 from mcap.reader import make_reader
 from test_logs_helpers import brute_force_reward, make_record, make_study
 
-from cirl_study.logs import TrialLogWriter, canonical_json, collect_provenance
+from cirl_study.logs import TrialLogWriter, collect_provenance
 from cirl_study.logs.format import (
     DEMONSTRATION_TOPIC,
     DEPLOYMENT_TOPIC,
@@ -21,11 +22,12 @@ from cirl_study.logs.format import (
     TRIAL_TOPIC,
     TRUE_REWARD_TOPIC,
 )
+from cirl_study.record import TrialRecord, decode, encode
 
 PROVENANCE = {"pipeline_name": "test", "pipeline_sha256": "0" * 64}
 
 
-def write(path: Path, records: list[dict], **kwargs) -> Path:
+def write(path: Path, records: list[TrialRecord], **kwargs) -> Path:
     with TrialLogWriter(path, PROVENANCE, **kwargs) as log:
         for record in records:
             log.write(record)
@@ -46,14 +48,15 @@ def test_round_trip_through_mcap_reader(tmp_path: Path) -> None:
     path = write(tmp_path / "a.mcap", records, chunk_size=4096)
     topics = messages(path)
     trials = topics[TRIAL_TOPIC]
-    assert [json.loads(m.data) for _, _, m in trials] == records
+    assert [decode(m.data) for _, _, m in trials] == records
     schema, channel, _ = trials[0]
     assert (schema.name, schema.encoding, channel.message_encoding) == (
         "cirl_study.Trial",
         "jsonschema",
         "json",
     )
-    assert json.loads(schema.data)["required"][:3] == ["trial_id", "run_id", "block"]
+    trial_schema = json.loads(schema.data)["$defs"]["TrialRecord"]
+    assert trial_schema["required"][:3] == ["trial_id", "run_id", "block"]
     with path.open("rb") as stream:
         reader = make_reader(stream)
         summary = reader.get_summary()
@@ -61,22 +64,25 @@ def test_round_trip_through_mcap_reader(tmp_path: Path) -> None:
     assert summary.statistics.chunk_count > 1
     assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
     assert [(m.name, m.metadata) for m in metadata] == [("provenance", PROVENANCE)]
-    steps = sum(r["learning_steps"] + 1 for r in records)
+    steps = sum(r.learning_steps + 1 for r in records)
     assert len(topics[DEMONSTRATION_TOPIC]) == steps
-    assert len(topics[DEPLOYMENT_TOPIC]) == sum(r["deployment_steps"] + 1 for r in records)
+    assert len(topics[DEPLOYMENT_TOPIC]) == sum(r.deployment_steps + 1 for r in records)
     assert len(topics[TRUE_REWARD_TOPIC]) == len(topics[MAP_REWARD_TOPIC]) == len(records)
 
 
 def test_payloads_are_canonical_json_whatever_the_key_order(tmp_path: Path) -> None:
     record = make_record(7, "best_response")
-    shuffled = dict(random.Random(1).sample(sorted(record.items()), len(record)))
-    assert list(shuffled) != list(record)
+    plain = json.loads(encode(record))
+    shuffled = dict(random.Random(1).sample(sorted(plain.items()), len(plain)))
+    assert list(shuffled) != list(plain)
+    rebuilt = msgspec.json.decode(json.dumps(shuffled), type=TrialRecord)
     first = write(tmp_path / "a.mcap", [make_record(1), record])
-    second = write(tmp_path / "b.mcap", [shuffled])
+    second = write(tmp_path / "b.mcap", [rebuilt])
     payload_a = messages(first)[TRIAL_TOPIC][1][2].data
     payload_b = messages(second)[TRIAL_TOPIC][0][2].data
-    expected = json.dumps(record, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    assert payload_a == payload_b == expected.encode() == canonical_json(shuffled)
+    expected = json.dumps(plain, sort_keys=True, separators=(",", ":"), allow_nan=False)
+    assert payload_a == payload_b == encode(shuffled)
+    assert json.loads(payload_a) == json.loads(expected)
 
 
 def test_same_records_give_identical_files(tmp_path: Path) -> None:
@@ -86,9 +92,15 @@ def test_same_records_give_identical_files(tmp_path: Path) -> None:
     assert first == second
 
 
-def test_nan_is_refused() -> None:
-    with pytest.raises(ValueError):
-        canonical_json({"regret": float("nan")})
+def test_nan_is_refused(tmp_path: Path) -> None:
+    record = make_record(1)
+    broken = msgspec.structs.replace(record, theta_hat=(float("nan"), *record.theta_hat[1:]))
+    path = tmp_path / "a.mcap"
+    with TrialLogWriter(path, PROVENANCE) as log:
+        with pytest.raises(ValueError, match="cannot be logged"):
+            log.write(broken)
+        log.write(record)
+    assert [decode(m.data) for _, _, m in messages(path)[TRIAL_TOPIC]] == [record]
 
 
 def test_time_layout_depends_only_on_position(tmp_path: Path) -> None:
@@ -97,7 +109,7 @@ def test_time_layout_depends_only_on_position(tmp_path: Path) -> None:
     topics = messages(write(tmp_path / "a.mcap", [short, long, short]))
     assert [m.log_time for _, _, m in topics[TRIAL_TOPIC]] == [0, 5 * STEP_NS, 16 * STEP_NS]
     demo = [(m.log_time, json.loads(m.data)) for _, _, m in topics[DEMONSTRATION_TOPIC]]
-    assert [t for t, step in demo if step["trial_id"] == long["trial_id"]] == [
+    assert [t for t, step in demo if step["trial_id"] == long.trial_id] == [
         (5 + t) * STEP_NS for t in range(6)
     ]
     deploy = [m.log_time for _, _, m in topics[DEPLOYMENT_TOPIC]][:2]
@@ -109,12 +121,14 @@ def test_replay_steps_follow_the_record(tmp_path: Path) -> None:
     record = make_record(3, "best_response", rollouts=3)
     topics = messages(write(tmp_path / "a.mcap", [record]))
     demo = [json.loads(m.data) for _, _, m in topics[DEMONSTRATION_TOPIC]]
-    assert [step["cell"] for step in demo] == record["demonstration"]["states"]
-    assert [step["action"] for step in demo] == [None, *record["demonstration"]["actions"]]
+    assert [tuple(step["cell"]) for step in demo] == list(record.demonstration.states)
+    assert [step["action"] for step in demo] == [None, *record.demonstration.actions]
     assert {step["policy"] for step in demo} == {"best_response"}
     deploy = [json.loads(m.data) for _, _, m in topics[DEPLOYMENT_TOPIC]]
-    paths = record["deployment"]["paths"]
-    assert [step["cells"] for step in deploy] == [list(cells) for cells in zip(*paths, strict=True)]
+    paths = record.deployment.paths
+    assert [step["cells"] for step in deploy] == [
+        [list(cell) for cell in cells] for cells in zip(*paths, strict=True)
+    ]
     moves = {(0, 0): "stay", (0, 1): "N", (0, -1): "S", (1, 0): "E", (-1, 0): "W"}
     for t, step in enumerate(deploy[1:], start=1):
         expected = [moves[(p[t][0] - p[t - 1][0], p[t][1] - p[t - 1][1])] for p in paths]
@@ -137,7 +151,9 @@ def test_reward_maps_are_foxglove_grids_of_theta_dot_phi(
     assert grid["fields"] == [{"name": "reward", "offset": 0, "type": 7}]
     values = np.frombuffer(base64.b64decode(grid["data"]), dtype="<f4")
     expected = [
-        brute_force_reward(record, record[weights], x, y) for y in range(3) for x in range(6)
+        brute_force_reward(json.loads(encode(record.features)), getattr(record, weights), x, y)
+        for y in range(3)
+        for x in range(6)
     ]
     np.testing.assert_allclose(values, expected, rtol=1e-6, atol=1e-6)
 

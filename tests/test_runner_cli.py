@@ -9,8 +9,8 @@ import pytest
 from typer.testing import CliRunner
 
 from cirl_study.cli import app
-from cirl_study.engines import DaskEngine
 from cirl_study.errors import UserError
+from cirl_study.study.engines import DaskEngine
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -45,7 +45,7 @@ def test_dask_engine_without_dask_is_one_line(
         app, ["run", str(SMOKE), "--out", str(tmp_path), "--engine", "dask"]
     )
     assert result.exit_code == 2
-    assert result.stderr == "error: --engine dask needs Dask: pip install 'cirl-study[dask]'\n"
+    assert result.stderr == "error: the dask engine needs Dask: pip install 'cirl-study[dask]'\n"
 
 
 def test_unreachable_scheduler_is_one_line() -> None:
@@ -65,7 +65,7 @@ def test_run_prints_a_summary(tmp_path: Path) -> None:
     assert lines[0].startswith("run smoke-") and f"82 trials logged in {out}" in lines[0]
     assert "82 played now, 0 were already logged" in lines[0]
     assert lines[1].endswith("trials/s, in this process")
-    assert lines[2].startswith("eta by cross-validation: K=3 -> ")
+    assert lines[2].startswith("eta by cross-validation: best_response at K=3 -> ")
     again = CliRunner().invoke(app, ["run", str(SMOKE), "--out", str(out), "--workers", "1"])
     assert again.exit_code == 0
     assert "0 played now, 82 were already logged" in again.stdout

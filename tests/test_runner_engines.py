@@ -9,12 +9,12 @@ from pathlib import Path
 import pytest
 from mcap.reader import make_reader
 
-from cirl_study.engines import DaskEngine, LocalEngine
 from cirl_study.errors import UserError
 from cirl_study.logs.format import TRIAL_TOPIC
-from cirl_study.pipeline import Pipeline, load_pipeline
-from cirl_study.plan import eta_cv_trials, study_trials
-from cirl_study.runner import RunResult, batch_size, run_pipeline, split_batches
+from cirl_study.study.engines import DaskEngine, LocalEngine
+from cirl_study.study.plan import eta_cv_trials, study_trials
+from cirl_study.study.runner import RunResult, batch_size, run_pipeline, split_batches
+from cirl_study.study.spec import Pipeline, load_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -85,7 +85,9 @@ def test_a_directory_of_another_pipeline_is_refused(serial_run: Path, tmp_path: 
 
 
 def test_batches_never_mix_blocks_and_cover_every_trial(smoke: Pipeline) -> None:
-    trials = eta_cv_trials(smoke) + study_trials(smoke, {3: 1.0, 10: 1.0})
+    trials = eta_cv_trials(smoke) + study_trials(
+        smoke, {("best_response", 3): 1.0, ("best_response", 10): 1.0}
+    )
     batches = split_batches(trials, 7)
     assert [t for batch in batches for t in batch] == trials
     assert all(len({t.block for t in batch}) == 1 and 0 < len(batch) <= 7 for batch in batches)

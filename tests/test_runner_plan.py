@@ -11,10 +11,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from cirl_study.errors import UserError
-from cirl_study.pipeline import Pipeline, load_pipeline
-from cirl_study.plan import (
-    choose_etas,
+from cirl_study.record import Demonstration, Measures, TrialRecord, TrialSpec
+from cirl_study.study.eta_cv import choose_etas
+from cirl_study.study.plan import (
     draw_subject,
     eta_cv_trials,
     study_trials,
@@ -22,9 +21,10 @@ from cirl_study.plan import (
     trial_id,
     trial_seed,
 )
+from cirl_study.study.spec import Pipeline, load_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
-ETAS = {3: 0.1, 10: 10.0}
+ETAS = {("best_response", 3): 0.1, ("best_response", 10): 10.0}
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +65,8 @@ def test_subjects_unique_across_levels_and_cv_disjoint_from_test(smoke: Pipeline
 def test_one_subject_is_one_reward_draw_for_every_trial(smoke: Pipeline) -> None:
     draws: dict[str, tuple[Any, Any]] = {}
     for t in all_trials(smoke):
-        assert draws.setdefault(t.subject, (t.theta, t.setting)) == (t.theta, t.setting)
+        draw = (t.theta, t.features, t.grid, t.start)
+        assert draws.setdefault(t.subject, draw) == draw
     sweep_subjects = {t.subject for t in study_trials(smoke, ETAS) if t.block == "lambda_sweep"}
     main_subjects = {t.subject for t in study_trials(smoke, ETAS) if t.block == "main"}
     assert sweep_subjects <= main_subjects
@@ -74,19 +75,25 @@ def test_one_subject_is_one_reward_draw_for_every_trial(smoke: Pipeline) -> None
 def test_draws_lie_in_their_ranges(smoke: Pipeline) -> None:
     game = smoke.game
     for t in all_trials(smoke):
-        centers = np.asarray(t.setting.centers)
+        centers = np.asarray(t.features.centers)
         assert centers.shape == (t.num_features, 2)
         assert np.all(centers >= 0) and np.all(centers[:, 0] <= game.width - 1)
         assert np.all(centers[:, 1] <= game.height - 1)
         assert np.all(np.abs(t.theta) <= 1) and len(t.theta) == t.num_features
-        assert t.setting.start == game.start and t.setting.sigma == game.sigma
+        assert t.start == game.start and t.features.sigma == game.sigma
+        assert (t.grid.width, t.grid.height) == (game.width, game.height)
+        assert (t.learning_steps, t.deployment_steps) == (
+            game.learning_steps,
+            game.deployment_steps,
+        )
+        assert t.robot == smoke.main.robot == "map"
 
 
 def test_policies_and_etas(smoke: Pipeline) -> None:
     for t in eta_cv_trials(smoke):
         assert t.policy == "best_response" and t.eta in smoke.eta_cv.etas
     for t in study_trials(smoke, ETAS):
-        assert t.eta == (ETAS[t.num_features] if t.policy == "best_response" else None)
+        assert t.eta == ETAS.get((t.policy, t.num_features))
         assert t.rationality in (smoke.main.rationality, *smoke.lambda_sweep.rationalities)
 
 
@@ -139,15 +146,28 @@ def test_another_root_seed_draws_anew(smoke: Pipeline) -> None:
     assert draw_subject(other, "main", 3, 1).theta != draw_subject(smoke, "main", 3, 1).theta
 
 
-def cv_records(trials: list[Any], regret: dict[tuple[int, float], list[float]]) -> dict:
+def played(spec: TrialSpec, regret: float) -> TrialRecord:
+    """A record of ``spec`` whose only meaningful outcome is its ``regret``."""
+    fields = {name: getattr(spec, name) for name in TrialSpec.__struct_fields__}
+    return TrialRecord(
+        **fields,
+        theta_hat=spec.theta,
+        demonstration=Demonstration(states=(spec.start,), actions=()),
+        measures=Measures(regret=regret, kl=0.0, reward_l2=0.0),
+    )
+
+
+def cv_records(
+    trials: list[TrialSpec], regret: dict[tuple[int, float], list[float]]
+) -> list[TrialRecord]:
     """Records whose regrets are taken, per (K, eta), from ``regret`` in subject order."""
     position: dict[tuple[int, float], int] = {}
-    records = {}
+    records = []
     for t in trials:
         key = (t.num_features, t.eta)
         i = position.get(key, 0)
         position[key] = i + 1
-        records[t.trial_id] = {"trial_id": t.trial_id, "measures": {"regret": regret[key][i]}}
+        records.append(played(t, regret[key][i]))
     return records
 
 
@@ -161,17 +181,23 @@ def test_choose_etas_lowest_mean_then_smaller_eta(smoke: Pipeline) -> None:
         (10, 1.0): [1.0, 2.0, 3.0],  # mean 2: ties with 10.0 and is smaller
         (10, 10.0): [2.0, 2.0, 2.0],
     }
-    choices = choose_etas(trials, cv_records(trials, regret))
-    assert {k: c.eta for k, c in choices.items()} == {3: 1.0, 10: 1.0}
-    assert choices[3].mean_regret == {0.1: 3.0, 1.0: 2.0, 10.0: 6.1 / 3}
-    # the same records read in another order choose the same
-    reversed_records = dict(reversed(list(cv_records(trials, regret).items())))
-    assert choose_etas(trials[::-1], reversed_records) == choices
+    records = cv_records(trials, regret)
+    choices = choose_etas(records)
+    assert {key: c.eta for key, c in choices.items()} == {
+        ("best_response", 3): 1.0,
+        ("best_response", 10): 1.0,
+    }
+    choice = choices["best_response", 3]
+    assert choice.mean_regret == {0.1: 3.0, 1.0: 2.0, 10.0: 6.1 / 3}
+    assert choice.subjects == 3
+    # the same records read in another order choose the same; other blocks are ignored
+    main = [played(t, 0.0) for t in study_trials(smoke, ETAS)]
+    assert choose_etas([*main, *records[::-1]]) == choices
 
 
-def test_choose_etas_needs_every_cv_record(smoke: Pipeline) -> None:
+def test_choose_etas_needs_every_draw_at_every_eta(smoke: Pipeline) -> None:
     trials = eta_cv_trials(smoke)
     records = cv_records(trials, {(t.num_features, t.eta): [1.0] * 3 for t in trials})
-    del records[trials[4].trial_id]
-    with pytest.raises(UserError, match=f"{trials[4].trial_id} is missing"):
-        choose_etas(trials, records)
+    del records[4]
+    with pytest.raises(ValueError, match="played on different numbers of draws"):
+        choose_etas(records)

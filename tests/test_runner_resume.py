@@ -12,9 +12,9 @@ from pathlib import Path
 import pytest
 from test_runner_engines import trial_payloads
 
-from cirl_study.engines import LocalEngine
-from cirl_study.pipeline import load_pipeline
-from cirl_study.runner import run_pipeline
+from cirl_study.study.engines import LocalEngine
+from cirl_study.study.runner import run_pipeline
+from cirl_study.study.spec import load_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -35,7 +35,7 @@ def bigger_smoke(directory: Path) -> Path:
 
 
 def run_command(pipeline: Path, out: Path) -> list[str]:
-    command = [sys.executable, "-m", "cirl_study.cli", "run", str(pipeline)]
+    command = [sys.executable, "-m", "cirl_study", "run", str(pipeline)]
     return [*command, "--out", str(out), "--workers", "2"]
 
 

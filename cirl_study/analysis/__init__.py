@@ -1,8 +1,8 @@
 """Analysis of a run's trial records: statistics, claims, figures and the report.
 
-Everything here works on plain data: a list of trial records shaped like
-DESIGN.md section 7 (one dict per trial). Reading them from the MCAP logs is the
-job of :mod:`cirl_study.logs`.
+Everything here works on the typed trial records of docs/design.md §7
+(:class:`cirl_study.record.TrialRecord`, one per trial). Reading them from the MCAP logs
+is the job of :mod:`cirl_study.logs`.
 
 - :mod:`~cirl_study.analysis.table`: the tidy one-row-per-trial table and the design check.
 - :mod:`~cirl_study.analysis.statistics`: one function per statistical test.

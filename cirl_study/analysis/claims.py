@@ -1,6 +1,6 @@
 """The paper's claims beside what we measured, each with a verdict computed from the data.
 
-Each claim of DESIGN.md section 5 becomes one row::
+Each claim of docs/design.md §5 becomes one row::
 
     {"id", "source", "claim", "rule", "measurement", "values", "tested", "reproduced",
      "evidence"}
@@ -36,8 +36,8 @@ from collections.abc import Mapping
 from typing import Any
 
 from cirl_study.analysis.results import Results, plain
-from cirl_study.analysis.table import MEASURES, POLICIES
 from cirl_study.errors import UserError
+from cirl_study.record import BEST_RESPONSE, EXPERT, MEASURES
 
 SIGNIFICANCE = 0.05
 """Significance level of the rules that the paper states without a level."""
@@ -56,8 +56,6 @@ SECTION_LAMBDA = "paper, section 4.3"
 
 MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
 """Short names of the measures in measurement texts."""
-
-EXPERT, BEST_RESPONSE = POLICIES
 
 
 def _num(value: float) -> str:
@@ -339,7 +337,7 @@ def external_claims(theory: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 
 def evaluate_claims(results: Results, theory: Mapping[str, Any] | None = None) -> list[dict]:
-    """Every claim row: the paper's (DESIGN.md section 5), then those of ``theory``."""
+    """Every claim row: the paper's (docs/design.md §5), then those of ``theory``."""
     claims = [
         policy_effect(results),
         policy_f(results),

@@ -15,7 +15,7 @@ metadata entry (PNG files carry no timestamp).
 from __future__ import annotations
 
 import io
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -28,9 +28,8 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
-from cirl_study.analysis.table import MEASURES, POLICIES
-from cirl_study.errors import UserError
-from cirl_study.gridworld import Gridworld, rbf_features
+from cirl_study.core.gridworld import feature_matrix
+from cirl_study.record import MEASURES, PAPER_POLICIES, TrialRecord
 
 DPI = 120
 """Resolution of every figure, in dots per inch."""
@@ -68,51 +67,42 @@ def _new_figure(width: float, height: float) -> Figure:
 
 @dataclass(frozen=True)
 class RewardScene:
-    """What Figure 1 needs of one trial record."""
+    """What Figure 1 needs of one trial record.
+
+    ``features`` is the record's ``(width * height, K)`` RBF matrix ``Phi``
+    (:meth:`~cirl_study.record.TrialSpec.feature_matrix`), ``centers`` its ``(K, 2)``
+    centres and ``states`` the ``(T + 1, 2)`` cells of the demonstration.
+    """
 
     width: int
     height: int
     centers: NDArray[np.float64]
-    sigma: float
+    features: NDArray[np.float64]
     theta: NDArray[np.float64]
     theta_hat: NDArray[np.float64]
     states: NDArray[np.float64]
 
     @classmethod
-    def from_record(cls, record: Mapping[str, Any]) -> RewardScene:
-        """Read the grid, features, parameters and demonstration of a trial record.
+    def from_record(cls, record: TrialRecord) -> RewardScene:
+        """The grid, features, parameters and demonstration of a trial record.
 
-        Raises:
-            UserError: a field is missing or malformed.
+        The record is taken as consistent (``theta``, ``theta_hat`` and the centres of one
+        length), as :func:`cirl_study.logs.record_checks.record_faults` checks when logs are
+        read.
         """
-        where = f"trial {record.get('trial_id')!r}"
-        try:
-            features = record["features"]
-            if features["kind"] != "rbf":
-                raise UserError(f"{where}: features of kind {features['kind']!r} are not rbf")
-            scene = cls(
-                width=int(record["grid"]["width"]),
-                height=int(record["grid"]["height"]),
-                centers=np.asarray(features["centers"], dtype=np.float64).reshape(-1, 2),
-                sigma=float(features["sigma"]),
-                theta=np.asarray(record["theta"], dtype=np.float64),
-                theta_hat=np.asarray(record["theta_hat"], dtype=np.float64),
-                states=np.asarray(record["demonstration"]["states"], dtype=np.float64),
-            )
-        except (KeyError, TypeError, ValueError) as error:
-            raise UserError(f"{where}: cannot draw its reward map ({error!r})") from None
-        k = len(scene.centers)
-        if scene.theta.shape != (k,) or scene.theta_hat.shape != (k,):
-            raise UserError(f"{where}: theta and theta_hat must have one entry per centre ({k})")
-        if scene.states.ndim != 2 or scene.states.shape[1] != 2:
-            raise UserError(f"{where}: demonstration states must be [x, y] cells")
-        return scene
+        return cls(
+            width=record.grid.width,
+            height=record.grid.height,
+            centers=np.asarray(record.features.centers, dtype=np.float64),
+            features=feature_matrix(record),
+            theta=np.asarray(record.theta, dtype=np.float64),
+            theta_hat=np.asarray(record.theta_hat, dtype=np.float64),
+            states=np.asarray(record.demonstration.states, dtype=np.float64),
+        )
 
     def reward_map(self, weights: NDArray[np.float64]) -> NDArray[np.float64]:
         """``(height, width)`` array of ``weights . phi([x, y])``, row ``y``, column ``x``."""
-        grid = Gridworld(self.width, self.height)
-        features = rbf_features(grid, self.centers, self.sigma)
-        return (features @ weights).reshape(self.height, self.width)
+        return (self.features @ weights).reshape(self.height, self.width)
 
 
 def _draw_map(axes: Axes, values: NDArray[np.float64], limit: float, title: str):
@@ -159,7 +149,7 @@ def _draw_path(axes: Axes, states: NDArray[np.float64]) -> None:
         )
 
 
-def reward_maps(expert: Mapping[str, Any], best_response: Mapping[str, Any], title: str) -> bytes:
+def reward_maps(expert: TrialRecord, best_response: TrialRecord, title: str) -> bytes:
     """Figure 1: true reward; each demonstration over the MAP reward inferred from it.
 
     The reward of cell ``s`` is ``theta . phi(s)`` with ``phi_k(s) = exp(-||s - c_k||^2 /
@@ -218,7 +208,7 @@ def measure_bars(cells: pd.DataFrame) -> bytes:
         figure = _new_figure(10.0, 3.4)
         axes = figure.subplots(1, len(MEASURES))
         for panel, measure in zip(axes, MEASURES, strict=True):
-            for offset, policy in zip((-width / 2, width / 2), POLICIES, strict=True):
+            for offset, policy in zip((-width / 2, width / 2), PAPER_POLICIES, strict=True):
                 rows = (
                     cells[(cells["measure"] == measure) & (cells["policy"] == policy)]
                     .set_index("num_features")
@@ -271,7 +261,7 @@ def lambda_curve(sweep: pd.DataFrame) -> bytes:
     regret = sweep[sweep["measure"] == "regret"]
     series = []
     for index, level in enumerate(sorted(regret["num_features"].unique())):
-        for policy, line in zip(POLICIES, ("--", "-"), strict=True):
+        for policy, line in zip(PAPER_POLICIES, ("--", "-"), strict=True):
             rows = regret[(regret["num_features"] == level) & (regret["policy"] == policy)]
             style = {
                 "color": POLICY_COLOURS[policy],

@@ -20,8 +20,9 @@ from cirl_study.analysis import figures
 from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.markdown import anchor, interval, number, p_value, table
 from cirl_study.analysis.results import Results, analyse, plain
-from cirl_study.analysis.table import MAIN, POLICIES, check_design, trial_table
+from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.errors import UserError
+from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_POLICIES, TrialRecord
 
 HEADINGS = {
     "claims": "Claims",
@@ -50,6 +51,12 @@ MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
 POLICY_NAMES = {"expert": "expert", "best_response": "best response"}
 VERDICTS = {True: "✅ reproduced", False: "❌ not reproduced", None: "➖ not tested"}
 
+P_VALUES = ("p", "p_holm", "p_tukey")
+"""Fields of the results shown as p-values."""
+
+Column = str | Callable[[Mapping[str, Any]], str]
+"""A column of a statistics table: a field of the results, or a function of the row."""
+
 
 def _link(key: str) -> str:
     if key in HEADINGS:
@@ -62,6 +69,22 @@ def _link(key: str) -> str:
 
 def _heading(level: int, key: str) -> str:
     return f"{'#' * level} {HEADINGS[key]}"
+
+
+def _formatted(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> list[list[str]]:
+    """The cells of ``rows``: a measure by its short name, a p-value, a text, or a number."""
+
+    def cell(row: Mapping[str, Any], column: Column) -> str:
+        if callable(column):
+            return column(row)
+        value = row[column]
+        if column == "measure":
+            return MEASURE_NAMES[value]
+        if column in P_VALUES:
+            return p_value(value)
+        return value if isinstance(value, str) else number(value)
+
+    return [[cell(row, column) for column in columns] for row in rows]
 
 
 def _verdict(claim: Mapping[str, Any]) -> str:
@@ -114,18 +137,10 @@ def _cells(results: Results) -> list[str]:
 
 
 def _anova(results: Results) -> list[str]:
-    rows = [
-        [
-            MEASURE_NAMES[row["measure"]],
-            row["effect"],
-            f"{row['df1']}, {row['df2']}",
-            number(row["F"]),
-            p_value(row["p"]),
-            number(row["np2"]),
-            number(row["ges"]),
-        ]
-        for row in results["anova"]
-    ]
+    def degrees(row: Mapping[str, Any]) -> str:
+        return f"{row['df1']}, {row['df2']}"
+
+    rows = _formatted(results["anova"], ["measure", "effect", degrees, "F", "p", "np2", "ges"])
     header = ["measure", "effect", "df", "F", "p", "partial η²", "generalised η²"]
     return [
         _heading(3, "anova"),
@@ -139,22 +154,22 @@ def _anova(results: Results) -> list[str]:
 
 
 def _simple_effects(results: Results) -> list[str]:
-    rows = [
-        [
-            MEASURE_NAMES[row["measure"]],
-            str(row["num_features"]),
-            str(row["n"]),
-            number(row["mean_expert"]),
-            number(row["mean_best_response"]),
-            number(row["mean_diff"]),
-            interval(row["ci95_low"], row["ci95_high"]),
-            interval(row["boot_diff_low"], row["boot_diff_high"]),
-            f"t({row['df']}) = {number(row['t'])}",
-            p_value(row["p_holm"]),
-            f"{number(row['d_z'])} {interval(row['boot_d_z_low'], row['boot_d_z_high'], 3)}",
-        ]
-        for row in results["simple_effects"]
+    columns: list[Column] = [
+        "measure",
+        "num_features",
+        "n",
+        "mean_expert",
+        "mean_best_response",
+        "mean_diff",
+        lambda row: interval(row["ci95_low"], row["ci95_high"]),
+        lambda row: interval(row["boot_diff_low"], row["boot_diff_high"]),
+        lambda row: f"t({row['df']}) = {number(row['t'])}",
+        "p_holm",
+        lambda row: (
+            f"{number(row['d_z'])} {interval(row['boot_d_z_low'], row['boot_d_z_high'], 3)}"
+        ),
     ]
+    rows = _formatted(results["simple_effects"], columns)
     header = [
         "measure",
         "features",
@@ -181,22 +196,11 @@ def _simple_effects(results: Results) -> list[str]:
 
 
 def _tukey(results: Results) -> list[str]:
-    def cell(level: int, policy: str) -> str:
-        return f"{POLICY_NAMES[policy]}, {level}"
+    def cell(side: str) -> Column:
+        return lambda row: f"{POLICY_NAMES[row[f'{side}_policy']]}, {row[f'{side}_num_features']}"
 
-    rows = [
-        [
-            MEASURE_NAMES[row["measure"]],
-            cell(row["a_num_features"], row["a_policy"]),
-            cell(row["b_num_features"], row["b_policy"]),
-            number(row["diff"]),
-            number(row["se"]),
-            number(row["T"]),
-            p_value(row["p_tukey"]),
-            number(row["hedges"]),
-        ]
-        for row in results["tukey_hsd"]
-    ]
+    columns = ["measure", cell("a"), cell("b"), "diff", "se", "T", "p_tukey", "hedges"]
+    rows = _formatted(results["tukey_hsd"], columns)
     header = ["measure", "cell A", "cell B", "mean A − mean B", "SE", "T", "p (Tukey)", "Hedges g"]
     return [
         _heading(3, "tukey_hsd"),
@@ -211,18 +215,9 @@ def _tukey(results: Results) -> list[str]:
 
 
 def _wilcoxon(results: Results) -> list[str]:
-    rows = [
-        [
-            MEASURE_NAMES[row["measure"]],
-            str(row["num_features"]),
-            str(row["n"]),
-            number(row["W"]),
-            p_value(row["p"]),
-            number(row["rbc"]),
-            number(row["cles"]),
-        ]
-        for row in results["wilcoxon"]
-    ]
+    rows = _formatted(
+        results["wilcoxon"], ["measure", "num_features", "n", "W", "p", "rbc", "cles"]
+    )
     header = ["measure", "features", "n", "W", "p", "rank-biserial r", "CLES"]
     return [
         _heading(3, "wilcoxon"),
@@ -284,7 +279,7 @@ def _lambda_sweep(results: Results) -> list[str]:
             ),
         )
         for level in sorted(regret["num_features"].unique())
-        for policy in POLICIES
+        for policy in PAPER_POLICIES
     ]
     name, _ = FIGURES["figure2_lambda"]
     return [
@@ -297,6 +292,27 @@ def _lambda_sweep(results: Results) -> list[str]:
         "",
         f"![Figure 2, right: regret against lambda]({name})",
     ]
+
+
+def _eta_check(results: Results) -> str:
+    """One sentence: whether the main block was played with the cross-validated eta."""
+    faults = [
+        f"η = {', '.join(f'{eta:g}' for eta in row['main_etas']) or '–'} at "
+        f"{row['num_features']} features "
+        + (
+            "(not cross-validated)"
+            if row["chosen_eta"] is None
+            else f"(cross-validated: η = {row['chosen_eta']:g})"
+        )
+        for row in results["eta_cv"]["main_block"]
+        if not row["agree"]
+    ]
+    if not faults:
+        return "The main block used the cross-validated η."
+    return (
+        "**The main block's best response was not played with the cross-validated η**: "
+        f"{'; '.join(faults)}."
+    )
 
 
 def _eta_cv(results: Results) -> list[str]:
@@ -316,7 +332,7 @@ def _eta_cv(results: Results) -> list[str]:
     return [
         *lines,
         f"Mean best-response regret [95% CI] per η, on reward draws disjoint from the main "
-        f"block's. Chosen (lowest mean regret): {chosen}.",
+        f"block's. Chosen (lowest mean regret): {chosen}. {_eta_check(results)}",
         "",
         _grid_table(means, "eta", "η", columns),
         "",
@@ -398,25 +414,23 @@ def render_markdown(results: Results) -> str:
     return "\n\n".join("\n".join(section) for section in sections) + "\n"
 
 
-def _figure1_records(
-    records: Sequence[Mapping[str, Any]], subject: str
-) -> dict[str, Mapping[str, Any]]:
+def _figure1_records(records: Sequence[TrialRecord], subject: str) -> dict[str, TrialRecord]:
     found = {
-        str(record["policy"]): record
+        record.policy: record
         for record in records
-        if record["block"] == MAIN and str(record["subject"]) == subject
+        if record.block == MAIN and record.subject == subject
     }
-    return {policy: found[policy] for policy in POLICIES}
+    return {policy: found[policy] for policy in PAPER_POLICIES}
 
 
-def render_figures(records: Sequence[Mapping[str, Any]], results: Results) -> dict[str, bytes]:
+def render_figures(records: Sequence[TrialRecord], results: Results) -> dict[str, bytes]:
     """The PNG bytes of every figure the results support, by file name."""
     chosen = results["figure1"]
     pair = _figure1_records(records, chosen["subject"])
     pngs = {
         FIGURES["figure1"][0]: figures.reward_maps(
-            pair["expert"],
-            pair["best_response"],
+            pair[EXPERT],
+            pair[BEST_RESPONSE],
             f"Reward draw {chosen['subject']} ({chosen['num_features']} features)",
         ),
         FIGURES["figure2_measures"][0]: figures.measure_bars(pd.DataFrame(results["cells"])),
@@ -432,7 +446,7 @@ def render_figures(records: Sequence[Mapping[str, Any]], results: Results) -> di
 
 
 def write_report(
-    records: Sequence[Mapping[str, Any]],
+    records: Sequence[TrialRecord],
     out_dir: Path | str,
     pipeline_name: str,
     theory: Mapping[str, Any] | None = None,
@@ -445,7 +459,7 @@ def write_report(
     removed.
 
     Args:
-        records: trial records shaped like DESIGN.md section 7, in any order.
+        records: the trial records (docs/design.md §7), in any order.
         out_dir: the report directory.
         pipeline_name: the pipeline's name, shown in the report.
         theory: optional extra claims (see :func:`cirl_study.analysis.claims.external_claims`);
@@ -455,11 +469,11 @@ def write_report(
         The content of ``results.json``.
 
     Raises:
-        UserError: a record is malformed or the design is incomplete.
+        UserError: the design cannot be analysed (see
+            :func:`~cirl_study.analysis.table.check_design`).
     """
-    trials = trial_table(records)
-    check_design(trials)
-    results = analyse(trials, pipeline_name)
+    check_design(records)
+    results = analyse(records, pipeline_name)
     results["claims"] = evaluate_claims(results, theory)
     if theory is not None:
         results["theory"] = plain(theory)
@@ -470,7 +484,7 @@ def write_report(
         (out / "report.md").write_text(render_markdown(results), encoding="utf-8", newline="\n")
         text = json.dumps(results, indent=2, ensure_ascii=False, allow_nan=False)
         (out / "results.json").write_text(text + "\n", encoding="utf-8", newline="\n")
-        trials.to_csv(out / "trials.csv", index=False, lineterminator="\n")
+        trial_table(records).to_csv(out / "trials.csv", index=False, lineterminator="\n")
         for name, _ in FIGURES.values():
             if name in pngs:
                 (out / name).write_bytes(pngs[name])

@@ -1,23 +1,35 @@
-"""Every number of the report, computed from the trial table as JSON-ready data.
+"""Every number of the report, computed from the trial records as JSON-ready data.
 
 :func:`analyse` runs every test of :mod:`cirl_study.analysis.statistics` on the blocks
-they belong to and returns plain Python data (dicts, lists, ints, floats at full
-precision, ``None`` for an undefined number), which ``results.json`` stores as is and
-the claims and the report read from.
+they belong to, takes the cross-validated eta from the function the run chose it with
+(:func:`cirl_study.study.eta_cv.choose_etas`), and returns plain Python data (dicts,
+lists, ints, floats at full precision, ``None`` for an undefined number), which
+``results.json`` stores as is and the claims and the report read from.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
 from cirl_study.analysis import statistics
-from cirl_study.analysis.table import ETA_CV, LAMBDA_SWEEP, MAIN, MEASURES, POLICIES
+from cirl_study.analysis.table import trial_table
 from cirl_study.errors import UserError
+from cirl_study.record import (
+    BEST_RESPONSE,
+    BLOCKS,
+    ETA_CV,
+    EXPERT,
+    LAMBDA_SWEEP,
+    MAIN,
+    MEASURES,
+    TrialRecord,
+)
+from cirl_study.study.eta_cv import choose_etas
 
 Results = dict[str, Any]
 """The JSON-ready results of :func:`analyse` (the content of ``results.json``)."""
@@ -63,15 +75,15 @@ def figure1_subject(main: pd.DataFrame) -> dict[str, Any]:
     """
     level = int(main["num_features"].min())
     paired = statistics.paired_by_subject(main, "regret", level)
-    improvement = (paired[POLICIES[0]] - paired[POLICIES[1]]).rename("improvement")
+    improvement = (paired[EXPERT] - paired[BEST_RESPONSE]).rename("improvement")
     ordered = improvement.reset_index().sort_values(["improvement", "subject"], kind="mergesort")
     chosen = ordered.iloc[(len(ordered) - 1) // 2]
     subject = str(chosen["subject"])
     return {
         "subject": subject,
         "num_features": level,
-        "regret_expert": float(paired.at[subject, POLICIES[0]]),
-        "regret_best_response": float(paired.at[subject, POLICIES[1]]),
+        "regret_expert": float(paired.at[subject, EXPERT]),
+        "regret_best_response": float(paired.at[subject, BEST_RESPONSE]),
         "rule": (
             f"the subject at num_features={level} whose regret improvement "
             "(expert minus best response) is the median of its feature level"
@@ -80,9 +92,9 @@ def figure1_subject(main: pd.DataFrame) -> dict[str, Any]:
 
 
 def _trial_counts(table: pd.DataFrame) -> dict[str, int]:
-    """Trials in total and per block: the blocks of DESIGN.md first, then any other."""
+    """Trials in total and per block: the blocks of docs/design.md §5 first, then any other."""
     sizes = table.groupby("block").size()
-    order = [b for b in (MAIN, LAMBDA_SWEEP, ETA_CV) if b in sizes.index]
+    order = [b for b in BLOCKS if b in sizes.index]
     order += [b for b in sizes.index if b not in order]
     return {"total": len(table), **{str(block): int(sizes[block]) for block in order}}
 
@@ -100,31 +112,72 @@ def _design(main: pd.DataFrame) -> dict[str, Any]:
     }
 
 
-def analyse(table: pd.DataFrame, pipeline_name: str) -> Results:
-    """Run every analysis of DESIGN.md section 5 on a checked trial table.
+def eta_cv(records: Sequence[TrialRecord], table: pd.DataFrame) -> dict[str, Any]:
+    """The cross-validation of the best response's eta, and whether the main block used it.
+
+    ``means``: mean best-response regret with its CI per feature level and eta
+    (:func:`~cirl_study.analysis.statistics.eta_means`). ``chosen``: per feature level, the
+    eta :func:`~cirl_study.study.eta_cv.choose_etas` picks from the ``eta_cv`` records (the
+    choice the run made) and its mean regret. ``main_block``: per feature level of the
+    ``main`` block, the etas its best-response trials were played with (``main_etas``, one
+    in a sound run), the cross-validated eta (``chosen_eta``, ``None`` without
+    cross-validation at that level) and whether they agree (``None`` when there is nothing
+    to compare with).
+
+    Raises:
+        UserError: the ``eta_cv`` records admit no choice (see ``choose_etas``).
+    """
+    cv = table[table["block"] == ETA_CV]
+    try:
+        choices = choose_etas(records)
+    except ValueError as error:
+        raise UserError(f"eta cross-validation: {error}") from None
+    chosen = {k: choice for (policy, k), choice in choices.items() if policy == BEST_RESPONSE}
+    played: dict[int, set[float]] = {}
+    for record in records:
+        if record.block == MAIN and record.policy == BEST_RESPONSE and record.eta is not None:
+            played.setdefault(record.num_features, set()).add(record.eta)
+    levels = sorted({record.num_features for record in records if record.block == MAIN})
+    main_block = []
+    for k in levels:
+        main_etas = sorted(played.get(k, ()))
+        chosen_eta = chosen[k].eta if k in chosen else None
+        agree = None if chosen_eta is None else main_etas == [chosen_eta]
+        main_block.append(
+            {"num_features": k, "main_etas": main_etas, "chosen_eta": chosen_eta, "agree": agree}
+        )
+    return {
+        "means": rows(statistics.eta_means(cv)) if not cv.empty else [],
+        "chosen": [
+            {"num_features": k, "eta": choice.eta, "mean": choice.mean_regret[choice.eta]}
+            for k, choice in sorted(chosen.items())
+        ],
+        "main_block": plain(main_block),
+    }
+
+
+def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
+    """Run every analysis of docs/design.md §5 on checked trial records.
 
     Args:
-        table: the trial table, already accepted by
-            :func:`~cirl_study.analysis.table.check_design`.
+        records: the trial records, already accepted by
+            :func:`~cirl_study.analysis.table.check_design`, in any order.
         pipeline_name: the pipeline's name, recorded in the results.
 
     Returns:
         Plain data with the keys ``pipeline, trials, design, anova, simple_effects,
         tukey_hsd, wilcoxon, cells, cronbach_alpha, lambda_sweep, eta_cv, figure1``.
-        ``lambda_sweep`` is an empty list and ``eta_cv`` has empty lists when the run
-        has no trials in that block.
+        ``lambda_sweep`` is an empty list and ``eta_cv`` has empty ``means`` and ``chosen``
+        when the run has no trials in that block (see :func:`eta_cv`).
     """
+    table = trial_table(records)
     main = table[table["block"] == MAIN]
     sweep = table[table["block"] == LAMBDA_SWEEP]
-    cv = table[table["block"] == ETA_CV]
     alpha = statistics.cronbach_alpha(main[list(MEASURES)].reset_index(drop=True))
     alpha["items"] = list(MEASURES)
     alpha["rows"] = (
         f"all {len(main)} trials of the main block, one row per trial (both policies, "
         "every feature level), the three measures on their own scales"
-    )
-    eta_means, eta_chosen = (
-        statistics.eta_cross_validation(cv) if not cv.empty else (pd.DataFrame(), pd.DataFrame())
     )
     return {
         "pipeline": pipeline_name,
@@ -139,6 +192,6 @@ def analyse(table: pd.DataFrame, pipeline_name: str) -> Results:
         ),
         "cronbach_alpha": plain(alpha),
         "lambda_sweep": rows(statistics.lambda_sweep(sweep, MEASURES)) if not sweep.empty else [],
-        "eta_cv": {"means": rows(eta_means), "chosen": rows(eta_chosen)},
+        "eta_cv": eta_cv(records, table),
         "figure1": figure1_subject(main),
     }

@@ -1,4 +1,4 @@
-"""The statistical tests of the study (DESIGN.md section 5), one function per test.
+"""The statistical tests of the study (docs/design.md §5), one function per test.
 
 Every function takes a slice of the trial table (:func:`cirl_study.analysis.table.trial_table`)
 and returns a tidy :class:`pandas.DataFrame` (or a dict) at full precision. Notation:
@@ -21,7 +21,7 @@ import pingouin as pg
 from scipy import stats
 from statsmodels.stats.multitest import multipletests
 
-from cirl_study.analysis.table import POLICIES
+from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_POLICIES
 
 CONFIDENCE = 0.95
 """Level of every confidence interval."""
@@ -34,8 +34,6 @@ BOOTSTRAP_SEED = 2016
 
 EFFECTS: tuple[str, ...] = ("policy", "num_features", "policy:num_features")
 """Effects of the mixed ANOVA, in the order they are reported."""
-
-_EXPERT, _BEST_RESPONSE = POLICIES
 
 
 def mixed_anova(main: pd.DataFrame, measure: str) -> pd.DataFrame:
@@ -93,7 +91,7 @@ def paired_by_subject(main: pd.DataFrame, measure: str, level: int) -> pd.DataFr
     """Subjects x policies frame of ``measure`` at one feature level, subjects sorted."""
     cell = main[main["num_features"] == level]
     paired = cell.pivot(index="subject", columns="policy", values=measure)
-    return paired[list(POLICIES)].sort_index()
+    return paired[list(PAPER_POLICIES)].sort_index()
 
 
 def _d_z(differences: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -153,8 +151,8 @@ def simple_effects(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     rows = []
     for level in sorted(main["num_features"].unique()):
         paired = paired_by_subject(main, measure, level)
-        expert = paired[_EXPERT].to_numpy()
-        best = paired[_BEST_RESPONSE].to_numpy()
+        expert = paired[EXPERT].to_numpy()
+        best = paired[BEST_RESPONSE].to_numpy()
         difference = best - expert
         test = stats.ttest_rel(best, expert)
         interval = test.confidence_interval(CONFIDENCE)
@@ -244,7 +242,7 @@ def wilcoxon(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     rows = []
     for level in sorted(main["num_features"].unique()):
         paired = paired_by_subject(main, measure, level)
-        result = pg.wilcoxon(paired[_BEST_RESPONSE].to_numpy(), paired[_EXPERT].to_numpy())
+        result = pg.wilcoxon(paired[BEST_RESPONSE].to_numpy(), paired[EXPERT].to_numpy())
         rows.append(
             {
                 "measure": measure,
@@ -330,18 +328,15 @@ def lambda_sweep(sweep: pd.DataFrame, measures: tuple[str, ...]) -> pd.DataFrame
     return pd.concat([group_means(sweep, measure, by) for measure in measures], ignore_index=True)
 
 
-def eta_cross_validation(cv: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Mean regret of the best response per ``eta`` and feature level, and the chosen ``eta``.
+def eta_means(cv: pd.DataFrame) -> pd.DataFrame:
+    """Mean regret of the best response with its CI per feature level and ``eta``.
 
-    The chosen ``eta`` of a feature level has the lowest mean regret (DESIGN.md section 3);
-    a tie goes to the smallest ``eta``.
+    The curve behind the cross-validated choice of ``eta`` (docs/design.md §3); the choice
+    itself is :func:`cirl_study.study.eta_cv.choose_etas`, the one the run made.
 
     Returns:
-        ``(means, chosen)``: :func:`group_means` of regret by ``num_features, eta`` over the
-        best-response trials, and one row per feature level ``num_features, eta, mean``.
+        :func:`group_means` of regret by ``num_features, eta`` over the best-response
+        trials of ``cv``.
     """
-    best = cv[(cv["policy"] == _BEST_RESPONSE) & cv["eta"].notna()]
-    means = group_means(best, "regret", ["num_features", "eta"])
-    ordered = means.sort_values(["num_features", "mean", "eta"], kind="mergesort")
-    chosen = ordered.groupby("num_features", sort=True).head(1)
-    return means, chosen[["num_features", "eta", "mean"]].reset_index(drop=True)
+    best = cv[(cv["policy"] == BEST_RESPONSE) & cv["eta"].notna()]
+    return group_means(best, "regret", ["num_features", "eta"])

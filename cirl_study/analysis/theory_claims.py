@@ -1,7 +1,7 @@
 """The paper's theory claims (section 3, office-supplies example) as report rows.
 
 Each row's verdict is computed from the exact results of
-:func:`cirl_study.games.office_supplies_results` (fractions compared exactly), never
+:func:`cirl_study.theory.office_supplies_results` (fractions compared exactly), never
 written by hand. The rows have the shape :func:`cirl_study.analysis.claims.external_claims`
 expects:
 

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
+
+app = typer.Typer()
+"""The ``analyze`` command, merged into :data:`cirl_study.cli.app`."""
 
 REPORTS_DIRECTORY = Path("reports")
 """Parent of the default report directory ``reports/<pipeline name>``."""
@@ -31,6 +33,7 @@ ReportDirectoryOption = Annotated[
 ]
 
 
+@app.command()
 def analyze(run: RunArgument, out: ReportDirectoryOption = None) -> None:
     """Analyse a run's logs: the paper's statistics, figures and claims, with verdicts.
 
@@ -42,8 +45,8 @@ def analyze(run: RunArgument, out: ReportDirectoryOption = None) -> None:
     # The statistics and plotting libraries load only when an analysis is asked for.
     from cirl_study.analysis.report import write_report
     from cirl_study.analysis.theory_claims import office_supplies_claims
-    from cirl_study.games import office_supplies_results
     from cirl_study.logs import read_run
+    from cirl_study.theory import office_supplies_results
 
     contents = read_run(run)
     for warning in contents.warnings:
@@ -59,8 +62,3 @@ def analyze(run: RunArgument, out: ReportDirectoryOption = None) -> None:
         f"{reproduced} reproduced, {len(claims) - reproduced - untested} not reproduced, "
         f"{untested} not tested"
     )
-
-
-def register(app: typer.Typer, wrap: Callable[[Callable[..., Any]], Callable[..., Any]]) -> None:
-    """Add the ``analyze`` command to ``app``."""
-    app.command("analyze")(wrap(analyze))

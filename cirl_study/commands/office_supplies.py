@@ -10,7 +10,10 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from cirl_study.games.office_supplies import office_supplies_results
+from cirl_study.theory.office_supplies import office_supplies_results
+
+app = typer.Typer()
+"""The ``office-supplies`` command, merged into :data:`cirl_study.cli.app`."""
 
 _PAIRS = {
     "expert": ("delta_E", "br(delta_E)"),
@@ -31,30 +34,40 @@ def _values_table(results: dict[str, Any]) -> Table:
     return table
 
 
-def _rules_table(results: dict[str, Any]) -> Table:
+def _per_action_table(
+    results: dict[str, Any], title: str, first: str, cell: Callable[[str, str], str]
+) -> Table:
+    """One row per pair of :data:`_PAIRS` (named by its human), one column per human action."""
     actions = results["game"]["human_actions"]
-    table = Table(title="Human decision rules: the thetas where H makes each action")
-    table.add_column("rule")
+    table = Table(title=title)
+    table.add_column(first)
     for action in actions:
         table.add_column(action)
     for key, (human, _) in _PAIRS.items():
-        pieces = results["pairs"][key]["human_rule"]
-        table.add_row(
-            human,
-            *(" U ".join(p["theta"] for p in pieces if p["action"] == a) or "-" for a in actions),
-        )
+        table.add_row(human, *(cell(key, action) for action in actions))
     return table
 
 
+def _rules_table(results: dict[str, Any]) -> Table:
+    def thetas(key: str, action: str) -> str:
+        pieces = results["pairs"][key]["human_rule"]
+        return " U ".join(p["theta"] for p in pieces if p["action"] == action) or "-"
+
+    return _per_action_table(
+        results, "Human decision rules: the thetas where H makes each action", "rule", thetas
+    )
+
+
 def _robot_table(results: dict[str, Any]) -> Table:
-    actions = results["game"]["human_actions"]
-    table = Table(title="Robot policies: after H's action, R's mean theta -> what R makes")
-    table.add_column("against")
-    for action in actions:
-        table.add_column(action)
-    for key, (human, _) in _PAIRS.items():
-        policy = results["pairs"][key]["robot_policy"]
-        table.add_row(human, *(_robot_cell(policy[a]) for a in actions))
+    def response(key: str, action: str) -> str:
+        return _robot_cell(results["pairs"][key]["robot_policy"][action])
+
+    table = _per_action_table(
+        results,
+        "Robot policies: after H's action, R's mean theta -> what R makes",
+        "against",
+        response,
+    )
     table.caption = "* H never makes this action, so R's belief stays at the prior"
     return table
 
@@ -83,6 +96,7 @@ def _decimal(fraction: str) -> str:
     return f"{int(numerator) / int(denominator or 1):.4f}"
 
 
+@app.command("office-supplies")
 def office_supplies(
     as_json: Annotated[
         bool, typer.Option("--json", help="Print the results as JSON (exact fractions as strings).")
@@ -125,8 +139,3 @@ def office_supplies(
         f"optimal pairs found: {search['optimal_pairs']})."
     )
     console.print(_example_table(results["section_3_3"]))
-
-
-def register(app: typer.Typer, wrap: Callable[[Callable[..., Any]], Callable[..., Any]]) -> None:
-    """Add the ``office-supplies`` command to ``app``."""
-    app.command("office-supplies")(wrap(office_supplies))

@@ -2,9 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
@@ -30,6 +29,11 @@ ReportOption = Annotated[
 ]
 
 
+app = typer.Typer()
+"""The ``reproduce`` command, merged into :data:`cirl_study.cli.app`."""
+
+
+@app.command()
 def reproduce(
     pipeline: PipelineArgument = "paper",
     out: RunDirectoryOption = None,
@@ -42,14 +46,9 @@ def reproduce(
 
     With the defaults this regenerates reports/paper/ from nothing; run again, it resumes.
     """
-    from cirl_study.pipeline import load_pipeline, resolve_pipeline
-    from cirl_study.runner import default_out_dir
+    from cirl_study.study.runner import default_out_dir
+    from cirl_study.study.spec import load_pipeline, resolve_pipeline
 
     run_directory = out or default_out_dir(load_pipeline(resolve_pipeline(pipeline)))
     run(pipeline, run_directory, workers, engine, scheduler)
     analyze(run_directory, report)
-
-
-def register(app: typer.Typer, wrap: Callable[[Callable[..., Any]], Callable[..., Any]]) -> None:
-    """Add ``reproduce`` to the ``cirl-study`` command line."""
-    app.command("reproduce")(wrap(reproduce))

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
@@ -22,10 +22,14 @@ from rich.progress import (
 )
 from rich.text import Text
 
-from cirl_study.pipeline import load_pipeline, resolve_pipeline
+from cirl_study.errors import UserError
+from cirl_study.study.spec import load_pipeline, resolve_pipeline
+
+app = typer.Typer()
+"""The ``run`` command, merged into :data:`cirl_study.cli.app`."""
 
 if TYPE_CHECKING:
-    from cirl_study.runner import ProgressHooks, RunResult
+    from cirl_study.study.runner import ProgressHooks, RunResult
 
 
 class EngineName(StrEnum):
@@ -66,7 +70,7 @@ def _progress_bar() -> Iterator[ProgressHooks]:
     def advance(count: int) -> None:
         bar.advance(task[0], count)
 
-    from cirl_study.runner import ProgressHooks
+    from cirl_study.study.runner import ProgressHooks
 
     try:
         yield ProgressHooks(start, advance)
@@ -79,8 +83,8 @@ def _summary(result: RunResult, engine: str) -> str:
     """Three lines: what is logged where, how fast, and the etas cross-validation chose."""
     rate = result.played / result.seconds if result.seconds > 0 else 0.0
     etas = "; ".join(
-        f"K={k} -> {choice.eta:g} (mean regret {choice.mean_regret[choice.eta]:.4g})"
-        for k, choice in sorted(result.etas.items())
+        f"{policy} at K={k} -> {choice.eta:g} (mean regret {choice.mean_regret[choice.eta]:.4g})"
+        for (policy, k), choice in sorted(result.etas.items())
     )
     return "\n".join(
         [
@@ -147,6 +151,7 @@ SchedulerOption = Annotated[
 ]
 
 
+@app.command()
 def run(
     pipeline: PipelineArgument = "paper",
     out: RunDirectoryOption = None,
@@ -161,16 +166,15 @@ def run(
     stderr, a summary to stdout.
     """
     # The engine and the runner import the numerical core: only when a run is asked for.
-    from cirl_study.engines import make_engine
-    from cirl_study.runner import default_out_dir, run_pipeline
+    from cirl_study.study.engines import make_engine
+    from cirl_study.study.runner import default_out_dir, run_pipeline
 
     spec = load_pipeline(resolve_pipeline(pipeline))
+    if workers is not None and workers < 1:
+        raise UserError(f"--workers must be a positive integer, got {workers}")
+    if scheduler is not None and engine is not EngineName.dask:
+        raise UserError("--scheduler needs --engine dask")
     chosen = make_engine(engine.value, workers, scheduler)
     with _progress_bar() as hooks:
         result = run_pipeline(spec, out or default_out_dir(spec), chosen, hooks)
     typer.echo(_summary(result, chosen.description))
-
-
-def register(app: typer.Typer, wrap: Callable[[Callable[..., Any]], Callable[..., Any]]) -> None:
-    """Add ``run`` to the ``cirl-study`` command line."""
-    app.command("run")(wrap(run))

@@ -2,23 +2,18 @@
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated
 
 import typer
 
 from cirl_study.logs import validate_run
 
-HELP = (
-    "Check every MCAP log file of a run and the run as a whole.\n\n"
-    "Checks CRCs, the summary and its message counts, schemas, every trial record complete and "
-    "consistent, no duplicate trial ids and the design complete. Prints `OK path: N trials` or "
-    "`FAIL path: reason` for each file, then a line for the run.\n\n"
-    "Exit code 0 when everything is sound, 1 on any fault, 2 when RUN is not a directory."
-)
+app = typer.Typer()
+"""The ``validate`` command, merged into :data:`cirl_study.cli.app`."""
 
 
+@app.command()
 def validate(
     run: Annotated[
         Path,
@@ -29,15 +24,17 @@ def validate(
         ),
     ],
 ) -> None:
-    """Check every MCAP log file of a run and the run as a whole (see :data:`HELP`)."""
+    """Check every MCAP log file of a run and the run as a whole.
+
+    Checks CRCs, the summary and its message counts, schemas, every trial record complete and
+    consistent, no duplicate trial ids and the design complete. Prints `OK path: N trials` or
+    `FAIL path: reason` for each file, then a line for the run.
+
+    Exit code 0 when everything is sound, 1 on any fault, 2 when RUN is not a directory.
+    """
     verdict = validate_run(run)
     for file_verdict in verdict.files:
         typer.echo(file_verdict.line())
     typer.echo(verdict.line())
     if not verdict.ok:
         raise typer.Exit(code=1)
-
-
-def register(app: typer.Typer, wrap: Callable[[Callable[..., Any]], Callable[..., Any]]) -> None:
-    """Add the ``validate`` command to ``app``."""
-    app.command("validate", help=HELP)(wrap(validate))

@@ -2,8 +2,9 @@
 
 Built on :func:`~cirl_study.logs.scan.scan_file` (storage damage: CRCs, truncation, summary).
 Content checks: the ``provenance`` metadata record; the schema name and encodings of every
-channel; each ``/cirl/trial`` payload is strict canonical JSON (no NaN) of a complete and
-consistent record (:func:`~cirl_study.logs.record_checks.record_faults`); no trial id twice;
+channel; each ``/cirl/trial`` payload decodes into a
+:class:`~cirl_study.record.TrialRecord`, is its canonical JSON and is consistent
+(:func:`~cirl_study.logs.record_checks.decode_trial`); no trial id twice;
 in an undamaged file, trial log times follow the documented layout and the replay topics hold
 as many messages as the records imply.
 """
@@ -14,7 +15,6 @@ import json
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from cirl_study.logs.episode import replay_counts
 from cirl_study.logs.format import (
@@ -25,11 +25,11 @@ from cirl_study.logs.format import (
     SCHEMA_ENCODING,
     TRIAL_SCHEMA_NAME,
     TRIAL_TOPIC,
-    canonical_json,
     trial_duration_ns,
 )
-from cirl_study.logs.record_checks import record_faults
+from cirl_study.logs.record_checks import decode_trial, payload_trial_id
 from cirl_study.logs.scan import FileScan, scan_file
+from cirl_study.record import TrialRecord, encode
 
 
 @dataclass
@@ -42,7 +42,7 @@ class FileContents:
     """
 
     scan: FileScan
-    records: list[dict[str, Any]] = field(default_factory=list)
+    records: list[TrialRecord] = field(default_factory=list)
     provenance: dict[str, str] | None = None
     content_faults: list[str] = field(default_factory=list)
 
@@ -71,31 +71,21 @@ def read_file_contents(path: Path) -> FileContents:
     trial_messages = contents.scan.topic_messages(TRIAL_TOPIC)
     seen: set[str] = set()
     for index, message in enumerate(trial_messages):
-        label = f"trial message {index}"
-        try:
-            record = json.loads(message.data, parse_constant=_reject_constant)
-        except ValueError as error:
-            faults.append(f"{label}: not valid JSON ({error})")
-            continue
-        if isinstance(record, dict) and isinstance(record.get("trial_id"), str):
-            label = f"trial {record['trial_id']}"
-        problems = record_faults(record)
+        record, problems = decode_trial(message.data)
+        trial_id = payload_trial_id(message.data)
+        label = f"trial message {index}" if trial_id is None else f"trial {trial_id}"
         faults.extend(f"{label}: {problem}" for problem in problems)
-        if problems:
+        if record is None or problems:
             continue
-        if canonical_json(record) != message.data:
+        if encode(record) != message.data:
             faults.append(f"{label}: payload is not canonical JSON")
-        if record["trial_id"] in seen:
+        if record.trial_id in seen:
             faults.append(f"{label}: logged twice in this file")
-        seen.add(record["trial_id"])
+        seen.add(record.trial_id)
         contents.records.append(record)
     if not contents.damage and len(contents.records) == len(trial_messages):
         faults.extend(_layout_faults(contents.scan, contents.records))
     return contents
-
-
-def _reject_constant(name: str) -> None:
-    raise ValueError(f"{name} is not a JSON number")
 
 
 def _read_provenance(contents: FileContents) -> None:
@@ -138,18 +128,18 @@ def _channel_faults(scan: FileScan) -> list[str]:
     return faults
 
 
-def _layout_faults(scan: FileScan, records: list[dict[str, Any]]) -> list[str]:
+def _layout_faults(scan: FileScan, records: list[TrialRecord]) -> list[str]:
     """Trial log times and replay-topic message counts implied by the records."""
     faults = []
     start_ns = 0
     for record, message in zip(records, scan.topic_messages(TRIAL_TOPIC), strict=True):
         if message.log_time != start_ns:
             faults.append(
-                f"trial {record['trial_id']}: logged at {message.log_time} ns, "
+                f"trial {record.trial_id}: logged at {message.log_time} ns, "
                 f"expected {start_ns} ns from its position in the file"
             )
             break
-        start_ns += trial_duration_ns(record["learning_steps"], record["deployment_steps"])
+        start_ns += trial_duration_ns(record.learning_steps, record.deployment_steps)
     expected: Counter[str] = Counter()
     for record in records:
         expected.update(replay_counts(record))

@@ -8,13 +8,12 @@ position of a file give byte-identical messages.
 from __future__ import annotations
 
 import base64
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from cirl_study.logs.actions import action_between
+from cirl_study.core.gridworld import action_between, feature_matrix
 from cirl_study.logs.format import (
     DEMONSTRATION_TOPIC,
     DEPLOYMENT_TOPIC,
@@ -23,83 +22,84 @@ from cirl_study.logs.format import (
     TRIAL_TOPIC,
     TRUE_REWARD_TOPIC,
 )
-from cirl_study.logs.rewards import feature_matrix
-from cirl_study.logs.schemas import FLOAT32
+from cirl_study.logs.schemas import FLOAT32, DemonstrationStep, DeploymentStep
+from cirl_study.record import TrialRecord
 
-#: Frame of reference of the reward maps: cell [x, y] is centred on the point (x, y).
 GRID_FRAME = "grid"
+"""Frame of reference of the reward maps: cell [x, y] is centred on the point (x, y)."""
 
 
 @dataclass(frozen=True)
 class LogMessage:
-    """One message to log: its topic, its log time in nanoseconds and its JSON payload."""
+    """One message to log: its topic, its log time in nanoseconds and its payload."""
 
     topic: str
     log_time: int
-    payload: Mapping[str, Any]
+    payload: Any
 
 
-def episode_messages(record: Mapping[str, Any], start_ns: int) -> list[LogMessage]:
+def episode_messages(record: TrialRecord, start_ns: int) -> list[LogMessage]:
     """All messages of one trial, in log-time order, for a trial starting at ``start_ns``."""
     features = feature_matrix(record)
     messages = [
         LogMessage(TRIAL_TOPIC, start_ns, record),
-        LogMessage(TRUE_REWARD_TOPIC, start_ns, reward_grid(record, features, "theta", start_ns)),
         LogMessage(
-            MAP_REWARD_TOPIC, start_ns, reward_grid(record, features, "theta_hat", start_ns)
+            TRUE_REWARD_TOPIC, start_ns, reward_grid(record, features, record.theta, start_ns)
+        ),
+        LogMessage(
+            MAP_REWARD_TOPIC, start_ns, reward_grid(record, features, record.theta_hat, start_ns)
         ),
     ]
-    actions = record["demonstration"]["actions"]
-    for t, cell in enumerate(record["demonstration"]["states"]):
-        step = {
-            "trial_id": record["trial_id"],
-            "policy": record["policy"],
-            "step": t,
-            "cell": cell,
-            "action": actions[t - 1] if t > 0 else None,
-        }
+    actions = record.demonstration.actions
+    for t, cell in enumerate(record.demonstration.states):
+        step = DemonstrationStep(
+            trial_id=record.trial_id,
+            policy=record.policy,
+            step=t,
+            cell=cell,
+            action=actions[t - 1] if t > 0 else None,
+        )
         messages.append(LogMessage(DEMONSTRATION_TOPIC, start_ns + t * STEP_NS, step))
-    if "deployment" in record:
-        offset_ns = start_ns + (record["learning_steps"] + 1) * STEP_NS
-        paths = record["deployment"]["paths"]
-        for t in range(min((len(path) for path in paths), default=0)):
-            step = {
-                "trial_id": record["trial_id"],
-                "policy": record["policy"],
-                "step": t,
-                "cells": [path[t] for path in paths],
-                "actions": [
-                    action_between(path[t - 1], path[t]) if t > 0 else None for path in paths
-                ],
-            }
-            messages.append(LogMessage(DEPLOYMENT_TOPIC, offset_ns + t * STEP_NS, step))
+    offset_ns = start_ns + (record.learning_steps + 1) * STEP_NS
+    paths = record.deployment.paths if record.deployment is not None else ()
+    for t in range(min((len(path) for path in paths), default=0)):
+        step = DeploymentStep(
+            trial_id=record.trial_id,
+            policy=record.policy,
+            step=t,
+            cells=tuple(path[t] for path in paths),
+            actions=tuple(
+                action_between(path[t - 1], path[t]) if t > 0 else None for path in paths
+            ),
+        )
+        messages.append(LogMessage(DEPLOYMENT_TOPIC, offset_ns + t * STEP_NS, step))
     return messages
 
 
-def replay_counts(record: Mapping[str, Any]) -> dict[str, int]:
+def replay_counts(record: TrialRecord) -> dict[str, int]:
     """How many messages :func:`episode_messages` logs on each topic besides the trial's."""
-    paths = record["deployment"]["paths"] if "deployment" in record else []
+    paths = record.deployment.paths if record.deployment is not None else ()
     return {
         TRUE_REWARD_TOPIC: 1,
         MAP_REWARD_TOPIC: 1,
-        DEMONSTRATION_TOPIC: len(record["demonstration"]["states"]),
+        DEMONSTRATION_TOPIC: len(record.demonstration.states),
         DEPLOYMENT_TOPIC: min((len(path) for path in paths), default=0),
     }
 
 
 def reward_grid(
-    record: Mapping[str, Any], features: np.ndarray, weights: str, time_ns: int
+    record: TrialRecord, features: np.ndarray, weights: tuple[float, ...], time_ns: int
 ) -> dict[str, Any]:
-    """A ``foxglove.Grid`` of the cell rewards ``Phi w`` for ``w = record[weights]``.
+    """A ``foxglove.Grid`` of the cell rewards ``Phi w`` for the weights ``w``.
 
-    ``features`` is ``Phi`` (:func:`~cirl_study.logs.rewards.feature_matrix`); the values are
-    float32, by flat index ``y * width + x``, i.e. rows from ``y = 0`` upwards.
+    ``features`` is ``Phi`` (:func:`~cirl_study.core.gridworld.feature_matrix`); the values
+    are float32, by flat index ``y * width + x``, i.e. rows from ``y = 0`` upwards.
 
     The grid's corner is placed at ``(-0.5, -0.5)`` so that cell ``[x, y]`` is centred on the
     point ``(x, y)`` of the ``grid`` frame, the coordinates the RBF centres use.
     """
-    width = record["grid"]["width"]
-    values = (features @ np.asarray(record[weights], dtype=float)).astype("<f4")
+    width = record.grid.width
+    values = (features @ np.asarray(weights, dtype=float)).astype("<f4")
     return {
         "timestamp": {"sec": time_ns // 1_000_000_000, "nsec": time_ns % 1_000_000_000},
         "frame_id": GRID_FRAME,

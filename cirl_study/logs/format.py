@@ -5,10 +5,12 @@ under the temporary name ``<final name>.tmp`` in the same directory and is renam
 final name only when it is complete, so a reader that lists ``*.mcap`` never sees a partial
 file.
 
-Topics (all JSON messages described by JSON schemas, see :mod:`cirl_study.logs.schemas`):
+Topics (all JSON messages described by JSON schemas, see :mod:`cirl_study.logs.schemas`;
+every payload is canonical JSON, :func:`cirl_study.record.encode`, so equal messages give
+equal bytes):
 
-* ``/cirl/trial`` (``cirl_study.Trial``): one message per trial, the record of DESIGN.md
-  section 7, serialised by :func:`canonical_json` so that equal records give equal bytes.
+* ``/cirl/trial`` (``cirl_study.Trial``): one message per trial, the record of
+  docs/design.md §7 (:class:`cirl_study.record.TrialRecord`).
 * ``/cirl/demonstration`` (``cirl_study.DemonstrationStep``): the human's path, one message
   per step ``t = 0..T_learn``.
 * ``/cirl/deployment`` (``cirl_study.DeploymentStep``): the robot's deployment rollouts from a
@@ -26,9 +28,7 @@ records in the file, never on the wall clock.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Any
 
 TRIAL_TOPIC = "/cirl/trial"
 DEMONSTRATION_TOPIC = "/cirl/demonstration"
@@ -52,19 +52,6 @@ STEP_NS = 1_000_000_000
 
 LOG_SUFFIX = ".mcap"
 TEMP_SUFFIX = ".tmp"
-
-
-_CANONICAL = json.JSONEncoder(sort_keys=True, separators=(",", ":"), allow_nan=False)
-
-
-def canonical_json(value: Any) -> bytes:
-    """Serialise ``value`` as canonical JSON bytes: sorted keys, no spaces, no NaN/inf.
-
-    The bytes are those of ``json.dumps(value, sort_keys=True, separators=(",", ":"),
-    allow_nan=False)``: two equal records (whatever their key order) give identical bytes, so
-    logged payloads can be compared byte for byte across runs, engines and worker counts.
-    """
-    return _CANONICAL.encode(value).encode()
 
 
 def temp_path(path: Path) -> Path:

@@ -1,4 +1,4 @@
-"""The ``provenance`` metadata record every log file carries (DESIGN.md sections 6-7)."""
+"""The ``provenance`` metadata record every log file carries (docs/design.md §6-7)."""
 
 from __future__ import annotations
 

@@ -13,10 +13,8 @@ file in full.
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from mcap.reader import make_reader
 
@@ -29,7 +27,8 @@ from cirl_study.logs.format import (
     log_files,
     temp_files,
 )
-from cirl_study.logs.record_checks import record_faults
+from cirl_study.logs.record_checks import decode_trial
+from cirl_study.record import TrialRecord
 
 
 @dataclass(frozen=True)
@@ -37,7 +36,7 @@ class RunContents:
     """The trial records of a run (sorted by ``trial_id``), each file's provenance, the
     pipeline's name and the warnings raised while reading."""
 
-    records: list[dict[str, Any]]
+    records: list[TrialRecord]
     provenance: list[dict[str, str]]
     pipeline_name: str
     warnings: list[str]
@@ -48,7 +47,7 @@ class _IntactFile:
     """The trial records and provenance of a file that read cleanly through its index."""
 
     path: Path
-    records: list[dict[str, Any]]
+    records: list[TrialRecord]
     provenance: dict[str, str]
     damage: list[str] = field(default_factory=list)
     content_faults: list[str] = field(default_factory=list)
@@ -64,7 +63,7 @@ def _read_intact(path: Path) -> _IntactFile | None:
     Every chunk holding a trial is decompressed with its CRC checked; the number of trial
     records must equal the summary's count, there must be one ``provenance`` record naming the
     pipeline, and every record must be complete and consistent
-    (:func:`~cirl_study.logs.record_checks.record_faults`).
+    (:func:`~cirl_study.logs.record_checks.decode_trial`).
     """
     try:
         with path.open("rb") as stream:
@@ -73,25 +72,22 @@ def _read_intact(path: Path) -> _IntactFile | None:
             if summary is None or summary.statistics is None:
                 return None
             provenance = [m for m in reader.iter_metadata() if m.name == PROVENANCE_METADATA_NAME]
-            records = [
-                json.loads(message.data, parse_constant=_reject_constant)
+            decoded = [
+                decode_trial(message.data)
                 for _, _, message in reader.iter_messages(topics=[TRIAL_TOPIC])
             ]
     except Exception:  # any damage: the record-by-record scan will say what and salvage
         return None
     trial_channels = [c.id for c in summary.channels.values() if c.topic == TRIAL_TOPIC]
     announced = sum(summary.statistics.channel_message_counts.get(c, 0) for c in trial_channels)
+    records = [record for record, faults in decoded if record is not None and not faults]
     sound = (
         len(provenance) == 1
         and PIPELINE_NAME_KEY in provenance[0].metadata
+        and len(decoded) == announced
         and len(records) == announced
-        and not any(record_faults(record) for record in records)
     )
     return _IntactFile(path, records, dict(provenance[0].metadata)) if sound else None
-
-
-def _reject_constant(name: str) -> None:
-    raise ValueError(f"{name} is not a JSON number")
 
 
 def _read_file(path: Path) -> _IntactFile | FileContents:
@@ -124,7 +120,7 @@ def read_run(run_dir: str | Path) -> RunContents:
     if len(names) != 1:
         raise UserError(f"{run_dir}: log files of {len(names)} pipelines ({', '.join(names)})")
     return RunContents(
-        records=sorted(records, key=lambda record: record["trial_id"]),
+        records=sorted(records, key=lambda record: record.trial_id),
         provenance=provenance,
         pipeline_name=names[0],
         warnings=warnings,
@@ -158,17 +154,9 @@ def logged_trials(run_dir: str | Path) -> LoggedTrials:
             )
         files.append(contents)
     return LoggedTrials(
-        trial_ids={record["trial_id"] for record in _without_duplicates(files)},
+        trial_ids={record.trial_id for record in _without_duplicates(files)},
         provenance={contents.path: contents.provenance or {} for contents in files},
     )
-
-
-def completed_trial_ids(run_dir: str | Path) -> set[str]:
-    """Ids of the trials already logged in complete files of ``run_dir``.
-
-    See :func:`logged_trials`, which also gives each file's provenance.
-    """
-    return logged_trials(run_dir).trial_ids
 
 
 def _complete_files(run_dir: Path, *, require_any: bool = True) -> list[Path]:
@@ -198,13 +186,13 @@ def _salvage_warning(contents: FileContents) -> str:
     )
 
 
-def _without_duplicates(files: list[_IntactFile | FileContents]) -> list[dict[str, Any]]:
+def _without_duplicates(files: list[_IntactFile | FileContents]) -> list[TrialRecord]:
     """All records of ``files``; a trial id logged in two files is refused."""
     first_file: dict[str, Path] = {}
     records = []
     for contents in files:
         for record in contents.records:
-            trial_id = record["trial_id"]
+            trial_id = record.trial_id
             if trial_id in first_file:
                 raise UserError(
                     f"trial {trial_id} is logged twice: in {first_file[trial_id]} "

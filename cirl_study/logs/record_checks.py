@@ -1,84 +1,116 @@
-"""Is a trial record complete (the JSON schema) and consistent (the game's rules)?
+"""Is a logged trial payload a record (its types), and is the record consistent (the game's rules)?
 
-Consistency, in DESIGN.md's notation: ``eta`` is null exactly for the expert;
-``len(theta) = len(theta_hat) = K`` = number of RBF centres; the start cell ``s_0`` lies on
-the grid; the demonstration is a path ``(s_0, ..., s_T_learn)`` of available moves from
-``s_0`` with ``T_learn`` actions, each the move between consecutive cells; every deployment
-rollout is such a path of ``T_deploy`` moves from its start; ``regret >= 0`` and ``kl >= 0``;
-``reward_l2 = ||Phi theta - Phi theta_hat||_2`` recomputed from the record.
+Types and ranges are checked by decoding into :class:`~cirl_study.record.TrialRecord`
+(:func:`decode_trial`). Consistency, in docs/design.md's notation: ``len(theta) =
+len(theta_hat) = K`` = number of RBF centres; the start cell ``s_0`` lies on the grid; the
+demonstration is a path ``(s_0, ..., s_T_learn)`` of available moves from ``s_0`` with
+``T_learn`` actions, each the move between consecutive cells; every deployment rollout is such a
+path of ``T_deploy`` moves from its start; ``regret >= 0`` and ``kl >= 0`` (up to rounding);
+``reward_l2 = ||Phi theta - Phi theta_hat||_2`` recomputed from the record. The policy and the
+robot are registered ones (:data:`~cirl_study.core.humans.HUMANS`,
+:data:`~cirl_study.core.robot.ROBOTS`), and ``eta`` is null exactly for a policy without a
+trade-off.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Iterator, Mapping, Sequence
-from typing import Any
+from collections.abc import Iterator, Sequence
 
-from cirl_study.logs.actions import action_between, inside
-from cirl_study.logs.json_schema import compile_validator, schema_errors
-from cirl_study.logs.rewards import reward_l2
-from cirl_study.logs.schemas import TRIAL_SCHEMA
+import msgspec
+import numpy as np
 
-_IS_TRIAL = compile_validator(TRIAL_SCHEMA)
+from cirl_study.core.gridworld import Gridworld, action_between, feature_matrix, gridworld
+from cirl_study.core.humans import HUMANS
+from cirl_study.core.measures import reward_l2
+from cirl_study.core.robot import ROBOTS
+from cirl_study.record import DecodeError, TrialRecord, decode
 
-#: Rounding allowed below zero for measures that are non-negative in exact arithmetic.
 NEGATIVE_TOLERANCE = 1e-9
-#: Relative and absolute tolerance when recomputing ``reward_l2``.
+"""Rounding allowed below zero for measures that are non-negative in exact arithmetic."""
+
 L2_TOLERANCE = 1e-9
+"""Relative and absolute tolerance when recomputing ``reward_l2``."""
 
 
-def record_faults(record: Any) -> list[str]:
-    """Every fault of a trial record: schema violations first, else inconsistencies."""
-    if not _IS_TRIAL(record):
-        return schema_errors(record, TRIAL_SCHEMA)
+class _Labelled(msgspec.Struct):
+    trial_id: str
+
+
+def payload_trial_id(data: bytes) -> str | None:
+    """The ``trial_id`` of a payload that may not be a valid record, if it has one."""
+    try:
+        return msgspec.json.decode(data, type=_Labelled).trial_id
+    except msgspec.DecodeError:
+        return None
+
+
+def decode_trial(data: bytes) -> tuple[TrialRecord | None, list[str]]:
+    """The record in a ``/cirl/trial`` payload and its faults (a type fault leaves no record)."""
+    try:
+        record = decode(data)
+    except DecodeError as error:
+        return None, [f"not a trial record: {error}"]
+    return record, record_faults(record)
+
+
+def record_faults(record: TrialRecord) -> list[str]:
+    """Every inconsistency of a decoded trial record (empty for a sound one)."""
     return list(_inconsistencies(record))
 
 
-def _inconsistencies(r: Mapping[str, Any]) -> Iterator[str]:
-    if (r["eta"] is None) != (r["policy"] == "expert"):
-        yield f"eta is {r['eta']} for policy {r['policy']} (null exactly for the expert)"
-    k = r["num_features"]
+def _inconsistencies(r: TrialRecord) -> Iterator[str]:
+    human = HUMANS.get(r.policy)
+    if human is None:
+        yield f"policy {r.policy!r} is not a known human policy ({', '.join(HUMANS)})"
+    elif (r.eta is None) == human.takes_eta:
+        yield (
+            f"eta is {r.eta} for policy {r.policy} "
+            "(null exactly for a policy without a trade-off)"
+        )
+    if r.robot not in ROBOTS:
+        yield f"robot {r.robot!r} is not a known robot ({', '.join(ROBOTS)})"
+    k = r.num_features
     lengths = {
-        "theta": len(r["theta"]),
-        "theta_hat": len(r["theta_hat"]),
-        "features.centers": len(r["features"]["centers"]),
+        "theta": len(r.theta),
+        "theta_hat": len(r.theta_hat),
+        "features.centers": len(r.features.centers),
     }
     for name, length in lengths.items():
         if length != k:
             yield f"{name} has {length} entries, num_features is {k}"
-    width, height = r["grid"]["width"], r["grid"]["height"]
-    if not inside(r["start"], width, height):
-        yield f"start {r['start']} is outside the {width}x{height} grid"
-    states = r["demonstration"]["states"]
-    yield from _path_faults(
-        "demonstration.states", states, r["start"], r["learning_steps"], width, height
-    )
-    actions = r["demonstration"]["actions"]
-    if len(actions) != r["learning_steps"]:
-        yield f"demonstration has {len(actions)} actions, learning_steps is {r['learning_steps']}"
+    grid = gridworld(r)
+    if not grid.contains(*r.start):
+        yield f"start {list(r.start)} is outside the {grid.width}x{grid.height} grid"
+    states, actions = r.demonstration.states, r.demonstration.actions
+    yield from _path_faults("demonstration.states", states, r.start, r.learning_steps, grid)
+    if len(actions) != r.learning_steps:
+        yield f"demonstration has {len(actions)} actions, learning_steps is {r.learning_steps}"
     for t, (action, cell, next_cell) in enumerate(zip(actions, states, states[1:], strict=False)):
         if action != action_between(cell, next_cell):
-            yield f"demonstration.actions[{t}] is {action} but the path moves {cell} -> {next_cell}"
+            yield (
+                f"demonstration.actions[{t}] is {action} but the path moves "
+                f"{list(cell)} -> {list(next_cell)}"
+            )
             break
-    if "deployment" in r:
-        starts, paths = r["deployment"]["starts"], r["deployment"]["paths"]
+    if r.deployment is not None:
+        starts, paths = r.deployment.starts, r.deployment.paths
         if len(starts) != len(paths):
             yield f"deployment has {len(starts)} starts and {len(paths)} paths"
         for i, (start, path) in enumerate(zip(starts, paths, strict=False)):
-            yield from _path_faults(
-                f"deployment.paths[{i}]", path, start, r["deployment_steps"], width, height
-            )
-    measures = r["measures"]
+            yield from _path_faults(f"deployment.paths[{i}]", path, start, r.deployment_steps, grid)
     for name in ("regret", "kl"):
-        if measures[name] < -NEGATIVE_TOLERANCE:
-            yield f"measures.{name} is {measures[name]} < 0"
+        value = getattr(r.measures, name)
+        if value < -NEGATIVE_TOLERANCE:
+            yield f"measures.{name} is {value} < 0"
     if all(length == k for length in lengths.values()):
-        expected = reward_l2(r)
+        features = feature_matrix(r)[None]
+        expected = float(reward_l2(features, np.array([r.theta]), np.array([r.theta_hat]))[0])
         if not math.isclose(
-            measures["reward_l2"], expected, rel_tol=L2_TOLERANCE, abs_tol=L2_TOLERANCE
+            r.measures.reward_l2, expected, rel_tol=L2_TOLERANCE, abs_tol=L2_TOLERANCE
         ):
             yield (
-                f"measures.reward_l2 is {measures['reward_l2']} but "
+                f"measures.reward_l2 is {r.measures.reward_l2} but "
                 f"||Phi theta - Phi theta_hat|| = {expected}"
             )
 
@@ -88,19 +120,18 @@ def _path_faults(
     path: Sequence[Sequence[int]],
     start: Sequence[int],
     steps: int,
-    width: int,
-    height: int,
+    grid: Gridworld,
 ) -> Iterator[str]:
     """Faults of ``path`` as a walk of ``steps`` available moves from ``start``."""
     if len(path) != steps + 1:
         yield f"{name} has {len(path)} cells, expected {steps} steps + 1"
-    if path[0] != start:
-        yield f"{name} starts at {path[0]}, not at {start}"
+    if tuple(path[0]) != tuple(start):
+        yield f"{name} starts at {list(path[0])}, not at {list(start)}"
     for t, cell in enumerate(path):
-        if not inside(cell, width, height):
-            yield f"{name}[{t}] = {cell} is outside the {width}x{height} grid"
+        if not grid.contains(*cell):
+            yield f"{name}[{t}] = {list(cell)} is outside the {grid.width}x{grid.height} grid"
             return
     for t in range(1, len(path)):
         if action_between(path[t - 1], path[t]) is None:
-            yield f"{name} jumps from {path[t - 1]} to {path[t]} at step {t}"
+            yield f"{name} jumps from {list(path[t - 1])} to {list(path[t])} at step {t}"
             return

@@ -1,56 +1,65 @@
-"""Faults of a run as a whole (DESIGN.md section 5), across its log files.
+"""Faults of a run as a whole (docs/design.md §5), across its log files.
 
-* No trial id is logged in two files; all files share one ``run_id`` and one pipeline.
+* No trial id is logged twice; all files share one ``run_id`` and one pipeline.
 * A subject is one reward draw: all its records agree on ``num_features``, ``theta``, the
-  features, the grid and the start cell.
-* The ``main`` block is complete and within subjects: every subject in it has exactly one
-  ``expert`` and one ``best_response`` trial (trial ids counted once, duplicates being a fault
-  of their own).
+  features, the grid and the start cell (so a subject lies at one feature level).
+* The ``main`` block is non-empty, complete and within subjects: every subject in it has
+  exactly one trial of every policy the block plays.
 * Cross-validation draws are disjoint from the test draws: no ``eta_cv`` subject appears in
   another block.
+
+:func:`design_faults` is the one design check of the project: ``validate`` reports its faults
+and ``analyze`` refuses a run that has any.
 """
 
 from __future__ import annotations
 
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
 from pathlib import Path
-from typing import Any
 
 from cirl_study.logs.format import PIPELINE_NAME_KEY
+from cirl_study.record import ETA_CV, MAIN, TrialRecord
 
-POLICIES = ("expert", "best_response")
-#: Record fields on which all trials of one subject must agree.
 SUBJECT_FIELDS = ("num_features", "theta", "features", "grid", "start")
-#: How many examples a fault message names before it only counts.
+"""Record fields on which all trials of one subject must agree."""
+
 EXAMPLES = 3
+"""How many examples a fault message names before it only counts."""
 
 
 def run_faults(
-    files: Sequence[tuple[Path, list[dict[str, Any]], dict[str, str] | None]],
+    files: Sequence[tuple[Path, list[TrialRecord], dict[str, str] | None]],
 ) -> list[str]:
     """Run-level faults of ``files``: ``(path, trial records, provenance)`` per log file."""
     faults = _duplicate_faults(files)
     records = [record for _, file_records, _ in files for record in file_records]
-    run_ids = sorted({record["run_id"] for record in records})
+    run_ids = sorted({record.run_id for record in records})
     if len(run_ids) > 1:
         faults.append(f"records of {len(run_ids)} runs: {_examples(run_ids)}")
     pipelines = sorted({p.get(PIPELINE_NAME_KEY, "") for _, _, p in files if p is not None})
     if len(pipelines) > 1:
         faults.append(f"files of {len(pipelines)} pipelines: {_examples(pipelines)}")
-    faults.extend(_subject_faults(records))
-    faults.extend(_design_faults(records))
-    return faults
+    unique = list({record.trial_id: record for record in records}.values())
+    return faults + design_faults(unique)
+
+
+def design_faults(records: Sequence[TrialRecord]) -> list[str]:
+    """Faults of the study design held by ``records`` (see the module docstring)."""
+    counts = Counter(record.trial_id for record in records)
+    repeated = sorted(trial for trial, count in counts.items() if count > 1)
+    faults = [f"{len(repeated)} trial id(s) repeated: {_examples(repeated)}"] if repeated else []
+    return faults + _subject_faults(records) + _main_block_faults(records) + _shared_draws(records)
 
 
 def _duplicate_faults(
-    files: Sequence[tuple[Path, list[dict[str, Any]], dict[str, str] | None]],
+    files: Sequence[tuple[Path, list[TrialRecord], dict[str, str] | None]],
 ) -> list[str]:
     first_file: dict[str, Path] = {}
     duplicates = []
     for path, records, _ in files:
         for record in records:
-            trial_id = record["trial_id"]
+            trial_id = record.trial_id
             if trial_id in first_file and first_file[trial_id] != path:
                 duplicates.append(f"{trial_id} in {first_file[trial_id].name} and {path.name}")
             first_file.setdefault(trial_id, path)
@@ -59,16 +68,16 @@ def _duplicate_faults(
     return [f"{len(duplicates)} trial id(s) logged in two files: {_examples(duplicates)}"]
 
 
-def _subject_faults(records: Iterable[dict[str, Any]]) -> list[str]:
-    first: dict[str, dict[str, Any]] = {}
+def _subject_faults(records: Iterable[TrialRecord]) -> list[str]:
+    first: dict[str, TrialRecord] = {}
     disagreeing: list[str] = []
     for record in records:
-        reference = first.setdefault(record["subject"], record)
-        fields = [f for f in SUBJECT_FIELDS if record[f] != reference[f]]
+        reference = first.setdefault(record.subject, record)
+        fields = [f for f in SUBJECT_FIELDS if getattr(record, f) != getattr(reference, f)]
         if fields:
             disagreeing.append(
-                f"{record['subject']} ({', '.join(fields)} of {record['trial_id']} "
-                f"differ from {reference['trial_id']})"
+                f"{record.subject} ({', '.join(fields)} of {record.trial_id} "
+                f"differ from {reference.trial_id})"
             )
     if not disagreeing:
         return []
@@ -77,34 +86,35 @@ def _subject_faults(records: Iterable[dict[str, Any]]) -> list[str]:
     ]
 
 
-def _design_faults(records: Sequence[dict[str, Any]]) -> list[str]:
-    faults = []
-    trials: dict[str, dict[str, set[str]]] = defaultdict(lambda: defaultdict(set))
+def _main_block_faults(records: Sequence[TrialRecord]) -> list[str]:
+    main = [record for record in records if record.block == MAIN]
+    if not main:
+        return ["no trials in the main block: the policy x num_features study is missing"]
+    policies = sorted({record.policy for record in main})
+    trials: dict[str, Counter[str]] = defaultdict(Counter)
+    for record in main:
+        trials[record.subject][record.policy] += 1
+    incomplete = [
+        f"{subject} has {dict(sorted(count.items()))}"
+        for subject, count in sorted(trials.items())
+        if [count[policy] for policy in policies] != [1] * len(policies)
+    ]
+    if not incomplete:
+        return []
+    return [
+        f"main block incomplete: {len(incomplete)} subject(s) without exactly one trial of "
+        f"each policy ({', '.join(policies)}): {_examples(incomplete)}"
+    ]
+
+
+def _shared_draws(records: Iterable[TrialRecord]) -> list[str]:
     blocks: dict[str, set[str]] = defaultdict(set)
     for record in records:
-        blocks[record["subject"]].add(record["block"])
-        if record["block"] == "main":
-            trials[record["subject"]][record["policy"]].add(record["trial_id"])
-    counts = {
-        subject: {policy: len(ids) for policy, ids in sorted(by_policy.items())}
-        for subject, by_policy in sorted(trials.items())
-    }
-    incomplete = [
-        f"{subject} has {count}"
-        for subject, count in counts.items()
-        if count != dict.fromkeys(sorted(POLICIES), 1)
-    ]
-    if incomplete:
-        faults.append(
-            f"main block incomplete: {len(incomplete)} subject(s) without exactly one trial "
-            f"per policy: {_examples(incomplete)}"
-        )
-    shared = sorted(s for s, b in blocks.items() if "eta_cv" in b and len(b) > 1)
-    if shared:
-        faults.append(
-            f"{len(shared)} eta_cv subject(s) also used in the test blocks: {_examples(shared)}"
-        )
-    return faults
+        blocks[record.subject].add(record.block)
+    shared = sorted(s for s, b in blocks.items() if ETA_CV in b and len(b) > 1)
+    if not shared:
+        return []
+    return [f"{len(shared)} eta_cv subject(s) also used in the test blocks: {_examples(shared)}"]
 
 
 def _examples(items: Sequence[str]) -> str:

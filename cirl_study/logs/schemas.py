@@ -1,181 +1,56 @@
-"""JSON schemas of the log topics (schema encoding ``jsonschema``).
+"""The message types of the log topics and their JSON schemas (schema encoding ``jsonschema``).
 
-:data:`TRIAL_SCHEMA` is the trial record of DESIGN.md section 7: every field listed there is
-required; more fields (``irl``, ``deployment``) are allowed. :data:`GRID_SCHEMA` is Foxglove's
+The trial record's schema is generated from :class:`cirl_study.record.TrialRecord`, and the
+replay steps' from :class:`DemonstrationStep` and :class:`DeploymentStep`, so a schema can never
+disagree with the messages written under it. :data:`GRID_SCHEMA` is Foxglove's
 ``foxglove.Grid`` message in its JSON form, so Foxglove draws the reward maps in its 3D panel.
+:data:`CHANNELS` lists every channel a log file registers.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from cirl_study.gridworld import ACTIONS
+import msgspec
 
-_DRAFT = "https://json-schema.org/draft/2020-12/schema"
+from cirl_study.logs.format import (
+    DEMONSTRATION_SCHEMA_NAME,
+    DEMONSTRATION_TOPIC,
+    DEPLOYMENT_SCHEMA_NAME,
+    DEPLOYMENT_TOPIC,
+    GRID_SCHEMA_NAME,
+    MAP_REWARD_TOPIC,
+    TRIAL_SCHEMA_NAME,
+    TRIAL_TOPIC,
+    TRUE_REWARD_TOPIC,
+)
+from cirl_study.record import TRIAL_SCHEMA, Action, Cell
 
-CELL: dict[str, Any] = {
-    "description": "a grid cell [x, y], 0 <= x < width, 0 <= y < height",
-    "type": "array",
-    "items": {"type": "integer", "minimum": 0},
-    "minItems": 2,
-    "maxItems": 2,
-}
 
-_POINT: dict[str, Any] = {
-    "type": "array",
-    "items": {"type": "number"},
-    "minItems": 2,
-    "maxItems": 2,
-}
+class DemonstrationStep(msgspec.Struct, frozen=True, kw_only=True):
+    """The human's cell at step ``t`` of the learning phase (0 = the start cell), and the move
+    into it (``None`` at ``t = 0``)."""
 
-_WEIGHTS: dict[str, Any] = {
-    "type": "array",
-    "items": {"type": "number", "minimum": -1, "maximum": 1},
-    "minItems": 1,
-}
+    trial_id: str
+    policy: str
+    step: int
+    cell: Cell
+    action: Action | None
 
-_PATH: dict[str, Any] = {"type": "array", "items": CELL, "minItems": 1}
 
-TRIAL_SCHEMA: dict[str, Any] = {
-    "$schema": _DRAFT,
-    "title": "cirl_study.Trial",
-    "description": "One trial (episode) of the CIRL gridworld study (DESIGN.md section 7).",
-    "type": "object",
-    "required": [
-        "trial_id",
-        "run_id",
-        "block",
-        "subject",
-        "policy",
-        "num_features",
-        "rationality",
-        "eta",
-        "seed",
-        "grid",
-        "start",
-        "learning_steps",
-        "deployment_steps",
-        "features",
-        "theta",
-        "theta_hat",
-        "demonstration",
-        "measures",
-    ],
-    "properties": {
-        "trial_id": {"description": "stable id of the trial", "type": "string", "minLength": 1},
-        "run_id": {"description": "id of the run", "type": "string", "minLength": 1},
-        "block": {"type": "string", "enum": ["main", "eta_cv", "lambda_sweep"]},
-        "subject": {
-            "description": "reward-draw id, unique across feature levels",
-            "type": "string",
-            "minLength": 1,
-        },
-        "policy": {"type": "string", "enum": ["expert", "best_response"]},
-        "num_features": {"description": "K", "type": "integer", "minimum": 1},
-        "rationality": {"description": "lambda", "type": "number", "exclusiveMinimum": 0},
-        "eta": {
-            "description": "best-response weight eta; null for the expert",
-            "type": ["number", "null"],
-            "exclusiveMinimum": 0,
-        },
-        "seed": {"description": "seed of the trial's generator", "type": "integer", "minimum": 0},
-        "grid": {
-            "type": "object",
-            "required": ["width", "height"],
-            "properties": {
-                "width": {"type": "integer", "minimum": 1},
-                "height": {"type": "integer", "minimum": 1},
-            },
-        },
-        "start": CELL,
-        "learning_steps": {"description": "T_learn", "type": "integer", "minimum": 1},
-        "deployment_steps": {"description": "T_deploy", "type": "integer", "minimum": 1},
-        "features": {
-            "type": "object",
-            "required": ["kind", "centers", "sigma"],
-            "properties": {
-                "kind": {"type": "string", "enum": ["rbf"]},
-                "centers": {"type": "array", "items": _POINT, "minItems": 1},
-                "sigma": {"type": "number", "exclusiveMinimum": 0},
-            },
-        },
-        "theta": _WEIGHTS,
-        "theta_hat": _WEIGHTS,
-        "demonstration": {
-            "type": "object",
-            "required": ["states", "actions"],
-            "properties": {
-                "states": _PATH,
-                "actions": {"type": "array", "items": {"type": "string", "enum": list(ACTIONS)}},
-            },
-        },
-        "measures": {
-            "type": "object",
-            "required": ["regret", "kl", "reward_l2"],
-            "properties": {
-                "regret": {"type": "number"},
-                "kl": {"type": "number"},
-                "reward_l2": {"type": "number", "minimum": 0},
-            },
-        },
-        "irl": {
-            "type": "object",
-            "properties": {
-                "log_likelihood": {"type": "number"},
-                "iterations": {"type": "integer", "minimum": 0},
-                "converged": {"type": "boolean"},
-            },
-        },
-        "deployment": {
-            "description": "robot rollouts under the MAP reward from a few start cells",
-            "type": "object",
-            "required": ["starts", "paths"],
-            "properties": {
-                "starts": {"type": "array", "items": CELL},
-                "paths": {"type": "array", "items": _PATH},
-            },
-        },
-    },
-}
+class DeploymentStep(msgspec.Struct, frozen=True, kw_only=True):
+    """The robot's cell at step ``t`` of each deployment rollout (``record.deployment``), and the
+    moves into them (all ``None`` at ``t = 0``)."""
 
-_ACTION_OR_NULL: dict[str, Any] = {"type": ["string", "null"], "enum": [*ACTIONS, None]}
+    trial_id: str
+    policy: str
+    step: int
+    cells: tuple[Cell, ...]
+    actions: tuple[Action | None, ...]
 
-DEMONSTRATION_SCHEMA: dict[str, Any] = {
-    "$schema": _DRAFT,
-    "title": "cirl_study.DemonstrationStep",
-    "description": "The human's cell at step t of the learning phase.",
-    "type": "object",
-    "required": ["trial_id", "policy", "step", "cell", "action"],
-    "properties": {
-        "trial_id": {"type": "string"},
-        "policy": {"type": "string"},
-        "step": {"description": "t, 0 = start cell", "type": "integer", "minimum": 0},
-        "cell": CELL,
-        "action": {**_ACTION_OR_NULL, "description": "the move into this cell; null at t = 0"},
-    },
-}
 
-DEPLOYMENT_SCHEMA: dict[str, Any] = {
-    "$schema": _DRAFT,
-    "title": "cirl_study.DeploymentStep",
-    "description": "The robot's cell at step t of each deployment rollout (record.deployment).",
-    "type": "object",
-    "required": ["trial_id", "policy", "step", "cells", "actions"],
-    "properties": {
-        "trial_id": {"type": "string"},
-        "policy": {"type": "string"},
-        "step": {"description": "t, 0 = start cells", "type": "integer", "minimum": 0},
-        "cells": {"description": "cell of rollout i at step t", "type": "array", "items": CELL},
-        "actions": {
-            "description": "move of rollout i into its cell; all null at t = 0",
-            "type": "array",
-            "items": _ACTION_OR_NULL,
-        },
-    },
-}
-
-#: Foxglove's ``NumericType`` value for a little-endian 32-bit float.
 FLOAT32 = 7
+"""Foxglove's ``NumericType`` value for a little-endian 32-bit float."""
 
 _XYZ = {axis: {"type": "number"} for axis in ("x", "y", "z")}
 
@@ -234,3 +109,13 @@ GRID_SCHEMA: dict[str, Any] = {
         "data": {"type": "string", "contentEncoding": "base64"},
     },
 }
+
+
+CHANNELS: tuple[tuple[str, str, dict[str, Any]], ...] = (
+    (TRIAL_TOPIC, TRIAL_SCHEMA_NAME, TRIAL_SCHEMA),
+    (TRUE_REWARD_TOPIC, GRID_SCHEMA_NAME, GRID_SCHEMA),
+    (MAP_REWARD_TOPIC, GRID_SCHEMA_NAME, GRID_SCHEMA),
+    (DEMONSTRATION_TOPIC, DEMONSTRATION_SCHEMA_NAME, msgspec.json.schema(DemonstrationStep)),
+    (DEPLOYMENT_TOPIC, DEPLOYMENT_SCHEMA_NAME, msgspec.json.schema(DeploymentStep)),
+)
+"""(topic, schema name, JSON schema) of every channel, in the order they are registered."""

@@ -83,9 +83,7 @@ def validate_run(run_dir: str | Path) -> RunVerdict:
         contents = read_file_contents(path)
         verdicts.append(FileVerdict(path, len(contents.records), tuple(contents.faults)))
         files.append((path, contents.records, contents.provenance))
-    faults = run_faults(files)
-    if not verdicts:
-        faults.insert(0, "no complete log files (*.mcap)")
+    faults = run_faults(files) if verdicts else ["no complete log files (*.mcap)"]
     unfinished = temp_files(run_dir)
     if unfinished:
         faults.append(

@@ -12,7 +12,7 @@ import os
 from collections.abc import Mapping
 from pathlib import Path
 from types import TracebackType
-from typing import IO, Any, Self
+from typing import IO, Self
 
 import mcap
 from mcap.writer import CompressionType, Writer
@@ -20,38 +20,15 @@ from mcap.writer import CompressionType, Writer
 from cirl_study import __version__
 from cirl_study.logs.episode import episode_messages
 from cirl_study.logs.format import (
-    DEMONSTRATION_SCHEMA_NAME,
-    DEMONSTRATION_TOPIC,
-    DEPLOYMENT_SCHEMA_NAME,
-    DEPLOYMENT_TOPIC,
-    GRID_SCHEMA_NAME,
-    MAP_REWARD_TOPIC,
     MESSAGE_ENCODING,
     PIPELINE_NAME_KEY,
     PROVENANCE_METADATA_NAME,
     SCHEMA_ENCODING,
-    TRIAL_SCHEMA_NAME,
-    TRIAL_TOPIC,
-    TRUE_REWARD_TOPIC,
-    canonical_json,
     temp_path,
     trial_duration_ns,
 )
-from cirl_study.logs.schemas import (
-    DEMONSTRATION_SCHEMA,
-    DEPLOYMENT_SCHEMA,
-    GRID_SCHEMA,
-    TRIAL_SCHEMA,
-)
-
-#: (topic, schema name, JSON schema) of every channel, in the order they are registered.
-CHANNELS: tuple[tuple[str, str, dict[str, Any]], ...] = (
-    (TRIAL_TOPIC, TRIAL_SCHEMA_NAME, TRIAL_SCHEMA),
-    (TRUE_REWARD_TOPIC, GRID_SCHEMA_NAME, GRID_SCHEMA),
-    (MAP_REWARD_TOPIC, GRID_SCHEMA_NAME, GRID_SCHEMA),
-    (DEMONSTRATION_TOPIC, DEMONSTRATION_SCHEMA_NAME, DEMONSTRATION_SCHEMA),
-    (DEPLOYMENT_TOPIC, DEPLOYMENT_SCHEMA_NAME, DEPLOYMENT_SCHEMA),
-)
+from cirl_study.logs.schemas import CHANNELS
+from cirl_study.record import DecodeError, TrialRecord, decode, encode
 
 #: Chunks are closed once they hold this many uncompressed bytes; a truncated file loses at
 #: most the chunk being written.
@@ -64,8 +41,8 @@ class TrialLogWriter:
     """One MCAP log file of a run: ``with TrialLogWriter(path, provenance) as log: log.write(r)``.
 
     ``provenance`` (string to string, with a ``pipeline_name`` key) becomes the file's
-    ``provenance`` metadata record. Each :meth:`write` logs one trial record (DESIGN.md
-    section 7) with its reward maps and its step-by-step replay; log times follow the layout of
+    ``provenance`` metadata record. Each :meth:`write` logs one trial record (docs/design.md
+    §7) with its reward maps and its step-by-step replay; log times follow the layout of
     :mod:`cirl_study.logs.format`. Chunks are zstd-compressed; chunk, data-section and summary
     CRCs are all written.
     """
@@ -104,7 +81,7 @@ class TrialLogWriter:
         for topic, name, schema in CHANNELS:
             if name not in schema_ids:
                 schema_ids[name] = self._writer.register_schema(
-                    name=name, encoding=SCHEMA_ENCODING, data=canonical_json(schema)
+                    name=name, encoding=SCHEMA_ENCODING, data=encode(schema)
                 )
             self._channel_ids[topic] = self._writer.register_channel(
                 topic=topic, message_encoding=MESSAGE_ENCODING, schema_id=schema_ids[name]
@@ -112,20 +89,33 @@ class TrialLogWriter:
             self._sequences[topic] = 0
         return self
 
-    def write(self, record: Mapping[str, Any]) -> None:
-        """Log one trial record (and its replay topics) as the next trial of the file."""
+    def write(self, record: TrialRecord) -> None:
+        """Log one trial record (and its replay topics) as the next trial of the file.
+
+        Raises:
+            ValueError: the record would not decode again (e.g. a NaN, which JSON cannot
+                hold): nothing of it is written.
+        """
         if self._writer is None:
             raise RuntimeError("TrialLogWriter.write called outside its `with` block")
-        for message in episode_messages(record, self._clock_ns):
+        payloads = [
+            (message, encode(message.payload))
+            for message in episode_messages(record, self._clock_ns)
+        ]
+        try:
+            decode(payloads[0][1])
+        except DecodeError as error:
+            raise ValueError(f"trial {record.trial_id} cannot be logged: {error}") from None
+        for message, data in payloads:
             self._writer.add_message(
                 channel_id=self._channel_ids[message.topic],
                 log_time=message.log_time,
                 publish_time=message.log_time,
-                data=canonical_json(message.payload),
+                data=data,
                 sequence=self._sequences[message.topic],
             )
             self._sequences[message.topic] += 1
-        self._clock_ns += trial_duration_ns(record["learning_steps"], record["deployment_steps"])
+        self._clock_ns += trial_duration_ns(record.learning_steps, record.deployment_steps)
         self.trial_count += 1
 
     def __exit__(

@@ -1,0 +1,45 @@
+"""``cirl-study compare EXPECTED GOT``: are two reports the same, number by number?"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from cirl_study.analysis.compare import ABSOLUTE_TOLERANCE, RELATIVE_TOLERANCE, Tolerance
+
+app = typer.Typer()
+"""The ``compare`` command, merged into :data:`cirl_study.cli.app`."""
+
+SHOWN = 20
+"""Differences printed before the rest are only counted."""
+
+
+@app.command()
+def compare(
+    expected: Annotated[
+        Path, typer.Argument(help="Report directory to compare against (e.g. the committed one).")
+    ],
+    got: Annotated[Path, typer.Argument(help="Report directory to check.")],
+    rtol: Annotated[
+        float, typer.Option(help="Relative tolerance: |a - b| <= atol + rtol |a|.", min=0.0)
+    ] = RELATIVE_TOLERANCE,
+    atol: Annotated[float, typer.Option(help="Absolute tolerance.", min=0.0)] = ABSOLUTE_TOLERANCE,
+) -> None:
+    """Compare two report directories number by number (results.json and trials.csv).
+
+    Exit code 0 when every number agrees within the tolerance and everything else is equal,
+    1 otherwise (the differences are listed), 2 when a report cannot be read.
+    """
+    from cirl_study.analysis.compare import compare_reports
+
+    differences = compare_reports(expected, got, Tolerance(rtol=rtol, atol=atol))
+    for line in differences[:SHOWN]:
+        typer.echo(line)
+    if len(differences) > SHOWN:
+        typer.echo(f"... and {len(differences) - SHOWN} more")
+    verdict = "the same" if not differences else f"different ({len(differences)} differences)"
+    typer.echo(f"{got} vs {expected}: {verdict} at rtol={rtol:g}, atol={atol:g}")
+    if differences:
+        raise typer.Exit(code=1)

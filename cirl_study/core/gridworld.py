@@ -1,0 +1,148 @@
+"""The gridworld of the paper's navigation experiment (section 4.1).
+
+A cell is ``[x, y]`` with ``0 <= x < width`` and ``0 <= y < height``; its flat
+index is ``y * width + x``. The actions are ``stay``, ``N`` (y+1), ``S`` (y-1),
+``E`` (x+1) and ``W`` (x-1), in that fixed order. A move that would leave the
+grid is *unavailable* in that cell (it is not turned into ``stay``), so an
+action sequence and a state path determine each other.
+
+Rewards are linear in radial-basis features whose centres ``c_k`` and width
+``sigma`` are common knowledge:
+
+.. math::
+
+    \\phi_k(s) = \\exp\\left(-\\frac{\\lVert s - c_k \\rVert^2}{2\\sigma^2}\\right),
+    \\qquad r_\\theta(s) = \\theta^\\top \\phi(s).
+
+The feature counts of a path :math:`\\tau = (s_0, \\dots, s_T)` are
+:math:`\\phi(\\tau) = \\sum_{t=1}^{T} \\phi(s_t)` (the start cell is not counted).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from cirl_study.record import TrialSpec
+
+ACTIONS: tuple[str, ...] = ("stay", "N", "S", "E", "W")
+"""Action names, in the order used by every array indexed by action."""
+
+ACTION_STEPS: tuple[tuple[int, int], ...] = ((0, 0), (0, 1), (0, -1), (1, 0), (-1, 0))
+"""The ``(dx, dy)`` displacement of each action in :data:`ACTIONS`."""
+
+UNAVAILABLE = -1
+"""Successor index marking a move that would leave the grid."""
+
+_ACTION_OF_STEP: dict[tuple[int, int], str] = dict(zip(ACTION_STEPS, ACTIONS, strict=True))
+
+
+def action_between(cell: Sequence[int], next_cell: Sequence[int]) -> str | None:
+    """The action that moves ``cell = [x, y]`` to ``next_cell``, ``None`` if no single one does."""
+    return _ACTION_OF_STEP.get((next_cell[0] - cell[0], next_cell[1] - cell[1]))
+
+
+@dataclass(frozen=True)
+class Gridworld:
+    """A ``width x height`` grid with deterministic moves."""
+
+    width: int
+    height: int
+
+    def __post_init__(self) -> None:
+        if self.width < 1 or self.height < 1:
+            raise ValueError(f"grid must be at least 1x1, got {self.width}x{self.height}")
+
+    @property
+    def num_cells(self) -> int:
+        """Number of cells ``S = width * height``."""
+        return self.width * self.height
+
+    def contains(self, x: int, y: int) -> bool:
+        """Whether cell ``[x, y]`` lies on the grid."""
+        return 0 <= x < self.width and 0 <= y < self.height
+
+    def index(self, x: int, y: int) -> int:
+        """Flat index ``y * width + x`` of cell ``[x, y]``."""
+        if not self.contains(x, y):
+            raise ValueError(f"cell [{x}, {y}] is outside the {self.width}x{self.height} grid")
+        return y * self.width + x
+
+    def coords(self, index: int) -> tuple[int, int]:
+        """Cell ``[x, y]`` of a flat index."""
+        return int(index) % self.width, int(index) // self.width
+
+    def cell_coordinates(self) -> NDArray[np.float64]:
+        """``(S, 2)`` array of every cell's ``[x, y]``, in flat-index order."""
+        ys, xs = np.divmod(np.arange(self.num_cells), self.width)
+        return np.stack([xs, ys], axis=1).astype(np.float64)
+
+    @cached_property
+    def successors(self) -> NDArray[np.int64]:
+        """``(S, 5)`` next-cell index of each action, :data:`UNAVAILABLE` off the grid."""
+        coords = self.cell_coordinates().astype(np.int64)
+        steps = np.asarray(ACTION_STEPS, dtype=np.int64)
+        target = coords[:, None, :] + steps[None, :, :]
+        inside = (
+            (target[..., 0] >= 0)
+            & (target[..., 0] < self.width)
+            & (target[..., 1] >= 0)
+            & (target[..., 1] < self.height)
+        )
+        flat = target[..., 1] * self.width + target[..., 0]
+        return np.where(inside, flat, UNAVAILABLE)
+
+
+def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[np.float64]:
+    """Radial-basis features of every cell.
+
+    Args:
+        grid: the gridworld.
+        centers: ``(K, 2)`` centres, or ``(B, K, 2)`` for a batch of feature sets.
+        sigma: the common width ``sigma > 0``.
+
+    Returns:
+        ``(S, K)`` (or ``(B, S, K)``) array with ``phi_k(s)``.
+    """
+    if sigma <= 0:
+        raise ValueError(f"sigma must be positive, got {sigma}")
+    centers = np.asarray(centers, dtype=np.float64)
+    cells = grid.cell_coordinates()
+    squared = ((cells[..., :, None, :] - centers[..., None, :, :]) ** 2).sum(axis=-1)
+    return np.exp(-squared / (2.0 * sigma**2))
+
+
+def gridworld(spec: TrialSpec) -> Gridworld:
+    """The gridworld of a trial."""
+    return Gridworld(spec.grid.width, spec.grid.height)
+
+
+def feature_matrix(spec: TrialSpec) -> NDArray[np.float64]:
+    """``Phi``, the ``(width * height, K)`` RBF features of every cell of a trial, by flat index."""
+    return rbf_features(gridworld(spec), spec.features.centers, spec.features.sigma)
+
+
+def path_states(grid: Gridworld, start: int, actions: Sequence[str]) -> list[int]:
+    """Cell indices ``(s_0, ..., s_T)`` visited by ``actions`` from ``start``."""
+    states = [int(start)]
+    for name in actions:
+        following = int(grid.successors[states[-1], ACTIONS.index(name)])
+        if following == UNAVAILABLE:
+            raise ValueError(f"action {name} leaves the grid at {list(grid.coords(states[-1]))}")
+        states.append(following)
+    return states
+
+
+def path_actions(grid: Gridworld, states: Sequence[int]) -> list[str]:
+    """The unique action sequence that moves along ``states``."""
+    actions = []
+    for here, there in zip(states[:-1], states[1:], strict=True):
+        matches = np.flatnonzero(grid.successors[here] == there)
+        if matches.size == 0:
+            raise ValueError(f"cells {here} and {there} are not one move apart")
+        actions.append(ACTIONS[int(matches[0])])
+    return actions

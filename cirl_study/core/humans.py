@@ -1,0 +1,106 @@
+"""The human's demonstration policies (paper sections 3.3-3.4; docs/design.md §3).
+
+* **Demonstration by expert** (:math:`\\pi^E`): the human greedily maximises her own
+  reward, ignoring what the robot will learn:
+  :math:`\\tau^E = \\arg\\max_\\tau \\theta^\\top \\phi(\\tau)`, by exact dynamic programming.
+* **Instructive best response** (:math:`\\mathbf{br}`, the paper's equation in
+  section 3.4): the human trades reward against matching the feature counts the
+  robot expects under the true :math:`\\theta`,
+
+  .. math::
+
+      \\tau^H = \\arg\\max_\\tau\\; \\phi(\\tau)^\\top\\theta
+      - \\eta \\lVert \\phi_\\theta - \\phi(\\tau) \\rVert^2,
+      \\qquad \\phi_\\theta = E[\\phi(\\tau) \\mid \\theta, \\lambda].
+
+  Completing the square, the objective equals
+  :math:`-\\eta \\lVert \\phi(\\tau) - (\\phi_\\theta + \\theta / (2\\eta)) \\rVert^2`
+  plus a constant, so :math:`\\tau^H` is the path whose counts are nearest to
+  :math:`\\phi_\\theta + \\theta/(2\\eta)`, found exactly by
+  :func:`cirl_study.core.path_search.nearest_paths`.
+
+A human policy is a :class:`Human`: a function of the robot's MaxEnt model of the learning
+phase (:class:`cirl_study.core.maxent.MaxEnt`, which carries the dynamics, the features and
+the robot's :math:`\\lambda`), the true :math:`\\theta` and, for a policy with a trade-off, its
+:math:`\\eta`. Paths are returned as ``(B, T + 1)`` arrays of flat cell indices, starting at
+:math:`s_0`. Policies are looked up by name in :data:`HUMANS`; adding one is one function and
+one :func:`register_human` line.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from cirl_study.core.maxent import MaxEnt
+from cirl_study.core.path_search import nearest_paths
+from cirl_study.core.planning import FloatArray, IntArray, follow_policy, optimal_plan, rollout
+from cirl_study.record import BEST_RESPONSE, EXPERT
+
+
+def expert_paths(model: MaxEnt, theta: FloatArray) -> IntArray:
+    """Expert demonstration: the path from :math:`s_0` maximising :math:`\\theta^\\top\\phi(\\tau)`.
+
+    Ties go to the lowest action index at each step (see
+    :func:`cirl_study.core.planning.optimal_plan`). The robot's :math:`\\lambda` plays no part.
+    """
+    phase = model.phase
+    plan = optimal_plan(model.cell_rewards(theta), phase.successors, phase.horizon)
+    return follow_policy(phase.successors, np.full(len(theta), phase.start_cell), plan.actions)
+
+
+def best_response_target(model: MaxEnt, theta: FloatArray, eta: FloatArray) -> FloatArray:
+    """The counts the best response aims at, :math:`\\phi_\\theta + \\theta / (2\\eta)` ``(B, K)``.
+
+    :math:`\\phi_\\theta` is the robot's expected demonstration counts under the true
+    :math:`\\theta` (:meth:`cirl_study.core.maxent.MaxEnt.moments`).
+    """
+    expected = model.moments(theta).mean
+    return expected + theta / (2.0 * np.asarray(eta, dtype=np.float64)[:, None])
+
+
+def best_response_paths(model: MaxEnt, theta: FloatArray, eta: FloatArray) -> IntArray:
+    """Instructive best response: the exact maximiser of the paper's section 3.4 rule.
+
+    Args:
+        model: the robot's model of the learning phase; its :math:`\\lambda` defines
+            :math:`\\phi_\\theta`.
+        theta: ``(B, K)`` true reward weights.
+        eta: ``(B,)`` trade-off :math:`\\eta > 0` between reward and feature matching.
+    """
+    phase = model.phase
+    target = best_response_target(model, theta, eta)
+    found = nearest_paths(model.features, target, phase, direction=theta)
+    return rollout(phase.successors, phase.start_cell, found.actions)
+
+
+@dataclass(frozen=True)
+class Human:
+    """A human policy: how she demonstrates, and whether she trades reward against teaching.
+
+    Attributes:
+        demonstrate: ``demonstrate(model, theta, eta)`` returns the ``(B, T + 1)`` paths;
+            ``eta`` is ``(B,)`` when :attr:`takes_eta`, else ``None``.
+        takes_eta: whether the policy has the trade-off :math:`\\eta`, chosen by
+            cross-validation before the test trials (docs/design.md §3).
+    """
+
+    demonstrate: Callable[[MaxEnt, FloatArray, FloatArray | None], IntArray]
+    takes_eta: bool
+
+
+HUMANS: dict[str, Human] = {}
+"""Every human policy, by the name a pipeline and a trial record use (``policy``)."""
+
+
+def register_human(name: str, human: Human) -> None:
+    """Make ``human`` playable as the policy ``name``."""
+    if name in HUMANS:
+        raise ValueError(f"a human policy named {name!r} is already registered")
+    HUMANS[name] = human
+
+
+register_human(EXPERT, Human(lambda model, theta, _: expert_paths(model, theta), takes_eta=False))
+register_human(BEST_RESPONSE, Human(best_response_paths, takes_eta=True))

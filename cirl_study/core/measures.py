@@ -1,0 +1,72 @@
+"""The study's dependent measures (paper section 4.2; docs/design.md §4), exact and batched.
+
+All three compare the true reward weights :math:`\\theta` with the robot's estimate
+:math:`\\hat\\theta` on the deployment phase: ``T`` steps from a start cell drawn
+uniformly from all cells. Expectations over the start are taken exactly, by
+averaging over every cell. Each takes the MaxEnt model of the deployment phase
+(:class:`cirl_study.core.maxent.MaxEnt`: its dynamics, the trials' features and
+:math:`\\lambda`); the start cell of its phase plays no part.
+
+* ``regret``: :math:`\\frac{1}{|S|}\\sum_s V^*_\\theta(s) - V^{\\pi_{\\hat\\theta}}_\\theta(s)`,
+  where :math:`\\pi_{\\hat\\theta}` is the optimal (hard-max) ``T``-step policy for
+  :math:`r_{\\hat\\theta}` and values sum :math:`r_\\theta(s_t)` for ``t = 1..T``.
+* ``kl``: :math:`\\frac{1}{|S|}\\sum_s KL(P(\\cdot \\mid s, \\theta, \\lambda) \\,\\|\\,
+  P(\\cdot \\mid s, \\hat\\theta, \\lambda))` between the MaxEnt trajectory distributions,
+  by the chain rule as the occupancy-weighted sum of per-step policy KLs,
+  :math:`\\sum_t \\sum_s d_t(s)\\, KL(\\pi_t(\\cdot \\mid s) \\| \\hat\\pi_t(\\cdot \\mid s))`,
+  computed backwards for every start at once:
+  :math:`D_T = 0`, :math:`D_t(s) = \\sum_a \\pi_t(a \\mid s)[\\log \\pi_t(a \\mid s)
+  - \\log \\hat\\pi_t(a \\mid s) + D_{t+1}(s')]`.
+* ``reward_l2``: :math:`\\lVert \\Phi\\theta - \\Phi\\hat\\theta \\rVert_2` over all cells.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from cirl_study.core.maxent import MaxEnt
+from cirl_study.core.planning import (
+    FloatArray,
+    evaluate_policy,
+    optimal_plan,
+    soft_value_iteration,
+    successor_gather,
+)
+
+
+def regret(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
+    """Mean over start cells of :math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta`, ``(B,)``."""
+    successors, horizon = deployment.phase.successors, deployment.phase.horizon
+    true_rewards = deployment.cell_rewards(theta)
+    best = optimal_plan(true_rewards, successors, horizon).values[0]
+    robot = optimal_plan(deployment.cell_rewards(theta_hat), successors, horizon).actions
+    achieved = evaluate_policy(true_rewards, successors, robot)[0]
+    return (best - achieved).mean(axis=1)
+
+
+def trajectory_kl(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
+    """Mean over start cells of the KL between MaxEnt trajectory distributions, ``(B,)``."""
+    successors, horizon = deployment.phase.successors, deployment.phase.horizon
+    rationality = deployment.rationality
+    true = soft_value_iteration(deployment.cell_rewards(theta), successors, horizon, rationality)
+    estimate = soft_value_iteration(
+        deployment.cell_rewards(theta_hat), successors, horizon, rationality
+    )
+    gather, available = successor_gather(successors)
+    log_ratio = np.zeros_like(true.log_policy)  # unavailable moves (log 0 - log 0) add nothing
+    np.subtract(true.log_policy, estimate.log_policy, out=log_ratio, where=available)
+    batch, cells = theta.shape[0], successors.shape[0]
+    divergence = np.zeros((batch, cells))
+    for t in range(horizon - 1, -1, -1):
+        # Each per-step KL is >= 0; clipping removes only rounding below zero.
+        step = np.maximum((true.policy[t] * log_ratio[t]).sum(axis=-1), 0.0)
+        divergence = step + (true.policy[t] * divergence[:, gather]).sum(axis=-1)
+    return divergence.mean(axis=1)
+
+
+def reward_l2(features: FloatArray, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
+    """:math:`\\lVert \\Phi(\\theta - \\hat\\theta) \\rVert_2` over all cells, ``(B,)``.
+
+    ``features`` is ``(B, S, K)``: each trial's :math:`\\Phi`.
+    """
+    return np.linalg.norm(np.einsum("bsk,bk->bs", features, theta - theta_hat), axis=1)

@@ -1,0 +1,342 @@
+"""Finite-horizon planning on the gridworld, batched over reward vectors.
+
+Every function works on a batch of ``B`` problems at once: rewards are ``(B, S)``
+arrays (one reward per cell), and the grid's moves are the ``(S, A)`` successor
+table of :class:`cirl_study.core.gridworld.Gridworld` (``-1`` where a move is
+unavailable). Entering cell ``s'`` earns ``r(s')``, so a path
+:math:`\\tau = (s_0, \\dots, s_T)` earns :math:`\\sum_{t=1}^T r(s_t)`.
+
+Maximum-entropy (soft) planning with rationality :math:`\\lambda` (docs/design.md §2):
+
+.. math::
+
+    V_T = 0, \\quad Q_t(s, a) = \\lambda r(s') + V_{t+1}(s'), \\quad
+    V_t(s) = \\log \\sum_a e^{Q_t(s, a)}, \\quad \\pi_t(a \\mid s) = e^{Q_t(s, a) - V_t(s)},
+
+so that :math:`P(\\tau \\mid s_0) = \\exp(\\lambda\\, r(\\tau) - V_0(s_0))` over all available
+paths: :math:`V_0(s_0)` is the log-partition function :math:`\\log Z`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+FloatArray = NDArray[np.float64]
+IntArray = NDArray[np.int64]
+
+
+@dataclass(frozen=True)
+class SoftPlan:
+    """Result of :func:`soft_value_iteration`.
+
+    Attributes:
+        log_policy: ``(T, B, S, A)`` :math:`\\log \\pi_t(a \\mid s)`, ``-inf`` where unavailable.
+        policy: ``(T, B, S, A)`` action probabilities :math:`\\pi_t(a \\mid s)`.
+        values: ``(T + 1, B, S)`` soft values :math:`V_t(s)`; ``values[0]`` is :math:`\\log Z`.
+    """
+
+    log_policy: FloatArray
+    policy: FloatArray
+    values: FloatArray
+
+
+@dataclass(frozen=True)
+class HardPlan:
+    """Result of :func:`optimal_plan`.
+
+    Attributes:
+        values: ``(T + 1, B, S)`` optimal values :math:`V^*_t(s)`.
+        actions: ``(T, B, S)`` optimal action index at each step (lowest index on ties).
+    """
+
+    values: FloatArray
+    actions: IntArray
+
+
+def successor_gather(successors: IntArray) -> tuple[IntArray, NDArray[np.bool_]]:
+    """Successor indices safe for fancy indexing, and the mask of available moves."""
+    available = successors >= 0
+    return np.where(available, successors, 0), available
+
+
+@njit(cache=True)
+def reachable_cells(successors, start, horizon):  # pragma: no cover - compiled
+    """``(T + 1, S)`` mask: ``[t, s]`` is true iff ``s`` can be reached in exactly ``t`` steps."""
+    cells, actions = successors.shape
+    reachable = np.zeros((horizon + 1, cells), dtype=np.bool_)
+    reachable[0, start] = True
+    for t in range(horizon):
+        for s in range(cells):
+            if reachable[t, s]:
+                for a in range(actions):
+                    if successors[s, a] >= 0:
+                        reachable[t + 1, successors[s, a]] = True
+    return reachable
+
+
+@njit(cache=True)
+def soft_backup(
+    scaled, successors, horizon, values, log_policy, policy, needed
+):  # pragma: no cover
+    """Soft value iteration for one reward vector, written into the output arrays.
+
+    ``scaled`` is :math:`\\lambda r` ``(S,)``; fills ``values (T+1, S)``,
+    ``log_policy (T, S, A)`` and ``policy (T, S, A)`` (``-inf`` / 0 where unavailable)
+    at the steps and cells where ``needed (T + 1, S)`` is true (all of them, or those
+    reachable from the start: a needed cell's successors must be needed at the next step).
+    Entries that are not needed are left undefined.
+    """
+    cells, actions = successors.shape
+    values[horizon, :] = 0.0
+    for t in range(horizon - 1, -1, -1):
+        for s in range(cells):
+            if not needed[t, s]:
+                continue
+            top = -np.inf
+            for a in range(actions):
+                nxt = successors[s, a]
+                if nxt >= 0:
+                    q = scaled[nxt] + values[t + 1, nxt]
+                    log_policy[t, s, a] = q
+                    if q > top:
+                        top = q
+                else:
+                    log_policy[t, s, a] = -np.inf
+            total = 0.0
+            for a in range(actions):
+                if successors[s, a] >= 0:
+                    weight = np.exp(log_policy[t, s, a] - top)
+                    policy[t, s, a] = weight
+                    total += weight
+                else:
+                    policy[t, s, a] = 0.0
+            value = top + np.log(total)
+            values[t, s] = value
+            for a in range(actions):
+                policy[t, s, a] /= total
+                log_policy[t, s, a] -= value
+
+
+@njit(cache=True)
+def _soft_value_iteration(scaled, successors, horizon):  # pragma: no cover - compiled
+    """Batch-major ``(B, T + 1, S)``, ``(B, T, S, A)`` x 2 results of :func:`soft_backup`."""
+    batch, cells = scaled.shape
+    actions = successors.shape[1]
+    values = np.empty((batch, horizon + 1, cells))
+    log_policy = np.empty((batch, horizon, cells, actions))
+    policy = np.empty((batch, horizon, cells, actions))
+    everywhere = np.ones((horizon + 1, cells), dtype=np.bool_)
+    for b in range(batch):
+        soft_backup(scaled[b], successors, horizon, values[b], log_policy[b], policy[b], everywhere)
+    return values, log_policy, policy
+
+
+def soft_value_iteration(
+    cell_rewards: FloatArray, successors: IntArray, horizon: int, rationality: float
+) -> SoftPlan:
+    """Finite-horizon soft value iteration for a batch of reward vectors.
+
+    Args:
+        cell_rewards: ``(B, S)`` reward :math:`r(s)` of entering each cell.
+        successors: ``(S, A)`` successor table (``-1`` = unavailable).
+        horizon: number of steps ``T >= 0``.
+        rationality: :math:`\\lambda > 0`.
+
+    Returns:
+        The soft policy and values; see :class:`SoftPlan`.
+    """
+    scaled = rationality * np.ascontiguousarray(cell_rewards, dtype=np.float64)
+    values, log_policy, policy = _soft_value_iteration(
+        scaled, np.ascontiguousarray(successors, dtype=np.int64), horizon
+    )
+    # Computed trial by trial (batch-major); returned as (T, B, ...) views.
+    return SoftPlan(
+        log_policy=log_policy.transpose(1, 0, 2, 3),
+        policy=policy.transpose(1, 0, 2, 3),
+        values=values.transpose(1, 0, 2),
+    )
+
+
+@njit(cache=True)
+def forward_visitation(policy, successors, visitation):  # pragma: no cover - compiled
+    """:math:`d_{t+1}(s') = \\sum_{s, a: s \\to_a s'} d_t(s)\\, \\pi_t(a \\mid s)` for one trial.
+
+    ``policy (T, S, A)``; ``visitation (T+1, S)`` must hold :math:`d_0` in row 0.
+    """
+    horizon, cells, actions = policy.shape
+    for t in range(horizon):
+        visitation[t + 1, :] = 0.0
+        for s in range(cells):
+            mass = visitation[t, s]
+            if mass == 0.0:
+                continue
+            for a in range(actions):
+                nxt = successors[s, a]
+                if nxt >= 0:
+                    visitation[t + 1, nxt] += mass * policy[t, s, a]
+
+
+@njit(cache=True)
+def backward_future_counts(policy, successors, features, future, needed):  # pragma: no cover
+    """:math:`F_t(s) = \\sum_a \\pi_t(a \\mid s)[\\phi(s') + F_{t+1}(s')]` for one trial.
+
+    ``policy (T, S, A)``, ``features (S, K)``; fills ``future (T+1, S, K)`` where
+    ``needed (T + 1, S)`` is true (see :func:`soft_backup`).
+    """
+    horizon, cells, actions = policy.shape
+    k = features.shape[1]
+    future[horizon, :, :] = 0.0
+    for t in range(horizon - 1, -1, -1):
+        for s in range(cells):
+            if not needed[t, s]:
+                continue
+            for i in range(k):
+                future[t, s, i] = 0.0
+            for a in range(actions):
+                nxt = successors[s, a]
+                if nxt < 0:
+                    continue
+                p = policy[t, s, a]
+                for i in range(k):
+                    future[t, s, i] += p * (features[nxt, i] + future[t + 1, nxt, i])
+
+
+@njit(cache=True)
+def _state_visitation(policy, successors, start_distribution):  # pragma: no cover - compiled
+    horizon, batch, cells, _ = policy.shape
+    visitation = np.empty((horizon + 1, batch, cells))
+    one = np.empty((horizon + 1, cells))
+    for b in range(batch):
+        one[0] = start_distribution[b]
+        forward_visitation(policy[:, b], successors, one)
+        visitation[:, b] = one
+    return visitation
+
+
+def state_visitation(
+    policy: FloatArray, successors: IntArray, start_distribution: FloatArray
+) -> FloatArray:
+    """State distribution at every step under a (stochastic) time-indexed policy.
+
+    :math:`d_0 = ` ``start_distribution`` and
+    :math:`d_{t+1}(s') = \\sum_{s, a: s \\to_a s'} d_t(s)\\, \\pi_t(a \\mid s)`.
+
+    Args:
+        policy: ``(T, B, S, A)`` action probabilities (zero where unavailable).
+        successors: ``(S, A)`` successor table.
+        start_distribution: ``(B, S)`` distribution of :math:`s_0`.
+
+    Returns:
+        ``(T + 1, B, S)`` array of :math:`d_t`.
+    """
+    return _state_visitation(
+        np.ascontiguousarray(policy, dtype=np.float64),
+        np.ascontiguousarray(successors, dtype=np.int64),
+        np.ascontiguousarray(start_distribution, dtype=np.float64),
+    )
+
+
+@njit(cache=True)
+def _future_feature_counts(policy, successors, features):  # pragma: no cover - compiled
+    horizon, batch, cells, _ = policy.shape
+    counts = np.empty((horizon + 1, batch, cells, features.shape[2]))
+    one = np.empty((horizon + 1, cells, features.shape[2]))
+    everywhere = np.ones((horizon + 1, cells), dtype=np.bool_)
+    for b in range(batch):
+        backward_future_counts(policy[:, b], successors, features[b], one, everywhere)
+        counts[:, b] = one
+    return counts
+
+
+def future_feature_counts(
+    policy: FloatArray, successors: IntArray, features: FloatArray
+) -> FloatArray:
+    """Expected feature counts still to come, from every step and cell.
+
+    :math:`F_T(s) = 0` and
+    :math:`F_t(s) = \\sum_a \\pi_t(a \\mid s)\\,[\\phi(s') + F_{t+1}(s')]`, so that
+    :math:`F_0(s_0) = E[\\phi(\\tau) \\mid s_0]` and
+    :math:`F_t(s) = E[\\sum_{u > t} \\phi(s_u) \\mid s_t = s]`.
+
+    Args:
+        policy: ``(T, B, S, A)`` action probabilities.
+        successors: ``(S, A)`` successor table.
+        features: ``(B, S, K)`` per-trial feature matrices.
+
+    Returns:
+        ``(T + 1, B, S, K)`` array of :math:`F_t`.
+    """
+    return _future_feature_counts(
+        np.ascontiguousarray(policy, dtype=np.float64),
+        np.ascontiguousarray(successors, dtype=np.int64),
+        np.ascontiguousarray(features, dtype=np.float64),
+    )
+
+
+def optimal_plan(cell_rewards: FloatArray, successors: IntArray, horizon: int) -> HardPlan:
+    """Finite-horizon value iteration (hard max) for a batch of reward vectors.
+
+    :math:`V^*_T = 0`, :math:`V^*_t(s) = \\max_a r(s') + V^*_{t+1}(s')`; ties go to the
+    lowest action index, so the policy is a deterministic function of the rewards.
+    """
+    gather, available = successor_gather(successors)
+    rewards = np.asarray(cell_rewards, dtype=np.float64)
+    batch, cells = rewards.shape
+    values = np.zeros((horizon + 1, batch, cells))
+    actions = np.empty((horizon, batch, cells), dtype=np.int64)
+    for t in range(horizon - 1, -1, -1):
+        q = (rewards + values[t + 1])[:, gather]
+        q[:, ~available] = -np.inf
+        actions[t] = q.argmax(axis=-1)
+        values[t] = np.take_along_axis(q, actions[t][..., None], axis=-1)[..., 0]
+    return HardPlan(values=values, actions=actions)
+
+
+def evaluate_policy(
+    cell_rewards: FloatArray, successors: IntArray, actions: IntArray
+) -> FloatArray:
+    """Values of a deterministic time-indexed policy under the given rewards.
+
+    :math:`V_T = 0`, :math:`V_t(s) = r(s') + V_{t+1}(s')` with :math:`s'` the successor of
+    ``s`` under ``actions[t, :, s]`` (which must be available).
+
+    Returns:
+        ``(T + 1, B, S)`` values.
+    """
+    rewards = np.asarray(cell_rewards, dtype=np.float64)
+    horizon, batch, cells = actions.shape
+    chosen = successors[np.arange(cells), actions]  # (T, B, S)
+    if (chosen < 0).any():
+        raise ValueError("policy takes an unavailable action")
+    values = np.zeros((horizon + 1, batch, cells))
+    rows = np.arange(batch)[:, None]
+    for t in range(horizon - 1, -1, -1):
+        values[t] = (rewards + values[t + 1])[rows, chosen[t]]
+    return values
+
+
+def rollout(successors: IntArray, start: int | IntArray, actions: IntArray) -> IntArray:
+    """States ``(B, T + 1)`` visited by time-indexed action sequences ``(B, T)`` from ``start``."""
+    batch, horizon = actions.shape
+    states = np.empty((batch, horizon + 1), dtype=np.int64)
+    states[:, 0] = start
+    for t in range(horizon):
+        states[:, t + 1] = successors[states[:, t], actions[:, t]]
+    if (states < 0).any():
+        raise ValueError("action sequence leaves the grid")
+    return states
+
+
+def follow_policy(successors: IntArray, start: IntArray, policy: IntArray) -> IntArray:
+    """States ``(B, T + 1)`` visited by a deterministic policy ``(T, B, S)`` from ``start (B,)``."""
+    horizon, batch, _ = policy.shape
+    states = np.empty((batch, horizon + 1), dtype=np.int64)
+    states[:, 0] = start
+    rows = np.arange(batch)
+    for t in range(horizon):
+        states[:, t + 1] = successors[states[:, t], policy[t, rows, states[:, t]]]
+    return states

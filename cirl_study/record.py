@@ -1,0 +1,209 @@
+"""The trial record: the one contract between playing, logging and analysing (docs/design.md §7).
+
+Every trial of a run is one :class:`TrialRecord`. The core plays a :class:`TrialSpec` (the
+record's inputs: identity, game, reward draw) into a record; the log writer encodes it
+(:func:`encode`), every reader decodes into it (:func:`decode`), and the analysis table is a
+projection of it. Its JSON Schema, which every MCAP channel on ``/cirl/trial`` declares, is
+generated from these types (:data:`TRIAL_SCHEMA`), so the schema, the writer and the readers
+cannot drift apart.
+
+The types are :class:`msgspec.Struct` s: frozen, typed, and validated while decoding (a
+missing field, a wrong type or a value out of range fails with the JSON path of the first
+fault). ``msgspec`` was chosen over the standard library and a hand-written validator
+because it decodes and checks a record in one pass, an order of magnitude faster, and
+generates the JSON Schema from the same declaration.
+
+Notation as in the paper: ``theta`` the true reward weights :math:`\\theta \\in [-1, 1]^K`,
+``theta_hat`` the robot's estimate :math:`\\hat\\theta`, ``rationality`` the robot's
+:math:`\\lambda`, ``eta`` the best response's trade-off :math:`\\eta`.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import msgspec
+
+MAIN, ETA_CV, LAMBDA_SWEEP = "main", "eta_cv", "lambda_sweep"
+"""The blocks of docs/design.md §5."""
+
+BLOCKS: tuple[str, ...] = (MAIN, LAMBDA_SWEEP, ETA_CV)
+"""Every block, in the order the report lists them."""
+
+EXPERT, BEST_RESPONSE = "expert", "best_response"
+"""The paper's human policies: demonstration by expert, and the instructive best response."""
+
+PAPER_POLICIES: tuple[str, ...] = (EXPERT, BEST_RESPONSE)
+"""The levels of the paper's within-subjects factor ``policy``, baseline first."""
+
+MAP = "map"
+"""The paper's robot: the MAP estimate of MaxEnt IRL."""
+
+MEASURES: tuple[str, ...] = ("regret", "kl", "reward_l2")
+"""The three dependent measures of docs/design.md §4, in the paper's order."""
+
+Block = Literal["main", "eta_cv", "lambda_sweep"]
+Action = Literal["stay", "N", "S", "E", "W"]
+NonEmptyText = Annotated[str, msgspec.Meta(min_length=1)]
+PositiveInt = Annotated[int, msgspec.Meta(ge=1)]
+Coordinate = Annotated[int, msgspec.Meta(ge=0)]
+Positive = Annotated[float, msgspec.Meta(gt=0)]
+Weight = Annotated[float, msgspec.Meta(ge=-1.0, le=1.0)]
+Cell = tuple[Coordinate, Coordinate]
+"""A grid cell ``[x, y]``."""
+Path = Annotated[tuple[Cell, ...], msgspec.Meta(min_length=1)]
+"""The cells ``(s_0, ..., s_T)`` of a path."""
+
+_STRUCT = {"frozen": True, "kw_only": True}
+
+
+class Grid(msgspec.Struct, **_STRUCT):
+    """The ``width x height`` gridworld."""
+
+    width: PositiveInt
+    height: PositiveInt
+
+
+class RBFFeatures(msgspec.Struct, **_STRUCT):
+    """Radial-basis features ``phi_k(s) = exp(-||s - c_k||^2 / (2 sigma^2))``."""
+
+    centers: Annotated[tuple[tuple[float, float], ...], msgspec.Meta(min_length=1)]
+    sigma: Positive
+    kind: Literal["rbf"] = "rbf"
+
+
+class Demonstration(msgspec.Struct, **_STRUCT):
+    """The human's learning-phase path: its cells ``s_0..s_T`` and the ``T`` moves between."""
+
+    states: Path
+    actions: tuple[Action, ...]
+
+
+class Measures(msgspec.Struct, **_STRUCT):
+    """The trial's dependent measures (docs/design.md §4); all finite."""
+
+    regret: float
+    kl: float
+    reward_l2: Annotated[float, msgspec.Meta(ge=0.0)]
+
+    def __post_init__(self) -> None:
+        if not all(math.isfinite(getattr(self, name)) for name in MEASURES):
+            raise ValueError("every measure must be a finite number")
+
+
+class FitDiagnostics(msgspec.Struct, **_STRUCT):
+    """How the robot's estimate was computed."""
+
+    log_likelihood: float
+    iterations: Annotated[int, msgspec.Meta(ge=0)]
+    converged: bool
+
+
+class Deployment(msgspec.Struct, **_STRUCT):
+    """The robot's deployment rollouts under ``theta_hat`` from a few start cells (for replay)."""
+
+    starts: tuple[Cell, ...]
+    paths: tuple[Path, ...]
+
+
+class TrialSpec(msgspec.Struct, **_STRUCT):
+    """Identity and inputs of one trial: everything needed to play it.
+
+    ``eta`` is ``None`` exactly for a policy without a trade-off (the expert); ``robot``
+    names the estimator (:mod:`cirl_study.core.robot`). The game is common knowledge:
+    ``grid``, the learning phase's ``start`` and the two horizons, the ``features``; the
+    subject's reward draw is ``theta``. ``seed`` seeds the trial's own generator.
+    :func:`cirl_study.core.gridworld.gridworld` and
+    :func:`cirl_study.core.gridworld.feature_matrix` turn the game into arrays.
+    """
+
+    trial_id: NonEmptyText
+    run_id: NonEmptyText
+    block: Block
+    subject: NonEmptyText
+    policy: NonEmptyText
+    num_features: PositiveInt
+    rationality: Positive
+    eta: Positive | None
+    seed: Coordinate
+    grid: Grid
+    start: Cell
+    learning_steps: PositiveInt
+    deployment_steps: PositiveInt
+    features: RBFFeatures
+    theta: Annotated[tuple[Weight, ...], msgspec.Meta(min_length=1)]
+    robot: NonEmptyText = MAP
+
+
+class TrialRecord(TrialSpec, **_STRUCT):
+    """One played trial: its :class:`TrialSpec` and what happened (docs/design.md §7)."""
+
+    theta_hat: Annotated[tuple[Weight, ...], msgspec.Meta(min_length=1)]
+    demonstration: Demonstration
+    measures: Measures
+    irl: FitDiagnostics | None = None
+    deployment: Deployment | None = None
+
+    def spec(self) -> TrialSpec:
+        """The inputs this record was played from."""
+        return TrialSpec(**{name: getattr(self, name) for name in TrialSpec.__struct_fields__})
+
+
+_ENCODER = msgspec.json.Encoder(order="sorted")
+_DECODER = msgspec.json.Decoder(TrialRecord)
+
+DecodeError = msgspec.DecodeError
+"""Raised by :func:`decode` on bytes that are not a valid trial record (a ``ValueError``)."""
+
+
+def encode(value: object) -> bytes:
+    """Canonical JSON of a record (or of any message of the logs): keys sorted, no spaces.
+
+    Equal values give equal bytes, whatever the order their keys were built in. Not-a-number
+    and infinities have no JSON form (they would be written as ``null``, which no record
+    decodes): a record holding one is refused by :func:`decode`.
+    """
+    return _ENCODER.encode(value)
+
+
+def decode(data: bytes) -> TrialRecord:
+    """The record in ``data``, validated against the types above.
+
+    Raises:
+        DecodeError: malformed JSON, or a field missing, of the wrong type or out of range
+            (``msgspec.ValidationError`` is a subclass), with the JSON path of the fault.
+    """
+    return _DECODER.decode(data)
+
+
+def from_builtins(data: object) -> TrialRecord:
+    """The record held in plain Python data (dicts, lists, numbers), validated."""
+    return msgspec.convert(data, TrialRecord)
+
+
+def to_builtins(record: TrialRecord) -> dict:
+    """The record as the plain JSON object its log holds (lists, dicts, numbers, strings)."""
+    return msgspec.json.decode(encode(record))
+
+
+def validated(spec: TrialSpec) -> TrialSpec:
+    """``spec`` itself, once its fields are checked against their declared types and ranges.
+
+    A Struct is not validated when it is built in Python, only when it is decoded; this decodes
+    ``spec``'s own JSON, so a spec that plays is one whose record can be logged and read back.
+
+    Raises:
+        DecodeError: a field has the wrong type or is out of range (e.g. ``theta`` outside
+            the box, ``rationality <= 0``, a numpy scalar where a float belongs).
+    """
+    try:
+        data = encode(spec)
+    except TypeError as error:
+        raise msgspec.ValidationError(f"{spec.trial_id}: {error}") from None
+    msgspec.json.decode(data, type=TrialSpec)
+    return spec
+
+
+TRIAL_SCHEMA: dict = msgspec.json.schema(TrialRecord)
+"""JSON Schema (draft 2020-12) of a trial record, declared by the ``/cirl/trial`` channel."""

@@ -1,0 +1,237 @@
+"""Where trials are played: in this process, in a local process pool, or on a Dask cluster.
+
+An engine receives batches of :class:`~cirl_study.record.TrialSpec` and yields each batch's
+records (:func:`cirl_study.core.trial.play_trials`) as soon as the batch is done, in whatever
+order batches finish. A record depends only on its spec, so the engine, the number of
+workers and the order of completion never change what is logged.
+"""
+
+from __future__ import annotations
+
+import abc
+import contextlib
+import logging
+import multiprocessing
+import os
+import signal
+import threading
+import time
+from collections.abc import Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from types import TracebackType
+from typing import Any, Self
+
+from cirl_study.core.trial import play_trials
+from cirl_study.errors import UserError
+from cirl_study.record import TrialRecord, TrialSpec
+
+Batch = Sequence[TrialSpec]
+Records = list[TrialRecord]
+
+ENGINES: tuple[str, ...] = ("local", "dask")
+"""Names accepted by :func:`make_engine`."""
+
+
+class Engine(abc.ABC):
+    """Plays batches of trials; a context manager that owns its workers while it is entered."""
+
+    description: str
+    workers: int
+    """Trials played at once (known once the engine is entered)."""
+
+    @abc.abstractmethod
+    def start(self) -> None:
+        """Start the workers (called on entering the ``with`` block)."""
+
+    @abc.abstractmethod
+    def stop(self, failing: bool) -> None:
+        """Stop the workers; ``failing`` when the block is left by an exception."""
+
+    @abc.abstractmethod
+    def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, Records]]:
+        """Yield ``(index of the batch in batches, its records)`` as each batch finishes."""
+
+    def __enter__(self) -> Self:
+        self.start()
+        return self
+
+    def __exit__(
+        self,
+        kind: type[BaseException] | None,
+        error: BaseException | None,
+        trace: TracebackType | None,
+    ) -> None:
+        self.stop(failing=kind is not None)
+
+
+def default_workers() -> int:
+    """All cores this process may use."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def _exit_with_parent(parent: int) -> None:
+    """Poll until the parent process is gone, then end this worker at once.
+
+    A pool worker whose parent was killed (SIGKILL leaves no chance to clean up) would
+    otherwise wait for work forever.
+    """
+    while os.getppid() == parent:
+        time.sleep(0.5)
+    os._exit(1)
+
+
+def _init_local_worker(parent: int) -> None:
+    # Ctrl-C is the parent's to handle: it stops handing out batches and shuts the pool down.
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
+
+
+def _warm_up() -> int:
+    return os.getpid()
+
+
+class LocalEngine(Engine):
+    """A pool of ``workers`` processes on this machine; one worker plays in this process."""
+
+    def __init__(self, workers: int) -> None:
+        if workers < 1:
+            raise UserError(f"workers must be a positive integer, got {workers}")
+        self.workers = workers
+        self.description = "in this process" if workers == 1 else f"local pool of {workers}"
+        self._pool: ProcessPoolExecutor | None = None
+
+    def start(self) -> None:
+        if self.workers > 1:
+            # fork starts workers fast and with every module already imported; the pool is
+            # started (and its workers forked) here, before the caller starts any threads.
+            methods = multiprocessing.get_all_start_methods()
+            context = multiprocessing.get_context("fork" if "fork" in methods else None)
+            self._pool = ProcessPoolExecutor(
+                self.workers,
+                mp_context=context,
+                initializer=_init_local_worker,
+                initargs=(os.getpid(),),
+            )
+            self._pool.submit(_warm_up).result()
+
+    def stop(self, failing: bool) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+            self._pool = None
+
+    def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, Records]]:
+        if self._pool is None:
+            for index, batch in enumerate(batches):
+                yield index, play_trials(batch)
+            return
+        futures = {self._pool.submit(play_trials, batch): i for i, batch in enumerate(batches)}
+        for future in as_completed(futures):
+            yield futures[future], future.result()
+
+
+@contextlib.contextmanager
+def _children_ignore_sigint() -> Iterator[None]:
+    """Ignore SIGINT while processes are started, so that they inherit the disposition.
+
+    A terminal's Ctrl-C reaches the whole process group; the workers should leave it to the
+    main process, which stops the run, instead of each printing a traceback. (Only the
+    main thread may change signal handlers; elsewhere this does nothing.)
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+class DaskEngine(Engine):
+    """Dask distributed: the scheduler at ``scheduler``, or a new local cluster.
+
+    Without a scheduler address a :class:`distributed.LocalCluster` of ``workers``
+    single-threaded workers is started (in worker processes, or as threads of this process
+    when ``processes`` is false) and closed afterwards; a scheduler that does not answer
+    within ``connect_timeout`` seconds is an error. Dask is an optional dependency
+    (``pip install 'cirl-study[dask]'``); workers of a remote cluster need cirl-study
+    installed in the same version.
+    """
+
+    def __init__(
+        self,
+        workers: int,
+        scheduler: str | None = None,
+        processes: bool = True,
+        connect_timeout: float = 10.0,
+    ):
+        if workers < 1:
+            raise UserError(f"workers must be a positive integer, got {workers}")
+        self.workers = workers
+        self.scheduler = scheduler
+        self.processes = processes
+        self.connect_timeout = connect_timeout
+        self.description = (
+            f"Dask scheduler {scheduler}" if scheduler else f"Dask local cluster of {workers}"
+        )
+        self._client: Any = None
+        self._cluster: Any = None
+
+    def start(self) -> None:
+        try:
+            from dask.distributed import Client, LocalCluster
+        except ImportError:
+            raise UserError("the dask engine needs Dask: pip install 'cirl-study[dask]'") from None
+        if self.scheduler is None:
+            with _children_ignore_sigint():
+                self._cluster = LocalCluster(
+                    n_workers=self.workers,
+                    threads_per_worker=1,
+                    processes=self.processes,
+                    dashboard_address=None,
+                    silence_logs=logging.ERROR,
+                )
+            self._client = Client(self._cluster)
+        else:
+            try:
+                self._client = Client(self.scheduler, timeout=self.connect_timeout)
+            except (OSError, TimeoutError, ValueError) as error:
+                message = str(error).splitlines()[0] if str(error) else type(error).__name__
+                raise UserError(
+                    f"cannot connect to the Dask scheduler at {self.scheduler}: {message}"
+                ) from None
+            self.workers = max(1, sum(self._client.nthreads().values()))
+
+    def stop(self, failing: bool) -> None:
+        client, cluster = self._client, self._cluster
+        self._client = self._cluster = None
+        # A run already failing (Ctrl-C, an error) must report why, not how closing failed.
+        with contextlib.suppress(Exception) if failing else contextlib.nullcontext():
+            if client is not None:
+                client.close()
+            if cluster is not None:
+                cluster.close()
+
+    def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, Records]]:
+        from dask.distributed import as_completed as dask_as_completed
+
+        futures: dict[Any, int] = {
+            self._client.submit(play_trials, batch, pure=False): i
+            for i, batch in enumerate(batches)
+        }
+        for future in dask_as_completed(futures):
+            yield futures[future], future.result()
+
+
+def make_engine(name: str, workers: int | None, scheduler: str | None) -> Engine:
+    """The engine ``name`` (see :data:`ENGINES`) with ``workers`` workers (default: all cores)."""
+    count = default_workers() if workers is None else workers
+    if name == "local":
+        if scheduler is not None:
+            raise UserError("a scheduler address is for the dask engine, not the local one")
+        return LocalEngine(count)
+    if name == "dask":
+        return DaskEngine(count, scheduler)
+    raise UserError(f"the engine must be one of {', '.join(ENGINES)}, got {name!r}")

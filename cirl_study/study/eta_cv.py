@@ -1,0 +1,70 @@
+"""The cross-validated choice of eta (docs/design.md §3): one function for the run and the report.
+
+Before the test trials, each policy with a trade-off (the best response) is played on the
+cross-validation draws (block ``eta_cv``, disjoint from the test draws) at every eta of a
+grid; per feature level, the eta with the lowest mean regret is chosen. The run plays the
+main block and the lambda sweep with that eta, and the report re-derives it from the same
+records with the same function, so the two can only disagree if the logs do.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import defaultdict
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+
+from cirl_study.record import ETA_CV, TrialRecord
+
+
+@dataclass(frozen=True)
+class EtaChoice:
+    """The cross-validated eta of one policy at one feature level.
+
+    Attributes:
+        policy: the policy whose trade-off was chosen.
+        num_features: the feature level ``K``.
+        eta: the eta with the lowest mean regret (ties to the smaller eta).
+        mean_regret: mean regret over the cross-validation draws of every eta tried.
+        subjects: the number of cross-validation draws behind each mean.
+    """
+
+    policy: str
+    num_features: int
+    eta: float
+    mean_regret: Mapping[float, float]
+    subjects: int
+
+
+def choose_etas(records: Iterable[TrialRecord]) -> dict[tuple[str, int], EtaChoice]:
+    """Per ``(policy, num_features)``, the eta with the lowest mean regret over ``eta_cv`` records.
+
+    Records of other blocks are ignored. Means are exactly rounded sums (:func:`math.fsum`)
+    over the draws, so they do not depend on the order the records come in; ties go to the
+    smaller eta.
+
+    Raises:
+        ValueError: an ``eta_cv`` record has no eta, or the etas of one feature level were
+            not all played on the same number of draws.
+    """
+    regrets: dict[tuple[str, int], dict[float, list[float]]] = defaultdict(
+        lambda: defaultdict(list)
+    )
+    for record in records:
+        if record.block != ETA_CV:
+            continue
+        if record.eta is None:
+            raise ValueError(f"cross-validation trial {record.trial_id} has no eta")
+        regrets[record.policy, record.num_features][record.eta].append(record.measures.regret)
+    choices = {}
+    for (policy, k), by_eta in sorted(regrets.items()):
+        sizes = {len(values) for values in by_eta.values()}
+        if len(sizes) != 1:
+            raise ValueError(
+                f"cross-validation of {policy} at K={k}: the etas were played on different "
+                f"numbers of draws ({', '.join(map(str, sorted(sizes)))})"
+            )
+        means = {eta: math.fsum(values) / len(values) for eta, values in sorted(by_eta.items())}
+        best = min(means, key=lambda eta: (means[eta], eta))
+        choices[policy, k] = EtaChoice(policy, k, best, means, sizes.pop())
+    return choices

@@ -1,0 +1,221 @@
+"""Running a pipeline: plan the trials, play them on an engine, log every batch, resume.
+
+A run directory holds complete MCAP files only: each batch of trials is written by this
+process to its own file under a temporary name and renamed when complete
+(:class:`~cirl_study.logs.TrialLogWriter`). A run killed at any moment therefore loses at
+most the batches in flight. Started again, it deletes the temporary files, skips every
+trial whose id is already in a complete file and plays the rest; since a trial's record
+depends only on its identity (:mod:`cirl_study.study.plan`), the finished directory holds the
+same records as an uninterrupted run, each exactly once.
+
+Order of play: block ``eta_cv`` first; then, per feature level, the eta with the lowest
+mean regret over the logged cross-validation records is chosen
+(:func:`~cirl_study.study.eta_cv.choose_etas`), and blocks ``main`` and ``lambda_sweep`` are
+planned with it and played.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import itertools
+import math
+import time
+from collections.abc import Callable, Iterator, Sequence
+from dataclasses import dataclass
+from operator import attrgetter
+from pathlib import Path
+
+from cirl_study.errors import UserError
+from cirl_study.logs import TrialLogWriter, collect_provenance, logged_trials, read_run
+from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
+from cirl_study.record import TrialRecord, TrialSpec
+from cirl_study.study.engines import Engine
+from cirl_study.study.eta_cv import EtaChoice, choose_etas
+from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
+from cirl_study.study.spec import Pipeline
+
+MAX_BATCH = 250
+"""Most trials sent to a worker at once (and logged in one file)."""
+
+BATCHES_PER_WORKER = 4
+"""A block is cut into at least this many batches per worker, so that workers finish together."""
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """What a call of :func:`run_pipeline` did."""
+
+    out_dir: Path
+    run_id: str
+    total: int
+    """Trials of the pipeline."""
+    resumed: int
+    """Trials found complete in the directory before this call."""
+    played: int
+    """Trials played (and logged) by this call."""
+    files: int
+    """Complete log files in the directory afterwards."""
+    seconds: float
+    etas: dict[tuple[str, int], EtaChoice]
+
+
+@dataclass
+class ProgressHooks:
+    """Callbacks for progress reports: ``start(total, done)`` once, then ``advance(n)``."""
+
+    start: Callable[[int, int], None] = lambda total, done: None
+    advance: Callable[[int], None] = lambda count: None
+
+
+def default_out_dir(pipeline: Pipeline) -> Path:
+    """``data/runs/<pipeline name>`` below the current directory."""
+    return Path("data") / "runs" / pipeline.name
+
+
+def batch_size(pending: int, workers: int) -> int:
+    """Trials per batch: ``pending`` cut into ``BATCHES_PER_WORKER`` batches per worker at least.
+
+    Never more than :data:`MAX_BATCH`, so a killed run loses little and a batch's records fit
+    in memory comfortably.
+    """
+    return max(1, min(MAX_BATCH, math.ceil(pending / (workers * BATCHES_PER_WORKER))))
+
+
+def split_batches(trials: Sequence[TrialSpec], size: int) -> list[list[TrialSpec]]:
+    """``trials`` cut, in order, into batches of at most ``size`` that never mix blocks."""
+    batches = []
+    for _, group in itertools.groupby(trials, key=attrgetter("block")):
+        block = list(group)
+        batches += [block[i : i + size] for i in range(0, len(block), size)]
+    return batches
+
+
+def batch_file_name(batch: Sequence[TrialSpec]) -> str:
+    """``<block>-<hash of the batch's trial ids>.mcap``: the same batch, the same name.
+
+    A batch never mixes blocks (:func:`split_batches`).
+    """
+    digest = hashlib.blake2b(digest_size=8)
+    for trial in batch:
+        digest.update(trial.trial_id.encode() + b"\n")
+    return f"{batch[0].block}-{digest.hexdigest()}{LOG_SUFFIX}"
+
+
+def prepare_run_directory(out_dir: Path, provenance: dict[str, str]) -> set[str]:
+    """Make ``out_dir`` ready for this pipeline's run; return the ids of the trials it holds.
+
+    Creates the directory; refuses damaged log files and log files written from another
+    pipeline file (or another version of it), since a run's records must all come from one
+    specification (both from one read of each file, :func:`~cirl_study.logs.logged_trials`);
+    deletes the temporary files of an interrupted run.
+    """
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"{out_dir}: exists and is not a directory")
+    out_dir.mkdir(parents=True, exist_ok=True)
+    logged = logged_trials(out_dir)
+    ours = provenance["pipeline_sha256"]
+    for path, their_provenance in logged.provenance.items():
+        theirs = their_provenance.get("pipeline_sha256")
+        if theirs != ours:
+            raise UserError(
+                f"{out_dir}: holds logs of another pipeline ({path.name} was written from "
+                f"pipeline sha256 {str(theirs)[:12]}, this one is {ours[:12]}); "
+                "use another --out directory"
+            )
+    for path in temp_files(out_dir):
+        path.unlink()
+    return logged.trial_ids
+
+
+@dataclass
+class _Session:
+    """One call of :func:`run_pipeline`: where batches go, and which trials are logged."""
+
+    engine: Engine
+    out_dir: Path
+    provenance: dict[str, str]
+    progress: ProgressHooks
+    done: set[str]
+
+    def play(self, trials: Sequence[TrialSpec]) -> Iterator[list[TrialRecord]]:
+        """Play the ``trials`` not yet logged; log each batch to its own file, then yield it."""
+        pending = [trial for trial in trials if trial.trial_id not in self.done]
+        if not pending:
+            return
+        batches = split_batches(pending, batch_size(len(pending), self.engine.workers))
+        for index, records in self.engine.play(batches):
+            batch = batches[index]
+            if [record.trial_id for record in records] != [t.trial_id for t in batch]:
+                raise RuntimeError("the engine returned records that do not match their batch")
+            with TrialLogWriter(self.out_dir / batch_file_name(batch), self.provenance) as log:
+                for record in records:
+                    log.write(record)
+            self.done.update(trial.trial_id for trial in batch)
+            self.progress.advance(len(batch))
+            yield records
+
+
+def _cross_validate(
+    session: _Session, trials: Sequence[TrialSpec]
+) -> dict[tuple[str, int], EtaChoice]:
+    """Play block ``eta_cv`` and choose eta from its records.
+
+    The records of trials logged before this call are read back from the logs; those played
+    now are taken as they were logged (the log holds them byte for byte, and JSON keeps every
+    float exactly), which spares reading the files just written.
+    """
+    logged_before = {trial.trial_id for trial in trials} & session.done
+    records: dict[str, TrialRecord] = {}
+    if logged_before:
+        records = {
+            r.trial_id: r for r in read_run(session.out_dir).records if r.trial_id in logged_before
+        }
+    for batch in session.play(trials):
+        records.update((record.trial_id, record) for record in batch)
+    missing = [trial.trial_id for trial in trials if trial.trial_id not in records]
+    if missing:
+        raise UserError(f"cross-validation trial {missing[0]} is missing from the logs")
+    return choose_etas(records[trial.trial_id] for trial in trials)
+
+
+def run_pipeline(
+    pipeline: Pipeline,
+    out_dir: Path,
+    engine: Engine,
+    progress: ProgressHooks | None = None,
+) -> RunResult:
+    """Run (or resume) ``pipeline`` into ``out_dir`` on ``engine`` (not yet entered)."""
+    hooks = progress or ProgressHooks()
+    began = time.perf_counter()
+    provenance = collect_provenance(pipeline.path, pipeline.name)
+    if provenance["pipeline_sha256"] != pipeline.sha256:
+        raise UserError(f"{pipeline.path}: the file changed while it was being read")
+    done = prepare_run_directory(out_dir, provenance)
+    resumed = len(done)
+    total = sum(trial_counts(pipeline).values())
+    session = _Session(engine, out_dir, provenance, hooks, done)
+    with engine:
+        hooks.start(total, resumed)
+        cv_trials = eta_cv_trials(pipeline)
+        etas = _cross_validate(session, cv_trials)
+        trials = study_trials(pipeline, {key: choice.eta for key, choice in etas.items()})
+        for _ in session.play(trials):
+            pass
+    planned = {trial.trial_id for trial in (*cv_trials, *trials)}
+    unplanned = sorted(done - planned)
+    if unplanned:
+        raise UserError(
+            f"{out_dir}: holds {len(unplanned)} logged trial(s) this pipeline does not plan "
+            f"(e.g. {unplanned[0]}), written by another version of cirl-study; "
+            "use another --out directory"
+        )
+    return RunResult(
+        out_dir=out_dir,
+        run_id=pipeline.run_id,
+        total=total,
+        resumed=resumed,
+        played=len(done) - resumed,
+        files=len(log_files(out_dir)),
+        seconds=time.perf_counter() - began,
+        etas=etas,
+    )

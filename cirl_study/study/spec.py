@@ -1,0 +1,398 @@
+"""Pipeline specifications: a whole study described in one TOML file.
+
+A pipeline fixes everything the study needs and nothing about how it is executed
+(engine, workers and output directory are options of ``cirl-study run``). Its
+shape, with every key required::
+
+    name = "paper"            # also the default output directory data/runs/<name>
+    description = "..."
+    seed = 2016               # the root seed of every random stream of the run
+
+    [game]                    # the gridworld of docs/design.md §1
+    width = 10
+    height = 10
+    start = [5, 5]            # s_0 of the learning phase, [x, y]
+    learning_steps = 9        # T_learn
+    deployment_steps = 9      # T_deploy
+    sigma = 1.5               # RBF width, in cells
+    feature_levels = [3, 10]  # K, the between-subjects factor
+
+    [eta_cv]                  # cross-validation of the best response's eta
+    subjects = 100            # reward draws per feature level, disjoint from the test draws
+    etas = [0.01, ..., 100.0]
+    rationality = 1.0         # lambda during cross-validation
+
+    [main]                    # the policy x num_features study
+    subjects = 500
+    rationality = 1.0
+    policies = ["expert", "best_response"]   # human policies, within subjects
+    robot = "map"             # the robot of every block
+
+    [lambda_sweep]            # both policies at every lambda, on the main block's draws
+    subjects = 500            # the first `subjects` reward draws of the main block
+    rationalities = [1e-4, ..., 1e3]
+
+:func:`load_pipeline` parses and validates a file into the frozen dataclasses below;
+every problem is one :class:`~cirl_study.errors.UserError` line naming the file and
+the key, e.g. ``pipelines/x.toml: main.subjects must be a positive integer, got 0``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import re
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, NoReturn
+
+from cirl_study.errors import UserError
+
+PIPELINES_DIRECTORY = "pipelines"
+"""Name of the directory that holds the pipeline files, at the repository root."""
+
+_NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
+
+
+@dataclass(frozen=True)
+class GameSpec:
+    """The gridworld, horizons, RBF width and the feature levels (docs/design.md §1)."""
+
+    width: int
+    height: int
+    start: tuple[int, int]
+    learning_steps: int
+    deployment_steps: int
+    sigma: float
+    feature_levels: tuple[int, ...]
+
+
+@dataclass(frozen=True)
+class EtaCVSpec:
+    """Cross-validation of eta: each policy with a trade-off on ``subjects`` draws per level."""
+
+    subjects: int
+    etas: tuple[float, ...]
+    rationality: float
+
+
+@dataclass(frozen=True)
+class MainSpec:
+    """The main study: every policy of ``policies`` on ``subjects`` draws per feature level.
+
+    ``policies`` are names of :data:`cirl_study.core.humans.HUMANS` (within subjects, in the
+    order the report compares them: baseline first); ``robot`` is a name of
+    :data:`cirl_study.core.robot.ROBOTS`, the robot of every block.
+    """
+
+    subjects: int
+    rationality: float
+    policies: tuple[str, ...]
+    robot: str
+
+
+@dataclass(frozen=True)
+class LambdaSweepSpec:
+    """Every policy at every rationality, on the first ``subjects`` draws of the main block."""
+
+    subjects: int
+    rationalities: tuple[float, ...]
+
+
+@dataclass(frozen=True)
+class Pipeline:
+    """A validated pipeline file.
+
+    ``sha256`` is the hash of the file's bytes: two runs are the same run exactly when
+    their pipeline files hash alike.
+    """
+
+    name: str
+    description: str
+    seed: int
+    game: GameSpec
+    eta_cv: EtaCVSpec
+    main: MainSpec
+    lambda_sweep: LambdaSweepSpec
+    path: Path
+    sha256: str
+
+    @property
+    def policies_with_eta(self) -> tuple[str, ...]:
+        """The policies of the main study that have a trade-off eta to cross-validate."""
+        from cirl_study.core.humans import HUMANS
+
+        return tuple(policy for policy in self.main.policies if HUMANS[policy].takes_eta)
+
+    @property
+    def run_id(self) -> str:
+        """Id of the run this pipeline describes: its name and the start of its hash."""
+        return f"{self.name}-{self.sha256[:12]}"
+
+
+def _show(value: Any) -> str:
+    """Render a TOML value the way it was probably written, shortened to one short line."""
+    if isinstance(value, dict):
+        return "a table"
+    text = json.dumps(value, default=str)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+class _Table:
+    """One TOML table being validated; every failure names ``file: prefix.key``."""
+
+    def __init__(self, label: str, prefix: str, data: dict[str, Any], keys: tuple[str, ...]):
+        self.label = label
+        self.prefix = prefix
+        self.data = data
+        unknown = sorted(set(data) - set(keys))
+        if unknown:
+            self.fail(unknown[0], f"is not a known key (expected one of: {', '.join(keys)})")
+
+    def fail(self, key: str, message: str) -> NoReturn:
+        raise UserError(f"{self.label}: {self.prefix}{key} {message}")
+
+    def value(self, key: str) -> Any:
+        if key not in self.data:
+            self.fail(key, "is missing")
+        return self.data[key]
+
+    def table(self, key: str, keys: tuple[str, ...]) -> _Table:
+        value = self.value(key)
+        if not isinstance(value, dict):
+            self.fail(key, f"must be a table ([{self.prefix}{key}]), got {_show(value)}")
+        return _Table(self.label, f"{self.prefix}{key}.", value, keys)
+
+    def string(self, key: str) -> str:
+        value = self.value(key)
+        if not isinstance(value, str):
+            self.fail(key, f"must be a string, got {_show(value)}")
+        return value
+
+    def integer(self, key: str, minimum: int, what: str) -> int:
+        value = self.value(key)
+        if not _is_integer(value) or value < minimum:
+            self.fail(key, f"must be {what}, got {_show(value)}")
+        return value
+
+    def positive_number(self, key: str) -> float:
+        value = self.value(key)
+        if not _is_positive_number(value):
+            self.fail(key, f"must be a positive finite number, got {_show(value)}")
+        return float(value)
+
+    def _list(self, key: str, item_ok: Callable[[Any], bool], what: str) -> list[Any]:
+        value = self.value(key)
+        if not isinstance(value, list) or not value or not all(item_ok(v) for v in value):
+            self.fail(key, f"must be a non-empty list of {what}, got {_show(value)}")
+        if len({float(v) for v in value}) != len(value):
+            self.fail(key, f"must not repeat a value, got {_show(value)}")
+        return value
+
+    def positive_integers(self, key: str) -> tuple[int, ...]:
+        return tuple(self._list(key, lambda v: _is_integer(v) and v > 0, "positive integers"))
+
+    def name(self, key: str, known: tuple[str, ...], what: str) -> str:
+        value = self.string(key)
+        if value not in known:
+            self.fail(
+                key, f"must be one of the known {what} ({', '.join(known)}), got {_show(value)}"
+            )
+        return value
+
+    def names(self, key: str, known: tuple[str, ...], what: str) -> tuple[str, ...]:
+        value = self.value(key)
+        if (
+            not isinstance(value, list)
+            or not value
+            or not all(isinstance(v, str) and v in known for v in value)
+            or len(set(value)) != len(value)
+        ):
+            self.fail(
+                key,
+                f"must be a non-empty list of distinct known {what} ({', '.join(known)}), "
+                f"got {_show(value)}",
+            )
+        return tuple(value)
+
+    def positive_numbers(self, key: str) -> tuple[float, ...]:
+        values = self._list(key, _is_positive_number, "positive finite numbers")
+        return tuple(float(v) for v in values)
+
+
+def _is_integer(value: Any) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def _is_positive_number(value: Any) -> bool:
+    return (
+        isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+        and value > 0
+    )
+
+
+def _display_path(path: Path) -> str:
+    """``path`` relative to the current directory when it lies below it, else as given."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
+def parse_pipeline(text: str, path: Path) -> Pipeline:
+    """Validate the TOML ``text`` of the pipeline file ``path`` (named in every error)."""
+    label = _display_path(path)
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise UserError(f"{label}: not valid TOML: {error}") from None
+    top = _Table(
+        label,
+        "",
+        data,
+        ("name", "description", "seed", "game", "eta_cv", "main", "lambda_sweep"),
+    )
+    name = top.string("name")
+    if not _NAME_PATTERN.fullmatch(name):
+        top.fail(
+            "name",
+            f"must be letters, digits, '.', '_' or '-' (it names a directory), got {_show(name)}",
+        )
+    # Keyword arguments are evaluated in order: the file is checked top to bottom.
+    return Pipeline(
+        name=name,
+        description=top.string("description"),
+        seed=top.integer("seed", 0, "a non-negative integer"),
+        game=_game(top),
+        eta_cv=_eta_cv(top),
+        main=(main := _main(top)),
+        lambda_sweep=_lambda_sweep(top, main),
+        path=path,
+        sha256=hashlib.sha256(text.encode()).hexdigest(),
+    )
+
+
+def _game(top: _Table) -> GameSpec:
+    game = top.table(
+        "game",
+        (
+            "width",
+            "height",
+            "start",
+            "learning_steps",
+            "deployment_steps",
+            "sigma",
+            "feature_levels",
+        ),
+    )
+    width = game.integer("width", 2, "an integer of at least 2")
+    height = game.integer("height", 2, "an integer of at least 2")
+    start = game.value("start")
+    if not (
+        isinstance(start, list)
+        and len(start) == 2
+        and all(_is_integer(v) for v in start)
+        and 0 <= start[0] < width
+        and 0 <= start[1] < height
+    ):
+        game.fail(
+            "start",
+            f"must be a cell [x, y] of the {width}x{height} grid "
+            f"(0 <= x < {width}, 0 <= y < {height}), got {_show(start)}",
+        )
+    return GameSpec(
+        width=width,
+        height=height,
+        start=(start[0], start[1]),
+        learning_steps=game.integer("learning_steps", 1, "a positive integer"),
+        deployment_steps=game.integer("deployment_steps", 1, "a positive integer"),
+        sigma=game.positive_number("sigma"),
+        feature_levels=game.positive_integers("feature_levels"),
+    )
+
+
+def _eta_cv(top: _Table) -> EtaCVSpec:
+    block = top.table("eta_cv", ("subjects", "etas", "rationality"))
+    return EtaCVSpec(
+        subjects=block.integer("subjects", 1, "a positive integer"),
+        etas=block.positive_numbers("etas"),
+        rationality=block.positive_number("rationality"),
+    )
+
+
+def _main(top: _Table) -> MainSpec:
+    # The registries live with the numerical core, loaded only when a pipeline is read.
+    from cirl_study.core.humans import HUMANS
+    from cirl_study.core.robot import ROBOTS
+
+    block = top.table("main", ("subjects", "rationality", "policies", "robot"))
+    return MainSpec(
+        subjects=block.integer("subjects", 1, "a positive integer"),
+        rationality=block.positive_number("rationality"),
+        policies=block.names("policies", tuple(HUMANS), "human policies"),
+        robot=block.name("robot", tuple(ROBOTS), "robots"),
+    )
+
+
+def _lambda_sweep(top: _Table, main: MainSpec) -> LambdaSweepSpec:
+    block = top.table("lambda_sweep", ("subjects", "rationalities"))
+    subjects = block.integer("subjects", 1, "a positive integer")
+    if subjects > main.subjects:
+        block.fail(
+            "subjects",
+            f"must be at most main.subjects = {main.subjects} "
+            f"(the sweep reuses the main block's reward draws), got {subjects}",
+        )
+    return LambdaSweepSpec(subjects=subjects, rationalities=block.positive_numbers("rationalities"))
+
+
+def load_pipeline(path: Path) -> Pipeline:
+    """Read and validate the pipeline file at ``path``."""
+    try:
+        raw = path.read_bytes()
+    except OSError as error:
+        raise UserError(f"{_display_path(path)}: cannot read: {error.strerror}") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise UserError(f"{_display_path(path)}: not valid TOML: not UTF-8 text") from None
+    return parse_pipeline(text, path)
+
+
+def pipeline_search_path() -> tuple[Path, ...]:
+    """Directories searched for a pipeline given by name, in order.
+
+    ``./pipelines`` (the current directory's), then the ``pipelines`` directory at the
+    root of the source tree this package is imported from (an editable install).
+    """
+    here = Path.cwd() / PIPELINES_DIRECTORY
+    repository = Path(__file__).resolve().parents[2] / PIPELINES_DIRECTORY
+    return (here,) if here.resolve() == repository else (here, repository)
+
+
+def resolve_pipeline(name_or_path: str) -> Path:
+    """The file a ``cirl-study run PIPELINE`` argument means.
+
+    An existing file is taken as it is; otherwise a bare name ``x`` (or ``x.toml``)
+    is looked up as ``x.toml`` in :func:`pipeline_search_path`.
+    """
+    given = Path(name_or_path)
+    if given.is_file():
+        return given
+    if given.name == name_or_path:
+        file_name = name_or_path if name_or_path.endswith(".toml") else f"{name_or_path}.toml"
+        for directory in pipeline_search_path():
+            candidate = directory / file_name
+            if candidate.is_file():
+                return candidate
+        available = sorted(
+            {p.stem for d in pipeline_search_path() if d.is_dir() for p in d.glob("*.toml")}
+        )
+        known = f" (known pipelines: {', '.join(available)})" if available else ""
+        raise UserError(f"no pipeline named {name_or_path!r}{known}")
+    raise UserError(f"{name_or_path}: no such pipeline file")

@@ -1,0 +1,232 @@
+"""The MaxEnt trajectory model (docs/design.md §2) against the enumeration in ``path_enumeration``.
+
+The model of a phase (:class:`~cirl_study.core.maxent.MaxEnt` of a
+:class:`~cirl_study.core.maxent.Phase`) gives the log-partition, the log-likelihood of a
+demonstration and the first two moments of the feature counts; every one is compared with
+the same quantity summed over every enumerated path.
+"""
+
+import numpy as np
+import path_enumeration as bf
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from cirl_study.core.maxent import MaxEnt, Moments, Phase
+
+
+def _model(features, width, height, start, horizon, rationality, batch=1):
+    """The model of ``batch`` trials that share one ``(S, K)`` feature matrix."""
+    batch_features = np.broadcast_to(features, (batch, *features.shape))
+    return MaxEnt(Phase(bf.move_table(width, height), start, horizon), batch_features, rationality)
+
+
+# ---- log-likelihood and moments -------------------------------------------------------------
+
+
+@pytest.mark.parametrize("rationality", [1e-4, 1.0, 1e3])
+def test_log_likelihood_equals_enumeration(rationality):
+    width, height, start, horizon = 4, 4, 5, 5
+    rng, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=1)
+    thetas = rng.uniform(-1, 1, size=(4, 3))
+    demos = counts[rng.integers(len(paths), size=4)]
+    model = _model(features, width, height, start, horizon, rationality, batch=4)
+    got = model.log_likelihood(thetas, demos)
+    log_z = model.log_partition(thetas)
+    for b in range(4):
+        want = bf.log_likelihood(demos[b], counts, thetas[b], rationality)
+        assert got[b] == pytest.approx(want, rel=1e-12, abs=1e-11 * max(1.0, rationality))
+        assert log_z[b] == pytest.approx(
+            bf.log_partition(counts, thetas[b], rationality),
+            rel=1e-12,
+            abs=1e-11 * max(1.0, rationality),
+        )
+
+
+@pytest.mark.parametrize("rationality", [1e-4, 1.0, 1e3])
+def test_trajectory_moments_equal_enumeration(rationality):
+    width, height, start, horizon = 3, 5, 7, 5
+    rng, features, _, counts = bf.random_game(width, height, start, horizon, 4, seed=2)
+    thetas = rng.uniform(-1, 1, size=(3, 4))
+    moments = _model(features, width, height, start, horizon, rationality, batch=3).moments(thetas)
+    assert isinstance(moments, Moments)
+    assert moments.log_partition.shape == (3,)
+    assert moments.mean.shape == (3, 4)
+    assert moments.covariance.shape == (3, 4, 4)
+    for b in range(3):
+        assert moments.log_partition[b] == pytest.approx(
+            bf.log_partition(counts, thetas[b], rationality), rel=1e-12
+        )
+        np.testing.assert_allclose(
+            moments.mean[b],
+            bf.expected_features(counts, thetas[b], rationality),
+            rtol=1e-10,
+            atol=1e-13,
+        )
+        np.testing.assert_allclose(
+            moments.covariance[b],
+            bf.feature_covariance(counts, thetas[b], rationality),
+            rtol=1e-8,
+            atol=1e-12,
+        )
+
+
+def test_log_partition_and_log_likelihood_agree_with_the_moments():
+    # The three entry points compute log Z by the same recursion: they agree to the last bit.
+    width, height, start, horizon, rationality = 4, 3, 5, 4, 2.5
+    rng, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=6)
+    thetas = rng.uniform(-1, 1, size=(5, 3))
+    demos = counts[rng.integers(len(paths), size=5)]
+    model = _model(features, width, height, start, horizon, rationality, batch=5)
+    log_z = model.log_partition(thetas)
+    np.testing.assert_array_equal(log_z, model.moments(thetas).log_partition)
+    np.testing.assert_array_equal(
+        model.log_likelihood(thetas, demos),
+        rationality * np.einsum("bk,bk->b", thetas, demos) - log_z,
+    )
+
+
+@pytest.mark.parametrize("rationality", [1e-2, 1.0, 20.0, 1e3])
+def test_gradient_and_hessian_equal_finite_differences(rationality):
+    width, height, start, horizon = 4, 4, 6, 4
+    rng, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=3)
+    theta = rng.uniform(-0.8, 0.8, size=3)
+    demo = counts[rng.integers(len(paths))]
+    moments = _model(features, width, height, start, horizon, rationality).moments(theta[None])
+    gradient = rationality * (demo - moments.mean[0])  # docs/design.md §2
+    hessian = -(rationality**2) * moments.covariance[0]
+    step = 1e-5 / max(1.0, rationality)
+    for k in range(3):
+        e = np.zeros(3)
+        e[k] = step
+        up = bf.log_likelihood(demo, counts, theta + e, rationality)
+        down = bf.log_likelihood(demo, counts, theta - e, rationality)
+        scale = rationality * max(1.0, np.abs(demo).max())
+        assert gradient[k] == pytest.approx((up - down) / (2 * step), abs=1e-6 * scale)
+        slope_up = rationality * (demo - bf.expected_features(counts, theta + e, rationality))
+        slope_down = rationality * (demo - bf.expected_features(counts, theta - e, rationality))
+        np.testing.assert_allclose(
+            hessian[k], (slope_up - slope_down) / (2 * step), atol=1e-5 * rationality * scale
+        )
+
+
+def test_finite_differences_notice_a_wrong_gradient():
+    # The check above is sharp: a gradient off by lambda * phi(s_0) (start counted) fails it.
+    width, height, start, horizon, rationality = 4, 4, 6, 4, 1.0
+    rng, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=3)
+    theta = rng.uniform(-0.8, 0.8, size=3)
+    demo = counts[rng.integers(len(paths))]
+    right = rationality * (demo - bf.expected_features(counts, theta, rationality))
+    wrong = right + rationality * features[start]
+    step = 1e-5
+    fd = np.array(
+        [
+            (
+                bf.log_likelihood(demo, counts, theta + step * e, rationality)
+                - bf.log_likelihood(demo, counts, theta - step * e, rationality)
+            )
+            / (2 * step)
+            for e in np.eye(3)
+        ]
+    )
+    np.testing.assert_allclose(right, fd, atol=1e-6)
+    assert np.abs(wrong - fd).max() > 1e-3
+
+
+# ---- the phase ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "width, height, start, horizon", [(4, 4, 5, 4), (3, 5, 0, 3), (1, 3, 1, 3), (1, 1, 0, 2)]
+)
+def test_phase_reaches_exactly_the_cells_of_enumerated_paths(width, height, start, horizon):
+    phase = Phase(bf.move_table(width, height), start, horizon)
+    assert phase.start_cell == start
+    want = np.zeros((horizon + 1, width * height), dtype=bool)
+    for path in bf.enumerate_paths(width, height, start, horizon):
+        want[np.arange(horizon + 1), list(path)] = True
+    np.testing.assert_array_equal(phase.reachable, want)
+
+
+@pytest.mark.parametrize("width, height, horizon", [(4, 4, 3), (1, 3, 2), (2, 2, 0)])
+def test_a_phase_that_starts_anywhere_reaches_every_cell_and_has_no_log_partition(
+    width, height, horizon
+):
+    phase = Phase(bf.move_table(width, height), None, horizon)
+    assert phase.start is None
+    np.testing.assert_array_equal(phase.reachable, np.ones((horizon + 1, width * height), bool))
+    with pytest.raises(ValueError):
+        _ = phase.start_cell
+    _, features, _, _ = bf.random_game(width, height, 0, horizon, 2, seed=0)
+    model = MaxEnt(phase, features[None], 1.0)
+    theta, demo = np.array([[0.5, -0.5]]), np.zeros((1, 2))
+    with pytest.raises(ValueError):
+        model.log_partition(theta)
+    with pytest.raises(ValueError):
+        model.log_likelihood(theta, demo)
+    with pytest.raises(ValueError):
+        model.moments(theta)
+
+
+def test_phase_normalises_its_fields():
+    table = bf.move_table(3, 2).astype(np.int32)
+    phase = Phase(table, np.int64(4), np.int32(3))
+    assert phase.successors.dtype == np.int64 and phase.successors.flags.c_contiguous
+    np.testing.assert_array_equal(phase.successors, bf.move_table(3, 2))
+    assert type(phase.start) is int and phase.start == 4
+    assert type(phase.horizon) is int and phase.horizon == 3
+
+
+# ---- the batch: take, path counts, cell rewards ---------------------------------------------
+
+
+@pytest.mark.parametrize("rationality", [1e-4, 1.0, 1e3])
+def test_take_gives_the_rows_of_the_full_model(rationality):
+    # Each trial is computed alone: the model of some rows is bit-identical to those rows.
+    width, height, start, horizon, batch = 4, 4, 6, 4, 6
+    rng = np.random.default_rng(17)
+    centers = rng.uniform(0, 3, size=(batch, 3, 2))
+    features = np.array([bf.rbf_features(width, height, c, 1.3) for c in centers])
+    thetas = rng.uniform(-1, 1, size=(batch, 3))
+    model = MaxEnt(Phase(bf.move_table(width, height), start, horizon), features, rationality)
+    full = model.moments(thetas)
+    for rows in (np.array([4, 0, 2]), np.array([True, False, False, True, True, False])):
+        part = model.take(rows)
+        assert part.phase is model.phase and part.rationality == model.rationality
+        assert part.batch == len(thetas[rows])
+        np.testing.assert_array_equal(part.features, features[rows])
+        got = part.moments(thetas[rows])
+        np.testing.assert_array_equal(got.log_partition, full.log_partition[rows])
+        np.testing.assert_array_equal(got.mean, full.mean[rows])
+        np.testing.assert_array_equal(got.covariance, full.covariance[rows])
+        np.testing.assert_array_equal(
+            part.log_partition(thetas[rows]), model.log_partition(thetas)[rows]
+        )
+
+
+@given(instance=bf.instances(max_side=4, max_horizon=4, max_features=4), data=st.data())
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_path_counts_equal_the_reference_feature_counts(instance, data):
+    # A batch of trials, each with its own features and path; the start cell is not counted.
+    rng = np.random.default_rng(data.draw(st.integers(0, 2**32 - 1)))
+    batch = 3
+    features = instance.features[None] * rng.uniform(0.5, 2.0, size=(batch, 1, 1))
+    chosen = rng.integers(len(instance.paths), size=batch)
+    paths = instance.paths[chosen]
+    phase = Phase(bf.move_table(instance.width, instance.height), instance.start, instance.horizon)
+    got = MaxEnt(phase, features, instance.rationality).path_counts(paths)
+    assert got.shape == (batch, len(instance.theta))
+    for b in range(batch):
+        want = bf.feature_counts(paths[b : b + 1], features[b])[0]
+        np.testing.assert_allclose(got[b], want, rtol=1e-14, atol=1e-300)
+
+
+def test_cell_rewards_are_theta_dot_phi_of_every_cell():
+    rng = np.random.default_rng(5)
+    features = np.array([bf.rbf_features(3, 3, rng.uniform(0, 2, (2, 2)), 1.0) for _ in range(2)])
+    thetas = rng.uniform(-1, 1, size=(2, 2))
+    model = MaxEnt(Phase(bf.move_table(3, 3), 0, 2), features, 1.0)
+    got = model.cell_rewards(thetas)
+    assert got.shape == (2, 9)
+    for b in range(2):
+        np.testing.assert_allclose(got[b], bf.path_rewards(features[b], thetas[b]), rtol=1e-14)

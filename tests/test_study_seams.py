@@ -1,0 +1,87 @@
+"""A new human policy or robot is one function and one registry line: play a pipeline with them."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from cirl_study.core.humans import HUMANS, Human, register_human
+from cirl_study.core.maxent import MaxEnt
+from cirl_study.core.robot import ROBOTS, Estimate, register_robot
+from cirl_study.errors import UserError
+from cirl_study.logs import read_run, validate_run
+from cirl_study.study.engines import LocalEngine
+from cirl_study.study.runner import run_pipeline
+from cirl_study.study.spec import load_pipeline, parse_pipeline
+
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
+
+
+def stay_put(model: MaxEnt, theta: np.ndarray, eta: np.ndarray | None) -> np.ndarray:
+    """A human who never moves: ``s_0`` at every step (``stay`` is always available)."""
+    return np.full((len(theta), model.phase.horizon + 1), model.phase.start_cell)
+
+
+def prior_mean(model: MaxEnt, demo_counts: np.ndarray) -> Estimate:
+    """A robot that ignores the demonstration and acts on the prior mean, theta = 0."""
+    batch, k = demo_counts.shape
+    theta_hat = np.zeros((batch, k))
+    return Estimate(
+        theta_hat=theta_hat,
+        log_likelihood=model.log_likelihood(theta_hat, demo_counts),
+        iterations=np.zeros(batch, dtype=np.int64),
+        converged=np.ones(batch, dtype=bool),
+    )
+
+
+@pytest.fixture
+def registered() -> Iterator[None]:
+    register_human("stay_put", Human(stay_put, takes_eta=False))
+    register_robot("prior_mean", prior_mean)
+    yield
+    del HUMANS["stay_put"], ROBOTS["prior_mean"]
+
+
+def pipeline_text(policies: str, robot: str) -> str:
+    text = SMOKE.read_text()
+    text = text.replace('policies = ["expert", "best_response"]', f"policies = {policies}")
+    return text.replace('robot = "map"', f'robot = "{robot}"')
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_registered_policy_and_robot_play_a_pipeline(
+    registered: None, tmp_path: Path, workers: int
+) -> None:
+    path = tmp_path / "seams.toml"
+    path.write_text(pipeline_text('["stay_put", "best_response"]', "prior_mean"))
+    pipeline = load_pipeline(path)
+    assert pipeline.policies_with_eta == ("best_response",)
+    result = run_pipeline(pipeline, tmp_path / "run", LocalEngine(workers))
+    assert result.played == result.total == 82
+    assert validate_run(tmp_path / "run").ok
+    records = read_run(tmp_path / "run").records
+    assert {r.policy for r in records} == {"stay_put", "best_response"}
+    assert {r.robot for r in records} == {"prior_mean"}
+    for record in records:
+        assert all(v == 0.0 for v in record.theta_hat)
+        if record.policy == "stay_put":
+            assert record.eta is None
+            assert set(record.demonstration.states) == {record.start}
+            assert set(record.demonstration.actions) == {"stay"}
+
+
+def test_unknown_names_are_refused_before_anything_runs(tmp_path: Path) -> None:
+    with pytest.raises(UserError, match=r"main.policies must be a non-empty list of distinct"):
+        parse_pipeline(pipeline_text('["stay_put"]', "map"), tmp_path / "x.toml")
+    with pytest.raises(UserError, match=r"main.robot must be one of the known robots \(map"):
+        parse_pipeline(pipeline_text('["expert"]', "oracle"), tmp_path / "x.toml")
+
+
+def test_a_name_is_registered_once(registered: None) -> None:
+    with pytest.raises(ValueError, match="already registered"):
+        register_human("stay_put", Human(stay_put, takes_eta=False))
+    with pytest.raises(ValueError, match="already registered"):
+        register_robot("map", prior_mean)
