@@ -137,11 +137,18 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
 
 
 class TrialRecord(TrialSpec, **_STRUCT):
-    """One played trial: its :class:`TrialSpec` and what happened (docs/design.md §7)."""
+    """One played trial: its :class:`TrialSpec` and what happened (docs/design.md §7).
+
+    ``theta_hat`` is the estimate of the trial's ``robot``; a robot whose estimate is a
+    Monte-Carlo one also logs ``theta_hat_se`` (standard error per coordinate) and
+    ``effective_sample_size``; they are ``null`` otherwise.
+    """
 
     theta_hat: Annotated[tuple[Weight, ...], msgspec.Meta(min_length=1)]
     demonstration: Demonstration
     measures: Measures
+    theta_hat_se: tuple[Annotated[float, msgspec.Meta(ge=0.0)], ...] | None = None
+    effective_sample_size: Annotated[float, msgspec.Meta(ge=0.0)] | None = None
     irl: FitDiagnostics | None = None
     deployment: Deployment | None = None
 

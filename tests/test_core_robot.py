@@ -85,10 +85,16 @@ def test_fit_with_an_interior_solution_recovers_the_moment_match():
 
 
 def test_the_map_robot_is_registered_and_a_name_is_taken_once():
-    assert ROBOTS[MAP] is map_estimate
+    width, height, start, horizon, rationality = 4, 4, 5, 4, 1.0
+    _, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=7)
+    model = MaxEnt(Phase(bf.move_table(width, height), start, horizon), features[None], rationality)
+    registered = ROBOTS[MAP](model, counts[:1], np.array([3]))
+    np.testing.assert_array_equal(registered.theta_hat, map_estimate(model, counts[:1]).theta_hat)
+    assert registered.theta_hat_se is None and registered.effective_sample_size is None
+    robot = ROBOTS[MAP]
     with pytest.raises(ValueError):
-        register_robot(MAP, map_estimate)
-    assert ROBOTS[MAP] is map_estimate
+        register_robot(MAP, robot)
+    assert ROBOTS[MAP] is robot
 
 
 def test_estimate_fields_and_the_iteration_cap():

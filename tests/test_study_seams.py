@@ -25,7 +25,7 @@ def stay_put(model: MaxEnt, theta: np.ndarray, eta: np.ndarray | None) -> np.nda
     return np.full((len(theta), model.phase.horizon + 1), model.phase.start_cell)
 
 
-def prior_mean(model: MaxEnt, demo_counts: np.ndarray) -> Estimate:
+def prior_mean(model: MaxEnt, demo_counts: np.ndarray, seeds: np.ndarray) -> Estimate:
     """A robot that ignores the demonstration and acts on the prior mean, theta = 0."""
     batch, k = demo_counts.shape
     theta_hat = np.zeros((batch, k))

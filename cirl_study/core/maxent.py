@@ -161,6 +161,24 @@ class MaxEnt:
             theta
         )
 
+    def log_likelihood_at(self, thetas: FloatArray, demo_counts: FloatArray) -> FloatArray:
+        """``(B, N)`` log-likelihoods :math:`L(\\theta_{b,n})` of ``N`` weight vectors per trial.
+
+        ``thetas`` is ``(B, N, K)``: for trial ``b``, the points ``thetas[b]`` at which its
+        demonstration's ``demo_counts[b]`` is scored (e.g. samples of a posterior).
+        """
+        phase = self.phase
+        batch, points, _ = thetas.shape
+        scaled = self.rationality * np.einsum("bsk,bnk->bns", self.features, thetas)
+        log_z = _log_partition(
+            np.ascontiguousarray(scaled.reshape(batch * points, -1)),
+            phase.successors,
+            phase.start_cell,
+            phase.horizon,
+            phase.reachable,
+        ).reshape(batch, points)
+        return self.rationality * np.einsum("bnk,bk->bn", thetas, demo_counts) - log_z
+
     def moments(self, theta: FloatArray) -> Moments:
         """The log-partition, mean and covariance of :math:`\\phi(\\tau)` under :math:`\\theta`."""
         phase = self.phase

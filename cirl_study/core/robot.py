@@ -52,16 +52,34 @@ class Estimate:
         log_likelihood: ``(B,)`` :math:`\\log P(\\tau_{demo} \\mid \\hat\\theta, \\lambda)`.
         iterations: ``(B,)`` iterations of the estimator.
         converged: ``(B,)`` whether the estimator met its stopping rule.
+        theta_hat_se: ``(B, K)`` Monte-Carlo standard error of each coordinate, for a robot
+            whose estimate is random (else ``None``).
+        effective_sample_size: ``(B,)`` the Monte-Carlo effective sample size (else ``None``).
     """
 
     theta_hat: FloatArray
     log_likelihood: FloatArray
     iterations: NDArray[np.int64]
     converged: NDArray[np.bool_]
+    theta_hat_se: FloatArray | None = None
+    effective_sample_size: FloatArray | None = None
 
 
-Estimator = Callable[[MaxEnt, FloatArray], Estimate]
-"""A robot: ``estimate(model, demo_counts)`` for the batch of ``model``'s trials."""
+Estimator = Callable[[MaxEnt, FloatArray, NDArray[np.int64]], Estimate]
+"""A robot: ``estimate(model, demo_counts, seeds)`` for the batch of ``model``'s trials.
+
+``seeds`` ``(B,)`` are the trials' own seeds (:attr:`cirl_study.record.TrialSpec.seed`); a
+robot that draws random numbers derives its generator from them with
+:func:`robot_generator`, so its estimate depends on its trial alone.
+"""
+
+ROBOT_STREAM = 1
+"""Spawn key that separates a robot's random stream from the trial's other uses of its seed."""
+
+
+def robot_generator(seed: int) -> np.random.Generator:
+    """The random generator of the robot of the trial with ``seed``."""
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(ROBOT_STREAM,)))
 
 
 @dataclass(frozen=True)
@@ -276,4 +294,4 @@ def register_robot(name: str, estimate: Estimator) -> None:
     ROBOTS[name] = estimate
 
 
-register_robot(MAP, map_estimate)
+register_robot(MAP, lambda model, demo_counts, seeds: map_estimate(model, demo_counts))

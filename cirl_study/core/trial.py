@@ -104,7 +104,8 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     human = HUMANS[first.policy]
     eta = np.array([spec.eta for spec in specs], dtype=np.float64) if human.takes_eta else None
     demos = human.demonstrate(learning, theta, eta)
-    estimate = ROBOTS[first.robot](learning, learning.path_counts(demos))
+    seeds = np.array([spec.seed for spec in specs], dtype=np.int64)
+    estimate = ROBOTS[first.robot](learning, learning.path_counts(demos), seeds)
     theta_hat = estimate.theta_hat
     measures = {
         "regret": regret(deployment, theta, theta_hat),
@@ -123,6 +124,12 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
                 states=_cells(grid, demos[b]), actions=tuple(path_actions(grid, demos[b]))
             ),
             measures=Measures(**{name: float(values[b]) for name, values in measures.items()}),
+            theta_hat_se=None
+            if estimate.theta_hat_se is None
+            else tuple(float(v) for v in estimate.theta_hat_se[b]),
+            effective_sample_size=None
+            if estimate.effective_sample_size is None
+            else float(estimate.effective_sample_size[b]),
             irl=FitDiagnostics(
                 log_likelihood=float(estimate.log_likelihood[b]),
                 iterations=int(estimate.iterations[b]),
