@@ -25,13 +25,13 @@ def stay_put(model: MaxEnt, theta: np.ndarray, eta: np.ndarray | None) -> np.nda
     return np.full((len(theta), model.phase.horizon + 1), model.phase.start_cell)
 
 
-def prior_mean(model: MaxEnt, demo_counts: np.ndarray, seeds: np.ndarray) -> Estimate:
+def prior_mean(model: MaxEnt, demos: np.ndarray, seeds: np.ndarray) -> Estimate:
     """A robot that ignores the demonstration and acts on the prior mean, theta = 0."""
-    batch, k = demo_counts.shape
+    batch, k = len(demos), model.features.shape[2]
     theta_hat = np.zeros((batch, k))
     return Estimate(
         theta_hat=theta_hat,
-        log_likelihood=model.log_likelihood(theta_hat, demo_counts),
+        log_likelihood=model.log_likelihood(theta_hat, model.path_counts(demos)),
         iterations=np.zeros(batch, dtype=np.int64),
         converged=np.ones(batch, dtype=bool),
     )

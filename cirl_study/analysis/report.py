@@ -22,7 +22,7 @@ from cirl_study.analysis.markdown import anchor, interval, number, p_value, tabl
 from cirl_study.analysis.results import Results, analyse, plain
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.errors import UserError
-from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_POLICIES, TrialRecord
+from cirl_study.record import BEST_RESPONSE, EXPERT, LAMBDA_SWEEP, MAIN, PAPER_POLICIES, TrialRecord
 
 HEADINGS = {
     "claims": "Claims",
@@ -290,8 +290,26 @@ def _lambda_sweep(results: Results) -> list[str]:
         "",
         _grid_table(regret, "rationality", "λ", columns),
         "",
+        _certification(results),
+        "",
         f"![Figure 2, right: regret against lambda]({name})",
     ]
+
+
+def _certification(results: Results) -> str:
+    """One sentence: at which lambdas the robot could not certify every estimate."""
+    short = [
+        f"{row['certified']} of {row['trials']} at λ = {number(row['rationality'])}"
+        for row in results["certified"]
+        if row["block"] == LAMBDA_SWEEP and row["certified"] < row["trials"]
+    ]
+    if not short:
+        return "Every estimate of the sweep is certified within 1e-6 of the MAP."
+    return (
+        "Estimates certified within 1e-6 of the MAP (the others lie where the likelihood is "
+        "flat to double-precision rounding in some direction, and stay where the robot "
+        f"stopped): {'; '.join(short)}; every other λ: all."
+    )
 
 
 def _eta_check(results: Results) -> str:
@@ -450,13 +468,15 @@ def write_report(
     out_dir: Path | str,
     pipeline_name: str,
     theory: Mapping[str, Any] | None = None,
+    provenance: Mapping[str, Any] | None = None,
 ) -> Results:
     """Analyse trial records and write the report directory.
 
     Writes ``report.md``, ``results.json`` (every number at full precision), ``trials.csv``
     (the trial table) and the figures of :data:`FIGURES` into ``out_dir`` (created if
     needed); a figure the run has no data for is not written, and a stale copy of it is
-    removed.
+    removed. ``provenance`` (what made the run and the report) goes to ``provenance.json``,
+    apart from the numbers, since it differs from machine to machine while they must not.
 
     Args:
         records: the trial records (docs/design.md §7), in any order.
@@ -464,6 +484,7 @@ def write_report(
         pipeline_name: the pipeline's name, shown in the report.
         theory: optional extra claims (see :func:`cirl_study.analysis.claims.external_claims`);
             stored under ``theory`` in ``results.json``.
+        provenance: optional provenance, written as ``provenance.json``.
 
     Returns:
         The content of ``results.json``.
@@ -485,6 +506,9 @@ def write_report(
         text = json.dumps(results, indent=2, ensure_ascii=False, allow_nan=False)
         (out / "results.json").write_text(text + "\n", encoding="utf-8", newline="\n")
         trial_table(records).to_csv(out / "trials.csv", index=False, lineterminator="\n")
+        if provenance is not None:
+            text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
+            (out / "provenance.json").write_text(text + "\n", encoding="utf-8", newline="\n")
         for name, _ in FIGURES.values():
             if name in pngs:
                 (out / name).write_bytes(pngs[name])

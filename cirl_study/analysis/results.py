@@ -156,6 +156,20 @@ def eta_cv(records: Sequence[TrialRecord], table: pd.DataFrame) -> dict[str, Any
     }
 
 
+def _certified(table: pd.DataFrame) -> list[dict[str, Any]]:
+    """Per block and rationality: trials, and those whose estimate the robot certified."""
+    counts = table.groupby(["block", "rationality"], sort=True)["certified"].agg(["size", "sum"])
+    return [
+        {
+            "block": str(block),
+            "rationality": float(rationality),
+            "trials": int(n),
+            "certified": int(k),
+        }
+        for (block, rationality), (n, k) in counts.iterrows()
+    ]
+
+
 def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
     """Run every analysis of docs/design.md §5 on checked trial records.
 
@@ -192,6 +206,7 @@ def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
         ),
         "cronbach_alpha": plain(alpha),
         "lambda_sweep": rows(statistics.lambda_sweep(sweep, MEASURES)) if not sweep.empty else [],
+        "certified": _certified(table),
         "eta_cv": eta_cv(records, table),
         "figure1": figure1_subject(main),
     }

@@ -30,8 +30,10 @@ COLUMNS: tuple[str, ...] = (
     "eta",
     "seed",
     *MEASURES,
+    "certified",
 )
-"""Columns of the trial table, in order."""
+"""Columns of the trial table, in order. ``certified``: the robot certified its estimate
+(``irl.converged``; a record without a fit report counts as certified)."""
 
 SORT_KEYS: tuple[str, ...] = (
     "block",
@@ -58,6 +60,7 @@ def _row(record: TrialRecord) -> dict[str, Any]:
         "eta": math.nan if record.eta is None else record.eta,
         "seed": record.seed,
         **{measure: getattr(record.measures, measure) for measure in MEASURES},
+        "certified": record.irl is None or record.irl.converged,
     }
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Annotated
 
@@ -46,6 +47,7 @@ def analyze(run: RunArgument, out: ReportDirectoryOption = None) -> None:
     from cirl_study.analysis.report import write_report
     from cirl_study.analysis.theory_claims import office_supplies_claims
     from cirl_study.logs import read_run
+    from cirl_study.logs.provenance import machine_provenance
     from cirl_study.theory import office_supplies_results
 
     contents = read_run(run)
@@ -53,7 +55,16 @@ def analyze(run: RunArgument, out: ReportDirectoryOption = None) -> None:
         typer.echo(f"warning: {warning}", err=True)
     target = out if out is not None else REPORTS_DIRECTORY / contents.pipeline_name
     theory = office_supplies_claims(office_supplies_results())
-    results = write_report(contents.records, target, contents.pipeline_name, theory=theory)
+    provenance = {
+        "run": sorted(
+            {json.dumps(p, sort_keys=True): p for p in contents.provenance}.values(),
+            key=lambda p: json.dumps(p, sort_keys=True),
+        ),
+        "report": machine_provenance(),
+    }
+    results = write_report(
+        contents.records, target, contents.pipeline_name, theory=theory, provenance=provenance
+    )
     claims = results["claims"]
     reproduced = sum(claim["reproduced"] for claim in claims)
     untested = sum(not claim["tested"] for claim in claims)

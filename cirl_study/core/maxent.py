@@ -50,10 +50,14 @@ from cirl_study.core.planning import (
     FloatArray,
     IntArray,
     backward_future_counts,
+    backward_future_covariance,
     forward_visitation,
     reachable_cells,
     soft_backup,
 )
+
+MAX_CLASS_PATHS = 100_000
+"""Most paths a demonstration's count class may hold (see :func:`demonstration_classes`)."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -104,6 +108,68 @@ class Moments:
     """
 
     log_partition: FloatArray
+    mean: FloatArray
+    covariance: FloatArray
+
+
+@dataclass(frozen=True)
+class DemonstrationClass:
+    """Each trial's demonstration, as the set of paths that share its feature counts.
+
+    A path :math:`\\tau` with :math:`\\Delta_\\tau = \\phi(\\tau) - \\phi(\\tau_{demo}) = 0`
+    (the demonstration, and any path through the same multiset of feature vectors, e.g. its
+    cells in another order) has weight :math:`e^{\\lambda \\theta^\\top \\Delta_\\tau} = 1` at
+    every :math:`\\theta`. Every other path leaves the prefix tree of these class paths at
+    exactly one *exit*: a prefix of a class path followed by a move no class path makes. An
+    exit ``e`` at step ``t`` into cell ``s'`` carries :math:`A_e = \\phi(\\text{prefix}, s') -
+    \\phi(\\tau_{demo})` (the counts so far, minus the demonstration's), so the paths through it
+    have :math:`\\Delta_\\tau = A_e + X` with :math:`X` the counts still to come after ``t``.
+
+    Attributes:
+        members: ``(B,)`` number ``m`` of paths in each trial's class.
+        offsets: ``(B + 1,)`` trial ``b``'s exits are ``offsets[b]:offsets[b + 1]``.
+        step: ``(E,)`` the step ``t`` at which each exit enters its cell.
+        cell: ``(E,)`` the cell ``s'`` each exit enters.
+        shift: ``(E, K)`` each exit's :math:`A_e`.
+    """
+
+    members: IntArray
+    offsets: IntArray
+    step: IntArray
+    cell: IntArray
+    shift: FloatArray
+
+    def take(self, rows: IntArray) -> DemonstrationClass:
+        """The classes of the trials ``rows`` only (an index array), in that order."""
+        rows = np.asarray(rows)
+        starts, ends = self.offsets[rows], self.offsets[rows + 1]
+        picked = np.concatenate(
+            [np.arange(a, b) for a, b in zip(starts, ends, strict=True)] or [np.arange(0)]
+        ).astype(np.int64)
+        return DemonstrationClass(
+            members=self.members[rows],
+            offsets=np.concatenate([[0], np.cumsum(ends - starts)]).astype(np.int64),
+            step=self.step[picked],
+            cell=self.cell[picked],
+            shift=self.shift[picked],
+        )
+
+
+@dataclass(frozen=True)
+class OffDemonstration:
+    """The paths outside the demonstration's class, :math:`\\Delta_\\tau \\ne 0`, per trial.
+
+    With :math:`R(\\theta) = \\sum_{\\Delta_\\tau \\ne 0}
+    e^{\\lambda\\theta^\\top\\Delta_\\tau}` and :math:`q(\\tau) \\propto
+    e^{\\lambda\\theta^\\top\\Delta_\\tau}` on those paths,
+
+    Attributes:
+        log_mass: ``(B,)`` :math:`\\log R(\\theta)`.
+        mean: ``(B, K)`` :math:`E_q[\\Delta]`.
+        covariance: ``(B, K, K)`` :math:`\\mathrm{Cov}_q[\\Delta]` (zeros when not asked for).
+    """
+
+    log_mass: FloatArray
     mean: FloatArray
     covariance: FloatArray
 
@@ -179,6 +245,73 @@ class MaxEnt:
         ).reshape(batch, points)
         return self.rationality * np.einsum("bnk,bk->bn", thetas, demo_counts) - log_z
 
+    def demonstration_classes(self, demos: IntArray) -> DemonstrationClass:
+        """The count class of each trial's demonstration path ``demos[b]`` ``(B, T + 1)``.
+
+        Cells whose feature vectors are equal (bit for bit) are interchangeable in a path's
+        counts; the class of a demonstration is every path from :math:`s_0` through the same
+        multiset of feature vectors, enumerated depth-first over those cells only.
+
+        Raises:
+            ValueError: a class holds more than :data:`MAX_CLASS_PATHS` paths.
+        """
+        phase = self.phase
+        members, offsets, steps, cells, shifts = [], [0], [], [], []
+        for b, demo in enumerate(np.asarray(demos)):
+            features = self.features[b]
+            _, kind = np.unique(features, axis=0, return_inverse=True)
+            paths = _class_paths(phase.successors, phase.start_cell, demo, kind.ravel())
+            members.append(len(paths))
+            demo_counts = features[demo[1:]].sum(axis=0)
+            for step, prefix, cell in _exits(phase.successors, paths):
+                steps.append(step)
+                cells.append(cell)
+                shifts.append(features[[*prefix[1:], cell]].sum(axis=0) - demo_counts)
+            offsets.append(len(steps))
+        k = self.features.shape[2]
+        return DemonstrationClass(
+            members=np.asarray(members, dtype=np.int64),
+            offsets=np.asarray(offsets, dtype=np.int64),
+            step=np.asarray(steps, dtype=np.int64),
+            cell=np.asarray(cells, dtype=np.int64),
+            shift=np.asarray(shifts, dtype=np.float64).reshape(-1, k),
+        )
+
+    def off_demonstration(
+        self, theta: FloatArray, demos: DemonstrationClass, *, covariance: bool = True
+    ) -> OffDemonstration:
+        """:math:`\\log R`, :math:`E_q[\\Delta]` and :math:`\\mathrm{Cov}_q[\\Delta]` (see
+        :class:`OffDemonstration`), summed over the exits of :class:`DemonstrationClass`.
+
+        An exit ``e`` (step ``t``, cell ``s'``) carries the mass
+        :math:`w_e = e^{\\lambda\\theta^\\top A_e + V_t(s')}` of every path through it, with
+        :math:`V_t` the soft value of the steps after ``t``; so
+        :math:`\\log R = \\operatorname{logsumexp}_e \\log w_e`, and with
+        :math:`q_e = w_e / R`, :math:`\\mu_e = A_e + F_t(s')`,
+        :math:`E_q[\\Delta] = \\sum_e q_e \\mu_e` and
+        :math:`\\mathrm{Cov}_q[\\Delta] = \\sum_e q_e [C_t(s') + (\\mu_e - E_q\\Delta)(\\mu_e -
+        E_q\\Delta)^\\top]` (:func:`~cirl_study.core.planning.backward_future_counts`,
+        :func:`~cirl_study.core.planning.backward_future_covariance`). Every term is a sum of
+        non-negative weights in log space: nothing cancels when the demonstration's own class
+        holds all but :math:`10^{-300}` of the mass, which is where
+        :math:`\\lambda(\\phi_{demo} - E_\\theta[\\phi])` is lost to rounding.
+        """
+        phase = self.phase
+        log_mass, mean, cov = _off_demonstration(
+            self.rationality,
+            np.ascontiguousarray(theta, dtype=np.float64),
+            self.features,
+            phase.successors,
+            phase.horizon,
+            phase.reachable,
+            demos.offsets,
+            demos.step,
+            demos.cell,
+            demos.shift,
+            covariance,
+        )
+        return OffDemonstration(log_mass, mean, cov)
+
     def moments(self, theta: FloatArray) -> Moments:
         """The log-partition, mean and covariance of :math:`\\phi(\\tau)` under :math:`\\theta`."""
         phase = self.phase
@@ -251,3 +384,122 @@ def _trajectory_moments(scaled, features, successors, start, horizon, needed):  
             for j in range(k):
                 covariance[b, i, j] = 0.5 * (second[i, j] + second[j, i]) - mean[b, i] * mean[b, j]
     return log_z, mean, covariance
+
+
+def _class_paths(
+    successors: IntArray, start: int, demo: IntArray, kind: IntArray
+) -> list[tuple[int, ...]]:
+    """Every path from ``start`` whose cells ``s_1..s_T`` have the multiset of kinds of ``demo``."""
+    remaining: dict[int, int] = {}
+    for cell in demo[1:]:
+        remaining[int(kind[cell])] = remaining.get(int(kind[cell]), 0) + 1
+    horizon = len(demo) - 1
+    paths: list[tuple[int, ...]] = []
+    stack = [(int(start),)]
+    counts: list[dict[int, int]] = [remaining]
+    while stack:
+        prefix, left = stack.pop(), counts.pop()
+        if len(prefix) == horizon + 1:
+            paths.append(prefix)
+            if len(paths) > MAX_CLASS_PATHS:
+                raise ValueError(
+                    f"the demonstration's count class holds more than {MAX_CLASS_PATHS} paths"
+                )
+            continue
+        for nxt in successors[prefix[-1]]:
+            if nxt < 0 or left.get(int(kind[nxt]), 0) == 0:
+                continue
+            after = dict(left)
+            after[int(kind[nxt])] -= 1
+            stack.append((*prefix, int(nxt)))
+            counts.append(after)
+    return paths
+
+
+def _exits(
+    successors: IntArray, paths: list[tuple[int, ...]]
+) -> list[tuple[int, tuple[int, ...], int]]:
+    """``(t, prefix, s')``: every move from a class-path prefix ``(s_0..s_{t-1})`` to a cell
+    ``s'`` at step ``t`` that no class path makes, in a deterministic order."""
+    children: dict[tuple[int, ...], set[int]] = {}
+    for path in paths:
+        for t in range(1, len(path)):
+            children.setdefault(path[:t], set()).add(path[t])
+    exits = []
+    for prefix in sorted(children):
+        for nxt in successors[prefix[-1]]:
+            if nxt >= 0 and int(nxt) not in children[prefix]:
+                exits.append((len(prefix), prefix, int(nxt)))
+    return exits
+
+
+@njit(cache=True)
+def _off_demonstration(
+    rationality,
+    theta,
+    features,
+    successors,
+    horizon,
+    needed,
+    offsets,
+    step,
+    cell,
+    shift,
+    with_covariance,
+):  # pragma: no cover - compiled
+    # Every sum is a plain loop in a fixed order: the result is the same on every CPU.
+    batch, cells, k = features.shape
+    actions = successors.shape[1]
+    scaled = np.empty(cells)
+    exit_scaled = np.empty(shift.shape[0])
+    values = np.empty((horizon + 1, cells))
+    log_policy = np.empty((horizon, cells, actions))
+    policy = np.empty((horizon, cells, actions))
+    future = np.empty((horizon + 1, cells, k))
+    future_cov = np.zeros((horizon + 1, cells, k, k))
+    log_mass = np.full(batch, -np.inf)
+    mean = np.zeros((batch, k))
+    covariance = np.zeros((batch, k, k))
+    for b in range(batch):
+        first, last = offsets[b], offsets[b + 1]
+        if first == last:
+            continue
+        phi = features[b]
+        for s in range(cells):
+            total = 0.0
+            for i in range(k):
+                total += phi[s, i] * theta[b, i]
+            scaled[s] = rationality * total
+        for e in range(first, last):
+            total = 0.0
+            for i in range(k):
+                total += theta[b, i] * shift[e, i]
+            exit_scaled[e] = rationality * total
+        soft_backup(scaled, successors, horizon, values, log_policy, policy, needed)
+        backward_future_counts(policy, successors, phi, future, needed)
+        if with_covariance:
+            backward_future_covariance(policy, successors, phi, future, future_cov, needed)
+        top = -np.inf
+        for e in range(first, last):
+            top = max(top, exit_scaled[e] + values[step[e], cell[e]])
+        total = 0.0
+        for e in range(first, last):
+            total += np.exp(exit_scaled[e] + values[step[e], cell[e]] - top)
+        log_mass[b] = top + np.log(total)
+        for e in range(first, last):
+            q = np.exp(exit_scaled[e] + values[step[e], cell[e]] - log_mass[b])
+            for i in range(k):
+                mean[b, i] += q * (shift[e, i] + future[step[e], cell[e], i])
+        if not with_covariance:
+            continue
+        for e in range(first, last):
+            q = np.exp(exit_scaled[e] + values[step[e], cell[e]] - log_mass[b])
+            if q == 0.0:
+                continue
+            t, c = step[e], cell[e]
+            for i in range(k):
+                gi = shift[e, i] + future[t, c, i] - mean[b, i]
+                for j in range(k):
+                    gj = shift[e, j] + future[t, c, j] - mean[b, j]
+                    covariance[b, i, j] += q * (future_cov[t, c, i, j] + gi * gj)
+    return log_mass, mean, covariance

@@ -340,3 +340,39 @@ def follow_policy(successors: IntArray, start: IntArray, policy: IntArray) -> In
     for t in range(horizon):
         states[:, t + 1] = successors[states[:, t], policy[t, rows, states[:, t]]]
     return states
+
+
+@njit(cache=True)
+def backward_future_covariance(policy, successors, features, future, covariance, needed):
+    """:math:`C_t(s) = \\mathrm{Cov}[\\sum_{u > t} \\phi(s_u) \\mid s_t = s]` for one trial.
+
+    By the law of total covariance, with :math:`X_t = \\phi(s_{t+1}) + X_{t+1}`,
+    :math:`C_t(s) = \\sum_a \\pi_t(a \\mid s)\\,[C_{t+1}(s') + e\\,e^\\top]`,
+    :math:`e = \\phi(s') + F_{t+1}(s') - F_t(s)`: a sum of positive semi-definite terms, so no
+    second moment minus squared mean is ever formed (no cancellation where the variance is
+    small). ``future`` holds :math:`F` (:func:`backward_future_counts`); fills ``covariance
+    (T+1, S, K, K)`` where ``needed`` is true.
+    """  # pragma: no cover - compiled
+    horizon, cells, actions = policy.shape
+    k = features.shape[1]
+    covariance[horizon, :, :, :] = 0.0
+    gap = np.empty(k)
+    for t in range(horizon - 1, -1, -1):
+        for s in range(cells):
+            if not needed[t, s]:
+                continue
+            covariance[t, s, :, :] = 0.0
+            for a in range(actions):
+                nxt = successors[s, a]
+                if nxt < 0:
+                    continue
+                p = policy[t, s, a]
+                if p == 0.0:
+                    continue
+                for i in range(k):
+                    gap[i] = features[nxt, i] + future[t + 1, nxt, i] - future[t, s, i]
+                for i in range(k):
+                    for j in range(k):
+                        covariance[t, s, i, j] += p * (
+                            covariance[t + 1, nxt, i, j] + gap[i] * gap[j]
+                        )
