@@ -3,9 +3,10 @@
 Usage::
 
     python benchmarks/bench_core.py [--trials 200] [--repeats 5] [--eta 1.0]
+                                    [--rationalities 1 100 1000]
 
 Plays ``--trials`` trials (10x10 grid, start [5, 5], 9 + 9 steps, sigma and lambda
-from ``pipelines/paper.toml``, centres and theta drawn as the pipeline draws them)
+from ``pipelines/paper.toml``, or the given ``--rationalities``, centres and theta drawn as the pipeline draws them)
 for K = 3 and K = 10 in one process on one core, ``--repeats`` times, and prints the
 median wall time per trial of each stage and of the whole best-response and expert
 trial (:func:`cirl_study.core.trial.play_trials`). The first (compiling) call is not timed.
@@ -61,8 +62,7 @@ def stages_for(k: int, n: int, game: dict, rationality: float, eta_value: float)
     learning = MaxEnt(Phase(grid.successors, start, steps), phi, rationality)
     deployment = MaxEnt(Phase(grid.successors, None, deploy), phi, rationality)
     br = best_response_paths(learning, theta, eta)
-    counts = learning.path_counts(br)
-    fit = map_estimate(learning, counts)
+    fit = map_estimate(learning, br)
     target = best_response_target(learning, theta, eta)
     specs = {
         policy: [
@@ -94,7 +94,7 @@ def stages_for(k: int, n: int, game: dict, rationality: float, eta_value: float)
         "expert demonstration": lambda: expert_paths(learning, theta),
         "best-response target (phi_theta)": lambda: best_response_target(learning, theta, eta),
         "best-response search": lambda: nearest_paths(phi, target, learning.phase, direction=theta),
-        "MaxEnt IRL (best-response demos)": lambda: map_estimate(learning, counts),
+        "MAP robot (best-response demos)": lambda: map_estimate(learning, br),
         "measures": lambda: (
             regret(deployment, theta, fit.theta_hat),
             trajectory_kl(deployment, theta, fit.theta_hat),
@@ -110,15 +110,23 @@ def main() -> None:
     parser.add_argument("--trials", type=int, default=200)
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--eta", type=float, default=1.0, help="best-response eta")
+    parser.add_argument(
+        "--rationalities",
+        type=float,
+        nargs="+",
+        default=None,
+        help="lambdas to time (default: the paper's main block, lambda = 1)",
+    )
     args = parser.parse_args()
     paper = tomllib.loads(PAPER.read_text())
-    game, rationality = paper["game"], paper["main"]["rationality"]
-    print(f"{args.trials} trials x {args.repeats} repeats, sigma={game['sigma']}, "
-          f"lambda={rationality}, eta={args.eta}: median ms per trial")  # fmt: skip
-    for k in (3, 10):
-        for name, run in stages_for(k, args.trials, game, rationality, args.eta).items():
-            ms = median_ms_per_trial(run, args.trials, args.repeats)
-            print(f"K={k:<3} {name:<36} {ms:8.3f}")
+    game = paper["game"]
+    for rationality in args.rationalities or [paper["main"]["rationality"]]:
+        print(f"{args.trials} trials x {args.repeats} repeats, sigma={game['sigma']}, "
+              f"lambda={rationality:g}, eta={args.eta}: median ms per trial")  # fmt: skip
+        for k in (3, 10):
+            for name, run in stages_for(k, args.trials, game, rationality, args.eta).items():
+                ms = median_ms_per_trial(run, args.trials, args.repeats)
+                print(f"K={k:<3} {name:<36} {ms:8.3f}")
 
 
 if __name__ == "__main__":
