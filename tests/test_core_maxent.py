@@ -230,3 +230,56 @@ def test_cell_rewards_are_theta_dot_phi_of_every_cell():
     assert got.shape == (2, 9)
     for b in range(2):
         np.testing.assert_allclose(got[b], bf.path_rewards(features[b], thetas[b]), rtol=1e-14)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_off_demonstration_moments_equal_enumeration(seed):
+    # log R, E_q[Delta] and Cov_q[Delta] over the paths whose counts differ from the
+    # demonstration's, summed path by path; demonstrations include back-and-forth walks, whose
+    # reorderings share their counts (the class has several members).
+    width, height, horizon = 4, 3, 4
+    rng = np.random.default_rng(seed)
+    start = int(rng.integers(width * height))
+    rng, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=seed)
+    if seed % 3 == 0:
+        there = next(int(c) for c in bf.move_table(width, height)[start] if c >= 0 and c != start)
+        demo = np.array([start, there, start, there, start])
+    else:
+        demo = paths[rng.integers(len(paths))]
+    theta = rng.uniform(-1, 1, size=(1, 3))
+    rationality = float(10 ** rng.uniform(-1, 3))
+    model = MaxEnt(Phase(bf.move_table(width, height), start, horizon), features[None], rationality)
+    classes = model.demonstration_classes(demo[None])
+    off = model.off_demonstration(theta, classes)
+    same = np.array([sorted(p[1:]) == sorted(demo[1:]) for p in paths.tolist()])
+    assert classes.members[0] == same.sum()
+    delta = counts[~same] - bf.feature_counts(demo[None], features)[0]
+    scores = rationality * delta @ theta[0]
+    top = scores.max()
+    weights = np.exp(scores - top)
+    q = weights / weights.sum()
+    mean = q @ delta
+    covariance = (delta - mean).T @ ((delta - mean) * q[:, None])
+    assert off.log_mass[0] == pytest.approx(top + np.log(weights.sum()), rel=1e-12, abs=1e-12)
+    np.testing.assert_allclose(off.mean[0], mean, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(off.covariance[0], covariance, rtol=0, atol=1e-12)
+    without = model.off_demonstration(theta, classes, covariance=False)
+    np.testing.assert_array_equal(without.mean, off.mean)
+    np.testing.assert_array_equal(without.covariance, 0.0)
+
+
+def test_demonstration_classes_take_rows():
+    width, height, start, horizon = 3, 3, 4, 3
+    _, features, paths, _ = bf.random_game(width, height, start, horizon, 2, seed=3)
+    model = MaxEnt(
+        Phase(bf.move_table(width, height), start, horizon),
+        np.broadcast_to(features, (4, *features.shape)),
+        2.0,
+    )
+    demos = paths[[0, 5, 9, 11]]
+    classes = model.demonstration_classes(demos)
+    rows = np.array([2, 0])
+    picked = classes.take(rows)
+    alone = model.take(rows).demonstration_classes(demos[rows])
+    for field in ("members", "offsets", "step", "cell", "shift"):
+        np.testing.assert_array_equal(getattr(picked, field), getattr(alone, field))

@@ -371,8 +371,11 @@ def backward_future_covariance(policy, successors, features, future, covariance,
                     continue
                 for i in range(k):
                     gap[i] = features[nxt, i] + future[t + 1, nxt, i] - future[t, s, i]
-                for i in range(k):
-                    for j in range(k):
+                for i in range(k):  # the upper triangle; mirrored below
+                    for j in range(i, k):
                         covariance[t, s, i, j] += p * (
                             covariance[t + 1, nxt, i, j] + gap[i] * gap[j]
                         )
+            for i in range(k):
+                for j in range(i):
+                    covariance[t, s, i, j] = covariance[t, s, j, i]
