@@ -1,10 +1,11 @@
-"""Reports compared by value: numbers within the tolerance, everything else exactly."""
+"""Reports compared by value: numbers within the tolerance, text exactly, figures nearly."""
 
 from __future__ import annotations
 
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 from typer.testing import CliRunner
 
@@ -91,3 +92,30 @@ def test_command_line(tmp_path: Path) -> None:
     assert strict.exit_code == 1 and "different (2 differences)" in strict.stdout
     missing = CliRunner().invoke(app, ["compare", str(a), str(tmp_path / "nowhere")])
     assert missing.exit_code == 2 and missing.stderr.startswith("error: ")
+
+
+def test_report_text_must_be_identical(tmp_path: Path) -> None:
+    a, b = report(tmp_path / "a"), report(tmp_path / "b")
+    (a / "report.md").write_text("# Report\n\nF = 76.73\n")
+    (b / "report.md").write_text("# Report\n\nF = 76.74\n")
+    assert compare_reports(a, b) == ["report.md line 3: 'F = 76.73' != 'F = 76.74'"]
+    (b / "report.md").write_text("# Report\n\nF = 76.73\n")
+    assert compare_reports(a, b) == []
+
+
+def test_figures_agree_within_the_image_tolerance(tmp_path: Path) -> None:
+    from matplotlib.image import imsave
+
+    a, b = report(tmp_path / "a"), report(tmp_path / "b")
+    image = np.random.default_rng(0).uniform(size=(100, 100, 3))
+    imsave(a / "figure.png", image)
+    nudged = image.copy()
+    nudged[0, :5] = 1.0 - nudged[0, :5]  # 5 of 10,000 pixels: anti-aliasing
+    imsave(b / "figure.png", nudged)
+    assert compare_reports(a, b) == []
+    nudged[:10] = 1.0 - nudged[:10]  # a tenth of the figure
+    imsave(b / "figure.png", nudged)
+    (difference,) = compare_reports(a, b)
+    assert difference.startswith("figure.png: ") and "% of the pixels differ" in difference
+    (b / "figure.png").unlink()
+    assert compare_reports(a, b) == ["figure.png: missing"]

@@ -1,12 +1,18 @@
-"""Two report directories compared number by number, within a stated tolerance.
+"""Two report directories compared by value, within stated tolerances.
 
 A report is reproduced when its numbers are, not its bytes: the last bits of a float depend on
-the CPU's and the BLAS kernels' rounding. :func:`compare_reports` compares ``results.json``
-(every number of the report, recursively) and ``trials.csv`` (every measure of every trial)
-of two report directories. Two numbers ``a`` (expected) and ``b`` agree when
-``|a - b| <= atol + rtol * |a|``; strings, booleans, nulls, keys and row identities must be
-equal. The figures and ``report.md`` are rendered from ``results.json``, so they are not
-compared separately.
+the CPU's and the BLAS kernels' rounding. :func:`compare_reports` compares
+
+* ``results.json`` (every number of the report, recursively) and ``trials.csv`` (every
+  measure of every trial): two numbers ``a`` (expected) and ``b`` agree when
+  ``|a - b| <= atol + rtol * |a|``; strings, booleans, nulls, keys and row identities must be
+  equal;
+* ``report.md``: the text must be identical (it prints numbers to four significant digits);
+* every figure ``*.png`` of the expected directory: the same size, and at most
+  :data:`PIXEL_SHARE` of the pixels differing by more than :data:`PIXEL_TOLERANCE` in a
+  channel (anti-aliasing may move with the last bits of a coordinate).
+
+``provenance.json`` says what made the report: it differs by design and is not compared.
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from cirl_study.errors import UserError
 
 RELATIVE_TOLERANCE = 1e-9
@@ -27,6 +35,12 @@ computation is well-conditioned, far below any difference a reader of the report
 
 ABSOLUTE_TOLERANCE = 1e-12
 """Default ``atol``, for numbers that are zero in exact arithmetic."""
+
+PIXEL_TOLERANCE = 8 / 255
+"""Largest difference of a channel (on a 0..1 scale) at which two pixels count as equal."""
+
+PIXEL_SHARE = 1e-3
+"""Largest share of a figure's pixels that may differ beyond :data:`PIXEL_TOLERANCE`."""
 
 
 @dataclass(frozen=True)
@@ -53,6 +67,9 @@ def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = Non
         _json_differences(_load_json(expected), _load_json(got), "results.json", tolerance)
     )
     differences += _table_differences(_load_csv(expected), _load_csv(got), tolerance)
+    differences += _text_differences(expected / "report.md", got / "report.md")
+    for figure in sorted(expected.glob("*.png")):
+        differences += _figure_differences(figure, got / figure.name)
     return differences
 
 
@@ -113,3 +130,32 @@ def _table_differences(
                 same = value == other
             if not same:
                 yield f"{where}: {column} {value} != {other}"
+
+
+def _text_differences(expected: Path, got: Path) -> list[str]:
+    if not expected.exists():
+        return []
+    if not got.exists():
+        return [f"{got.name}: missing"]
+    lines = expected.read_text(encoding="utf-8").splitlines()
+    others = got.read_text(encoding="utf-8").splitlines()
+    for number, (line, other) in enumerate(zip(lines, others, strict=False), start=1):
+        if line != other:
+            return [f"{got.name} line {number}: {line[:80]!r} != {other[:80]!r}"]
+    if len(lines) != len(others):
+        return [f"{got.name}: {len(lines)} lines != {len(others)} lines"]
+    return []
+
+
+def _figure_differences(expected: Path, got: Path) -> list[str]:
+    from matplotlib.image import imread
+
+    if not got.exists():
+        return [f"{got.name}: missing"]
+    a, b = imread(expected), imread(got)
+    if a.shape != b.shape:
+        return [f"{got.name}: {a.shape} pixels != {b.shape}"]
+    share = float((np.abs(a - b) > PIXEL_TOLERANCE).any(axis=-1).mean())
+    if share > PIXEL_SHARE:
+        return [f"{got.name}: {share:.2%} of the pixels differ (at most {PIXEL_SHARE:.2%})"]
+    return []
