@@ -37,8 +37,8 @@ EXPERT, BEST_RESPONSE = "expert", "best_response"
 PAPER_POLICIES: tuple[str, ...] = (EXPERT, BEST_RESPONSE)
 """The levels of the paper's within-subjects factor ``policy``, baseline first."""
 
-MAP = "map"
-"""The paper's robot: the MAP estimate of MaxEnt IRL."""
+MAP, POSTERIOR_MEAN = "map", "posterior_mean"
+"""The robots: the paper's MAP estimate of MaxEnt IRL, and the Bayes-optimal posterior mean."""
 
 MEASURES: tuple[str, ...] = ("regret", "kl", "reward_l2")
 """The three dependent measures of docs/design.md §4, in the paper's order."""

@@ -11,8 +11,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from cirl_study.core.estimate import Estimate
 from cirl_study.core.maxent import MaxEnt, Phase
-from cirl_study.core.robot import ROBOTS, Estimate, map_estimate, register_robot
+from cirl_study.core.robot import ROBOTS, map_estimate, register_robot
 from cirl_study.record import MAP
 
 KKT_TOL = 1e-6 + 1e-9  # feature-count units, |dL/dtheta_k| / lambda: the fit's 1e-6 + rounding

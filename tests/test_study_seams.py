@@ -8,9 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from cirl_study.core.estimate import Estimate
 from cirl_study.core.humans import HUMANS, Human, register_human
 from cirl_study.core.maxent import MaxEnt
-from cirl_study.core.robot import ROBOTS, Estimate, register_robot
+from cirl_study.core.robot import ROBOTS, register_robot
 from cirl_study.errors import UserError
 from cirl_study.logs import read_run, validate_run
 from cirl_study.study.engines import LocalEngine
@@ -85,3 +86,18 @@ def test_a_name_is_registered_once(registered: None) -> None:
         register_human("stay_put", Human(stay_put, takes_eta=False))
     with pytest.raises(ValueError, match="already registered"):
         register_robot("map", prior_mean)
+
+
+def test_the_posterior_mean_robot_plays_a_pipeline_and_logs_its_error(tmp_path: Path) -> None:
+    path = tmp_path / "posterior.toml"
+    path.write_text(pipeline_text('["expert", "best_response"]', "posterior_mean"))
+    result = run_pipeline(load_pipeline(path), tmp_path / "run", LocalEngine(2))
+    assert result.played == 82
+    assert validate_run(tmp_path / "run").ok
+    records = read_run(tmp_path / "run").records
+    assert {r.robot for r in records} == {"posterior_mean"}
+    for record in records:
+        assert record.theta_hat_se is not None and record.effective_sample_size is not None
+        assert len(record.theta_hat_se) == record.num_features
+        if record.irl.converged:
+            assert max(record.theta_hat_se) <= 0.01

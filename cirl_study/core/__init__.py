@@ -3,7 +3,9 @@
 - :mod:`~cirl_study.core.gridworld`: the grid, its moves and the RBF features.
 - :mod:`~cirl_study.core.planning`: batched soft and hard finite-horizon planning (compiled).
 - :mod:`~cirl_study.core.maxent`: the MaxEnt trajectory model of a phase (the problem object).
-- :mod:`~cirl_study.core.robot`: the robots that estimate theta from a demonstration.
+- :mod:`~cirl_study.core.estimate`: what a robot returns, and its random stream.
+- :mod:`~cirl_study.core.robot`: the robots by name; the MAP robot.
+- :mod:`~cirl_study.core.posterior`: the posterior-mean robot (Monte Carlo).
 - :mod:`~cirl_study.core.path_search`: the exact nearest-feature-count path search.
 - :mod:`~cirl_study.core.humans`: the human policies that demonstrate.
 - :mod:`~cirl_study.core.measures`: regret, trajectory KL and reward L2.

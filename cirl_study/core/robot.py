@@ -39,9 +39,11 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from cirl_study.core.estimate import Estimate, Estimator
 from cirl_study.core.maxent import DemonstrationClass, MaxEnt
 from cirl_study.core.planning import FloatArray, IntArray
-from cirl_study.record import MAP
+from cirl_study.core.posterior import posterior_mean_estimate
+from cirl_study.record import MAP, POSTERIOR_MEAN
 
 BOX = (-1.0, 1.0)
 """Support of the uniform prior on each reward weight."""
@@ -67,48 +69,6 @@ MAX_STALLS = 8
 RIDGE_FLOOR = 1e-30
 """Absolute floor of the ridge, where the curvature vanishes (a single path outside the
 demonstration's class holds the mass): the step is then a gradient step, cut to the box."""
-
-
-@dataclass(frozen=True)
-class Estimate:
-    """A robot's estimates for a batch of demonstrations.
-
-    Attributes:
-        theta_hat: ``(B, K)`` estimated reward weights in the box.
-        log_likelihood: ``(B,)`` :math:`\\log P(\\tau_{demo} \\mid \\hat\\theta, \\lambda)`.
-        iterations: ``(B,)`` iterations of the estimator.
-        converged: ``(B,)`` whether the estimator met its stopping rule.
-        theta_hat_se: ``(B, K)`` Monte-Carlo standard error of each coordinate, for a robot
-            whose estimate is random (else ``None``).
-        effective_sample_size: ``(B,)`` the Monte-Carlo effective sample size (else ``None``).
-    """
-
-    theta_hat: FloatArray
-    log_likelihood: FloatArray
-    iterations: NDArray[np.int64]
-    converged: NDArray[np.bool_]
-    theta_hat_se: FloatArray | None = None
-    effective_sample_size: FloatArray | None = None
-
-
-Estimator = Callable[[MaxEnt, IntArray, NDArray[np.int64]], Estimate]
-"""A robot: ``estimate(model, demos, seeds)`` for the batch of ``model``'s trials.
-
-``demos`` ``(B, T + 1)`` are the demonstrations' cells (``model.path_counts(demos)`` their
-feature counts).
-
-``seeds`` ``(B,)`` are the trials' own seeds (:attr:`cirl_study.record.TrialSpec.seed`); a
-robot that draws random numbers derives its generator from them with
-:func:`robot_generator`, so its estimate depends on its trial alone.
-"""
-
-ROBOT_STREAM = 1
-"""Spawn key that separates a robot's random stream from the trial's other uses of its seed."""
-
-
-def robot_generator(seed: int) -> np.random.Generator:
-    """The random generator of the robot of the trial with ``seed``."""
-    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(ROBOT_STREAM,)))
 
 
 @dataclass(frozen=True)
@@ -556,3 +516,4 @@ def register_robot(name: str, estimate: Estimator) -> None:
 
 
 register_robot(MAP, lambda model, demos, seeds: map_estimate(model, demos))
+register_robot(POSTERIOR_MEAN, posterior_mean_estimate)

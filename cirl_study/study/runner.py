@@ -1,7 +1,8 @@
 """Running a pipeline: plan the trials, play them on an engine, log every batch, resume.
 
-A run directory holds complete MCAP files only: each batch of trials is written by this
-process to its own file under a temporary name and renamed when complete
+A run directory is written by one process at a time (:func:`~cirl_study.logs.lock.writer_lock`)
+and holds complete MCAP files only: each batch of trials is written by this process to its
+own file under a temporary name and renamed when complete
 (:class:`~cirl_study.logs.TrialLogWriter`). A run killed at any moment therefore loses at
 most the batches in flight. Started again, it deletes the temporary files, skips every
 trial whose id is already in a complete file and plays the rest; since a trial's record
@@ -28,6 +29,7 @@ from pathlib import Path
 from cirl_study.errors import UserError
 from cirl_study.logs import TrialLogWriter, collect_provenance, logged_trials, read_run
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
+from cirl_study.logs.lock import writer_lock
 from cirl_study.record import TrialRecord, TrialSpec
 from cirl_study.study.engines import Engine
 from cirl_study.study.eta_cv import EtaChoice, choose_etas
@@ -104,14 +106,11 @@ def batch_file_name(batch: Sequence[TrialSpec]) -> str:
 def prepare_run_directory(out_dir: Path, provenance: dict[str, str]) -> set[str]:
     """Make ``out_dir`` ready for this pipeline's run; return the ids of the trials it holds.
 
-    Creates the directory; refuses damaged log files and log files written from another
+    Refuses damaged log files and log files written from another
     pipeline file (or another version of it), since a run's records must all come from one
     specification (both from one read of each file, :func:`~cirl_study.logs.logged_trials`);
     deletes the temporary files of an interrupted run.
     """
-    if out_dir.exists() and not out_dir.is_dir():
-        raise UserError(f"{out_dir}: exists and is not a directory")
-    out_dir.mkdir(parents=True, exist_ok=True)
     logged = logged_trials(out_dir)
     ours = provenance["pipeline_sha256"]
     for path, their_provenance in logged.provenance.items():
@@ -190,6 +189,30 @@ def run_pipeline(
     provenance = collect_provenance(pipeline.path, pipeline.name)
     if provenance["pipeline_sha256"] != pipeline.sha256:
         raise UserError(f"{pipeline.path}: the file changed while it was being read")
+    _make_directory(out_dir)
+    with writer_lock(out_dir):
+        return _run_locked(pipeline, out_dir, engine, hooks, provenance, began)
+
+
+def _make_directory(out_dir: Path) -> None:
+    """Create the run directory, or say in one line why it cannot be."""
+    if out_dir.exists() and not out_dir.is_dir():
+        raise UserError(f"{out_dir}: exists and is not a directory")
+    try:
+        out_dir.mkdir(parents=True, exist_ok=True)
+    except OSError as error:
+        raise UserError(f"{out_dir}: cannot create the run directory: {error.strerror}") from None
+
+
+def _run_locked(
+    pipeline: Pipeline,
+    out_dir: Path,
+    engine: Engine,
+    hooks: ProgressHooks,
+    provenance: dict[str, str],
+    began: float,
+) -> RunResult:
+    """:func:`run_pipeline` once this process holds the directory's writer lock."""
     done = prepare_run_directory(out_dir, provenance)
     resumed = len(done)
     total = sum(trial_counts(pipeline).values())

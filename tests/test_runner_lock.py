@@ -1,0 +1,80 @@
+"""One writer per run directory: a second `run` is refused in one line and touches nothing."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cirl_study.logs import logged_trials, validate_run
+from cirl_study.logs.lock import LOCK_NAME
+
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
+
+pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGKILL"), reason="needs SIGKILL")
+
+_HOLD = (
+    "import sys, time; from pathlib import Path; from cirl_study.logs.lock import writer_lock\n"
+    "with writer_lock(Path(sys.argv[1])):\n"
+    "    print('locked', flush=True); time.sleep(120)\n"
+)
+
+
+def run(out: Path, workers: int) -> subprocess.Popen:
+    command = [sys.executable, "-m", "cirl_study", "run", str(SMOKE), "--out", str(out)]
+    return subprocess.Popen(
+        [*command, "--workers", str(workers)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def test_a_held_directory_is_refused_until_its_holder_dies(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "left-by-the-holder.mcap.tmp").write_bytes(b"in progress")
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLD, str(out)], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert holder.stdout is not None and holder.stdout.readline() == "locked\n"
+        refused = run(out, 1)
+        stdout, stderr = refused.communicate(timeout=120)
+        assert refused.returncode == 2 and stdout == ""
+        assert stderr == (
+            f"error: {out}: another cirl-study run (pid {holder.pid}) is writing to it; "
+            "wait for it to end, or use another --out directory\n"
+        )
+        # Nothing was played, and the holder's temporary file is untouched.
+        assert sorted(p.name for p in out.iterdir()) == [
+            LOCK_NAME,
+            "left-by-the-holder.mcap.tmp",
+        ]
+    finally:
+        os.kill(holder.pid, signal.SIGKILL)
+        holder.wait()
+    # kill -9 released the lock: the run goes ahead.
+    resumed = run(out, 1)
+    _, stderr = resumed.communicate(timeout=300)
+    assert resumed.returncode == 0, stderr
+    assert len(logged_trials(out).trial_ids) == 82
+
+
+@pytest.mark.parametrize("writers", [2, 3])
+def test_concurrent_writers_one_proceeds_nothing_duplicated(tmp_path: Path, writers: int) -> None:
+    out = tmp_path / "run"
+    processes = [run(out, workers) for workers in range(1, writers + 1)]
+    outcomes = [(p.wait(timeout=300), p.communicate()[1]) for p in processes]
+    succeeded = [code for code, _ in outcomes if code == 0]
+    refused = [err for code, err in outcomes if code == 2]
+    # The first to take the lock plays; a later one either waits in line (the first already
+    # finished) or is refused in one line; nobody fails otherwise.
+    assert len(succeeded) >= 1 and len(succeeded) + len(refused) == writers
+    assert all(err.count("\n") == 1 and "another cirl-study run (pid " in err for err in refused)
+    verdict = validate_run(out)
+    assert verdict.ok and verdict.trials == 82
