@@ -470,12 +470,6 @@ def posterior_mean_estimate(
             result = sampler.result
             theta_hat[b], se[b], ess[b] = result.theta_hat, result.se, result.ess
             samples[b], converged[b] = result.samples, result.converged
+    # Fields in Estimate's order: iterations are the likelihood evaluations.
     log_likelihood = model.log_likelihood(theta_hat, demo_counts)
-    return Estimate(
-        theta_hat=theta_hat,
-        log_likelihood=log_likelihood,
-        iterations=samples,
-        converged=converged,
-        theta_hat_se=se,
-        effective_sample_size=ess,
-    )
+    return Estimate(theta_hat, log_likelihood, samples, converged, se, ess)
