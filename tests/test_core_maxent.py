@@ -263,9 +263,12 @@ def test_off_demonstration_moments_equal_enumeration(seed):
     assert off.log_mass[0] == pytest.approx(top + np.log(weights.sum()), rel=1e-12, abs=1e-12)
     np.testing.assert_allclose(off.mean[0], mean, rtol=0, atol=1e-12)
     np.testing.assert_allclose(off.covariance[0], covariance, rtol=0, atol=1e-12)
-    without = model.off_demonstration(theta, classes, covariance=False)
+    without = model.off_demonstration(theta, classes, moments=1)
     np.testing.assert_array_equal(without.mean, off.mean)
     np.testing.assert_array_equal(without.covariance, 0.0)
+    mass_only = model.off_demonstration(theta, classes, moments=0)
+    np.testing.assert_array_equal(mass_only.log_mass, off.log_mass)
+    np.testing.assert_array_equal(mass_only.mean, 0.0)
 
 
 def test_demonstration_classes_take_rows():

@@ -278,10 +278,13 @@ class MaxEnt:
         )
 
     def off_demonstration(
-        self, theta: FloatArray, demos: DemonstrationClass, *, covariance: bool = True
+        self, theta: FloatArray, demos: DemonstrationClass, *, moments: int = 2
     ) -> OffDemonstration:
         """:math:`\\log R`, :math:`E_q[\\Delta]` and :math:`\\mathrm{Cov}_q[\\Delta]` (see
         :class:`OffDemonstration`), summed over the exits of :class:`DemonstrationClass`.
+
+        ``moments``: 0 computes :math:`\\log R` only, 1 also the mean, 2 also the covariance
+        (what is not computed is zero); a line search needs only the first.
 
         An exit ``e`` (step ``t``, cell ``s'``) carries the mass
         :math:`w_e = e^{\\lambda\\theta^\\top A_e + V_t(s')}` of every path through it, with
@@ -308,7 +311,7 @@ class MaxEnt:
             demos.step,
             demos.cell,
             demos.shift,
-            covariance,
+            moments,
         )
         return OffDemonstration(log_mass, mean, cov)
 
@@ -445,7 +448,7 @@ def _off_demonstration(
     step,
     cell,
     shift,
-    with_covariance,
+    moments,
 ):  # pragma: no cover - compiled
     # Every sum is a plain loop in a fixed order: the result is the same on every CPU.
     batch, cells, k = features.shape
@@ -476,8 +479,9 @@ def _off_demonstration(
                 total += theta[b, i] * shift[e, i]
             exit_scaled[e] = rationality * total
         soft_backup(scaled, successors, horizon, values, log_policy, policy, needed)
-        backward_future_counts(policy, successors, phi, future, needed)
-        if with_covariance:
+        if moments >= 1:
+            backward_future_counts(policy, successors, phi, future, needed)
+        if moments >= 2:
             backward_future_covariance(policy, successors, phi, future, future_cov, needed)
         top = -np.inf
         for e in range(first, last):
@@ -486,11 +490,13 @@ def _off_demonstration(
         for e in range(first, last):
             total += np.exp(exit_scaled[e] + values[step[e], cell[e]] - top)
         log_mass[b] = top + np.log(total)
+        if moments < 1:
+            continue
         for e in range(first, last):
             q = np.exp(exit_scaled[e] + values[step[e], cell[e]] - log_mass[b])
             for i in range(k):
                 mean[b, i] += q * (shift[e, i] + future[step[e], cell[e], i])
-        if not with_covariance:
+        if moments < 2:
             continue
         for e in range(first, last):
             q = np.exp(exit_scaled[e] + values[step[e], cell[e]] - log_mass[b])

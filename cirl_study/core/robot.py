@@ -88,7 +88,7 @@ class _Objective:
 
     @staticmethod
     def value_at(model: MaxEnt, classes: DemonstrationClass, theta: FloatArray) -> FloatArray:
-        off = model.off_demonstration(theta, classes, covariance=False)
+        off = model.off_demonstration(theta, classes, moments=0)
         return -off.log_mass / model.rationality
 
     def take(self, rows: NDArray[np.bool_]) -> _Objective:

@@ -72,7 +72,8 @@ def read_file_contents(path: Path) -> FileContents:
     seen: set[str] = set()
     for index, message in enumerate(trial_messages):
         record, problems = decode_trial(message.data)
-        trial_id = payload_trial_id(message.data)
+        # An undecodable payload may still name its trial.
+        trial_id = payload_trial_id(message.data) if record is None else record.trial_id
         label = f"trial message {index}" if trial_id is None else f"trial {trial_id}"
         faults.extend(f"{label}: {problem}" for problem in problems)
         if record is None or problems:
