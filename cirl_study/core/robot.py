@@ -378,7 +378,8 @@ def map_estimate(
         on_bound = ((th <= low) & (gradient <= 0)) | ((th >= high) & (gradient >= 0))
         curvature = objective.curvature
         for active in (near_active, on_bound):
-            step, _, free_size = _newton_step(th, gradient, curvature, active)
+            if active is on_bound:  # the step for near_active is the one computed above
+                step, _, free_size = _newton_step(th, gradient, curvature, active)
             trying = settled & ~converged[running] & (free_size <= tolerance)
             if not trying.any():
                 continue
