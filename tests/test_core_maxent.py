@@ -286,3 +286,14 @@ def test_demonstration_classes_take_rows():
     alone = model.take(rows).demonstration_classes(demos[rows])
     for field in ("members", "offsets", "step", "cell", "shift"):
         np.testing.assert_array_equal(getattr(picked, field), getattr(alone, field))
+
+
+def test_moments_without_covariance_keep_the_mean():
+    width, height, start, horizon = 4, 3, 5, 4
+    rng, features, _, _ = bf.random_game(width, height, start, horizon, 3, seed=4)
+    model = MaxEnt(Phase(bf.move_table(width, height), start, horizon), features[None], 2.0)
+    theta = rng.uniform(-1, 1, size=(1, 3))
+    full, mean_only = model.moments(theta), model.moments(theta, covariance=False)
+    np.testing.assert_array_equal(mean_only.mean, full.mean)
+    np.testing.assert_array_equal(mean_only.log_partition, full.log_partition)
+    np.testing.assert_array_equal(mean_only.covariance, 0.0)

@@ -57,7 +57,7 @@ def best_response_target(model: MaxEnt, theta: FloatArray, eta: FloatArray) -> F
     :math:`\\phi_\\theta` is the robot's expected demonstration counts under the true
     :math:`\\theta` (:meth:`cirl_study.core.maxent.MaxEnt.moments`).
     """
-    expected = model.moments(theta).mean
+    expected = model.moments(theta, covariance=False).mean
     return expected + theta / (2.0 * np.asarray(eta, dtype=np.float64)[:, None])
 
 

@@ -315,8 +315,12 @@ class MaxEnt:
         )
         return OffDemonstration(log_mass, mean, cov)
 
-    def moments(self, theta: FloatArray) -> Moments:
-        """The log-partition, mean and covariance of :math:`\\phi(\\tau)` under :math:`\\theta`."""
+    def moments(self, theta: FloatArray, *, covariance: bool = True) -> Moments:
+        """The log-partition, mean and covariance of :math:`\\phi(\\tau)` under :math:`\\theta`.
+
+        Without ``covariance`` (what the best response needs) the covariance is left zero
+        and its forward pass is skipped.
+        """
         phase = self.phase
         scaled = self.rationality * self.cell_rewards(theta)
         log_z, mean, covariance = _trajectory_moments(
@@ -326,6 +330,7 @@ class MaxEnt:
             phase.start_cell,
             phase.horizon,
             phase.reachable,
+            covariance,
         )
         return Moments(log_z, mean, covariance)
 
@@ -345,7 +350,9 @@ def _log_partition(scaled, successors, start, horizon, needed):  # pragma: no co
 
 
 @njit(cache=True)
-def _trajectory_moments(scaled, features, successors, start, horizon, needed):  # pragma: no cover
+def _trajectory_moments(
+    scaled, features, successors, start, horizon, needed, with_covariance
+):  # pragma: no cover - compiled
     batch, cells, k = features.shape
     actions = successors.shape[1]
     values = np.empty((horizon + 1, cells))
@@ -355,16 +362,18 @@ def _trajectory_moments(scaled, features, successors, start, horizon, needed):  
     future = np.empty((horizon + 1, cells, k))
     log_z = np.empty(batch)
     mean = np.empty((batch, k))
-    covariance = np.empty((batch, k, k))
+    covariance = np.zeros((batch, k, k))
     for b in range(batch):
         phi = features[b]
         soft_backup(scaled[b], successors, horizon, values, log_policy, policy, needed)
-        visitation[0, :] = 0.0
-        visitation[0, start] = 1.0
-        forward_visitation(policy, successors, visitation)
         backward_future_counts(policy, successors, phi, future, needed)
         log_z[b] = values[0, start]
         mean[b] = future[0, start]
+        if not with_covariance:
+            continue
+        visitation[0, :] = 0.0
+        visitation[0, start] = 1.0
+        forward_visitation(policy, successors, visitation)
         # E[phi phi^T] = sum_t sum_s d_t(s) sym(phi(s) (phi(s) + 2 F_t(s))^T)
         #              = sum_s sym(phi(s) (D(s) phi(s) + 2 G(s))^T),
         # with D(s) = sum_t d_t(s) and G(s) = sum_t d_t(s) F_t(s), t = 1..T.
