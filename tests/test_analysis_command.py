@@ -3,40 +3,21 @@
 from __future__ import annotations
 
 import json
-from pathlib import Path
 
-from analysis_fixtures import synthetic_records
 from typer.testing import CliRunner
 
 from cirl_study.cli import app
-from cirl_study.logs import TrialLogWriter
-
-PROVENANCE = {"pipeline_name": "synthetic", "git_commit": "abc"}
 
 
-def _run_directory(path: Path, records: list[dict]) -> Path:
-    path.mkdir()
-    halves = records[: len(records) // 2], records[len(records) // 2 :]
-    for name, part in zip(("a.mcap", "b.mcap"), halves, strict=True):
-        with TrialLogWriter(path / name, PROVENANCE) as log:
-            for record in part:
-                log.write(record)
-    return path
-
-
-def test_analyze_writes_the_report_under_reports_by_default(tmp_path, monkeypatch):
-    records = synthetic_records(subjects_per_level=4, lambdas=(0.1, 1.0, 10.0), etas=(1.0,))
-    run = _run_directory(tmp_path / "run", records)
+def test_analyze_writes_the_report_under_reports_by_default(tmp_path, monkeypatch, smoke_run):
     monkeypatch.chdir(tmp_path)
-    result = CliRunner().invoke(app, ["analyze", str(run)])
+    result = CliRunner().invoke(app, ["analyze", str(smoke_run)])
     assert result.exit_code == 0, result.output
-    out = tmp_path / "reports" / "synthetic"
-    assert f"report of {len(records)} trials written to reports/synthetic: 10 claims" in (
-        result.output
-    )
+    out = tmp_path / "reports" / "smoke"
+    assert result.output.startswith("report of 82 trials written to reports/smoke: 10 claims")
     results = json.loads((out / "results.json").read_text(encoding="utf-8"))
-    assert results["pipeline"] == "synthetic"
-    assert results["trials"]["total"] == len(records)
+    assert results["pipeline"] == "smoke" and results["partial"] is None
+    assert results["trials"]["total"] == 82
     assert (out / "report.md").is_file() and (out / "figure1_reward_maps.png").is_file()
 
 

@@ -96,14 +96,16 @@ def test_check_design_names_the_subjects_of_a_missing_cell(records):
         records, lambda r: r.block == "main" and r.policy == "expert" and r.num_features == 10
     )
     message = _refused(kept, r"main block incomplete: 3 subject\(s\)")
-    assert "k10-s000 has {'best_response': 1}" in message
+    assert "k10-s000 has {'best_response/map': 1}" in message
 
 
 def test_check_design_names_an_unpaired_subject(records):
     kept = _without(
         records, lambda r: r.block == "main" and r.subject == "k3-s001" and r.policy == "expert"
     )
-    _refused(kept, r"main block incomplete: 1 subject\(s\) .*k3-s001 has \{'best_response': 1\}")
+    _refused(
+        kept, r"main block incomplete: 1 subject\(s\) .*k3-s001 has \{'best_response/map': 1\}"
+    )
 
 
 def test_check_design_names_repeated_trial_ids(records):

@@ -11,8 +11,14 @@ import math
 import random
 from typing import Any
 
-from cirl_study.logs import record_faults
+from cirl_study.logs import RunIdentity, record_faults
 from cirl_study.record import TrialRecord, from_builtins
+
+
+def provenance_for(run_id: str = "run-test", name: str = "test") -> dict[str, str]:
+    """A ``provenance`` record naming run ``run_id``; its pipeline text is a stand-in."""
+    return RunIdentity(run_id, name, f"{name}.toml", f'name = "{name}"\n').provenance()
+
 
 STEPS = {"stay": (0, 0), "N": (0, 1), "S": (0, -1), "E": (1, 0), "W": (-1, 0)}
 

@@ -6,14 +6,15 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from test_logs_helpers import make_record, make_study
+from test_logs_helpers import make_record, make_study, provenance_for
 
 from cirl_study.errors import UserError
-from cirl_study.logs import TrialLogWriter, logged_trials, read_run
+from cirl_study.logs import RunIdentity, TrialLogWriter, logged_trials, read_run
 from cirl_study.logs.scan import scan_file
 from cirl_study.record import TrialRecord
 
-PROVENANCE = {"pipeline_name": "smoke", "git_commit": "abc"}
+PROVENANCE = {**provenance_for(name="smoke"), "git_commit": "abc"}
+IDENTITY = RunIdentity.of(PROVENANCE)
 
 
 def write(path: Path, records: list[TrialRecord], provenance: dict | None = None) -> Path:
@@ -37,9 +38,9 @@ def test_records_of_every_file_sorted_by_trial_id(run: Path) -> None:
     contents = read_run(run)
     assert contents.records == sorted(study, key=lambda r: r.trial_id)
     assert contents.provenance == [PROVENANCE, PROVENANCE]
-    assert contents.pipeline_name == "smoke"
-    assert contents.warnings == []
-    assert logged_trials(run).trial_ids == {r.trial_id for r in study}
+    assert contents.identity == IDENTITY and contents.identity.pipeline_name == "smoke"
+    assert contents.warnings == [] and contents.damaged == []
+    assert logged_trials(run, IDENTITY) == {r.trial_id for r in study}
 
 
 def test_temporary_files_are_ignored(run: Path) -> None:
@@ -49,7 +50,7 @@ def test_temporary_files_are_ignored(run: Path) -> None:
         log.write(study[2])
         raise KeyboardInterrupt
     assert (run / "b.mcap.tmp").exists()
-    assert logged_trials(run).trial_ids == {r.trial_id for r in study[:2]}
+    assert logged_trials(run, IDENTITY) == {r.trial_id for r in study[:2]}
     contents = read_run(run)
     assert contents.records == sorted(study[:2], key=lambda r: r.trial_id)
     assert contents.warnings == [
@@ -65,7 +66,10 @@ def test_a_truncated_file_is_salvaged_with_a_warning(run: Path) -> None:
     assert len(chunks) >= 4
     data = path.read_bytes()
     path.write_bytes(data[: chunks[3] + 50])  # cut inside the fourth chunk
-    contents = read_run(run)
+    with pytest.raises(UserError, match=f"{path}: damaged \\(truncated: .*--partial"):
+        read_run(run)
+    contents = read_run(run, salvage=True)
+    assert contents.damaged == [path]
     recovered = contents.records
     assert 0 < len(recovered) < len(study)
     by_position = {r.trial_id: i for i, r in enumerate(study)}
@@ -85,14 +89,16 @@ def test_a_damaged_chunk_is_skipped_and_counted(run: Path) -> None:
     data = bytearray(path.read_bytes())
     data[chunk + 100] ^= 0xFF
     path.write_bytes(bytes(data))
-    contents = read_run(run)
+    with pytest.raises(UserError, match=f"{path}: damaged \\(damaged chunk"):
+        read_run(run)
+    contents = read_run(run, salvage=True)
     assert 0 < len(contents.records) < len(study)
     assert all(r in study for r in contents.records)
     (warning,) = contents.warnings
     assert warning.startswith(f"{path}: damaged (damaged chunk at byte {chunk}: ")
     assert f"recovered {len(contents.records)} trial(s) of {len(study)} from " in warning
     with pytest.raises(UserError, match=f"{path} is damaged"):
-        logged_trials(run)
+        logged_trials(run, IDENTITY)
 
 
 def test_a_trial_in_two_files_is_refused(run: Path) -> None:
@@ -106,7 +112,7 @@ def test_a_trial_in_two_files_is_refused(run: Path) -> None:
         read_run(run)
     assert str(error.value) == message
     with pytest.raises(UserError, match="logged twice"):
-        logged_trials(run)
+        logged_trials(run, IDENTITY)
 
 
 def test_a_faulty_record_is_refused(run: Path) -> None:
@@ -116,11 +122,47 @@ def test_a_faulty_record_is_refused(run: Path) -> None:
         read_run(run)
 
 
-def test_files_of_two_pipelines_are_refused(run: Path) -> None:
+def test_files_of_two_runs_are_refused(run: Path) -> None:
     write(run / "a.mcap", [make_record(1)])
-    write(run / "b.mcap", [make_record(2)], {"pipeline_name": "paper"})
-    with pytest.raises(UserError, match=r"log files of 2 pipelines \(paper, smoke\)"):
+    other = {**PROVENANCE, **provenance_for(name="paper")}  # same run id, another pipeline
+    write(run / "b.mcap", [make_record(2)], other)
+    expected = (
+        f"{run}: log files of 2 runs: a.mcap and b.mcap differ (pipeline sha256 "
+        f"{IDENTITY.pipeline_sha256[:12]} against {RunIdentity.of(other).pipeline_sha256[:12]})"
+    )
+    with pytest.raises(UserError) as error:
         read_run(run)
+    assert str(error.value) == expected
+    with pytest.raises(UserError, match="log files of 2 runs"):
+        logged_trials(run, RunIdentity.of(other))
+    (run / "a.mcap").unlink()
+    with pytest.raises(UserError, match="holds the logs of another run .*use another --out"):
+        logged_trials(run, IDENTITY)
+
+
+def test_a_record_of_another_run_is_refused(run: Path) -> None:
+    path = write(run / "a.mcap", [make_record(1, run_id="other-run")], provenance_for("other-run"))
+    write(run / "b.mcap", [make_record(2)])
+    with pytest.raises(UserError, match="log files of 2 runs: .*run other-run against run-test"):
+        read_run(run)
+    path.unlink()
+    foreign = make_record(3, run_id="other-run")
+    with TrialLogWriter(run / "c.mcap", PROVENANCE) as log:
+        log.run_id = "other-run"  # past the writer's own check, as a hand-made file would be
+        log.write(foreign)
+    expected = f"trial {foreign.trial_id} belongs to run other-run, the file to run run-test"
+    with pytest.raises(UserError, match=expected):
+        read_run(run)
+    with pytest.raises(UserError, match=expected):
+        logged_trials(run, IDENTITY)
+
+
+def test_the_writer_refuses_a_record_of_another_run(run: Path) -> None:
+    with (
+        TrialLogWriter(run / "a.mcap", PROVENANCE) as log,
+        pytest.raises(ValueError, match="belongs to run other-run, the file to run-test"),
+    ):
+        log.write(make_record(1, run_id="other-run"))
 
 
 @pytest.mark.parametrize(
@@ -138,5 +180,5 @@ def test_unreadable_runs_are_user_errors(run: Path, setup, message: str) -> None
 
 
 def test_resume_of_a_fresh_run(tmp_path: Path) -> None:
-    assert logged_trials(tmp_path / "not-yet").trial_ids == set()
-    assert logged_trials(tmp_path).trial_ids == set()
+    assert logged_trials(tmp_path / "not-yet", IDENTITY) == set()
+    assert logged_trials(tmp_path, IDENTITY) == set()

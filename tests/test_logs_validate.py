@@ -9,7 +9,7 @@ import msgspec
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from test_logs_helpers import make_record, make_study
+from test_logs_helpers import make_record, make_study, provenance_for
 from typer.testing import CliRunner
 
 from cirl_study.cli import app
@@ -18,7 +18,7 @@ from cirl_study.logs import TrialLogWriter, validate_file, validate_run
 from cirl_study.logs.scan import scan_file
 from cirl_study.record import TrialRecord
 
-PROVENANCE = {"pipeline_name": "test"}
+PROVENANCE = provenance_for()
 
 
 def write(path: Path, records: list[TrialRecord], chunk_size: int = 3000) -> Path:
@@ -160,8 +160,8 @@ def test_an_incomplete_design_fails(run: Path) -> None:
     write(run / "a.mcap", [r for r in study if r.subject != "k3-s0001" or r.policy == "expert"])
     (fault,) = validate_run(run).faults
     assert fault == (
-        "main block incomplete: 1 subject(s) without exactly one trial of each policy "
-        "(best_response, expert): k3-s0001 has {'expert': 1}"
+        "main block incomplete: 1 subject(s) without exactly one trial of each of "
+        "best_response/map, expert/map: k3-s0001 has {'expert/map': 1}"
     )
 
 
@@ -187,14 +187,18 @@ def test_cross_validation_draws_are_not_test_draws(run: Path) -> None:
 
 
 def test_runs_and_pipelines_are_not_mixed(run: Path) -> None:
-    write(
-        run / "a.mcap", [make_record(1, run_id="r1"), make_record(1, "best_response", run_id="r2")]
-    )
-    with TrialLogWriter(run / "b.mcap", {"pipeline_name": "other"}):
+    with TrialLogWriter(run / "a.mcap", provenance_for("r1")) as log:
+        log.write(make_record(1, run_id="r1"))
+        log.run_id = "r2"  # past the writer's own check, as a hand-made file would be
+        log.write(make_record(1, "best_response", run_id="r2"))
+    other = provenance_for("r1", name="other")
+    with TrialLogWriter(run / "b.mcap", other):
         pass
+    first, other_sha = provenance_for("r1")["pipeline_sha256"], other["pipeline_sha256"]
     assert validate_run(run).faults == (
-        "records of 2 runs: r1, r2",
-        "files of 2 pipelines: other, test",
+        "a.mcap holds records of run(s) r2",
+        f"files of 2 runs: r1 (pipeline sha256 {first}) in a.mcap; "
+        f"r1 (pipeline sha256 {other_sha}) in b.mcap",
     )
 
 
@@ -215,24 +219,23 @@ def test_a_missing_run_directory_is_a_user_error(tmp_path: Path) -> None:
         validate_run(tmp_path / "nowhere")
 
 
-def test_command_line(run: Path, good_bytes: bytes) -> None:
+def test_command_line(tmp_path: Path, smoke_run: Path, good_bytes: bytes) -> None:
     cli = CliRunner()
-    (run / "a.mcap").write_bytes(good_bytes)
+    run = tmp_path / "run"
+    shutil.copytree(smoke_run, run)
+    files = sorted(run.glob("*.mcap"))
     result = cli.invoke(app, ["validate", str(run)])
-    assert result.exit_code == 0
-    assert result.output.splitlines() == [
-        f"OK {run / 'a.mcap'}: 8 trials",
-        f"OK run {run}: 1 file(s), 8 trials, design complete",
-    ]
-    shutil.copy(run / "a.mcap", run / "b.mcap")
-    (run / "c.mcap").write_bytes(good_bytes[:-100])
+    assert result.exit_code == 0, result.output
+    lines = result.output.splitlines()
+    assert len(lines) == len(files) + 1
+    assert lines[-1] == f"OK run {run}: {len(files)} file(s), 82 trials, design complete"
+    (run / "zz.mcap").write_bytes(good_bytes[:-100])
     result = cli.invoke(app, ["validate", str(run)])
     assert result.exit_code == 1
     lines = result.output.splitlines()
-    assert lines[1] == f"OK {run / 'b.mcap'}: 8 trials"
-    assert lines[2].startswith(f"FAIL {run / 'c.mcap'}: ")
-    assert lines[3].startswith(f"FAIL run {run}: 3 file(s), ")
-    assert len(lines) == 4
+    assert lines[-2].startswith(f"FAIL {run / 'zz.mcap'}: ")
+    assert lines[-1].startswith(f"FAIL run {run}: {len(files) + 1} file(s), ")
+    assert len(lines) == len(files) + 2
     result = cli.invoke(app, ["validate", str(run / "missing")])
     assert result.exit_code == 2
     assert result.output.strip() == f"error: {run / 'missing'}: no such run directory"

@@ -11,9 +11,9 @@ import msgspec
 import numpy as np
 import pytest
 from mcap.reader import make_reader
-from test_logs_helpers import brute_force_reward, make_record, make_study
+from test_logs_helpers import brute_force_reward, make_record, make_study, provenance_for
 
-from cirl_study.logs import TrialLogWriter, collect_provenance
+from cirl_study.logs import RunIdentity, TrialLogWriter, collect_provenance
 from cirl_study.logs.format import (
     DEMONSTRATION_TOPIC,
     DEPLOYMENT_TOPIC,
@@ -24,7 +24,7 @@ from cirl_study.logs.format import (
 )
 from cirl_study.record import TrialRecord, decode, encode
 
-PROVENANCE = {"pipeline_name": "test", "pipeline_sha256": "0" * 64}
+PROVENANCE = provenance_for()
 
 
 def write(path: Path, records: list[TrialRecord], **kwargs) -> Path:
@@ -195,17 +195,22 @@ def test_provenance_is_checked(tmp_path: Path, provenance: dict, error: type) ->
         TrialLogWriter(tmp_path / "a.mcap", provenance)
 
 
-def test_collect_provenance(tmp_path: Path) -> None:
-    pipeline = tmp_path / "smoke.toml"
-    pipeline.write_bytes(b'name = "smoke"\n')
-    provenance = collect_provenance(pipeline)
+def test_collect_provenance() -> None:
+    identity = RunIdentity("smoke-69b1f260376d", "smoke", "smoke.toml", 'name = "smoke"\n')
+    provenance = collect_provenance(identity)
     assert all(isinstance(k, str) and isinstance(v, str) for k, v in provenance.items())
-    assert provenance["pipeline_name"] == "smoke"
-    assert collect_provenance(pipeline, pipeline_name="other")["pipeline_name"] == "other"
+    assert provenance["pipeline_name"] == "smoke" and provenance["run_id"] == identity.run_id
+    assert provenance["pipeline_toml"] == 'name = "smoke"\n'
+    assert provenance["log_format"] == "3"
     # sha256 of the 15 bytes above, computed independently with `sha256sum`
     assert provenance["pipeline_sha256"] == (
         "69b1f260376d9e58171da83a305b3b2da7f22ab722ca729c9af53174ce8cd422"
     )
+    assert RunIdentity.of(provenance) == identity
+    with pytest.raises(ValueError, match="not the hash of its pipeline_toml"):
+        RunIdentity.of({**provenance, "pipeline_toml": 'name = "smoke2"\n'})
+    with pytest.raises(ValueError, match="provenance lacks run_id"):
+        RunIdentity.of({k: v for k, v in provenance.items() if k != "run_id"})
     for key in (
         "cirl_study_version",
         "git_commit",
@@ -214,5 +219,3 @@ def test_collect_provenance(tmp_path: Path) -> None:
         "mcap_version",
     ):
         assert provenance[key]
-    pipeline.write_bytes(b'name = "smoke2"\n')
-    assert collect_provenance(pipeline)["pipeline_sha256"] != provenance["pipeline_sha256"]

@@ -79,7 +79,7 @@ def test_a_directory_of_another_pipeline_is_refused(serial_run: Path, tmp_path: 
     shutil.copytree(serial_run, out)
     other = tmp_path / "smoke.toml"
     other.write_text(SMOKE.read_text().replace("seed = 7", "seed = 8"))
-    with pytest.raises(UserError, match=r"holds logs of another pipeline") as caught:
+    with pytest.raises(UserError, match=r"holds the logs of another run \(run smoke-") as caught:
         run_pipeline(load_pipeline(other), out, LocalEngine(1))
     assert "\n" not in str(caught.value)
 

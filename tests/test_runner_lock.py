@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from cirl_study.logs import logged_trials, validate_run
+from cirl_study.logs import read_run, validate_run
 from cirl_study.logs.lock import LOCK_NAME
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
@@ -62,7 +62,7 @@ def test_a_held_directory_is_refused_until_its_holder_dies(tmp_path: Path) -> No
     resumed = run(out, 1)
     _, stderr = resumed.communicate(timeout=300)
     assert resumed.returncode == 0, stderr
-    assert len(logged_trials(out).trial_ids) == 82
+    assert len(read_run(out).records) == 82
 
 
 @pytest.mark.parametrize("writers", [2, 3])

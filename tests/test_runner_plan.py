@@ -86,7 +86,7 @@ def test_draws_lie_in_their_ranges(smoke: Pipeline) -> None:
             game.learning_steps,
             game.deployment_steps,
         )
-        assert t.robot == smoke.main.robot == "map"
+        assert (t.robot,) == smoke.main.robots == ("map",)
 
 
 def test_policies_and_etas(smoke: Pipeline) -> None:
@@ -109,12 +109,12 @@ def test_seed_is_the_documented_function_of_root_seed_and_id() -> None:
 
 
 def test_trial_id_spells_out_the_identity() -> None:
-    assert trial_id("main", "main-k03-s0001", "expert", 1, None) == (
-        "main:main-k03-s0001:expert:lambda=1.0"
+    assert trial_id("main", "main-k03-s0001", "expert", 1, None, "map") == (
+        "main:main-k03-s0001:expert:lambda=1.0:robot=map"
     )
-    assert trial_id("lambda_sweep", "main-k10-s0042", "best_response", 1e-3, 0.316) == (
-        "lambda_sweep:main-k10-s0042:best_response:lambda=0.001:eta=0.316"
-    )
+    assert trial_id(
+        "lambda_sweep", "main-k10-s0042", "best_response", 1e-3, 0.316, "posterior_mean"
+    ) == ("lambda_sweep:main-k10-s0042:best_response:lambda=0.001:eta=0.316:robot=posterior_mean")
 
 
 def by_id(trials: list[Any]) -> dict[str, Any]:

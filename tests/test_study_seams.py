@@ -46,10 +46,10 @@ def registered() -> Iterator[None]:
     del HUMANS["stay_put"], ROBOTS["prior_mean"]
 
 
-def pipeline_text(policies: str, robot: str) -> str:
+def pipeline_text(policies: str, robots: str) -> str:
     text = SMOKE.read_text()
     text = text.replace('policies = ["expert", "best_response"]', f"policies = {policies}")
-    return text.replace('robot = "map"', f'robot = "{robot}"')
+    return text.replace('robots = ["map"]', f"robots = {robots}")
 
 
 @pytest.mark.parametrize("workers", [1, 2])
@@ -57,7 +57,7 @@ def test_a_registered_policy_and_robot_play_a_pipeline(
     registered: None, tmp_path: Path, workers: int
 ) -> None:
     path = tmp_path / "seams.toml"
-    path.write_text(pipeline_text('["stay_put", "best_response"]', "prior_mean"))
+    path.write_text(pipeline_text('["stay_put", "best_response"]', '["prior_mean"]'))
     pipeline = load_pipeline(path)
     assert pipeline.policies_with_eta == ("best_response",)
     result = run_pipeline(pipeline, tmp_path / "run", LocalEngine(workers))
@@ -76,9 +76,11 @@ def test_a_registered_policy_and_robot_play_a_pipeline(
 
 def test_unknown_names_are_refused_before_anything_runs(tmp_path: Path) -> None:
     with pytest.raises(UserError, match=r"main.policies must be a non-empty list of distinct"):
-        parse_pipeline(pipeline_text('["stay_put"]', "map"), tmp_path / "x.toml")
-    with pytest.raises(UserError, match=r"main.robot must be one of the known robots \(map"):
-        parse_pipeline(pipeline_text('["expert"]', "oracle"), tmp_path / "x.toml")
+        parse_pipeline(pipeline_text('["stay_put"]', '["map"]'), tmp_path / "x.toml")
+    with pytest.raises(UserError, match=r"main.robots must be a non-empty list of distinct known"):
+        parse_pipeline(pipeline_text('["expert"]', '["oracle"]'), tmp_path / "x.toml")
+    with pytest.raises(UserError, match=r"main.robots must be a non-empty list of distinct known"):
+        parse_pipeline(pipeline_text('["expert"]', '["map", "map"]'), tmp_path / "x.toml")
 
 
 def test_a_name_is_registered_once(registered: None) -> None:
@@ -90,7 +92,7 @@ def test_a_name_is_registered_once(registered: None) -> None:
 
 def test_the_posterior_mean_robot_plays_a_pipeline_and_logs_its_error(tmp_path: Path) -> None:
     path = tmp_path / "posterior.toml"
-    path.write_text(pipeline_text('["expert", "best_response"]', "posterior_mean"))
+    path.write_text(pipeline_text('["expert", "best_response"]', '["posterior_mean"]'))
     result = run_pipeline(load_pipeline(path), tmp_path / "run", LocalEngine(2))
     assert result.played == 82
     assert validate_run(tmp_path / "run").ok

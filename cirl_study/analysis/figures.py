@@ -10,6 +10,8 @@ metadata entry (PNG files carry no timestamp).
 - Figure 2 (:func:`measure_bars`, :func:`lambda_curve`): the three measures by policy and
   feature level; the regret against the robot's rationality lambda.
 - :func:`eta_curve`: the cross-validation of the best response's eta.
+- :func:`robot_difference_curve`: a run with two robots, the paired regret difference of
+  the other robot to the reference against lambda.
 """
 
 from __future__ import annotations
@@ -315,4 +317,43 @@ def eta_curve(means: pd.DataFrame, chosen: pd.DataFrame) -> bytes:
         axes.set_ylabel("mean best-response regret (95% CI)")
         axes.set_title("Cross-validation of η (star: chosen)")
         axes.legend(frameon=False)
+        return render_png(figure)
+
+
+def robot_difference_curve(sweep: pd.DataFrame, reference: str, other: str) -> bytes:
+    """Mean paired regret difference ``other - reference`` against lambda, per feature level.
+
+    One panel per feature level, one line per policy (the policy's colour; the policies
+    are dodged sideways so their intervals do not hide each other); bars are 95% CIs of
+    the mean difference; below the zero line the other robot did better.
+
+    Args:
+        sweep: rows ``measure, rationality, num_features, policy, mean_diff, ci95_low,
+            ci95_high`` (:func:`cirl_study.analysis.statistics.paired_differences`).
+        reference: the reference robot's name.
+        other: the other robot's name.
+    """
+    regret = sweep[sweep["measure"] == "regret"].rename(columns={"mean_diff": "mean"})
+    levels = sorted(regret["num_features"].unique())
+    dodge = {policy: 1.08 ** (index - 0.5) for index, policy in enumerate(PAPER_POLICIES)}
+    with matplotlib.style.context("default"), rc_context(STYLE):
+        figure = _new_figure(4.0 * len(levels), 3.6)
+        panels = np.atleast_1d(figure.subplots(1, len(levels), sharey=True))
+        for axes, level in zip(panels, levels, strict=True):
+            axes.axhline(0.0, color="black", linewidth=0.8)
+            series = []
+            for index, policy in enumerate(PAPER_POLICIES):
+                rows = regret[(regret["num_features"] == level) & (regret["policy"] == policy)]
+                rows = rows.assign(rationality=rows["rationality"] * dodge[policy])
+                style = {
+                    "color": POLICY_COLOURS[policy],
+                    "marker": LEVEL_MARKERS[index % len(LEVEL_MARKERS)],
+                }
+                series.append((POLICY_LABELS[policy], rows, style))
+            _curves(axes, regret, "rationality", series)
+            axes.set_title(f"{level} features")
+            axes.set_xlabel("robot's rationality λ")
+        panels[0].set_ylabel(f"regret, {other} minus {reference} (95% CI)")
+        panels[0].legend(frameon=False, fontsize=8, title="human")
+        figure.suptitle(f"Below zero: {other} did better than {reference}")
         return render_png(figure)

@@ -17,7 +17,7 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.analysis import figures
-from cirl_study.analysis.claims import evaluate_claims
+from cirl_study.analysis.claims import SIGNIFICANCE, evaluate_claims
 from cirl_study.analysis.markdown import anchor, interval, number, p_value, table
 from cirl_study.analysis.results import Results, analyse, plain
 from cirl_study.analysis.table import check_design, trial_table
@@ -35,6 +35,7 @@ HEADINGS = {
     "lambda_sweep": "Lambda sweep",
     "eta_cv": "Eta cross-validation",
     "figure1": "Figure 1",
+    "robots": "Robots",
     "rules": "How the verdicts are decided",
 }
 """Section headings of ``report.md``, by the ``results.json`` key they present."""
@@ -44,6 +45,7 @@ FIGURES = {
     "figure2_measures": ("figure2_measures.png", "Figure 2, left"),
     "figure2_lambda": ("figure2_lambda.png", "Figure 2, right"),
     "eta_cv_curve": ("eta_cv.png", "eta curve"),
+    "robots": ("robots_lambda.png", "robots against lambda"),
 }
 """File name and link text of each figure, by key."""
 
@@ -301,7 +303,9 @@ def _certification(results: Results) -> str:
     short = [
         f"{row['certified']} of {row['trials']} at λ = {number(row['rationality'])}"
         for row in results["certified"]
-        if row["block"] == LAMBDA_SWEEP and row["certified"] < row["trials"]
+        if row["block"] == LAMBDA_SWEEP
+        and row["robot"] == results["design"]["reference_robot"]
+        and row["certified"] < row["trials"]
     ]
     if not short:
         return "Every estimate of the sweep is certified within 1e-6 of the MAP."
@@ -375,6 +379,136 @@ def _figure1(results: Results) -> list[str]:
     ]
 
 
+def _robot_verdict(row: Mapping[str, Any]) -> str:
+    """``better``, ``worse`` (Holm-adjusted p below :data:`SIGNIFICANCE`) or ``no difference``."""
+    if row["p_holm"] is None or row["p_holm"] >= SIGNIFICANCE:
+        return "no difference"
+    return "better" if row["mean_diff"] < 0 else "worse"
+
+
+def _robot_sweep_summary(robots: Mapping[str, Any]) -> list[str]:
+    """Per feature level and policy, the lambdas at which the other robot's regret is
+    lower, and those at which it is higher, than the reference's."""
+    regret = [row for row in robots["lambda_sweep"] if row["measure"] == "regret"]
+    lines = []
+    for level in sorted({row["num_features"] for row in regret}):
+        for policy in PAPER_POLICIES:
+            cell = [r for r in regret if r["num_features"] == level and r["policy"] == policy]
+            found = {
+                verdict: ", ".join(
+                    f"{r['rationality']:g}" for r in cell if _robot_verdict(r) == verdict
+                )
+                or "none"
+                for verdict in ("better", "worse")
+            }
+            lines.append(
+                f"- {POLICY_NAMES[policy]}, {level} features: lower regret at λ = "
+                f"{found['better']}; higher at λ = {found['worse']}."
+            )
+    return lines
+
+
+def _robots(results: Results) -> list[str]:
+    robots = results["robots"]
+    if robots is None:
+        return []
+    reference, other = robots["reference"], robots["other"]
+    lambdas = ", ".join(f"{value:g}" for value in results["design"]["main_rationality"])
+    main_regret = [row for row in robots["main"] if row["measure"] == "regret"]
+    answers = [
+        f"- {POLICY_NAMES[row['policy']]}, {row['num_features']} features: "
+        f"{_robot_verdict(row)} (regret {number(row['mean_level'])} against "
+        f"{number(row['mean_baseline'])}; difference {number(row['mean_diff'])} "
+        f"{interval(row['ci95_low'], row['ci95_high'])}, Holm p {p_value(row['p_holm'])})"
+        for row in main_regret
+    ]
+
+    def degrees(row: Mapping[str, Any]) -> str:
+        return f"{row['df1']}, {row['df2']}"
+
+    anova = _formatted(robots["anova"], ["measure", "effect", degrees, "F", "p", "np2", "ges"])
+    paired_columns: list[Column] = [
+        "measure",
+        "num_features",
+        lambda row: POLICY_NAMES[row["policy"]],
+        "n",
+        "mean_baseline",
+        "mean_level",
+        "mean_diff",
+        lambda row: interval(row["ci95_low"], row["ci95_high"]),
+        lambda row: f"t({row['df']}) = {number(row['t'])}",
+        "p_holm",
+        "d_z",
+    ]
+    paired_header = [
+        "measure", "features", "human", "n", reference, other, "difference", "95% CI (t)",
+        "paired t", "p (Holm)", "d_z",
+    ]  # fmt: skip
+    lines = [
+        _heading(2, "robots"),
+        "",
+        f"Does `{other}` beat `{reference}`, for which human, at which λ? Both robots watch "
+        "the very same demonstrations (the robot is a within-subjects factor; η is "
+        f"cross-validated with `{reference}`), so every comparison below is paired by reward "
+        f"draw. Differences are `{other}` minus `{reference}`: negative means `{other}` did "
+        f"better. Every other section of this report is computed on `{reference}`'s trials "
+        f"alone. Verdicts: Holm-adjusted p < {SIGNIFICANCE:g}.",
+        "",
+        f"At the main block's λ = {lambdas}, `{other}` against `{reference}` on regret:",
+        "",
+        *answers,
+        "",
+        "### Mixed ANOVA: robot x policy x features",
+        "",
+        "Per measure, on the main block: within subjects `robot` and `policy`, between "
+        "subjects `num_features`. With two levels per within factor sphericity holds, so the "
+        "p-values are uncorrected.",
+        "",
+        table(
+            ["measure", "effect", "df", "F", "p", "partial η²", "generalised η²"],
+            anova,
+            [False, False, True, True, True, True, True],
+        ),
+        "",
+        "### Paired differences in the main block",
+        "",
+        "Holm-adjusted over the feature levels and policies of each measure.",
+        "",
+        table(
+            paired_header,
+            _formatted(robots["main"], paired_columns),
+            [False, True, False, *[True] * 8],
+        ),
+    ]
+    if not robots["lambda_sweep"]:
+        return [*lines, "", "This run has no trials in the `lambda_sweep` block."]
+    regret = [row for row in robots["lambda_sweep"] if row["measure"] == "regret"]
+    sweep_columns: list[Column] = [
+        lambda row: f"{row['rationality']:g}",
+        *paired_columns[1:8],
+        "p_holm",
+    ]
+    name, _ = FIGURES["robots"]
+    return [
+        *lines,
+        "",
+        "### Across the lambda sweep",
+        "",
+        f"Regret of `{other}` against `{reference}`, Holm-adjusted over the whole sweep "
+        "(KL and L2 are in `results.json`, `robots.lambda_sweep`):",
+        "",
+        *_robot_sweep_summary(robots),
+        "",
+        table(
+            ["λ", *paired_header[1:8], "p (Holm)"],
+            _formatted(regret, sweep_columns),
+            [True, True, False, *[True] * 6],
+        ),
+        "",
+        f"![Regret difference of the two robots against lambda]({name})",
+    ]
+
+
 def _rules(results: Results) -> list[str]:
     return [
         _heading(2, "rules"),
@@ -387,6 +521,25 @@ def _rules(results: Results) -> list[str]:
         "A claim is *not tested* when the run has no data for it. Every number of this report "
         "is in [`results.json`](results.json) at full precision; the trials are in "
         "[`trials.csv`](trials.csv).",
+    ]
+
+
+def _partial_title(results: Results) -> list[str]:
+    """The report's first lines for a partial run: what it lacks."""
+    partial = results.get("partial")
+    if partial is None:
+        return []
+    lacks = [
+        partial["missing"],
+        f"{partial['damaged_files']} damaged file(s) salvaged" if partial["damaged_files"] else "",
+        f"{partial['main_subjects_left_out']} main-block subject(s) without every cell left out"
+        if partial["main_subjects_left_out"]
+        else "",
+    ]
+    return [
+        f"**PARTIAL RUN: {partial['logged']} of {partial['planned']} planned trials logged; "
+        f"{'; '.join(text for text in lacks if text)}. Every number below is provisional.**",
+        "",
     ]
 
 
@@ -405,16 +558,20 @@ def render_markdown(results: Results) -> str:
         )
         or "–"
     )
+    robots = results["robots"]
+    compared = "" if robots is None else f" (and `{robots['other']}`: see {_link('robots')})"
     sections = [
         [
+            *_partial_title(results),
             f"# Reproduction report: `{results['pipeline']}`",
             "",
             "Cooperative Inverse Reinforcement Learning (Hadfield-Menell et al., NeurIPS 2016), "
             "section 4: the paper's claims beside what this run measured.",
             "",
             f"Trials: {trials['total']} ({blocks}). Main study: reward draws {per_level}, each "
-            f"under both policies; robot rationality λ = {lambdas}; best-response η = {etas}. "
-            "All three measures are losses: lower is better.",
+            f"under both policies; robot `{design['reference_robot']}`{compared}, rationality "
+            f"λ = {lambdas}; best-response η = {etas}. All three measures are losses: lower is "
+            "better.",
         ],
         _claims(results),
         ["## Main study"],
@@ -427,16 +584,19 @@ def render_markdown(results: Results) -> str:
         _lambda_sweep(results),
         _eta_cv(results),
         _figure1(results),
+        _robots(results),
         _rules(results),
     ]
-    return "\n\n".join("\n".join(section) for section in sections) + "\n"
+    return "\n\n".join("\n".join(section) for section in sections if section) + "\n"
 
 
-def _figure1_records(records: Sequence[TrialRecord], subject: str) -> dict[str, TrialRecord]:
+def _figure1_records(
+    records: Sequence[TrialRecord], subject: str, robot: str
+) -> dict[str, TrialRecord]:
     found = {
         record.policy: record
         for record in records
-        if record.block == MAIN and record.subject == subject
+        if record.block == MAIN and record.subject == subject and record.robot == robot
     }
     return {policy: found[policy] for policy in PAPER_POLICIES}
 
@@ -444,7 +604,7 @@ def _figure1_records(records: Sequence[TrialRecord], subject: str) -> dict[str, 
 def render_figures(records: Sequence[TrialRecord], results: Results) -> dict[str, bytes]:
     """The PNG bytes of every figure the results support, by file name."""
     chosen = results["figure1"]
-    pair = _figure1_records(records, chosen["subject"])
+    pair = _figure1_records(records, chosen["subject"], chosen["robot"])
     pngs = {
         FIGURES["figure1"][0]: figures.reward_maps(
             pair[EXPERT],
@@ -460,6 +620,11 @@ def render_figures(records: Sequence[TrialRecord], results: Results) -> dict[str
         pngs[FIGURES["eta_cv_curve"][0]] = figures.eta_curve(
             pd.DataFrame(results["eta_cv"]["means"]), pd.DataFrame(results["eta_cv"]["chosen"])
         )
+    robots = results["robots"]
+    if robots is not None and robots["lambda_sweep"]:
+        pngs[FIGURES["robots"][0]] = figures.robot_difference_curve(
+            pd.DataFrame(robots["lambda_sweep"]), robots["reference"], robots["other"]
+        )
     return pngs
 
 
@@ -469,6 +634,7 @@ def write_report(
     pipeline_name: str,
     theory: Mapping[str, Any] | None = None,
     provenance: Mapping[str, Any] | None = None,
+    partial: Mapping[str, Any] | None = None,
 ) -> Results:
     """Analyse trial records and write the report directory.
 
@@ -485,6 +651,9 @@ def write_report(
         theory: optional extra claims (see :func:`cirl_study.analysis.claims.external_claims`);
             stored under ``theory`` in ``results.json``.
         provenance: optional provenance, written as ``provenance.json``.
+        partial: for a report on an incomplete run, what it lacks (``planned``, ``logged``,
+            ``missing``, ``damaged_files``, ``main_subjects_left_out``); stored under
+            ``partial`` in ``results.json`` and stated in the report's first line.
 
     Returns:
         The content of ``results.json``.
@@ -495,6 +664,7 @@ def write_report(
     """
     check_design(records)
     results = analyse(records, pipeline_name)
+    results["partial"] = None if partial is None else plain(partial)
     results["claims"] = evaluate_claims(results, theory)
     if theory is not None:
         results["theory"] = plain(theory)

@@ -18,6 +18,7 @@ import pandas as pd
 
 from cirl_study.analysis import statistics
 from cirl_study.analysis.table import trial_table
+from cirl_study.core.robot import reference_robot
 from cirl_study.errors import UserError
 from cirl_study.record import (
     BEST_RESPONSE,
@@ -157,17 +158,69 @@ def eta_cv(records: Sequence[TrialRecord], table: pd.DataFrame) -> dict[str, Any
 
 
 def _certified(table: pd.DataFrame) -> list[dict[str, Any]]:
-    """Per block and rationality: trials, and those whose estimate the robot certified."""
-    counts = table.groupby(["block", "rationality"], sort=True)["certified"].agg(["size", "sum"])
+    """Per robot, block and rationality: trials, and those whose estimate the robot certified."""
+    keys = ["robot", "block", "rationality"]
+    counts = table.groupby(keys, sort=True)["certified"].agg(["size", "sum"])
     return [
         {
+            "robot": str(robot),
             "block": str(block),
             "rationality": float(rationality),
             "trials": int(n),
             "certified": int(k),
         }
-        for (block, rationality), (n, k) in counts.iterrows()
+        for (robot, block, rationality), (n, k) in counts.iterrows()
     ]
+
+
+def robot_comparison(table: pd.DataFrame, reference: str) -> dict[str, Any]:
+    """The robots study: the other robot against the reference, on the same demonstrations.
+
+    ``anova``: per measure, the 2 x 2 x K split-plot ANOVA of the ``main`` block with
+    ``robot`` and ``policy`` within subjects and ``num_features`` between
+    (:func:`~cirl_study.analysis.statistics.split_plot_anova`). ``main``: per measure, the
+    paired difference ``other - reference`` within each feature level and policy, Holm over
+    the measure's cells (:func:`~cirl_study.analysis.statistics.paired_differences`).
+    ``lambda_sweep``: the same per rationality, feature level and policy of the sweep, Holm
+    over the measure's whole sweep. Every measure is a loss: a negative difference means
+    the other robot did better.
+    """
+    main = table[table["block"] == MAIN]
+    sweep = table[table["block"] == LAMBDA_SWEEP]
+    (other,) = sorted(set(main["robot"]) - {reference})
+    cells = ["num_features", "policy"]
+    return {
+        "reference": reference,
+        "other": other,
+        "anova": rows(
+            _concat(
+                [
+                    statistics.split_plot_anova(main, m, ("robot", "policy"), "num_features")
+                    for m in MEASURES
+                ]
+            )
+        ),
+        "main": rows(
+            _concat(
+                [
+                    statistics.paired_differences(main, m, "robot", reference, cells)
+                    for m in MEASURES
+                ]
+            )
+        ),
+        "lambda_sweep": rows(
+            _concat(
+                [
+                    statistics.paired_differences(
+                        sweep, m, "robot", reference, ["rationality", *cells]
+                    )
+                    for m in MEASURES
+                ]
+            )
+        )
+        if not sweep.empty
+        else [],
+    }
 
 
 def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
@@ -180,11 +233,19 @@ def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
 
     Returns:
         Plain data with the keys ``pipeline, trials, design, anova, simple_effects,
-        tukey_hsd, wilcoxon, cells, cronbach_alpha, lambda_sweep, eta_cv, figure1``.
+        tukey_hsd, wilcoxon, cells, cronbach_alpha, lambda_sweep, certified, eta_cv,
+        figure1, robots``. Every statistic but ``robots`` and ``certified`` is computed on
+        the trials of the reference robot (:func:`cirl_study.core.robot.reference_robot`:
+        the paper's, ``map``, when the run has it), so the paper's analysis of a run with
+        two robots is that of its reference robot alone. ``robots`` is the comparison of
+        the two (:func:`robot_comparison`), ``None`` for a run with one robot.
         ``lambda_sweep`` is an empty list and ``eta_cv`` has empty ``means`` and ``chosen``
         when the run has no trials in that block (see :func:`eta_cv`).
     """
-    table = trial_table(records)
+    everything = trial_table(records)
+    robots = sorted(set(everything.loc[everything["block"] == MAIN, "robot"]))
+    reference = reference_robot(robots)
+    table = everything[everything["robot"] == reference]
     main = table[table["block"] == MAIN]
     sweep = table[table["block"] == LAMBDA_SWEEP]
     alpha = statistics.cronbach_alpha(main[list(MEASURES)].reset_index(drop=True))
@@ -195,8 +256,8 @@ def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
     )
     return {
         "pipeline": pipeline_name,
-        "trials": _trial_counts(table),
-        "design": _design(main),
+        "trials": _trial_counts(everything),
+        "design": {**_design(main), "robots": robots, "reference_robot": reference},
         "anova": rows(_concat([statistics.mixed_anova(main, m) for m in MEASURES])),
         "simple_effects": rows(_concat([statistics.simple_effects(main, m) for m in MEASURES])),
         "tukey_hsd": rows(_concat([statistics.tukey_hsd(main, m) for m in MEASURES])),
@@ -206,7 +267,8 @@ def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
         ),
         "cronbach_alpha": plain(alpha),
         "lambda_sweep": rows(statistics.lambda_sweep(sweep, MEASURES)) if not sweep.empty else [],
-        "certified": _certified(table),
+        "certified": _certified(everything),
         "eta_cv": eta_cv(records, table),
-        "figure1": figure1_subject(main),
+        "figure1": {**figure1_subject(main), "robot": reference},
+        "robots": robot_comparison(everything, reference) if len(robots) > 1 else None,
     }

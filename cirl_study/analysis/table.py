@@ -25,6 +25,7 @@ COLUMNS: tuple[str, ...] = (
     "block",
     "subject",
     "policy",
+    "robot",
     "num_features",
     "rationality",
     "eta",
@@ -40,6 +41,7 @@ SORT_KEYS: tuple[str, ...] = (
     "num_features",
     "subject",
     "policy",
+    "robot",
     "rationality",
     "eta",
     "trial_id",
@@ -55,6 +57,7 @@ def _row(record: TrialRecord) -> dict[str, Any]:
         "block": record.block,
         "subject": record.subject,
         "policy": record.policy,
+        "robot": record.robot,
         "num_features": record.num_features,
         "rationality": record.rationality,
         "eta": math.nan if record.eta is None else record.eta,
@@ -78,14 +81,35 @@ def trial_table(records: Sequence[TrialRecord]) -> pd.DataFrame:
     return table.sort_values(list(SORT_KEYS), kind="mergesort").reset_index(drop=True)
 
 
+def complete_main_subjects(
+    records: Sequence[TrialRecord],
+) -> tuple[list[TrialRecord], list[str]]:
+    """The records without the ``main``-block trials of subjects that lack a cell.
+
+    For a partial run: a ``main`` subject must have a trial in every (policy, robot) cell the
+    block plays to enter the within-subjects analysis. Returns the records kept and the ids
+    of the subjects whose ``main`` trials were left out.
+    """
+    main = [record for record in records if record.block == MAIN]
+    cells = {(record.policy, record.robot) for record in main}
+    held: dict[str, set[tuple[str, str]]] = {}
+    for record in main:
+        held.setdefault(record.subject, set()).add((record.policy, record.robot))
+    dropped = sorted(subject for subject, seen in held.items() if seen != cells)
+    gone = set(dropped)
+    kept = [r for r in records if not (r.block == MAIN and r.subject in gone)]
+    return kept, dropped
+
+
 def check_design(records: Sequence[TrialRecord]) -> None:
     """Check that the records hold a study design the analysis can use.
 
     The run's design must be sound (:func:`cirl_study.logs.run_checks.design_faults`: unique
     trial ids, one reward draw per subject, a non-empty ``main`` block complete within
     subjects, cross-validation draws disjoint from the test draws), and the analysis needs
-    more of the ``main`` block: it plays exactly the policies :data:`PAPER_POLICIES` and at
-    least two feature levels.
+    more of the ``main`` block: it plays exactly the policies :data:`PAPER_POLICIES`, at
+    least two feature levels and at most two robots (a comparison of a robot with the
+    reference).
 
     Raises:
         UserError: one line naming every fault found.
@@ -103,6 +127,12 @@ def check_design(records: Sequence[TrialRecord]) -> None:
         faults.append(
             f"the main block has only num_features={levels[0]}; the analysis needs at least "
             "two feature levels"
+        )
+    robots = sorted({record.robot for record in main})
+    if len(robots) > 2:
+        faults.append(
+            f"the main block has {len(robots)} robots ({', '.join(robots)}); the analysis "
+            "compares at most two"
         )
     if faults:
         raise UserError(f"the run's design cannot be analysed: {'; '.join(faults)}")

@@ -34,26 +34,59 @@ ReportDirectoryOption = Annotated[
 ]
 
 
+PartialOption = Annotated[
+    bool,
+    typer.Option(
+        "--partial",
+        help="Report on an incomplete or damaged run: what its logs hold, marked partial "
+        "in the report's first line (main-block subjects missing a cell are left out).",
+    ),
+]
+
+
 @app.command()
-def analyze(run: RunArgument, out: ReportDirectoryOption = None) -> None:
+def analyze(
+    run: RunArgument, out: ReportDirectoryOption = None, partial: PartialOption = False
+) -> None:
     """Analyse a run's logs: the paper's statistics, figures and claims, with verdicts.
 
     Mixed ANOVAs, simple effects, Tukey HSD, Wilcoxon tests, Cronbach's alpha, the lambda
     sweep and the eta cross-validation, written as report.md, results.json, trials.csv and
-    PNG figures. Reads only the run's MCAP logs: a damaged file is salvaged with a warning
-    on stderr, an incomplete design is refused. Identical logs give an identical report.
+    PNG figures. Reads only the run's MCAP logs, checking every CRC and that every file and
+    record belongs to the run. A run missing planned trials, or holding a damaged file, is
+    refused unless --partial; a foreign trial always is. Identical logs give an identical
+    report.
     """
     # The statistics and plotting libraries load only when an analysis is asked for.
     from cirl_study.analysis.report import write_report
+    from cirl_study.analysis.table import complete_main_subjects
     from cirl_study.analysis.theory_claims import office_supplies_claims
+    from cirl_study.errors import UserError
     from cirl_study.logs import read_run
     from cirl_study.logs.provenance import machine_provenance
+    from cirl_study.study.audit import audit_run, resume_command, run_pipeline_of
     from cirl_study.theory import office_supplies_results
 
-    contents = read_run(run)
+    contents = read_run(run, salvage=partial)
     for warning in contents.warnings:
         typer.echo(f"warning: {warning}", err=True)
-    target = out if out is not None else REPORTS_DIRECTORY / contents.pipeline_name
+    audit = audit_run(run_pipeline_of(contents.identity), contents.records)
+    faults = audit.faults(resume_command(contents.identity, run))
+    if audit.foreign or (faults and not partial):
+        advice = "" if audit.foreign else ", or analyze it with --partial"
+        raise UserError(f"{run}: not a complete run: {faults[0]}{advice}")
+    records, left_out = contents.records, []
+    partial_run = None
+    if partial and not (audit.complete and not contents.damaged):
+        records, left_out = complete_main_subjects(records)
+        partial_run = {
+            "planned": audit.planned,
+            "logged": audit.logged,
+            "missing": audit.missing_text() or None,
+            "damaged_files": len(contents.damaged),
+            "main_subjects_left_out": len(left_out),
+        }
+    target = out if out is not None else REPORTS_DIRECTORY / contents.identity.pipeline_name
     theory = office_supplies_claims(office_supplies_results())
     provenance = {
         "run": sorted(
@@ -63,13 +96,19 @@ def analyze(run: RunArgument, out: ReportDirectoryOption = None) -> None:
         "report": machine_provenance(),
     }
     results = write_report(
-        contents.records, target, contents.pipeline_name, theory=theory, provenance=provenance
+        records,
+        target,
+        contents.identity.pipeline_name,
+        theory=theory,
+        provenance=provenance,
+        partial=partial_run,
     )
     claims = results["claims"]
     reproduced = sum(claim["reproduced"] for claim in claims)
     untested = sum(not claim["tested"] for claim in claims)
     typer.echo(
-        f"report of {len(contents.records)} trials written to {target}: {len(claims)} claims, "
+        f"{'partial ' if partial_run else ''}report of {len(records)} trials written to "
+        f"{target}: {len(claims)} claims, "
         f"{reproduced} reproduced, {len(claims) - reproduced - untested} not reproduced, "
         f"{untested} not tested"
     )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Annotated
 
@@ -27,12 +28,18 @@ def validate(
     """Check every MCAP log file of a run and the run as a whole.
 
     Checks CRCs, the summary and its message counts, schemas, every trial record complete and
-    consistent, no duplicate trial ids and the design complete. Prints `OK path: N trials` or
-    `FAIL path: reason` for each file, then a line for the run.
+    consistent, every file and record of one run, no duplicate trial ids, the design, and
+    that the logs hold exactly the trials the run's pipeline plans (what is missing, per
+    block, and what is foreign). Prints `OK path: N trials` or `FAIL path: reason` for each
+    file, then a line for the run.
 
     Exit code 0 when everything is sound, 1 on any fault, 2 when RUN is not a directory.
     """
+    from cirl_study.study.audit import plan_faults
+
     verdict = validate_run(run)
+    plan = plan_faults(run, verdict.records) if verdict.records else []
+    verdict = dataclasses.replace(verdict, faults=(*plan, *verdict.faults))
     for file_verdict in verdict.files:
         typer.echo(file_verdict.line())
     typer.echo(verdict.line())

@@ -32,7 +32,7 @@ enters the estimate: it is the same on every CPU.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -507,6 +507,16 @@ def _armijo_search(
 
 ROBOTS: dict[str, Estimator] = {}
 """Every robot, by the name a pipeline and a trial record use (``robot``)."""
+
+
+def reference_robot(robots: Iterable[str]) -> str:
+    """The reference among ``robots``: the first in the order of :data:`ROBOTS`.
+
+    ``map``, the paper's robot, whenever it is one of them. The reference robot plays the
+    eta cross-validation, and the paper's claims are judged on its trials.
+    """
+    present = set(robots)
+    return next(name for name in ROBOTS if name in present)
 
 
 def register_robot(name: str, estimate: Estimator) -> None:

@@ -4,16 +4,16 @@ The log format is described in ``docs/log-format.md`` and :mod:`cirl_study.logs.
 trial record it carries is :class:`cirl_study.record.TrialRecord`.
 """
 
-from cirl_study.logs.provenance import collect_provenance
-from cirl_study.logs.reader import LoggedTrials, RunContents, logged_trials, read_run
+from cirl_study.logs.provenance import RunIdentity, collect_provenance
+from cirl_study.logs.reader import RunContents, logged_trials, read_run
 from cirl_study.logs.record_checks import decode_trial, record_faults
 from cirl_study.logs.validate import FileVerdict, RunVerdict, validate_file, validate_run
 from cirl_study.logs.writer import TrialLogWriter
 
 __all__ = [
     "FileVerdict",
-    "LoggedTrials",
     "RunContents",
+    "RunIdentity",
     "RunVerdict",
     "TrialLogWriter",
     "collect_provenance",

@@ -20,13 +20,13 @@ from cirl_study.logs.episode import replay_counts
 from cirl_study.logs.format import (
     GRID_SCHEMA_NAME,
     MESSAGE_ENCODING,
-    PIPELINE_NAME_KEY,
     PROVENANCE_METADATA_NAME,
     SCHEMA_ENCODING,
     TRIAL_SCHEMA_NAME,
     TRIAL_TOPIC,
     trial_duration_ns,
 )
+from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.record_checks import decode_trial, payload_trial_id
 from cirl_study.logs.scan import FileScan, scan_file
 from cirl_study.record import TrialRecord, encode
@@ -97,8 +97,10 @@ def _read_provenance(contents: FileContents) -> None:
         )
     if records:
         contents.provenance = dict(records[0].metadata)
-        if PIPELINE_NAME_KEY not in contents.provenance:
-            contents.content_faults.append(f"provenance has no {PIPELINE_NAME_KEY!r}")
+        try:
+            RunIdentity.of(contents.provenance)
+        except ValueError as error:
+            contents.content_faults.append(f"no run identity: {error}")
 
 
 def _channel_faults(scan: FileScan) -> list[str]:

@@ -46,6 +46,19 @@ MESSAGE_ENCODING = "json"
 
 PROVENANCE_METADATA_NAME = "provenance"
 PIPELINE_NAME_KEY = "pipeline_name"
+RUN_ID_KEY = "run_id"
+PIPELINE_FILE_KEY = "pipeline_file"
+PIPELINE_TEXT_KEY = "pipeline_toml"
+PIPELINE_SHA_KEY = "pipeline_sha256"
+IDENTITY_KEYS = (
+    RUN_ID_KEY,
+    PIPELINE_NAME_KEY,
+    PIPELINE_FILE_KEY,
+    PIPELINE_TEXT_KEY,
+    PIPELINE_SHA_KEY,
+)
+"""Keys of the ``provenance`` record that identify the run
+(:class:`cirl_study.logs.provenance.RunIdentity`)."""
 
 #: One game step lasts one second of log time, so Foxglove replays an episode at 1 step/s.
 STEP_NS = 1_000_000_000

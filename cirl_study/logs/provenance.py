@@ -3,9 +3,10 @@
 :func:`machine_provenance` says which code ran where: the package version and git commit,
 Python, the platform and CPU, the BLAS library numpy calls and the kernel (core type) it
 picked (:mod:`threadpoolctl`), and the versions of the packages that can change a number.
-:func:`collect_provenance` adds the pipeline file: it is the ``provenance`` metadata record of
-every log file of a run. ``cirl-study analyze`` writes the run's and its own to the report's
-``provenance.json``.
+:func:`collect_provenance` adds the run's identity (:class:`RunIdentity`: the run id and the
+whole pipeline file): it is the ``provenance`` metadata record of every log file of a run, so
+the logs alone say which run they belong to and what that run plans. ``cirl-study analyze``
+writes the run's and its own to the report's ``provenance.json``.
 """
 
 from __future__ import annotations
@@ -14,11 +15,20 @@ import hashlib
 import os
 import platform
 import subprocess
+from collections.abc import Mapping
+from dataclasses import dataclass
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from cirl_study import __version__
-from cirl_study.logs.format import PIPELINE_NAME_KEY
+from cirl_study.logs.format import (
+    IDENTITY_KEYS,
+    PIPELINE_FILE_KEY,
+    PIPELINE_NAME_KEY,
+    PIPELINE_SHA_KEY,
+    PIPELINE_TEXT_KEY,
+    RUN_ID_KEY,
+)
 
 KEY_PACKAGES: tuple[str, ...] = (
     "numpy",
@@ -36,24 +46,69 @@ KEY_PACKAGES: tuple[str, ...] = (
 )
 """Distributions whose versions can change the numbers or the files a run or report holds."""
 
-LOG_FORMAT_VERSION = "2"
-"""Version of the log format: 2 is the typed record (``robot``, ``theta_hat_se``, ...)."""
+LOG_FORMAT_VERSION = "3"
+"""Version of the log format: 3 names the run (``run_id``) and holds its pipeline file
+(``pipeline_toml``) in every file's provenance; 2 introduced the typed record."""
 
 
-def collect_provenance(
-    pipeline_path: str | Path, pipeline_name: str | None = None
-) -> dict[str, str]:
-    """Provenance of a run of the pipeline file ``pipeline_path``, as a string-to-string map.
+@dataclass(frozen=True)
+class RunIdentity:
+    """The run a log file belongs to: its id and the pipeline file it plays.
 
-    Keys: ``pipeline_name`` (default: the file's stem), ``pipeline_file``, ``pipeline_sha256``
-    (hash of the file's bytes), ``log_format``, then those of :func:`machine_provenance`.
-    Nothing depends on the clock, so every file of a run carries the same record.
+    ``pipeline_sha256`` is the SHA-256 of the file's UTF-8 text: two files belong to one run
+    exactly when their identities are equal.
     """
-    path = Path(pipeline_path)
+
+    run_id: str
+    pipeline_name: str
+    pipeline_file: str
+    pipeline_text: str
+
+    @property
+    def pipeline_sha256(self) -> str:
+        return hashlib.sha256(self.pipeline_text.encode()).hexdigest()
+
+    def provenance(self) -> dict[str, str]:
+        """The identity's entries of a ``provenance`` metadata record."""
+        return {
+            RUN_ID_KEY: self.run_id,
+            PIPELINE_NAME_KEY: self.pipeline_name,
+            PIPELINE_FILE_KEY: self.pipeline_file,
+            PIPELINE_TEXT_KEY: self.pipeline_text,
+            PIPELINE_SHA_KEY: self.pipeline_sha256,
+        }
+
+    @classmethod
+    def of(cls, provenance: Mapping[str, str]) -> RunIdentity:
+        """The identity a ``provenance`` record states.
+
+        Raises:
+            ValueError: a key is missing, or the recorded hash is not that of the recorded
+                pipeline text.
+        """
+        missing = [key for key in IDENTITY_KEYS if key not in provenance]
+        if missing:
+            raise ValueError(f"provenance lacks {', '.join(missing)} (log format < 3?)")
+        identity = cls(
+            run_id=provenance[RUN_ID_KEY],
+            pipeline_name=provenance[PIPELINE_NAME_KEY],
+            pipeline_file=provenance[PIPELINE_FILE_KEY],
+            pipeline_text=provenance[PIPELINE_TEXT_KEY],
+        )
+        if identity.pipeline_sha256 != provenance[PIPELINE_SHA_KEY]:
+            raise ValueError("provenance's pipeline_sha256 is not the hash of its pipeline_toml")
+        return identity
+
+
+def collect_provenance(identity: RunIdentity) -> dict[str, str]:
+    """Provenance of the log files of a run, as a string-to-string map.
+
+    The entries of :meth:`RunIdentity.provenance`, ``log_format``, then those of
+    :func:`machine_provenance`. Nothing depends on the clock, so every file of a run carries
+    the same record.
+    """
     return {
-        PIPELINE_NAME_KEY: pipeline_name if pipeline_name is not None else path.stem,
-        "pipeline_file": path.name,
-        "pipeline_sha256": hashlib.sha256(path.read_bytes()).hexdigest(),
+        **identity.provenance(),
         "log_format": LOG_FORMAT_VERSION,
         **machine_provenance(),
     }

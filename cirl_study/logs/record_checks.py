@@ -65,8 +65,7 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
         yield f"policy {r.policy!r} is not a known human policy ({', '.join(HUMANS)})"
     elif (r.eta is None) == human.takes_eta:
         yield (
-            f"eta is {r.eta} for policy {r.policy} "
-            "(null exactly for a policy without a trade-off)"
+            f"eta is {r.eta} for policy {r.policy} (null exactly for a policy without a trade-off)"
         )
     if r.robot not in ROBOTS:
         yield f"robot {r.robot!r} is not a known robot ({', '.join(ROBOTS)})"

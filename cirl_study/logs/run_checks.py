@@ -1,10 +1,11 @@
 """Faults of a run as a whole (docs/design.md §5), across its log files.
 
-* No trial id is logged twice; all files share one ``run_id`` and one pipeline.
+* No trial id is logged twice; all files state one run (run id and pipeline file) and hold
+  only its records.
 * A subject is one reward draw: all its records agree on ``num_features``, ``theta``, the
   features, the grid and the start cell (so a subject lies at one feature level).
 * The ``main`` block is non-empty, complete and within subjects: every subject in it has
-  exactly one trial of every policy the block plays.
+  exactly one trial of every (robot, policy) pair the block plays.
 * Cross-validation draws are disjoint from the test draws: no ``eta_cv`` subject appears in
   another block.
 
@@ -18,7 +19,7 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
-from cirl_study.logs.format import PIPELINE_NAME_KEY
+from cirl_study.logs.provenance import RunIdentity
 from cirl_study.record import ETA_CV, MAIN, TrialRecord
 
 SUBJECT_FIELDS = ("num_features", "theta", "features", "grid", "start")
@@ -31,15 +32,27 @@ EXAMPLES = 3
 def run_faults(
     files: Sequence[tuple[Path, list[TrialRecord], dict[str, str] | None]],
 ) -> list[str]:
-    """Run-level faults of ``files``: ``(path, trial records, provenance)`` per log file."""
+    """Run-level faults of ``files``: ``(path, trial records, provenance)`` per log file.
+
+    Besides the design's: a trial logged in two files; files stating different runs
+    (:class:`~cirl_study.logs.provenance.RunIdentity`: run id and pipeline file); records
+    of another run than their file's.
+    """
     faults = _duplicate_faults(files)
     records = [record for _, file_records, _ in files for record in file_records]
-    run_ids = sorted({record.run_id for record in records})
-    if len(run_ids) > 1:
-        faults.append(f"records of {len(run_ids)} runs: {_examples(run_ids)}")
-    pipelines = sorted({p.get(PIPELINE_NAME_KEY, "") for _, _, p in files if p is not None})
-    if len(pipelines) > 1:
-        faults.append(f"files of {len(pipelines)} pipelines: {_examples(pipelines)}")
+    runs: dict[str, list[str]] = defaultdict(list)
+    for path, file_records, provenance in files:
+        try:
+            identity = RunIdentity.of(provenance or {})
+        except ValueError:
+            continue  # a file fault already
+        runs[f"{identity.run_id} (pipeline sha256 {identity.pipeline_sha256})"].append(path.name)
+        foreign = sorted({r.run_id for r in file_records} - {identity.run_id})
+        if foreign:
+            faults.append(f"{path.name} holds records of run(s) {_examples(foreign)}")
+    if len(runs) > 1:
+        described = [f"{run} in {_examples(names)}" for run, names in runs.items()]
+        faults.append(f"files of {len(runs)} runs: {'; '.join(described)}")
     unique = list({record.trial_id: record for record in records}.values())
     return faults + design_faults(unique)
 
@@ -90,21 +103,26 @@ def _main_block_faults(records: Sequence[TrialRecord]) -> list[str]:
     main = [record for record in records if record.block == MAIN]
     if not main:
         return ["no trials in the main block: the policy x num_features study is missing"]
-    policies = sorted({record.policy for record in main})
+    cells = sorted({_cell(record) for record in main})
     trials: dict[str, Counter[str]] = defaultdict(Counter)
     for record in main:
-        trials[record.subject][record.policy] += 1
+        trials[record.subject][_cell(record)] += 1
     incomplete = [
         f"{subject} has {dict(sorted(count.items()))}"
         for subject, count in sorted(trials.items())
-        if [count[policy] for policy in policies] != [1] * len(policies)
+        if [count[cell] for cell in cells] != [1] * len(cells)
     ]
     if not incomplete:
         return []
     return [
         f"main block incomplete: {len(incomplete)} subject(s) without exactly one trial of "
-        f"each policy ({', '.join(policies)}): {_examples(incomplete)}"
+        f"each of {', '.join(cells)}: {_examples(incomplete)}"
     ]
+
+
+def _cell(record: TrialRecord) -> str:
+    """The within-subjects cell of a ``main`` trial: ``policy/robot``."""
+    return f"{record.policy}/{record.robot}"
 
 
 def _shared_draws(records: Iterable[TrialRecord]) -> list[str]:

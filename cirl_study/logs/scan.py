@@ -228,10 +228,57 @@ def _check_chunk_size(chunk: Chunk) -> None:
             )
 
 
+def _data_section_crc_holds(data: bytes, data_end_position: int, stored: int) -> bool:
+    """The data section's CRC: every byte before the Data End record."""
+    return zlib.crc32(data[:data_end_position]) == stored
+
+
+def _summary_crc_holds(data: bytes, summary_start: int, footer_position: int, stored: int) -> bool:
+    """The summary's CRC: from its first record through the footer's two offsets."""
+    covered = data[summary_start : footer_position + _RECORD_PREFIX + _FOOTER_CRC_SPAN]
+    return zlib.crc32(covered) == stored
+
+
+_FOOTER_BODY = struct.Struct("<QQI")  # summary_start, summary_offset_start, summary_crc
+_DATA_END_BODY = struct.Struct("<I")  # data_section_crc
+
+
+def section_crcs_hold(data: bytes) -> bool:
+    """Whether a complete file's data-section and summary CRCs are present and hold.
+
+    Reads only the footer and the Data End record (at the fixed places the footer points to),
+    then two CRC-32 passes over the file: the cheap complement of a reader that checks chunk
+    CRCs only (:func:`mcap.reader.make_reader` with ``validate_crcs``). Metadata records, such
+    as the provenance, lie outside every chunk and are covered by the data-section CRC alone.
+    """
+    footer_position = len(data) - len(MAGIC) - _RECORD_PREFIX - _FOOTER_BODY.size
+    if footer_position < len(MAGIC) or data[-len(MAGIC) :] != MAGIC:
+        return False
+    opcode, length = struct.unpack_from("<BQ", data, footer_position)
+    if opcode != Opcode.FOOTER or length != _FOOTER_BODY.size:
+        return False
+    summary_start, _, summary_crc = _FOOTER_BODY.unpack_from(data, footer_position + _RECORD_PREFIX)
+    end_of_data = summary_start if summary_start else footer_position
+    data_end = end_of_data - _RECORD_PREFIX - _DATA_END_BODY.size
+    if data_end < len(MAGIC):
+        return False
+    opcode, length = struct.unpack_from("<BQ", data, data_end)
+    if opcode != Opcode.DATA_END or length != _DATA_END_BODY.size:
+        return False
+    (data_crc,) = _DATA_END_BODY.unpack_from(data, data_end + _RECORD_PREFIX)
+    return (
+        summary_start > 0
+        and data_crc != 0
+        and summary_crc != 0
+        and _data_section_crc_holds(data, data_end, data_crc)
+        and _summary_crc_holds(data, summary_start, footer_position, summary_crc)
+    )
+
+
 def _data_end(data: bytes, scan: FileScan, record: DataEnd, position: int) -> None:
     if record.data_section_crc == 0:
         scan.faults.append("the data section carries no CRC")
-    elif zlib.crc32(data[:position]) != record.data_section_crc:
+    elif not _data_section_crc_holds(data, position, record.data_section_crc):
         scan.faults.append("data-section CRC mismatch")
 
 
@@ -251,10 +298,8 @@ def _footer(
         scan.faults.append("the file has no summary section")
     elif footer.summary_crc == 0:
         scan.faults.append("the summary section carries no CRC")
-    else:
-        covered = data[footer.summary_start : position + _RECORD_PREFIX + _FOOTER_CRC_SPAN]
-        if zlib.crc32(covered) != footer.summary_crc:
-            scan.faults.append("summary CRC mismatch")
+    elif not _summary_crc_holds(data, footer.summary_start, position, footer.summary_crc):
+        scan.faults.append("summary CRC mismatch")
     scan.complete = True
 
 

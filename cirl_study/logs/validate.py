@@ -4,8 +4,10 @@ A file is OK when :func:`~cirl_study.logs.scan.scan_file` finds no storage fault
 framing, chunk / data-section / summary CRCs, summary counts and indexes) and
 :func:`~cirl_study.logs.contents.read_file_contents` no content fault (provenance, schemas and
 encodings, every record complete and consistent, time layout, replay counts). The run is OK
-when every file is, no unfinished temporary file is left, and
-:func:`~cirl_study.logs.run_checks.run_faults` finds nothing.
+when every file is, no unfinished temporary file is left,
+:func:`~cirl_study.logs.run_checks.run_faults` finds nothing. Whether the logs hold exactly
+the trials the run's pipeline plans is the study's question
+(:func:`cirl_study.study.audit.plan_faults`); ``cirl-study validate`` asks both.
 """
 
 from __future__ import annotations
@@ -13,10 +15,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from cirl_study.errors import UserError
 from cirl_study.logs.contents import read_file_contents
 from cirl_study.logs.format import log_files, temp_files
+from cirl_study.logs.reader import check_run_directory
 from cirl_study.logs.run_checks import run_faults
+from cirl_study.record import TrialRecord
 
 #: Faults shown on a verdict line before the rest are only counted.
 SHOWN_FAULTS = 3
@@ -43,11 +46,12 @@ class FileVerdict:
 
 @dataclass(frozen=True)
 class RunVerdict:
-    """The verdict on a run: one per file plus the run-level faults."""
+    """The verdict on a run: one per file plus the run-level faults, and the records read."""
 
     run_dir: Path
     files: tuple[FileVerdict, ...]
     faults: tuple[str, ...]
+    records: tuple[tuple[Path, list[TrialRecord], dict[str, str] | None], ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -76,8 +80,7 @@ def validate_file(path: str | Path) -> FileVerdict:
 def validate_run(run_dir: str | Path) -> RunVerdict:
     """Check every complete file of ``run_dir`` and the run as a whole."""
     run_dir = Path(run_dir)
-    if not run_dir.is_dir():
-        raise UserError(f"{run_dir}: no such run directory")
+    check_run_directory(run_dir)
     verdicts, files = [], []
     for path in log_files(run_dir):
         contents = read_file_contents(path)
@@ -90,7 +93,7 @@ def validate_run(run_dir: str | Path) -> RunVerdict:
             f"{len(unfinished)} unfinished temporary file(s) of an interrupted run "
             f"(e.g. {unfinished[0].name}); run the pipeline again to complete the run"
         )
-    return RunVerdict(run_dir, tuple(verdicts), tuple(faults))
+    return RunVerdict(run_dir, tuple(verdicts), tuple(faults), tuple(files))
 
 
 def _summary(faults: tuple[str, ...]) -> str:

@@ -21,12 +21,12 @@ from cirl_study import __version__
 from cirl_study.logs.episode import episode_messages
 from cirl_study.logs.format import (
     MESSAGE_ENCODING,
-    PIPELINE_NAME_KEY,
     PROVENANCE_METADATA_NAME,
     SCHEMA_ENCODING,
     temp_path,
     trial_duration_ns,
 )
+from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.schemas import CHANNELS
 from cirl_study.record import DecodeError, TrialRecord, decode, encode
 
@@ -40,8 +40,9 @@ LIBRARY = f"cirl-study {__version__}; python mcap {mcap.__version__}"
 class TrialLogWriter:
     """One MCAP log file of a run: ``with TrialLogWriter(path, provenance) as log: log.write(r)``.
 
-    ``provenance`` (string to string, with a ``pipeline_name`` key) becomes the file's
-    ``provenance`` metadata record. Each :meth:`write` logs one trial record (docs/design.md
+    ``provenance`` (string to string, stating the run's identity:
+    :func:`~cirl_study.logs.provenance.collect_provenance`) becomes the file's ``provenance``
+    metadata record. Each :meth:`write` logs one trial record (docs/design.md
     §7) with its reward maps and its step-by-step replay; log times follow the layout of
     :mod:`cirl_study.logs.format`. Chunks are zstd-compressed; chunk, data-section and summary
     CRCs are all written.
@@ -52,8 +53,7 @@ class TrialLogWriter:
     ) -> None:
         if not all(isinstance(k, str) and isinstance(v, str) for k, v in provenance.items()):
             raise TypeError("provenance must map strings to strings")
-        if PIPELINE_NAME_KEY not in provenance:
-            raise ValueError(f"provenance needs a {PIPELINE_NAME_KEY!r} entry")
+        self.run_id = RunIdentity.of(provenance).run_id  # ValueError unless it names a run
         self.path = Path(path)
         self.temp_path = temp_path(self.path)
         self.provenance = dict(provenance)
@@ -93,11 +93,15 @@ class TrialLogWriter:
         """Log one trial record (and its replay topics) as the next trial of the file.
 
         Raises:
-            ValueError: the record would not decode again (e.g. a NaN, which JSON cannot
-                hold): nothing of it is written.
+            ValueError: the record belongs to another run than the file's, or would not
+                decode again (e.g. a NaN, which JSON cannot hold): nothing of it is written.
         """
         if self._writer is None:
             raise RuntimeError("TrialLogWriter.write called outside its `with` block")
+        if record.run_id != self.run_id:
+            raise ValueError(
+                f"trial {record.trial_id} belongs to run {record.run_id}, the file to {self.run_id}"
+            )
         payloads = [
             (message, encode(message.payload))
             for message in episode_messages(record, self._clock_ns)

@@ -4,4 +4,5 @@
 - :mod:`~cirl_study.study.plan`: trial identities, seeds, reward draws, the eta choice.
 - :mod:`~cirl_study.study.engines`: where trials are played (this process, a pool, Dask).
 - :mod:`~cirl_study.study.runner`: plays a plan on an engine into MCAP logs, resumably.
+- :mod:`~cirl_study.study.audit`: a run's logged trials against its plan (missing, foreign).
 """

@@ -4,9 +4,13 @@ Identity. A *subject* is one reward draw; its id names the group it belongs to (
 the cross-validation draws, ``main`` for the test draws shared by the main study and the
 lambda sweep), the number of features and a 1-based index, e.g. ``main-k03-s0001``, so it
 is unique across feature levels and the two groups never share a draw. A *trial* is a
-subject played in one block with one policy, rationality ``lambda`` and ``eta``; its id
-spells all of these out, e.g. ``lambda_sweep:main-k10-s0042:best_response:lambda=0.001:eta=0.316``
-(floats in Python's shortest round-trip form; an expert trial has no ``eta`` part).
+subject played in one block with one policy (and its ``eta``), rationality ``lambda`` and
+robot; its id spells all of these out, e.g.
+``lambda_sweep:main-k10-s0042:best_response:lambda=0.001:eta=0.316:robot=map`` (floats in
+Python's shortest round-trip form; an expert trial has no ``eta`` part). Every robot of the
+pipeline watches the same subjects under the same policies: the robot is a within-subjects
+factor of the ``main`` and ``lambda_sweep`` blocks, and the eta cross-validation is played by
+the reference robot alone (:attr:`cirl_study.study.spec.MainSpec.reference_robot`).
 
 Randomness. Every stream is a :class:`numpy.random.SeedSequence` with the pipeline's root
 seed as entropy and, as spawn key, the BLAKE2b hash of the identity string
@@ -48,10 +52,12 @@ def subject_id(group: str, num_features: int, index: int) -> str:
     return f"{group}-k{num_features:02d}-s{index:04d}"
 
 
-def trial_id(block: str, subject: str, policy: str, rationality: float, eta: float | None) -> str:
+def trial_id(
+    block: str, subject: str, policy: str, rationality: float, eta: float | None, robot: str
+) -> str:
     """Stable id of a trial, spelling out its whole identity."""
-    tail = "" if eta is None else f":eta={float(eta)!r}"
-    return f"{block}:{subject}:{policy}:lambda={float(rationality)!r}{tail}"
+    eta_part = "" if eta is None else f":eta={float(eta)!r}"
+    return f"{block}:{subject}:{policy}:lambda={float(rationality)!r}{eta_part}:robot={robot}"
 
 
 def trial_seed(root_seed: int, trial: str) -> int:
@@ -93,8 +99,9 @@ def _trial(
     policy: str,
     rationality: float,
     eta: float | None,
+    robot: str,
 ) -> TrialSpec:
-    ident = trial_id(block, subject.id, policy, rationality, eta)
+    ident = trial_id(block, subject.id, policy, rationality, eta, robot)
     game = pipeline.game
     return TrialSpec(
         trial_id=ident,
@@ -112,18 +119,20 @@ def _trial(
         deployment_steps=game.deployment_steps,
         features=subject.features,
         theta=subject.theta,
-        robot=pipeline.main.robot,
+        robot=robot,
     )
 
 
 def eta_cv_trials(pipeline: Pipeline) -> list[TrialSpec]:
-    """Block ``eta_cv``: each policy with a trade-off at every eta of the grid, on ``cv`` draws."""
+    """Block ``eta_cv``: each policy with a trade-off at every eta of the grid, on ``cv`` draws,
+    watched by the reference robot."""
     cv = pipeline.eta_cv
+    robot = pipeline.main.reference_robot
     trials = []
     for k in pipeline.game.feature_levels:
         subjects = _subjects(pipeline, CV_GROUP, k, cv.subjects)
         trials += [
-            _trial(pipeline, ETA_CV, subject, policy, cv.rationality, eta)
+            _trial(pipeline, ETA_CV, subject, policy, cv.rationality, eta, robot)
             for policy in pipeline.policies_with_eta
             for eta in cv.etas
             for subject in subjects
@@ -132,7 +141,7 @@ def eta_cv_trials(pipeline: Pipeline) -> list[TrialSpec]:
 
 
 def study_trials(pipeline: Pipeline, etas: Mapping[tuple[str, int], float]) -> list[TrialSpec]:
-    """Blocks ``main`` and ``lambda_sweep`` on the ``main`` draws.
+    """Blocks ``main`` and ``lambda_sweep`` on the ``main`` draws, for every robot.
 
     A policy with a trade-off plays at feature level ``K`` with ``etas[policy, K]`` (the
     cross-validated choice, :func:`cirl_study.study.eta_cv.choose_etas`); the sweep plays the
@@ -146,15 +155,17 @@ def study_trials(pipeline: Pipeline, etas: Mapping[tuple[str, int], float]) -> l
         return etas[policy, k] if policy in pipeline.policies_with_eta else None
 
     main_block = [
-        _trial(pipeline, MAIN, subject, policy, main.rationality, eta_of(policy, k))
+        _trial(pipeline, MAIN, subject, policy, main.rationality, eta_of(policy, k), robot)
         for k in levels
+        for robot in main.robots
         for policy in main.policies
         for subject in subjects[k]
     ]
     sweep_block = [
-        _trial(pipeline, LAMBDA_SWEEP, subject, policy, rationality, eta_of(policy, k))
+        _trial(pipeline, LAMBDA_SWEEP, subject, policy, rationality, eta_of(policy, k), robot)
         for k in levels
         for rationality in sweep.rationalities
+        for robot in main.robots
         for policy in main.policies
         for subject in subjects[k][: sweep.subjects]
     ]
@@ -164,7 +175,7 @@ def study_trials(pipeline: Pipeline, etas: Mapping[tuple[str, int], float]) -> l
 def trial_counts(pipeline: Pipeline) -> dict[str, int]:
     """Number of trials of each block (known before eta is chosen)."""
     levels = len(pipeline.game.feature_levels)
-    policies = len(pipeline.main.policies)
+    policies = len(pipeline.main.policies) * len(pipeline.main.robots)
     sweep = pipeline.lambda_sweep
     cv = pipeline.eta_cv
     return {

@@ -27,7 +27,13 @@ from operator import attrgetter
 from pathlib import Path
 
 from cirl_study.errors import UserError
-from cirl_study.logs import TrialLogWriter, collect_provenance, logged_trials, read_run
+from cirl_study.logs import (
+    RunIdentity,
+    TrialLogWriter,
+    collect_provenance,
+    logged_trials,
+    read_run,
+)
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
 from cirl_study.logs.lock import writer_lock
 from cirl_study.record import TrialRecord, TrialSpec
@@ -41,6 +47,54 @@ MAX_BATCH = 250
 
 BATCHES_PER_WORKER = 4
 """A block is cut into at least this many batches per worker, so that workers finish together."""
+
+
+MAX_TRIALS = 2_000_000
+"""Most trials a pipeline may plan: the plan holds every trial's spec in memory (about 1 KB
+each), so this keeps it within about 2 GB."""
+
+BATCH_MEMORY_BUDGET = 4 * 2**30
+"""Bytes a worker may need to play one batch (:func:`batch_memory`): the 2-core, 24 GiB
+machine this study is sized for runs two workers beside the parent with room to spare."""
+
+
+def batch_memory(pipeline: Pipeline) -> int:
+    """Estimated peak bytes of playing one batch of :data:`MAX_BATCH` trials.
+
+    The dynamic programmes of a trial hold, for every step ``t <= T`` and cell, at most a
+    float per action (5), per feature (``K``) and per pair of features (``K^2``, the
+    covariance of the feature counts), so a batch needs at most about
+    ``MAX_BATCH (T + 1) S (5 + K + K^2) 8`` bytes with ``T`` the longer horizon, ``S`` the
+    cells and ``K`` the largest feature level. An upper bound: measured peaks of a batch of
+    250 best-response trials at ``K = 10``, ``T = 9`` are 0.17 GB on 10 x 10 cells (bound
+    0.23) and 2.0 GB on 40 x 40 (bound 3.7).
+    """
+    game = pipeline.game
+    steps = max(game.learning_steps, game.deployment_steps) + 1
+    k = max(game.feature_levels)
+    return MAX_BATCH * steps * game.width * game.height * (5 + k + k * k) * 8
+
+
+def check_resources(pipeline: Pipeline) -> None:
+    """Refuse, before anything is written, a pipeline that cannot fit the machine.
+
+    Raises:
+        UserError: more than :data:`MAX_TRIALS` trials, or a batch over
+            :data:`BATCH_MEMORY_BUDGET` (:func:`batch_memory`).
+    """
+    total = sum(trial_counts(pipeline).values())
+    if total > MAX_TRIALS:
+        raise UserError(
+            f"{pipeline.path}: plans {total} trials, more than the {MAX_TRIALS} one run may "
+            "hold; split the study into several pipelines"
+        )
+    need = batch_memory(pipeline)
+    if need > BATCH_MEMORY_BUDGET:
+        raise UserError(
+            f"{pipeline.path}: one batch of trials would need about {need / 2**30:.3g} GiB, "
+            f"more than the {BATCH_MEMORY_BUDGET / 2**30:g} GiB budget; shrink the grid, "
+            "the horizons or the largest feature level"
+        )
 
 
 @dataclass(frozen=True)
@@ -103,27 +157,23 @@ def batch_file_name(batch: Sequence[TrialSpec]) -> str:
     return f"{batch[0].block}-{digest.hexdigest()}{LOG_SUFFIX}"
 
 
-def prepare_run_directory(out_dir: Path, provenance: dict[str, str]) -> set[str]:
-    """Make ``out_dir`` ready for this pipeline's run; return the ids of the trials it holds.
+def run_identity(pipeline: Pipeline) -> RunIdentity:
+    """The identity every log file of ``pipeline``'s run states in its provenance."""
+    return RunIdentity(pipeline.run_id, pipeline.name, pipeline.path.name, pipeline.text)
 
-    Refuses damaged log files and log files written from another
-    pipeline file (or another version of it), since a run's records must all come from one
-    specification (both from one read of each file, :func:`~cirl_study.logs.logged_trials`);
-    deletes the temporary files of an interrupted run.
+
+def prepare_run_directory(out_dir: Path, identity: RunIdentity) -> set[str]:
+    """Make ``out_dir`` ready for this run; return the ids of the trials it holds.
+
+    Refuses damaged log files and log files of another run (another pipeline file, or
+    another version of it), since a run's records must all come from one specification
+    (:func:`~cirl_study.logs.logged_trials`); then deletes the temporary files of an
+    interrupted run, which only this process, holding the writer lock, may own.
     """
-    logged = logged_trials(out_dir)
-    ours = provenance["pipeline_sha256"]
-    for path, their_provenance in logged.provenance.items():
-        theirs = their_provenance.get("pipeline_sha256")
-        if theirs != ours:
-            raise UserError(
-                f"{out_dir}: holds logs of another pipeline ({path.name} was written from "
-                f"pipeline sha256 {str(theirs)[:12]}, this one is {ours[:12]}); "
-                "use another --out directory"
-            )
+    logged = logged_trials(out_dir, identity)
     for path in temp_files(out_dir):
         path.unlink()
-    return logged.trial_ids
+    return logged
 
 
 @dataclass
@@ -146,12 +196,24 @@ class _Session:
             batch = batches[index]
             if [record.trial_id for record in records] != [t.trial_id for t in batch]:
                 raise RuntimeError("the engine returned records that do not match their batch")
-            with TrialLogWriter(self.out_dir / batch_file_name(batch), self.provenance) as log:
-                for record in records:
-                    log.write(record)
+            self._log(batch_file_name(batch), records)
             self.done.update(trial.trial_id for trial in batch)
             self.progress.advance(len(batch))
             yield records
+
+    def _log(self, name: str, records: Sequence[TrialRecord]) -> None:
+        """Write one batch's file; an operating-system error ends the run in one line."""
+        path = self.out_dir / name
+        try:
+            with TrialLogWriter(path, self.provenance) as log:
+                for record in records:
+                    log.write(record)
+        except OSError as error:
+            raise UserError(
+                f"{path}: cannot write the log ({error.strerror or error}); the "
+                f"{len(self.done)} trial(s) logged before are kept: fix the cause and run "
+                "again to resume"
+            ) from None
 
 
 def _cross_validate(
@@ -186,12 +248,21 @@ def run_pipeline(
     """Run (or resume) ``pipeline`` into ``out_dir`` on ``engine`` (not yet entered)."""
     hooks = progress or ProgressHooks()
     began = time.perf_counter()
-    provenance = collect_provenance(pipeline.path, pipeline.name)
-    if provenance["pipeline_sha256"] != pipeline.sha256:
-        raise UserError(f"{pipeline.path}: the file changed while it was being read")
+    check_resources(pipeline)
     _make_directory(out_dir)
     with writer_lock(out_dir):
-        return _run_locked(pipeline, out_dir, engine, hooks, provenance, began)
+        return _run_locked(pipeline, out_dir, engine, hooks, began)
+
+
+def _refuse_unplanned(out_dir: Path, logged: set[str], planned: Sequence[TrialSpec]) -> None:
+    """Refuse, before the study blocks play, a directory holding trials the plan lacks."""
+    unplanned = sorted(logged - {trial.trial_id for trial in planned})
+    if unplanned:
+        raise UserError(
+            f"{out_dir}: holds {len(unplanned)} logged trial(s) this pipeline does not plan "
+            f"(e.g. {unplanned[0]}), written by another version of cirl-study; "
+            "use another --out directory"
+        )
 
 
 def _make_directory(out_dir: Path) -> None:
@@ -209,11 +280,12 @@ def _run_locked(
     out_dir: Path,
     engine: Engine,
     hooks: ProgressHooks,
-    provenance: dict[str, str],
     began: float,
 ) -> RunResult:
     """:func:`run_pipeline` once this process holds the directory's writer lock."""
-    done = prepare_run_directory(out_dir, provenance)
+    identity = run_identity(pipeline)
+    provenance = collect_provenance(identity)
+    done = prepare_run_directory(out_dir, identity)
     resumed = len(done)
     total = sum(trial_counts(pipeline).values())
     session = _Session(engine, out_dir, provenance, hooks, done)
@@ -222,16 +294,9 @@ def _run_locked(
         cv_trials = eta_cv_trials(pipeline)
         etas = _cross_validate(session, cv_trials)
         trials = study_trials(pipeline, {key: choice.eta for key, choice in etas.items()})
+        _refuse_unplanned(out_dir, done, [*cv_trials, *trials])
         for _ in session.play(trials):
             pass
-    planned = {trial.trial_id for trial in (*cv_trials, *trials)}
-    unplanned = sorted(done - planned)
-    if unplanned:
-        raise UserError(
-            f"{out_dir}: holds {len(unplanned)} logged trial(s) this pipeline does not plan "
-            f"(e.g. {unplanned[0]}), written by another version of cirl-study; "
-            "use another --out directory"
-        )
     return RunResult(
         out_dir=out_dir,
         run_id=pipeline.run_id,

@@ -26,7 +26,7 @@ shape, with every key required::
     subjects = 500
     rationality = 1.0
     policies = ["expert", "best_response"]   # human policies, within subjects
-    robot = "map"             # the robot of every block
+    robots = ["map"]          # robots, within subjects (map, if listed, plays eta_cv)
 
     [lambda_sweep]            # both policies at every lambda, on the main block's draws
     subjects = 500            # the first `subjects` reward draws of the main block
@@ -39,6 +39,7 @@ the key, e.g. ``pipelines/x.toml: main.subjects must be a positive integer, got 
 
 from __future__ import annotations
 
+import codecs
 import hashlib
 import json
 import math
@@ -53,6 +54,9 @@ from cirl_study.errors import UserError
 
 PIPELINES_DIRECTORY = "pipelines"
 """Name of the directory that holds the pipeline files, at the repository root."""
+
+MAX_PIPELINE_BYTES = 1 << 20
+"""Largest pipeline file read: every log file of a run carries the whole text."""
 
 _NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
@@ -84,14 +88,25 @@ class MainSpec:
     """The main study: every policy of ``policies`` on ``subjects`` draws per feature level.
 
     ``policies`` are names of :data:`cirl_study.core.humans.HUMANS` (within subjects, in the
-    order the report compares them: baseline first); ``robot`` is a name of
-    :data:`cirl_study.core.robot.ROBOTS`, the robot of every block.
+    order the report compares them: baseline first); ``robots`` are names of
+    :data:`cirl_study.core.robot.ROBOTS`, also within subjects: every robot watches the same
+    demonstrations of the ``main`` and ``lambda_sweep`` blocks. One of them is the
+    *reference* (:func:`cirl_study.core.robot.reference_robot`: ``map`` when present): it
+    plays the eta cross-validation, so each policy's eta, and with it the human's
+    demonstration, is the same whichever robot watches.
     """
 
     subjects: int
     rationality: float
     policies: tuple[str, ...]
-    robot: str
+    robots: tuple[str, ...]
+
+    @property
+    def reference_robot(self) -> str:
+        """The robot of the eta cross-validation (see the class docstring)."""
+        from cirl_study.core.robot import reference_robot
+
+        return reference_robot(self.robots)
 
 
 @dataclass(frozen=True)
@@ -106,8 +121,8 @@ class LambdaSweepSpec:
 class Pipeline:
     """A validated pipeline file.
 
-    ``sha256`` is the hash of the file's bytes: two runs are the same run exactly when
-    their pipeline files hash alike.
+    ``text`` is the file's whole text and ``sha256`` the hash of its UTF-8 bytes: two runs
+    are the same run exactly when their pipeline files hash alike.
     """
 
     name: str
@@ -118,6 +133,7 @@ class Pipeline:
     main: MainSpec
     lambda_sweep: LambdaSweepSpec
     path: Path
+    text: str
     sha256: str
 
     @property
@@ -131,6 +147,44 @@ class Pipeline:
     def run_id(self) -> str:
         """Id of the run this pipeline describes: its name and the start of its hash."""
         return f"{self.name}-{self.sha256[:12]}"
+
+
+@dataclass(frozen=True)
+class Limits:
+    """A closed range ``[low, high]`` of a setting, and why the engine needs it."""
+
+    low: float
+    high: float
+    reason: str
+
+    def __str__(self) -> str:
+        return f"[{self.low:g}, {self.high:g}] ({self.reason})"
+
+
+RATIONALITY = Limits(
+    1e-4, 1e4, "the range in which the robots are checked against exact references"
+)
+"""lambda: docs/design.md §2 asks for the MAP to 1e-6 at every lambda in [1e-4, 1e4], and that
+is where the MAP robot is checked against the mpmath reference (``tests/map_reference.py``)
+and the posterior mean against quadrature; outside it no estimate the study prints is verified."""
+
+ETA = Limits(1e-6, 1e6, "beyond, the best response equals its eta -> 0 or infinity limit")
+"""eta: the best response seeks the path whose counts are nearest to ``phi_theta + theta /
+(2 eta)`` with ``|theta_k| <= 1``. At ``eta > 1e6`` the pull ``theta / (2 eta)`` moves that
+target by less than 5e-7 feature counts, and at ``eta < 1e-6`` it moves it by more than 5e5,
+farther than any path's counts reach (at most ``T_learn + 1`` per feature for any horizon
+this study can afford): either way the demonstration is that of the limit."""
+
+SIGMA_LOW = 0.02
+"""Least RBF width: a centre lies within ``sqrt(2)/2`` of a cell, and ``exp(-d^2 / (2
+sigma^2))`` underflows to 0 beyond ``d ~ 38.6 sigma``, so ``sigma >= 0.02`` keeps every
+feature non-zero on at least one cell (a feature that is zero everywhere would leave its
+weight unidentifiable by construction)."""
+
+SIGMA_SPAN = 1e3
+"""Largest RBF width, in units of the grid's diagonal: there the features vary across the
+grid by less than ``1 / (2 * SIGMA_SPAN^2) = 5e-7`` of their value, below the 1e-6 to which
+the robot certifies its estimate, so every reward would be flat."""
 
 
 def _show(value: Any) -> str:
@@ -178,10 +232,10 @@ class _Table:
             self.fail(key, f"must be {what}, got {_show(value)}")
         return value
 
-    def positive_number(self, key: str) -> float:
+    def number_in(self, key: str, limits: Limits) -> float:
         value = self.value(key)
-        if not _is_positive_number(value):
-            self.fail(key, f"must be a positive finite number, got {_show(value)}")
+        if not (_is_positive_number(value) and limits.low <= value <= limits.high):
+            self.fail(key, f"must be a number in {limits}, got {_show(value)}")
         return float(value)
 
     def _list(self, key: str, item_ok: Callable[[Any], bool], what: str) -> list[Any]:
@@ -194,14 +248,6 @@ class _Table:
 
     def positive_integers(self, key: str) -> tuple[int, ...]:
         return tuple(self._list(key, lambda v: _is_integer(v) and v > 0, "positive integers"))
-
-    def name(self, key: str, known: tuple[str, ...], what: str) -> str:
-        value = self.string(key)
-        if value not in known:
-            self.fail(
-                key, f"must be one of the known {what} ({', '.join(known)}), got {_show(value)}"
-            )
-        return value
 
     def names(self, key: str, known: tuple[str, ...], what: str) -> tuple[str, ...]:
         value = self.value(key)
@@ -218,8 +264,12 @@ class _Table:
             )
         return tuple(value)
 
-    def positive_numbers(self, key: str) -> tuple[float, ...]:
-        values = self._list(key, _is_positive_number, "positive finite numbers")
+    def numbers_in(self, key: str, limits: Limits) -> tuple[float, ...]:
+        values = self._list(
+            key,
+            lambda v: _is_positive_number(v) and limits.low <= v <= limits.high,
+            f"numbers in {limits}",
+        )
         return tuple(float(v) for v in values)
 
 
@@ -273,6 +323,7 @@ def parse_pipeline(text: str, path: Path) -> Pipeline:
         main=(main := _main(top)),
         lambda_sweep=_lambda_sweep(top, main),
         path=path,
+        text=text,
         sha256=hashlib.sha256(text.encode()).hexdigest(),
     )
 
@@ -311,17 +362,37 @@ def _game(top: _Table) -> GameSpec:
         start=(start[0], start[1]),
         learning_steps=game.integer("learning_steps", 1, "a positive integer"),
         deployment_steps=game.integer("deployment_steps", 1, "a positive integer"),
-        sigma=game.positive_number("sigma"),
-        feature_levels=game.positive_integers("feature_levels"),
+        sigma=game.number_in("sigma", _sigma_limits(width, height)),
+        feature_levels=_feature_levels(game, width * height),
     )
+
+
+def _sigma_limits(width: int, height: int) -> Limits:
+    diagonal = math.hypot(width - 1, height - 1)
+    return Limits(
+        SIGMA_LOW,
+        SIGMA_SPAN * diagonal,
+        "0.02 to 1000 grid diagonals: each feature non-zero somewhere and varying",
+    )
+
+
+def _feature_levels(game: _Table, cells: int) -> tuple[int, ...]:
+    levels = game.positive_integers("feature_levels")
+    if max(levels) > cells:
+        game.fail(
+            "feature_levels",
+            f"must be at most the {cells} cells of the grid (more features than cells leave "
+            f"theta unidentifiable), got {max(levels)}",
+        )
+    return levels
 
 
 def _eta_cv(top: _Table) -> EtaCVSpec:
     block = top.table("eta_cv", ("subjects", "etas", "rationality"))
     return EtaCVSpec(
         subjects=block.integer("subjects", 1, "a positive integer"),
-        etas=block.positive_numbers("etas"),
-        rationality=block.positive_number("rationality"),
+        etas=block.numbers_in("etas", ETA),
+        rationality=block.number_in("rationality", RATIONALITY),
     )
 
 
@@ -330,12 +401,12 @@ def _main(top: _Table) -> MainSpec:
     from cirl_study.core.humans import HUMANS
     from cirl_study.core.robot import ROBOTS
 
-    block = top.table("main", ("subjects", "rationality", "policies", "robot"))
+    block = top.table("main", ("subjects", "rationality", "policies", "robots"))
     return MainSpec(
         subjects=block.integer("subjects", 1, "a positive integer"),
-        rationality=block.positive_number("rationality"),
+        rationality=block.number_in("rationality", RATIONALITY),
         policies=block.names("policies", tuple(HUMANS), "human policies"),
-        robot=block.name("robot", tuple(ROBOTS), "robots"),
+        robots=block.names("robots", tuple(ROBOTS), "robots"),
     )
 
 
@@ -348,7 +419,9 @@ def _lambda_sweep(top: _Table, main: MainSpec) -> LambdaSweepSpec:
             f"must be at most main.subjects = {main.subjects} "
             f"(the sweep reuses the main block's reward draws), got {subjects}",
         )
-    return LambdaSweepSpec(subjects=subjects, rationalities=block.positive_numbers("rationalities"))
+    return LambdaSweepSpec(
+        subjects=subjects, rationalities=block.numbers_in("rationalities", RATIONALITY)
+    )
 
 
 def load_pipeline(path: Path) -> Pipeline:
@@ -357,6 +430,16 @@ def load_pipeline(path: Path) -> Pipeline:
         raw = path.read_bytes()
     except OSError as error:
         raise UserError(f"{_display_path(path)}: cannot read: {error.strerror}") from None
+    if len(raw) > MAX_PIPELINE_BYTES:
+        raise UserError(
+            f"{_display_path(path)}: {len(raw)} bytes is not a pipeline file (at most "
+            f"{MAX_PIPELINE_BYTES} bytes)"
+        )
+    if raw.startswith(codecs.BOM_UTF8):
+        raise UserError(
+            f"{_display_path(path)}: starts with a UTF-8 byte-order mark; save it as plain "
+            "UTF-8 without one (TOML)"
+        )
     try:
         text = raw.decode("utf-8")
     except UnicodeDecodeError:
@@ -384,6 +467,8 @@ def resolve_pipeline(name_or_path: str) -> Path:
     given = Path(name_or_path)
     if given.is_file():
         return given
+    if given.is_dir():
+        raise UserError(f"{name_or_path}: is a directory, not a pipeline file")
     if given.name == name_or_path:
         file_name = name_or_path if name_or_path.endswith(".toml") else f"{name_or_path}.toml"
         for directory in pipeline_search_path():

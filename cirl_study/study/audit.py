@@ -1,0 +1,162 @@
+"""Is a run complete? Its logged trials against the trials its pipeline plans.
+
+Every log file carries the run's pipeline file (:class:`~cirl_study.logs.provenance.RunIdentity`),
+so the logs alone say what the run must hold. :func:`audit_run` parses that pipeline, plans
+block ``eta_cv`` (:func:`~cirl_study.study.plan.eta_cv_trials`), chooses eta from the logged
+cross-validation records exactly as the run did (:func:`~cirl_study.study.eta_cv.choose_etas`),
+plans blocks ``main`` and ``lambda_sweep`` with it, and compares trial ids: a planned trial
+that is not logged is *missing*, a logged trial that is not planned is *foreign*. Until every
+cross-validation trial is logged the study blocks cannot be planned trial by trial; they are
+then counted (:func:`~cirl_study.study.plan.trial_counts`) and their records checked only
+for belonging to a study block.
+"""
+
+from __future__ import annotations
+
+from collections import Counter
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+from cirl_study.errors import UserError
+from cirl_study.logs.provenance import RunIdentity
+from cirl_study.record import ETA_CV, TrialRecord
+from cirl_study.study.eta_cv import choose_etas
+from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
+from cirl_study.study.spec import Pipeline, parse_pipeline
+
+EXAMPLES = 3
+"""How many foreign trial ids a fault names."""
+
+
+@dataclass(frozen=True)
+class BlockAudit:
+    """One block: trials planned, and how many of them are logged."""
+
+    block: str
+    planned: int
+    logged: int
+
+    @property
+    def missing(self) -> int:
+        return self.planned - self.logged
+
+
+@dataclass(frozen=True)
+class RunAudit:
+    """The logged trials of a run against its plan (see the module docstring)."""
+
+    blocks: tuple[BlockAudit, ...]
+    foreign: tuple[str, ...]
+    study_checked: bool
+    """Whether the study blocks were planned trial by trial (every ``eta_cv`` trial logged)."""
+
+    @property
+    def planned(self) -> int:
+        return sum(block.planned for block in self.blocks)
+
+    @property
+    def logged(self) -> int:
+        return sum(block.logged for block in self.blocks)
+
+    @property
+    def complete(self) -> bool:
+        return not self.foreign and all(block.missing == 0 for block in self.blocks)
+
+    def missing_text(self) -> str:
+        """``lambda_sweep: 500 of 16000 trials missing; ...`` (empty when nothing is)."""
+        return "; ".join(
+            f"{block.block}: {block.missing} of {block.planned} trials missing"
+            for block in self.blocks
+            if block.missing
+        )
+
+    def faults(self, resume: str) -> list[str]:
+        """One line per fault: foreign trials; missing trials, with the ``resume`` command."""
+        faults = []
+        if self.foreign:
+            shown = ", ".join(self.foreign[:EXAMPLES])
+            more = (
+                f" and {len(self.foreign) - EXAMPLES} more" if len(self.foreign) > EXAMPLES else ""
+            )
+            faults.append(
+                f"{len(self.foreign)} logged trial(s) the run's pipeline does not plan: "
+                f"{shown}{more}"
+            )
+        if self.missing_text():
+            faults.append(f"{self.missing_text()}; resume with `{resume}`")
+        return faults
+
+
+def run_pipeline_of(identity: RunIdentity) -> Pipeline:
+    """The pipeline a run's logs carry, validated as if it were read from its file.
+
+    Raises:
+        UserError: the carried pipeline is not valid for this version of cirl-study.
+    """
+    try:
+        return parse_pipeline(identity.pipeline_text, Path(identity.pipeline_file))
+    except UserError as error:
+        raise UserError(
+            f"the run's pipeline, as its logs carry it, is not valid: {error}"
+        ) from None
+
+
+def audit_run(pipeline: Pipeline, records: Sequence[TrialRecord]) -> RunAudit:
+    """Compare the logged ``records`` with the trials ``pipeline`` plans."""
+    logged = {record.trial_id: record for record in records}
+    cv_plan = eta_cv_trials(pipeline)
+    cv_ids = {trial.trial_id for trial in cv_plan}
+    cv_logged = [logged[trial_id] for trial_id in cv_ids if trial_id in logged]
+    blocks = [BlockAudit(ETA_CV, len(cv_plan), len(cv_logged))]
+    counts = trial_counts(pipeline)
+    study_blocks = [block for block in counts if block != ETA_CV]
+    if len(cv_logged) == len(cv_plan):
+        etas = {key: choice.eta for key, choice in choose_etas(cv_logged).items()}
+        plan = study_trials(pipeline, etas)
+        planned = {trial.trial_id for trial in plan} | cv_ids
+        found = Counter(trial.block for trial in plan if trial.trial_id in logged)
+        blocks += [BlockAudit(block, counts[block], found[block]) for block in study_blocks]
+        foreign = sorted(set(logged) - planned)
+    else:
+        found = Counter(record.block for record in records)
+        blocks += [
+            BlockAudit(block, counts[block], min(found[block], counts[block]))
+            for block in study_blocks
+        ]
+        foreign = sorted(
+            trial_id
+            for trial_id, record in logged.items()
+            if (record.block == ETA_CV and trial_id not in cv_ids) or record.block not in counts
+        )
+    return RunAudit(tuple(blocks), tuple(foreign), len(cv_logged) == len(cv_plan))
+
+
+def plan_faults(
+    run_dir: Path, files: Sequence[tuple[Path, list[TrialRecord], dict[str, str] | None]]
+) -> list[str]:
+    """The faults of a run's logged trials against its plan.
+
+    Only for files that all state one run identity; other files are faults of their own
+    (:func:`~cirl_study.logs.run_checks.run_faults`).
+    """
+    identities = set()
+    for _, _, provenance in files:
+        try:
+            identities.add(RunIdentity.of(provenance or {}))
+        except ValueError:
+            return []
+    if len(identities) != 1:
+        return []
+    (identity,) = identities
+    try:
+        pipeline = run_pipeline_of(identity)
+    except UserError as error:
+        return [str(error)]
+    records = [record for _, file_records, _ in files for record in file_records]
+    return audit_run(pipeline, records).faults(resume_command(identity, run_dir))
+
+
+def resume_command(identity: RunIdentity, run_dir: Path) -> str:
+    """The command that completes the run in ``run_dir``."""
+    return f"cirl-study run {identity.pipeline_file} --out {run_dir}"

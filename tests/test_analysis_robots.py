@@ -1,0 +1,237 @@
+"""The robots study: robot as a within-subjects factor, from the plan to the report.
+
+The split-plot ANOVA is checked against two independent references: ``pingouin.mixed_anova``
+(one within factor), and, with two-level within factors, the exact equivalence of each
+within effect with a one-way ANOVA of that effect's per-subject contrast
+(``scipy.stats.f_oneway`` for the interaction with the between factor; the intercept test of
+the same one-way model for the within effect itself).
+"""
+
+from __future__ import annotations
+
+import itertools
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import pandas as pd
+import pingouin as pg
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import stats
+
+from cirl_study.analysis.report import write_report
+from cirl_study.analysis.statistics import paired_differences, split_plot_anova
+from cirl_study.analysis.table import check_design
+from cirl_study.errors import UserError
+from cirl_study.logs.reader import read_run
+from cirl_study.record import ETA_CV, MAIN, MAP, POSTERIOR_MEAN
+from cirl_study.study.engines import LocalEngine
+from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
+from cirl_study.study.runner import run_pipeline
+from cirl_study.study.spec import load_pipeline
+
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
+ROBOTS_PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "robots.toml"
+
+
+def split_plot_data(seed: int, subjects: int, levels: int = 2) -> pd.DataFrame:
+    """Random scores of ``subjects`` per group, 2 groups, within factors robot and policy."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for group in range(levels):
+        for s in range(subjects):
+            person = rng.normal()
+            for robot, policy in itertools.product(("map", "pm"), ("expert", "best")):
+                effect = 0.4 * (robot == "pm") * (group == 0) + 0.7 * (policy == "best")
+                rows.append(
+                    {
+                        "subject": f"g{group}-s{s:03d}",
+                        "num_features": 3 + 7 * group,
+                        "robot": robot,
+                        "policy": policy,
+                        "y": person + effect + rng.normal(),
+                    }
+                )
+    return pd.DataFrame(rows)
+
+
+def test_one_within_factor_matches_pingouin() -> None:
+    data = split_plot_data(1, 9)
+    one = data.groupby(["subject", "num_features", "policy"], as_index=False)["y"].mean()
+    ours = split_plot_anova(one, "y", ("policy",), "num_features").set_index("effect")
+    arguments = dict(data=one, dv="y", within="policy", between="num_features", subject="subject")
+    partial = pg.mixed_anova(**arguments, effsize="np2").set_index("Source")
+    general = pg.mixed_anova(**arguments, effsize="ng2").set_index("Source")
+    names = {
+        "num_features": "num_features",
+        "policy": "policy",
+        "policy:num_features": "Interaction",
+    }
+    for effect, source in names.items():
+        assert ours.at[effect, "SS"] == pytest.approx(partial.at[source, "SS"], rel=1e-12)
+        assert ours.at[effect, "df1"] == partial.at[source, "DF1"]
+        assert ours.at[effect, "df2"] == partial.at[source, "DF2"]
+        assert ours.at[effect, "F"] == pytest.approx(partial.at[source, "F"], rel=1e-12)
+        assert ours.at[effect, "p"] == pytest.approx(partial.at[source, "p_unc"], rel=1e-9)
+        assert ours.at[effect, "np2"] == pytest.approx(partial.at[source, "np2"], rel=1e-12)
+        assert ours.at[effect, "ges"] == pytest.approx(general.at[source, "ng2"], rel=1e-12)
+
+
+def contrast_f(data: pd.DataFrame, weights: dict[tuple[str, str], float]) -> tuple[float, float]:
+    """F of a within contrast's mean (pooled within-group error) and of its group effect."""
+    wide = data.pivot_table(
+        index=["num_features", "subject"], columns=["robot", "policy"], values="y"
+    )
+    contrast = sum(weight * wide[cell] for cell, weight in weights.items())
+    groups = [values.to_numpy() for _, values in contrast.groupby(level="num_features")]
+    within = sum(((g - g.mean()) ** 2).sum() for g in groups) / (len(contrast) - len(groups))
+    intercept = len(contrast) * contrast.mean() ** 2 / within
+    return float(intercept), float(stats.f_oneway(*groups).statistic)
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), subjects=st.integers(3, 12))
+def test_two_within_factors_match_the_contrast_tests(seed: int, subjects: int) -> None:
+    data = split_plot_data(seed, subjects)
+    ours = split_plot_anova(data, "y", ("robot", "policy"), "num_features").set_index("effect")
+    robot = {("pm", "expert"): 1, ("pm", "best"): 1, ("map", "expert"): -1, ("map", "best"): -1}
+    policy = {("pm", "best"): 1, ("map", "best"): 1, ("pm", "expert"): -1, ("map", "expert"): -1}
+    both = {("pm", "best"): 1, ("map", "expert"): 1, ("pm", "expert"): -1, ("map", "best"): -1}
+    for name, weights in (("robot", robot), ("policy", policy), ("robot:policy", both)):
+        main_f, group_f = contrast_f(data, weights)
+        assert ours.at[name, "F"] == pytest.approx(main_f, rel=1e-9)
+        assert ours.at[f"{name}:num_features", "F"] == pytest.approx(group_f, rel=1e-9)
+    # The effects and the four error terms (one per within subset) partition the total SS.
+    error_ss = sum(
+        ours.at[e, "MS"] / ours.at[e, "F"] * ours.at[e, "df2"]
+        for e in ("num_features", "robot", "policy", "robot:policy")
+    )
+    total = ((data["y"] - data["y"].mean()) ** 2).sum()
+    assert ours["SS"].sum() + error_ss == pytest.approx(total, rel=1e-9)
+
+
+def test_split_plot_anova_refuses_what_it_cannot_test() -> None:
+    data = split_plot_data(3, 5)
+    with pytest.raises(ValueError, match="balanced, complete design"):
+        split_plot_anova(data.iloc[1:], "y", ("robot", "policy"), "num_features")
+    with pytest.raises(ValueError, match="balanced, complete design"):
+        split_plot_anova(
+            data[data["subject"] != "g0-s000"], "y", ("robot", "policy"), "num_features"
+        )
+    three = data.assign(robot=np.where(data.index % 8 < 2, "third", data["robot"]))
+    with pytest.raises(ValueError, match="exactly two levels: robot"):
+        split_plot_anova(three, "y", ("robot",), "num_features")
+
+
+def test_paired_differences_are_paired_t_tests_with_holm() -> None:
+    data = split_plot_data(4, 10)
+    rows = paired_differences(data, "y", "robot", "map", ["num_features", "policy"])
+    assert len(rows) == 4 and set(rows["level"]) == {"pm"}
+    raw = []
+    for row in rows.itertuples():
+        cell = data[(data["num_features"] == row.num_features) & (data["policy"] == row.policy)]
+        wide = cell.pivot(index="subject", columns="robot", values="y")
+        test = stats.ttest_rel(wide["pm"], wide["map"])
+        assert row.t == pytest.approx(test.statistic, rel=1e-12)
+        assert row.mean_diff == pytest.approx((wide["pm"] - wide["map"]).mean(), rel=1e-12)
+        raw.append(test.pvalue)
+    order = np.argsort(raw)
+    adjusted = np.maximum.accumulate([min(1, (4 - i) * raw[j]) for i, j in enumerate(order)])
+    np.testing.assert_allclose(rows["p_holm"].to_numpy()[order], adjusted, rtol=1e-12)
+
+
+def robots_smoke(tmp_path: Path, robots: str) -> Path:
+    path = tmp_path / f"smoke-{len(robots)}.toml"
+    path.write_text(SMOKE.read_text().replace('robots = ["map"]', f"robots = {robots}"))
+    return path
+
+
+def test_the_plan_puts_every_robot_on_the_same_demonstrations(tmp_path: Path) -> None:
+    pipeline = load_pipeline(robots_smoke(tmp_path, '["posterior_mean", "map"]'))
+    assert pipeline.main.reference_robot == MAP
+    assert {t.robot for t in eta_cv_trials(pipeline)} == {MAP}
+    study = study_trials(pipeline, {("best_response", 3): 1.0, ("best_response", 10): 1.0})
+    cells: dict[tuple, set[str]] = {}
+    for t in study:
+        cells.setdefault((t.block, t.subject, t.policy, t.rationality, t.eta), set()).add(t.robot)
+    assert set(map(frozenset, cells.values())) == {frozenset({MAP, POSTERIOR_MEAN})}
+    counts = trial_counts(pipeline)
+    assert counts == {"eta_cv": 18, "main": 32, "lambda_sweep": 96}
+    assert sum(t.block == MAIN for t in study) == counts[MAIN]
+
+
+def test_the_shipped_robots_pipeline_compares_both_robots() -> None:
+    pipeline = load_pipeline(ROBOTS_PIPELINE)
+    assert pipeline.main.robots == (MAP, POSTERIOR_MEAN)
+    assert sum(trial_counts(pipeline).values()) == 5320
+
+
+@pytest.fixture(scope="module")
+def two_robot_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    base = tmp_path_factory.mktemp("robots")
+    one, two = base / "one", base / "two"
+    run_pipeline(load_pipeline(robots_smoke(base, '["map"]')), one, LocalEngine(2))
+    run_pipeline(
+        load_pipeline(robots_smoke(base, '["map", "posterior_mean"]')), two, LocalEngine(2)
+    )
+    return one, two
+
+
+def test_the_map_trials_of_a_two_robot_run_are_those_of_the_map_run(
+    two_robot_runs: tuple[Path, Path],
+) -> None:
+    one, two = (read_run(run).records for run in two_robot_runs)
+    assert {r.robot for r in two if r.block == ETA_CV} == {MAP}
+
+    def key(record):
+        return (record.block, record.subject, record.policy, record.rationality, record.eta)
+
+    alone = {key(r): r for r in one}
+    beside = {key(r): r for r in two if r.robot == MAP}
+    assert alone.keys() == beside.keys()
+    for k, record in alone.items():
+        assert beside[k].theta_hat == record.theta_hat
+        assert beside[k].measures == record.measures
+        assert beside[k].demonstration == record.demonstration
+
+
+def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
+    two_robot_runs: tuple[Path, Path], tmp_path: Path
+) -> None:
+    one, two = (read_run(run).records for run in two_robot_runs)
+    alone = write_report(one, tmp_path / "one", "smoke")
+    both = write_report(two, tmp_path / "two", "smoke")
+    assert alone["robots"] is None and not (tmp_path / "one" / "robots_lambda.png").exists()
+    for key in ("anova", "simple_effects", "tukey_hsd", "cells", "cronbach_alpha", "lambda_sweep"):
+        assert both[key] == alone[key]
+    robots = both["robots"]
+    assert (robots["reference"], robots["other"]) == (MAP, POSTERIOR_MEAN)
+    assert {row["effect"] for row in robots["anova"]} == {
+        "num_features", "robot", "robot:num_features", "policy", "policy:num_features",
+        "robot:policy", "robot:policy:num_features",
+    }  # fmt: skip
+    regret = [r for r in robots["main"] if r["measure"] == "regret"]
+    by_cell = {(r.subject, r.policy, r.robot): r.measures.regret for r in two if r.block == MAIN}
+    for row in regret:
+        differences = [
+            by_cell[s, row["policy"], POSTERIOR_MEAN] - by_cell[s, row["policy"], MAP]
+            for (s, policy, robot) in by_cell
+            if robot == MAP and policy == row["policy"] and f"-k{row['num_features']:02d}-" in s
+        ]
+        assert row["mean_diff"] == pytest.approx(np.mean(differences), rel=1e-12)
+    text = (tmp_path / "two" / "report.md").read_text()
+    assert "## Robots" in text and "Mixed ANOVA: robot x policy x features" in text
+    assert (tmp_path / "two" / "robots_lambda.png").exists()
+
+
+def test_more_than_two_robots_are_refused(two_robot_runs: tuple[Path, Path]) -> None:
+    records = read_run(two_robot_runs[1]).records
+    third = [
+        msgspec.structs.replace(r, robot="third", trial_id=r.trial_id + "3")
+        for r in records
+        if r.block == MAIN and r.robot == MAP
+    ]
+    with pytest.raises(UserError, match="has 3 robots .* compares at most two"):
+        check_design([*records, *third])

@@ -1,0 +1,245 @@
+"""A run is exactly what its logs prove; no input ends in a traceback.
+
+Every case asserts the exit code, a one-line message on stderr without a traceback, and that
+no logged trial is lost: bad input is refused before anything is written; a mixed, incomplete
+or corrupted run is refused by ``analyze`` and resume, reported by ``validate``, and, for an
+incomplete one, completed by resuming into the records of an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from cirl_study.cli import app
+from cirl_study.logs import read_run
+from cirl_study.logs.scan import scan_file
+from cirl_study.record import encode
+
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
+
+
+def invoke(*args: str):
+    return CliRunner().invoke(app, [str(arg) for arg in args])
+
+
+def one_line(result, code: int, contains: str) -> str:
+    """Assert the exit code and a single ``error:`` line on stderr holding ``contains``."""
+    assert result.exit_code == code, result.output
+    assert result.stderr.startswith("error: "), result.stderr
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.stderr, result.stderr
+    assert contains in result.stderr, result.stderr
+    return result.stderr
+
+
+def payloads(run: Path) -> dict[str, bytes]:
+    return {record.trial_id: encode(record) for record in read_run(run, salvage=True).records}
+
+
+@pytest.fixture
+def run(tmp_path: Path, smoke_run: Path) -> Path:
+    copy = tmp_path / "run"
+    shutil.copytree(smoke_run, copy)
+    return copy
+
+
+def smoke_variant(tmp_path: Path, old: str, new: str) -> Path:
+    text = SMOKE.read_text()
+    assert old in text, old
+    path = tmp_path / "variant.toml"
+    path.write_text(text.replace(old, new, 1))
+    return path
+
+
+# --- bad input: refused before anything is written ------------------------------------------
+
+OUT_OF_RANGE = {
+    "lambda 1e308": ("rationalities = [0.1, 1.0, 10.0]", "rationalities = [1e308, 1.0]",
+                     "lambda_sweep.rationalities must be a non-empty list of numbers in [0.0001"),
+    "lambda tiny": ("rationality = 1.0\npolicies", "rationality = 1e-300\npolicies",
+                    "main.rationality must be a number in [0.0001, 10000]"),
+    "eta 1e308": ("etas = [0.1, 1.0, 10.0]", "etas = [0.1, 1e308]",
+                  "eta_cv.etas must be a non-empty list of numbers in [1e-06, 1e+06]"),
+    "sigma 1e155": ("sigma = 0.75", "sigma = 1e155", "game.sigma must be a number in [0.02, "),
+    "sigma 1e-300": ("sigma = 0.75", "sigma = 1e-300", "game.sigma must be a number in [0.02, "),
+    "sigma inf": ("sigma = 0.75", "sigma = inf", "game.sigma must be a number in [0.02, "),
+    "features > cells": ("feature_levels = [3, 10]", "feature_levels = [3, 26]",
+                         "game.feature_levels must be at most the 25 cells of the grid"),
+    "huge grid": ("width = 5\nheight = 5", "width = 10000\nheight = 10000",
+                  "one batch of trials would need about"),
+    "too many trials": ("subjects = 4\nrationality", "subjects = 10000000\nrationality",
+                        "more than the 2000000 one run may hold"),
+}  # fmt: skip
+
+
+@pytest.mark.parametrize("case", OUT_OF_RANGE)
+def test_out_of_range_input_is_refused_before_anything_is_written(
+    tmp_path: Path, case: str
+) -> None:
+    old, new, message = OUT_OF_RANGE[case]
+    pipeline = smoke_variant(tmp_path, old, new)
+    result = invoke("run", pipeline, "--out", tmp_path / "out")
+    one_line(result, 2, message)
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_byte_order_mark_a_directory_and_a_file_are_named_for_what_they_are(
+    tmp_path: Path, run: Path
+) -> None:
+    bom = tmp_path / "bom.toml"
+    bom.write_bytes(b"\xef\xbb\xbf" + SMOKE.read_bytes())
+    one_line(
+        invoke("run", bom, "--out", tmp_path / "out"), 2, "starts with a UTF-8 byte-order mark"
+    )
+    one_line(
+        invoke("run", tmp_path, "--out", tmp_path / "out"), 2, "is a directory, not a pipeline"
+    )
+    assert not (tmp_path / "out").exists()
+    a_file = next(run.glob("*.mcap"))
+    one_line(invoke("validate", a_file), 2, "is a file, not a run directory")
+    one_line(invoke("analyze", a_file), 2, "is a file, not a run directory")
+
+
+# --- a run is what its logs prove ------------------------------------------------------------
+
+
+def test_a_file_of_another_run_is_refused_everywhere(tmp_path: Path, run: Path) -> None:
+    other = tmp_path / "other"
+    variant = smoke_variant(tmp_path, "seed = 7", "seed = 8")
+    assert invoke("run", variant, "--out", other).exit_code == 0
+    before = payloads(run)
+    shutil.copy(next(other.glob("main-*.mcap")), run / "zz-foreign.mcap")
+    one_line(invoke("analyze", run, "--out", tmp_path / "report"), 2, "log files of 2 runs")
+    one_line(invoke("analyze", run, "--partial", "--out", tmp_path / "r"), 2, "log files of 2 runs")
+    one_line(invoke("run", SMOKE, "--out", run), 2, "log files of 2 runs")
+    result = invoke("validate", run)
+    assert result.exit_code == 1 and "files of 2 runs" in result.output
+    assert not (tmp_path / "report").exists()
+    (run / "zz-foreign.mcap").unlink()
+    assert payloads(run) == before
+
+
+@pytest.mark.parametrize("block", ["eta_cv", "main", "lambda_sweep"])
+def test_a_missing_file_is_named_per_block_and_resumed(
+    tmp_path: Path, run: Path, smoke_run: Path, block: str
+) -> None:
+    victim = sorted(run.glob(f"{block}-*.mcap"))[0]
+    victim.unlink()
+    kept = len(read_run(run).records)
+    missing = 82 - kept
+    result = invoke("validate", run)
+    assert result.exit_code == 1
+    planned = {"eta_cv": 18, "main": 16, "lambda_sweep": 48}[block]
+    expected = f"{block}: {missing} of {planned} trials missing; resume with `cirl-study run "
+    assert expected in result.output
+    one_line(invoke("analyze", run, "--out", tmp_path / "report"), 2, expected)
+    assert not (tmp_path / "report").exists()
+    partial = invoke("analyze", run, "--partial", "--out", tmp_path / "partial")
+    if block == "main":  # the smoke run's main file holds a whole feature level
+        one_line(partial, 2, "the analysis needs at least two feature levels")
+    else:
+        _check_partial_report(partial, tmp_path / "partial", kept, block, missing, planned)
+    assert invoke("run", SMOKE, "--out", run).exit_code == 0
+    assert payloads(run) == payloads(smoke_run)
+
+
+def _check_partial_report(result, report: Path, kept, block, missing, planned) -> None:
+    assert result.exit_code == 0, result.output
+    assert result.output.startswith(f"partial report of {kept} trials written to ")
+    first = (report / "report.md").read_text().splitlines()[0]
+    assert first.startswith(
+        f"**PARTIAL RUN: {kept} of 82 planned trials logged; {block}: {missing} of {planned} "
+        "trials missing"
+    )
+
+
+def _flip(path: Path, offset: int) -> None:
+    data = bytearray(path.read_bytes())
+    data[offset] ^= 0x01
+    path.write_bytes(bytes(data))
+
+
+def _metadata_offset(path: Path) -> int:
+    data = path.read_bytes()
+    return data.index(b"pipeline_toml") + 20  # inside the provenance's pipeline text
+
+
+def _summary_offset(path: Path) -> int:
+    """A byte inside the summary's first record (the footer, 29 bytes before the closing
+    8-byte magic, starts with opcode and length, then the summary's offset)."""
+    data = path.read_bytes()
+    return int.from_bytes(data[-28:-20], "little") + 20
+
+
+SECTIONS = {
+    "chunk": lambda path: scan_file(path).chunk_offsets[0] + 200,
+    "provenance metadata": _metadata_offset,
+    "summary": _summary_offset,
+}
+
+
+@pytest.mark.parametrize("section", SECTIONS)
+def test_a_flipped_bit_is_caught_by_every_reader(
+    tmp_path: Path, run: Path, smoke_run: Path, section: str
+) -> None:
+    victim = sorted(run.glob("main-*.mcap"))[0]
+    _flip(victim, SECTIONS[section](victim))
+    message = f"{victim}"
+    one_line(invoke("analyze", run, "--out", tmp_path / "report"), 2, message)
+    one_line(invoke("run", SMOKE, "--out", run), 2, message)
+    result = invoke("validate", run)
+    assert result.exit_code == 1 and f"FAIL {victim}" in result.output
+    assert victim.exists() and not (tmp_path / "report").exists()
+    victim.unlink()  # what the message advises: its trials are played again
+    assert invoke("run", SMOKE, "--out", run).exit_code == 0
+    assert payloads(run) == payloads(smoke_run)
+
+
+# --- unwritable outputs ----------------------------------------------------------------------
+
+
+def test_an_output_below_a_regular_file_is_one_line(tmp_path: Path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    one_line(invoke("run", SMOKE, "--out", blocker / "run"), 2, "cannot create the run directory")
+    one_line(invoke("run", SMOKE, "--out", blocker), 2, "exists and is not a directory")
+    one_line(invoke("analyze", tmp_path / "nothing"), 2, "no such run directory")
+
+
+def test_a_lock_that_cannot_be_taken_is_one_line(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    (out / ".cirl-study.lock").mkdir(parents=True)
+    one_line(invoke("run", SMOKE, "--out", out), 2, "cannot lock the run directory")
+
+
+def test_a_full_disk_ends_the_run_in_one_line_and_loses_nothing(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    limit = (
+        "import resource, signal, sys\n"
+        "signal.signal(signal.SIGXFSZ, signal.SIG_IGN)\n"
+        "resource.setrlimit(resource.RLIMIT_FSIZE, (18_000, 18_000))\n"
+        "from cirl_study.cli import app\n"
+        "sys.argv = ['cirl-study', 'run', sys.argv[1], '--out', sys.argv[2], '--workers', '1']\n"
+        "app(prog_name='cirl-study')\n"
+    )
+    done = subprocess.run(
+        [sys.executable, "-c", limit, str(SMOKE), str(out)],
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert done.returncode == 2, done.stderr
+    *progress, error = done.stderr.splitlines()  # the progress bar's last state, then the error
+    assert "Traceback" not in done.stderr and all(line.startswith("trials ") for line in progress)
+    assert error.startswith("error: ") and "cannot write the log (File too large)" in error
+    assert error.endswith("trial(s) logged before are kept: fix the cause and run again to resume")
+    logged = payloads(out) if list(out.glob("*.mcap")) else {}
+    assert invoke("run", SMOKE, "--out", out).exit_code == 0
+    after = payloads(out)
+    assert all(after[trial] == payload for trial, payload in logged.items())
+    assert len(after) == 82
