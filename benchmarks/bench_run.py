@@ -1,20 +1,29 @@
-"""Time whole pipelines end to end (``cirl-study run``) and print medians.
+"""Time a pipeline's whole life, stage by stage, and print medians and ratios to the run.
 
 Usage::
 
     python benchmarks/bench_run.py [--pipelines smoke paper] [--repeats 3]
                                    [--workers N] [--engine local|dask]
 
-Each repeat runs ``cirl-study run PIPELINE --out <fresh temporary directory>`` in a new
-process, exactly as a user would (start-up, planning, playing, logging), and measures its
-wall-clock time and the CPU time of the process and its workers. The median over the
-repeats is printed per pipeline. CPU time says how much work was done even on a machine
-shared with other jobs, where wall-clock time also measures the neighbours.
+Each repeat, in new processes exactly as a user would type them, into a fresh temporary
+directory:
+
+1. ``cirl-study run PIPELINE --out DIR``: wall time, CPU time of the process and its workers,
+   and the compute floor the run reports (the workers' own play time divided among them);
+2. the same command again, which finds everything logged (a no-op resume);
+3. ``cirl-study validate DIR``;
+4. ``cirl-study analyze DIR --out REPORT``.
+
+Per pipeline it prints the median of each stage and its ratio to the run's wall time
+measured in the same repeat (the median of the per-repeat ratios), and the run's wall time
+over its compute floor. Targets: analyze and validate <= 0.15 x run, a no-op resume <= 0.10 x
+run, run <= 1.2 x its compute floor.
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import resource
 import statistics
 import subprocess
@@ -23,6 +32,8 @@ import tempfile
 import time
 from pathlib import Path
 
+FLOOR = re.compile(r"compute floor ([\d.]+) s")
+
 
 def children_cpu_seconds() -> float:
     """User + system CPU time of every finished child process of this one."""
@@ -30,18 +41,35 @@ def children_cpu_seconds() -> float:
     return usage.ru_utime + usage.ru_stime
 
 
-def time_run(pipeline: str, options: list[str]) -> tuple[float, float]:
-    """Wall-clock and CPU seconds of one ``cirl-study run`` into a fresh directory."""
-    with tempfile.TemporaryDirectory(prefix="bench-run-") as out:
-        command = [sys.executable, "-m", "cirl_study", "run", pipeline, "--out", out]
-        cpu = children_cpu_seconds()
-        began = time.perf_counter()
-        done = subprocess.run([*command, *options], capture_output=True, text=True, check=False)
-        wall = time.perf_counter() - began
-        cpu = children_cpu_seconds() - cpu
-        if done.returncode != 0:
-            sys.exit(f"{' '.join(command)} failed:\n{done.stderr}")
-        return wall, cpu
+def timed(arguments: list[str]) -> tuple[float, float, str]:
+    """Wall-clock and CPU seconds, and the standard output, of one ``cirl-study`` command."""
+    command = [sys.executable, "-m", "cirl_study", *arguments]
+    cpu = children_cpu_seconds()
+    began = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True, check=False)
+    wall = time.perf_counter() - began
+    if done.returncode != 0:
+        sys.exit(f"{' '.join(command)} failed:\n{done.stderr}")
+    return wall, children_cpu_seconds() - cpu, done.stdout
+
+
+def one_repeat(pipeline: str, options: list[str]) -> dict[str, float]:
+    """Seconds of every stage of one pipeline's life, in fresh directories."""
+    with tempfile.TemporaryDirectory(prefix="bench-run-") as scratch:
+        out, report = str(Path(scratch) / "run"), str(Path(scratch) / "report")
+        run, cpu, summary = timed(["run", pipeline, "--out", out, *options])
+        floor = FLOOR.search(summary)
+        resume, _, _ = timed(["run", pipeline, "--out", out, *options])
+        validate, _, _ = timed(["validate", out])
+        analyze, _, _ = timed(["analyze", out, "--out", report])
+    return {
+        "run": run,
+        "run CPU": cpu,
+        "compute floor": float(floor.group(1)) if floor else float("nan"),
+        "no-op resume": resume,
+        "validate": validate,
+        "analyze": analyze,
+    }
 
 
 def main() -> None:
@@ -58,16 +86,18 @@ def main() -> None:
         options += ["--workers", str(args.workers)]
     print(f"cirl-study run {' '.join(options)}, {args.repeats} repeat(s), {Path.cwd()}")
     for pipeline in args.pipelines:
-        walls, cpus = [], []
-        for _ in range(args.repeats):
-            wall, cpu = time_run(pipeline, options)
-            walls.append(wall)
-            cpus.append(cpu)
-        runs = ", ".join(f"{w:.1f}" for w in walls)
-        print(
-            f"{pipeline}: median {statistics.median(walls):.1f} s wall "
-            f"(runs: {runs}), median {statistics.median(cpus):.1f} s CPU"
-        )
+        repeats = [one_repeat(pipeline, options) for _ in range(args.repeats)]
+        print(f"{pipeline}:")
+        for stage in repeats[0]:
+            median = statistics.median(r[stage] for r in repeats)
+            line = f"  {stage:<14} median {median:7.2f} s"
+            if stage in ("no-op resume", "validate", "analyze"):
+                ratio = statistics.median(r[stage] / r["run"] for r in repeats)
+                line += f"   {ratio:.3f} x run"
+            if stage == "run":
+                ratio = statistics.median(r["run"] / r["compute floor"] for r in repeats)
+                line += f"   {ratio:.3f} x compute floor"
+            print(line)
 
 
 if __name__ == "__main__":

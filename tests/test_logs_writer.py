@@ -63,7 +63,10 @@ def test_round_trip_through_mcap_reader(tmp_path: Path) -> None:
         metadata = list(reader.iter_metadata())
     assert summary.statistics.chunk_count > 1
     assert {c.compression for c in summary.chunk_indexes} == {"zstd"}
-    assert [(m.name, m.metadata) for m in metadata] == [("provenance", PROVENANCE)]
+    assert [(m.name, m.metadata) for m in metadata] == [
+        ("provenance", PROVENANCE),
+        ("trial_index", {"trial_ids": "\n".join(r.trial_id for r in records)}),
+    ]
     steps = sum(r.learning_steps + 1 for r in records)
     assert len(topics[DEMONSTRATION_TOPIC]) == steps
     assert len(topics[DEPLOYMENT_TOPIC]) == sum(r.deployment_steps + 1 for r in records)

@@ -8,16 +8,20 @@ incomplete one, completed by resuming into the records of an uninterrupted run.
 
 from __future__ import annotations
 
+import io
 import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from cirl_study.cli import app
-from cirl_study.logs import read_run
+from cirl_study.errors import UserError
+from cirl_study.logs import RunIdentity, logged_trials, read_run
 from cirl_study.logs.scan import scan_file
 from cirl_study.record import encode
 
@@ -198,6 +202,44 @@ def test_a_flipped_bit_is_caught_by_every_reader(
     victim.unlink()  # what the message advises: its trials are played again
     assert invoke("run", SMOKE, "--out", run).exit_code == 0
     assert payloads(run) == payloads(smoke_run)
+
+
+@pytest.fixture(scope="module")
+def one_file(tmp_path_factory: pytest.TempPathFactory, smoke_run: Path) -> Path:
+    """A run directory holding one smoke log file (its pristine copy lies beside the run)."""
+    base = tmp_path_factory.mktemp("one")
+    (base / "run").mkdir()
+    source = sorted(smoke_run.glob("main-*.mcap"))[0]
+    shutil.copy(source, base / "pristine.mcap")
+    shutil.copy(source, base / "run" / source.name)
+    return base / "run" / source.name
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_any_flipped_bit_anywhere_is_refused(one_file: Path, data) -> None:
+    """Every byte of a log file is covered by a CRC or checked against one: magic, framing,
+    chunks, metadata, summary and footer alike."""
+    good = (one_file.parent.parent / "pristine.mcap").read_bytes()
+    offset = data.draw(st.integers(0, len(good) - 1), label="offset")
+    bit = data.draw(st.integers(0, 7), label="bit")
+    damaged = bytearray(good)
+    damaged[offset] ^= 1 << bit
+    one_file.write_bytes(bytes(damaged))
+    try:
+        with pytest.raises(UserError, match=str(one_file)):
+            read_run(one_file.parent)
+        with pytest.raises(UserError, match=str(one_file)):
+            logged_trials(one_file.parent, identity_of(good))
+    finally:
+        one_file.write_bytes(good)
+
+
+def identity_of(data: bytes) -> RunIdentity:
+    from mcap.reader import make_reader
+
+    (record,) = [m for m in make_reader(io.BytesIO(data)).iter_metadata() if m.name == "provenance"]
+    return RunIdentity.of(record.metadata)
 
 
 # --- unwritable outputs ----------------------------------------------------------------------

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -64,7 +65,11 @@ def test_run_prints_a_summary(tmp_path: Path) -> None:
     lines = result.stdout.splitlines()
     assert lines[0].startswith("run smoke-") and f"82 trials logged in {out}" in lines[0]
     assert "82 played now, 0 were already logged" in lines[0]
-    assert lines[1].endswith("trials/s, in this process")
+    assert re.fullmatch(
+        r"[\d.]+ s in all; playing [\d.]+ s, \d+ trials/s, in this process "
+        r"\(compute floor [\d.]+ s\)",
+        lines[1],
+    )
     assert lines[2].startswith("eta by cross-validation: best_response at K=3 -> ")
     again = CliRunner().invoke(app, ["run", str(SMOKE), "--out", str(out), "--workers", "1"])
     assert again.exit_code == 0

@@ -635,6 +635,7 @@ def write_report(
     theory: Mapping[str, Any] | None = None,
     provenance: Mapping[str, Any] | None = None,
     partial: Mapping[str, Any] | None = None,
+    progress: Callable[[str], None] = lambda stage: None,
 ) -> Results:
     """Analyse trial records and write the report directory.
 
@@ -654,6 +655,7 @@ def write_report(
         partial: for a report on an incomplete run, what it lacks (``planned``, ``logged``,
             ``missing``, ``damaged_files``, ``main_subjects_left_out``); stored under
             ``partial`` in ``results.json`` and stated in the report's first line.
+        progress: called with the name of each stage as it begins.
 
     Returns:
         The content of ``results.json``.
@@ -663,11 +665,13 @@ def write_report(
             :func:`~cirl_study.analysis.table.check_design`).
     """
     check_design(records)
+    progress("statistics")
     results = analyse(records, pipeline_name)
     results["partial"] = None if partial is None else plain(partial)
     results["claims"] = evaluate_claims(results, theory)
     if theory is not None:
         results["theory"] = plain(theory)
+    progress("figures")
     pngs = render_figures(records, results)
     out = Path(out_dir)
     try:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 from typing import Annotated
 
@@ -67,6 +68,12 @@ def analyze(
     from cirl_study.study.audit import audit_run, resume_command, run_pipeline_of
     from cirl_study.theory import office_supplies_results
 
+    def stage(name: str) -> None:
+        """Say at a terminal which stage is under way (each can take seconds)."""
+        if sys.stderr.isatty():
+            typer.echo(f"{name} ...", err=True)
+
+    stage(f"reading the logs of {run}")
     contents = read_run(run, salvage=partial)
     for warning in contents.warnings:
         typer.echo(f"warning: {warning}", err=True)
@@ -102,6 +109,7 @@ def analyze(
         theory=theory,
         provenance=provenance,
         partial=partial_run,
+        progress=stage,
     )
     claims = results["claims"]
     reproduced = sum(claim["reproduced"] for claim in claims)

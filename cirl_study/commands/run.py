@@ -40,11 +40,14 @@ class EngineName(StrEnum):
 
 
 class _RateColumn(ProgressColumn):
-    """Trials per second, averaged over the last half minute."""
+    """Trials played per second since play began: the rate the run's summary reports."""
 
     def render(self, task: Task) -> Text:
-        speed = task.finished_speed or task.speed
-        return Text("- trials/s" if speed is None else f"{speed:.0f} trials/s")
+        elapsed = task.finished_time if task.finished else task.elapsed
+        played = task.completed - task.fields["resumed"]
+        if not elapsed or played <= 0:
+            return Text("- trials/s")
+        return Text(f"{played / elapsed:.0f} trials/s")
 
 
 @contextmanager
@@ -65,23 +68,33 @@ def _progress_bar() -> Iterator[ProgressHooks]:
 
     def start(total: int, done: int) -> None:
         bar.start()
-        task.append(bar.add_task("trials", total=total, completed=done))
+        task.append(bar.add_task("trials", total=total, completed=done, resumed=done))
 
     def advance(count: int) -> None:
         bar.advance(task[0], count)
 
+    def note(text: str) -> None:
+        if bar.console.is_terminal:
+            bar.console.print(text, style="dim", highlight=False)
+
     from cirl_study.study.runner import ProgressHooks
 
     try:
-        yield ProgressHooks(start, advance)
+        yield ProgressHooks(start, advance, note)
     finally:
         if task:
             bar.stop()
 
 
 def _summary(result: RunResult, engine: str) -> str:
-    """Three lines: what is logged where, how fast, and the etas cross-validation chose."""
-    rate = result.played / result.seconds if result.seconds > 0 else 0.0
+    """Three lines: what is logged where, how fast, and the etas cross-validation chose.
+
+    The rate is over the time spent playing (as the progress bar's), beside the whole wall
+    time and the compute floor: the workers' own play time divided among them.
+    """
+    playing = result.playing_seconds
+    rate = result.played / playing if playing > 0 else 0.0
+    floor = result.play_seconds / result.workers
     etas = "; ".join(
         f"{policy} at K={k} -> {choice.eta:g} (mean regret {choice.mean_regret[choice.eta]:.4g})"
         for (policy, k), choice in sorted(result.etas.items())
@@ -91,7 +104,8 @@ def _summary(result: RunResult, engine: str) -> str:
             f"run {result.run_id}: {result.total} trials logged in {result.out_dir} "
             f"({result.files} files); {result.played} played now, "
             f"{result.resumed} were already logged",
-            f"{result.seconds:.1f} s, {rate:.0f} trials/s, {engine}",
+            f"{result.seconds:.1f} s in all; playing {playing:.1f} s, {rate:.0f} trials/s, "
+            f"{engine} (compute floor {floor:.1f} s)",
             f"eta by cross-validation: {etas}",
         ]
     )

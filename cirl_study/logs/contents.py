@@ -5,16 +5,20 @@ Content checks: the ``provenance`` metadata record; the schema name and encoding
 channel; each ``/cirl/trial`` payload decodes into a
 :class:`~cirl_study.record.TrialRecord`, is its canonical JSON and is consistent
 (:func:`~cirl_study.logs.record_checks.decode_trial`); no trial id twice;
-in an undamaged file, trial log times follow the documented layout and the replay topics hold
-as many messages as the records imply.
+in an undamaged file, trial log times follow the documented layout, the replay topics hold
+as many messages as the records imply, and the ``trial_index`` metadata record lists the
+file's trials in order.
 """
 
 from __future__ import annotations
 
 import json
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from mcap.records import Metadata
 
 from cirl_study.logs.episode import replay_counts
 from cirl_study.logs.format import (
@@ -22,6 +26,8 @@ from cirl_study.logs.format import (
     MESSAGE_ENCODING,
     PROVENANCE_METADATA_NAME,
     SCHEMA_ENCODING,
+    TRIAL_INDEX_KEY,
+    TRIAL_INDEX_METADATA_NAME,
     TRIAL_SCHEMA_NAME,
     TRIAL_TOPIC,
     trial_duration_ns,
@@ -86,7 +92,26 @@ def read_file_contents(path: Path) -> FileContents:
         contents.records.append(record)
     if not contents.damage and len(contents.records) == len(trial_messages):
         faults.extend(_layout_faults(contents.scan, contents.records))
+        faults.extend(_index_faults(contents.scan, contents.records))
     return contents
+
+
+def trial_index(metadata: Iterable[Metadata]) -> list[str] | None:
+    """The trial ids a file's ``trial_index`` record lists, ``None`` without exactly one."""
+    records = [m for m in metadata if m.name == TRIAL_INDEX_METADATA_NAME]
+    if len(records) != 1 or TRIAL_INDEX_KEY not in records[0].metadata:
+        return None
+    text = records[0].metadata[TRIAL_INDEX_KEY]
+    return text.split("\n") if text else []
+
+
+def _index_faults(scan: FileScan, records: list[TrialRecord]) -> list[str]:
+    index = trial_index(scan.metadata)
+    if index is None:
+        return [f"no {TRIAL_INDEX_METADATA_NAME!r} metadata record"]
+    if index != [record.trial_id for record in records]:
+        return [f"the {TRIAL_INDEX_METADATA_NAME!r} record does not list the file's trials"]
+    return []
 
 
 def _read_provenance(contents: FileContents) -> None:

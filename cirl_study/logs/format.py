@@ -45,6 +45,10 @@ SCHEMA_ENCODING = "jsonschema"
 MESSAGE_ENCODING = "json"
 
 PROVENANCE_METADATA_NAME = "provenance"
+TRIAL_INDEX_METADATA_NAME = "trial_index"
+"""Metadata record closing every file: ``{"trial_ids": <the file's trial ids, one per line,
+in order>}``, so a resume learns what a file holds without decompressing it."""
+TRIAL_INDEX_KEY = "trial_ids"
 PIPELINE_NAME_KEY = "pipeline_name"
 RUN_ID_KEY = "run_id"
 PIPELINE_FILE_KEY = "pipeline_file"

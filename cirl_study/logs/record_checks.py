@@ -14,17 +14,19 @@ trade-off.
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Iterator, Sequence
 
 import msgspec
 import numpy as np
+from numpy.typing import NDArray
 
-from cirl_study.core.gridworld import Gridworld, action_between, feature_matrix, gridworld
+from cirl_study.core.gridworld import Gridworld, action_between, rbf_features
 from cirl_study.core.humans import HUMANS
 from cirl_study.core.measures import reward_l2
 from cirl_study.core.robot import ROBOTS
-from cirl_study.record import DecodeError, TrialRecord, decode
+from cirl_study.record import DecodeError, Grid, RBFFeatures, TrialRecord, decode
 
 NEGATIVE_TOLERANCE = 1e-9
 """Rounding allowed below zero for measures that are non-negative in exact arithmetic."""
@@ -78,7 +80,7 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
     for name, length in lengths.items():
         if length != k:
             yield f"{name} has {length} entries, num_features is {k}"
-    grid = gridworld(r)
+    grid = _gridworld(r.grid)
     if not grid.contains(*r.start):
         yield f"start {list(r.start)} is outside the {grid.width}x{grid.height} grid"
     states, actions = r.demonstration.states, r.demonstration.actions
@@ -103,7 +105,7 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
         if value < -NEGATIVE_TOLERANCE:
             yield f"measures.{name} is {value} < 0"
     if all(length == k for length in lengths.values()):
-        features = feature_matrix(r)[None]
+        features = _feature_matrix(r.grid, r.features)[None]
         expected = float(reward_l2(features, np.array([r.theta]), np.array([r.theta_hat]))[0])
         if not math.isclose(
             r.measures.reward_l2, expected, rel_tol=L2_TOLERANCE, abs_tol=L2_TOLERANCE
@@ -112,6 +114,19 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
                 f"measures.reward_l2 is {r.measures.reward_l2} but "
                 f"||Phi theta - Phi theta_hat|| = {expected}"
             )
+
+
+@functools.lru_cache(maxsize=64)
+def _gridworld(grid: Grid) -> Gridworld:
+    return Gridworld(grid.width, grid.height)
+
+
+@functools.lru_cache(maxsize=4096)
+def _feature_matrix(grid: Grid, features: RBFFeatures) -> NDArray[np.float64]:
+    """``Phi`` of a grid and its features, computed once for all the trials of a subject."""
+    matrix = rbf_features(_gridworld(grid), features.centers, features.sigma)
+    matrix.flags.writeable = False
+    return matrix
 
 
 def _path_faults(

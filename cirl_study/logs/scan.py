@@ -37,7 +37,11 @@ from mcap.records import (
 from mcap.stream_reader import breakup_chunk
 
 MAGIC = b"\x89MCAP0\r\n"
-_RECORD_PREFIX = 9  # opcode (1 byte) + length (8 bytes)
+RECORD_PREFIX = 9
+"""Bytes before every record's body: opcode (1 byte) and body length (8 bytes)."""
+MESSAGE_HEADER = 22
+"""Bytes of a Message record's body before its payload: channel id (2), sequence (4), log
+time (8) and publish time (8)."""
 _FOOTER_CRC_SPAN = 16  # the footer's summary_start and summary_offset_start precede its CRC
 
 #: What a damaged record can raise while it is parsed or decompressed.
@@ -122,18 +126,18 @@ def _walk(data: bytes, scan: FileScan) -> None:
     in_summary = False
     summary_start: int | None = None
     while True:
-        if position + _RECORD_PREFIX > len(data):
+        if position + RECORD_PREFIX > len(data):
             scan.faults.append(f"truncated: the file ends at byte {len(data)} without a footer")
             return
         opcode, length = struct.unpack_from("<BQ", data, position)
-        end = position + _RECORD_PREFIX + length
+        end = position + RECORD_PREFIX + length
         if end > len(data):
             scan.faults.append(
                 f"truncated: the {_name(opcode)} record at byte {position} needs {length} "
                 f"bytes but the file ends at byte {len(data)}"
             )
             return
-        body = data[position + _RECORD_PREFIX : end]
+        body = data[position + RECORD_PREFIX : end]
         if in_summary and summary_start is None and opcode != Opcode.FOOTER:
             summary_start = position
         try:
@@ -228,6 +232,27 @@ def _check_chunk_size(chunk: Chunk) -> None:
             )
 
 
+def decompressed_chunk(chunk: Chunk) -> bytes:
+    """A chunk's records, decompressed (zstd or none) with its uncompressed CRC checked.
+
+    Raises:
+        ValueError: implausible sizes (:func:`_check_chunk_size`), another compression, or a
+            CRC mismatch.
+    """
+    _check_chunk_size(chunk)
+    if chunk.compression == "zstd":
+        raw = zstandard.ZstdDecompressor().decompress(
+            chunk.data, max_output_size=chunk.uncompressed_size
+        )
+    elif chunk.compression == "":
+        raw = chunk.data
+    else:
+        raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
+    if len(raw) != chunk.uncompressed_size or zlib.crc32(raw) != chunk.uncompressed_crc:
+        raise ValueError("chunk CRC mismatch")
+    return raw
+
+
 def _data_section_crc_holds(data: bytes, data_end_position: int, stored: int) -> bool:
     """The data section's CRC: every byte before the Data End record."""
     return zlib.crc32(data[:data_end_position]) == stored
@@ -235,7 +260,7 @@ def _data_section_crc_holds(data: bytes, data_end_position: int, stored: int) ->
 
 def _summary_crc_holds(data: bytes, summary_start: int, footer_position: int, stored: int) -> bool:
     """The summary's CRC: from its first record through the footer's two offsets."""
-    covered = data[summary_start : footer_position + _RECORD_PREFIX + _FOOTER_CRC_SPAN]
+    covered = data[summary_start : footer_position + RECORD_PREFIX + _FOOTER_CRC_SPAN]
     return zlib.crc32(covered) == stored
 
 
@@ -251,21 +276,21 @@ def section_crcs_hold(data: bytes) -> bool:
     CRCs only (:func:`mcap.reader.make_reader` with ``validate_crcs``). Metadata records, such
     as the provenance, lie outside every chunk and are covered by the data-section CRC alone.
     """
-    footer_position = len(data) - len(MAGIC) - _RECORD_PREFIX - _FOOTER_BODY.size
+    footer_position = len(data) - len(MAGIC) - RECORD_PREFIX - _FOOTER_BODY.size
     if footer_position < len(MAGIC) or data[-len(MAGIC) :] != MAGIC:
         return False
     opcode, length = struct.unpack_from("<BQ", data, footer_position)
     if opcode != Opcode.FOOTER or length != _FOOTER_BODY.size:
         return False
-    summary_start, _, summary_crc = _FOOTER_BODY.unpack_from(data, footer_position + _RECORD_PREFIX)
+    summary_start, _, summary_crc = _FOOTER_BODY.unpack_from(data, footer_position + RECORD_PREFIX)
     end_of_data = summary_start if summary_start else footer_position
-    data_end = end_of_data - _RECORD_PREFIX - _DATA_END_BODY.size
+    data_end = end_of_data - RECORD_PREFIX - _DATA_END_BODY.size
     if data_end < len(MAGIC):
         return False
     opcode, length = struct.unpack_from("<BQ", data, data_end)
     if opcode != Opcode.DATA_END or length != _DATA_END_BODY.size:
         return False
-    (data_crc,) = _DATA_END_BODY.unpack_from(data, data_end + _RECORD_PREFIX)
+    (data_crc,) = _DATA_END_BODY.unpack_from(data, data_end + RECORD_PREFIX)
     return (
         summary_start > 0
         and data_crc != 0

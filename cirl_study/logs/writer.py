@@ -23,6 +23,8 @@ from cirl_study.logs.format import (
     MESSAGE_ENCODING,
     PROVENANCE_METADATA_NAME,
     SCHEMA_ENCODING,
+    TRIAL_INDEX_KEY,
+    TRIAL_INDEX_METADATA_NAME,
     temp_path,
     trial_duration_ns,
 )
@@ -44,8 +46,9 @@ class TrialLogWriter:
     :func:`~cirl_study.logs.provenance.collect_provenance`) becomes the file's ``provenance``
     metadata record. Each :meth:`write` logs one trial record (docs/design.md
     §7) with its reward maps and its step-by-step replay; log times follow the layout of
-    :mod:`cirl_study.logs.format`. Chunks are zstd-compressed; chunk, data-section and summary
-    CRCs are all written.
+    :mod:`cirl_study.logs.format`. A complete file ends its data section with the
+    ``trial_index`` metadata record, the ids of its trials in order. Chunks are
+    zstd-compressed; chunk, data-section and summary CRCs are all written.
     """
 
     def __init__(
@@ -64,6 +67,7 @@ class TrialLogWriter:
         self._writer: Writer | None = None
         self._channel_ids: dict[str, int] = {}
         self._sequences: dict[str, int] = {}
+        self._trial_ids: list[str] = []
 
     def __enter__(self) -> Self:
         if self.path.exists():
@@ -120,6 +124,7 @@ class TrialLogWriter:
             )
             self._sequences[message.topic] += 1
         self._clock_ns += trial_duration_ns(record.learning_steps, record.deployment_steps)
+        self._trial_ids.append(record.trial_id)
         self.trial_count += 1
 
     def __exit__(
@@ -131,6 +136,8 @@ class TrialLogWriter:
         assert self._file is not None and self._writer is not None
         try:
             if exc_type is None:
+                index = {TRIAL_INDEX_KEY: "\n".join(self._trial_ids)}
+                self._writer.add_metadata(TRIAL_INDEX_METADATA_NAME, index)
                 self._writer.finish()
                 self._file.flush()
                 os.fsync(self._file.fileno())

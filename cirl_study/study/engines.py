@@ -1,8 +1,9 @@
 """Where trials are played: in this process, in a local process pool, or on a Dask cluster.
 
 An engine receives batches of :class:`~cirl_study.record.TrialSpec` and yields each batch's
-records (:func:`cirl_study.core.trial.play_trials`) as soon as the batch is done, in whatever
-order batches finish. A record depends only on its spec, so the engine, the number of
+records (:func:`cirl_study.core.trial.play_trials`), with the time the worker spent playing
+them (:class:`PlayedBatch`), as soon as the batch is done, in whatever order batches
+finish. A record depends only on its spec, so the engine, the number of
 workers and the order of completion never change what is logged.
 """
 
@@ -18,6 +19,7 @@ import threading
 import time
 from collections.abc import Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
 from types import TracebackType
 from typing import Any, Self
 
@@ -27,6 +29,22 @@ from cirl_study.record import TrialRecord, TrialSpec
 
 Batch = Sequence[TrialSpec]
 Records = list[TrialRecord]
+
+
+@dataclass(frozen=True)
+class PlayedBatch:
+    """A batch's records and the wall-clock seconds its worker spent playing them."""
+
+    records: Records
+    seconds: float
+
+
+def play_batch(batch: Batch) -> PlayedBatch:
+    """Play ``batch`` (:func:`cirl_study.core.trial.play_trials`), timing it where it runs."""
+    began = time.perf_counter()
+    records = play_trials(batch)
+    return PlayedBatch(records, time.perf_counter() - began)
+
 
 ENGINES: tuple[str, ...] = ("local", "dask")
 """Names accepted by :func:`make_engine`."""
@@ -48,8 +66,8 @@ class Engine(abc.ABC):
         """Stop the workers; ``failing`` when the block is left by an exception."""
 
     @abc.abstractmethod
-    def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, Records]]:
-        """Yield ``(index of the batch in batches, its records)`` as each batch finishes."""
+    def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, PlayedBatch]]:
+        """Yield ``(index of the batch in batches, the played batch)`` as each finishes."""
 
     def __enter__(self) -> Self:
         self.start()
@@ -121,12 +139,12 @@ class LocalEngine(Engine):
             self._pool.shutdown(wait=True, cancel_futures=True)
             self._pool = None
 
-    def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, Records]]:
+    def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, PlayedBatch]]:
         if self._pool is None:
             for index, batch in enumerate(batches):
-                yield index, play_trials(batch)
+                yield index, play_batch(batch)
             return
-        futures = {self._pool.submit(play_trials, batch): i for i, batch in enumerate(batches)}
+        futures = {self._pool.submit(play_batch, batch): i for i, batch in enumerate(batches)}
         for future in as_completed(futures):
             yield futures[future], future.result()
 
@@ -214,12 +232,11 @@ class DaskEngine(Engine):
             if cluster is not None:
                 cluster.close()
 
-    def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, Records]]:
+    def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, PlayedBatch]]:
         from dask.distributed import as_completed as dask_as_completed
 
         futures: dict[Any, int] = {
-            self._client.submit(play_trials, batch, pure=False): i
-            for i, batch in enumerate(batches)
+            self._client.submit(play_batch, batch, pure=False): i for i, batch in enumerate(batches)
         }
         for future in dask_as_completed(futures):
             yield futures[future], future.result()

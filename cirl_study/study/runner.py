@@ -26,13 +26,15 @@ from dataclasses import dataclass
 from operator import attrgetter
 from pathlib import Path
 
+import msgspec
+
 from cirl_study.errors import UserError
 from cirl_study.logs import (
     RunIdentity,
     TrialLogWriter,
     collect_provenance,
     logged_trials,
-    read_run,
+    read_trials,
 )
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
 from cirl_study.logs.lock import writer_lock
@@ -112,15 +114,47 @@ class RunResult:
     files: int
     """Complete log files in the directory afterwards."""
     seconds: float
+    play_seconds: float
+    """Seconds the workers spent playing the trials of this call, summed over workers:
+    ``play_seconds / workers`` is the run's compute floor."""
+    playing_seconds: float
+    """Wall-clock seconds from the start of play (when the progress bar starts) to the last
+    trial logged: ``seconds`` less start-up, checks and kernel preparation."""
+    workers: int
     etas: dict[tuple[str, int], EtaChoice]
 
 
 @dataclass
 class ProgressHooks:
-    """Callbacks for progress reports: ``start(total, done)`` once, then ``advance(n)``."""
+    """Callbacks for progress reports: ``note(text)`` for a stage before playing starts,
+    ``start(total, done)`` once, then ``advance(n)``."""
 
     start: Callable[[int, int], None] = lambda total, done: None
     advance: Callable[[int], None] = lambda count: None
+    note: Callable[[str], None] = lambda text: None
+
+
+def warm_up(pipeline: Pipeline) -> None:
+    """Play one throw-away trial per (policy, robot) of ``pipeline`` in this process.
+
+    The first run on a machine compiles the numerical kernels (numba; cached on disk
+    afterwards, so later runs load them in a fraction of a second). Doing it here, before
+    the engine starts its workers, lets forked workers inherit them and keeps the progress
+    bar for playing. Nothing is logged.
+    """
+    from cirl_study.core.humans import HUMANS
+    from cirl_study.core.trial import play_trials
+
+    base = (eta_cv_trials(pipeline) or study_trials(pipeline, {}))[0]
+    play_trials(
+        [
+            msgspec.structs.replace(
+                base, policy=policy, eta=1.0 if HUMANS[policy].takes_eta else None, robot=robot
+            )
+            for policy in pipeline.main.policies
+            for robot in pipeline.main.robots
+        ]
+    )
 
 
 def default_out_dir(pipeline: Pipeline) -> Path:
@@ -185,6 +219,8 @@ class _Session:
     provenance: dict[str, str]
     progress: ProgressHooks
     done: set[str]
+    play_seconds: float = 0.0
+    """Seconds the workers spent playing the batches of this call, summed over workers."""
 
     def play(self, trials: Sequence[TrialSpec]) -> Iterator[list[TrialRecord]]:
         """Play the ``trials`` not yet logged; log each batch to its own file, then yield it."""
@@ -192,8 +228,9 @@ class _Session:
         if not pending:
             return
         batches = split_batches(pending, batch_size(len(pending), self.engine.workers))
-        for index, records in self.engine.play(batches):
-            batch = batches[index]
+        for index, played in self.engine.play(batches):
+            batch, records = batches[index], played.records
+            self.play_seconds += played.seconds
             if [record.trial_id for record in records] != [t.trial_id for t in batch]:
                 raise RuntimeError("the engine returned records that do not match their batch")
             self._log(batch_file_name(batch), records)
@@ -228,9 +265,9 @@ def _cross_validate(
     logged_before = {trial.trial_id for trial in trials} & session.done
     records: dict[str, TrialRecord] = {}
     if logged_before:
-        records = {
-            r.trial_id: r for r in read_run(session.out_dir).records if r.trial_id in logged_before
-        }
+        identity = RunIdentity.of(session.provenance)
+        logged = read_trials(session.out_dir, identity, logged_before)
+        records = {record.trial_id: record for record in logged}
     for batch in session.play(trials):
         records.update((record.trial_id, record) for record in batch)
     missing = [trial.trial_id for trial in trials if trial.trial_id not in records]
@@ -288,15 +325,20 @@ def _run_locked(
     done = prepare_run_directory(out_dir, identity)
     resumed = len(done)
     total = sum(trial_counts(pipeline).values())
+    if resumed < total:
+        hooks.note("preparing the numerical kernels (compiled on a first run, then cached)")
+        warm_up(pipeline)
     session = _Session(engine, out_dir, provenance, hooks, done)
     with engine:
         hooks.start(total, resumed)
+        play_began = time.perf_counter()
         cv_trials = eta_cv_trials(pipeline)
         etas = _cross_validate(session, cv_trials)
         trials = study_trials(pipeline, {key: choice.eta for key, choice in etas.items()})
         _refuse_unplanned(out_dir, done, [*cv_trials, *trials])
         for _ in session.play(trials):
             pass
+        playing_seconds = time.perf_counter() - play_began
     return RunResult(
         out_dir=out_dir,
         run_id=pipeline.run_id,
@@ -305,5 +347,8 @@ def _run_locked(
         played=len(done) - resumed,
         files=len(log_files(out_dir)),
         seconds=time.perf_counter() - began,
+        play_seconds=session.play_seconds,
+        playing_seconds=playing_seconds,
+        workers=engine.workers,
         etas=etas,
     )
