@@ -43,6 +43,8 @@ app = typer.Typer(
     no_args_is_help=True,
     add_completion=False,
     pretty_exceptions_enable=False,
+    # Plain click help: paragraphs reflowed to the terminal's width, flags without a type.
+    rich_markup_mode=None,
 )
 for command in (run, validate, analyze, reproduce, compare, office_supplies):
     app.add_typer(command.app)

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import msgspec
 import numpy as np
+import pandas as pd
 import pytest
 from analysis_fixtures import synthetic_records
 
@@ -53,7 +54,7 @@ def test_the_scene_is_the_records_own_data(pair):
 
 @pytest.fixture(scope="module")
 def png(pair) -> bytes:
-    return figures.reward_maps(*pair, "draw")
+    return figures.reward_maps(*pair, "draw").png
 
 
 def test_png_bytes_carry_no_software_or_time_metadata(png):
@@ -68,7 +69,7 @@ from analysis_fixtures import synthetic_records
 from cirl_study.analysis import figures
 records = synthetic_records(subjects_per_level=1, lambdas=(), etas=(), cv_subjects=0)
 main = [r for r in records if r.block == "main" and r.num_features == 3]
-sys.stdout.buffer.write(figures.reward_maps(main[0], main[1], "draw"))
+sys.stdout.buffer.write(figures.reward_maps(main[0], main[1], "draw").png)
 """
 
 
@@ -86,3 +87,63 @@ def test_a_record_without_a_drawable_reward_map_is_refused_before_it_becomes_a_r
     del broken["features"]["sigma"]
     with pytest.raises(msgspec.ValidationError, match="missing required field `sigma`"):
         from_builtins(broken)
+
+
+def _identical_sweep() -> pd.DataFrame:
+    """Both policies with the very same regret at every lambda: the case that hid one line."""
+    rows = [
+        {"measure": "regret", "rationality": lam, "policy": policy, "num_features": k,
+         "mean": 1.0 + k / 10, "ci95_low": 0.9, "ci95_high": 1.1 + k / 10}
+        for k in (3, 10) for lam in (1e-2, 1.0, 1e2) for policy in ("expert", "best_response")
+    ]  # fmt: skip
+    return pd.DataFrame(rows)
+
+
+def test_both_policies_are_visible_at_every_lambda_even_where_they_coincide():
+    figure = figures.lambda_figure(_identical_sweep())
+    panels = [axes for axes in figure.axes if axes.get_title()]
+    assert [axes.get_title() for axes in panels] == ["3 features", "10 features"]
+    for axes in panels:
+        bars = {container.get_label(): container.lines[0] for container in axes.containers}
+        lines = {line.get_label(): line for line in axes.get_lines()}
+        expert, best = bars["expert"], bars["best response"]
+        assert len(expert.get_xdata()) == len(best.get_xdata()) == 3
+        # Distinct markers and colours, and never drawn on top of each other.
+        assert expert.get_marker() != best.get_marker()
+        assert expert.get_color() != best.get_color()
+        assert all(a < b for a, b in zip(expert.get_xdata(), best.get_xdata(), strict=True))
+        assert "lowest best-response regret" in lines
+    assert figure.axes[0].get_legend() is not None
+
+
+def test_every_figure_also_renders_as_svg_deterministically():
+    first = figures.lambda_curve(_identical_sweep())
+    second = figures.lambda_curve(_identical_sweep())
+    assert first.svg.startswith(b"<?xml") and b"<svg" in first.svg
+    assert first.svg == second.svg and first.png == second.png
+
+
+def test_figure1_draws_every_step_and_names_each_regret(pair):
+    expert, best = pair
+    stays = msgspec.structs.replace(
+        expert,
+        demonstration=msgspec.structs.replace(
+            expert.demonstration,
+            states=(expert.start,) * 3,
+            actions=("stay", "stay"),
+        ),
+        learning_steps=2,
+    )
+    figure = figures.reward_figure(stays, best, "draw")
+    true_map, stayed, moved = figure.axes[:3]
+    assert stayed.get_title().startswith(f"expert: regret {stays.measures.regret:.3g}")
+    assert moved.get_title().startswith(f"best response: regret {best.measures.regret:.3g}")
+    assert all(axes.get_xlabel() == "x (cell)" for axes in (true_map, stayed, moved))
+    # Two stays on the start cell: two rings, the second larger; the step label covers both.
+    rings = [line for line in stayed.get_lines() if line.get_markerfacecolor() == "none"]
+    assert [ring.get_markersize() for ring in rings] == [12, 17]
+    assert "0-2" in [text.get_text() for text in stayed.texts]
+    # Every move of the best response is an arrow.
+    arrows = [text for text in moved.texts if text.arrow_patch is not None]
+    assert len(arrows) == sum(a != "stay" for a in best.demonstration.actions)
+    assert figures._step_label([0, 2, 3, 5]) == "0,2-3,5"

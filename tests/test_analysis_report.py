@@ -20,15 +20,15 @@ from cirl_study.errors import UserError
 from cirl_study.record import TrialRecord
 from cirl_study.study.eta_cv import choose_etas
 
+FIGURES = {"figure1_reward_maps", "figure2_measures", "figure2_lambda", "eta_cv"}
 FILES = {
     "report.md",
     "results.json",
     "trials.csv",
-    "figure1_reward_maps.png",
-    "figure2_measures.png",
-    "figure2_lambda.png",
-    "eta_cv.png",
+    "provenance.json",
+    *(f"{figure}.{kind}" for figure in FIGURES for kind in ("png", "svg")),
 }
+PROVENANCE = {"report": {"git_commit": "abc"}}
 
 
 @pytest.fixture(scope="module")
@@ -41,10 +41,10 @@ def reports(records, tmp_path_factory) -> tuple[Path, Path]:
     """The same records written twice, the second time shuffled, to two directories."""
     first = tmp_path_factory.mktemp("first") / "paper"
     second = tmp_path_factory.mktemp("second") / "paper"
-    write_report(records, first, "paper")
+    write_report(records, first, "paper", provenance=PROVENANCE)
     shuffled = records[:]
     random.Random(3).shuffle(shuffled)
-    write_report(shuffled, second, "paper")
+    write_report(shuffled, second, "paper", provenance=PROVENANCE)
     return first, second
 
 
@@ -162,8 +162,11 @@ def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path
             }
         ]
     }
-    results = write_report(main_only, out, "main-only", theory=theory)
-    assert {path.name for path in out.iterdir()} == FILES - {"figure2_lambda.png", "eta_cv.png"}
+    results = write_report(main_only, out, "main-only", theory=theory, provenance=PROVENANCE)
+    gone = {
+        f"{figure}.{kind}" for figure in ("figure2_lambda", "eta_cv") for kind in ("png", "svg")
+    }
+    assert {path.name for path in out.iterdir()} == FILES - gone
     lambda_claim = next(c for c in results["claims"] if c["id"] == "lambda_intermediate")
     assert not lambda_claim["tested"]
     text = (out / "report.md").read_text(encoding="utf-8")
@@ -172,6 +175,7 @@ def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path
     assert results["theory"] == theory
     assert results["eta_cv"] == {
         "means": [],
+        "uncertainty": [],
         "chosen": [],
         "main_block": [
             {"num_features": k, "main_etas": [1.0], "chosen_eta": None, "agree": None}

@@ -10,7 +10,12 @@ runner = CliRunner()
 
 
 def _report_bytes(report: Path) -> dict[str, bytes]:
-    return {path.name: path.read_bytes() for path in sorted(report.iterdir())}
+    """Every file of the report but provenance.json, which records when it was made."""
+    return {
+        path.name: path.read_bytes()
+        for path in sorted(report.iterdir())
+        if path.name != "provenance.json"
+    }
 
 
 def test_reproduce_runs_then_reports_and_a_second_call_changes_nothing(tmp_path: Path) -> None:
@@ -25,6 +30,10 @@ def test_reproduce_runs_then_reports_and_a_second_call_changes_nothing(tmp_path:
     second = runner.invoke(app, arguments)
     assert second.exit_code == 0, second.output
     assert "0 played now" in second.output
+    assert first.output.rstrip().endswith("a new report (there was none to compare with)")
+    assert second.output.rstrip().endswith(
+        f"{report}: equals the report it replaced, number by number"
+    )
     assert _report_bytes(report) == written
 
 

@@ -35,6 +35,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any
 
+from cirl_study.analysis.markdown import p_value
 from cirl_study.analysis.results import Results, plain
 from cirl_study.errors import UserError
 from cirl_study.record import BEST_RESPONSE, EXPERT, MEASURES
@@ -63,7 +64,9 @@ def _num(value: float) -> str:
 
 
 def _p(value: float) -> str:
-    return "p < 1e-300" if value == 0 else f"p = {value:.3g}"
+    """``p = 0.0123``, or ``p < 1e-300`` (see :func:`cirl_study.analysis.markdown.p_value`)."""
+    shown = p_value(value)
+    return f"p {shown}" if shown.startswith("<") else f"p = {shown}"
 
 
 def _anova(results: Results, measure: str, effect: str) -> dict[str, Any]:

@@ -10,7 +10,9 @@ the CPU's and the BLAS kernels' rounding. :func:`compare_reports` compares
 * ``report.md``: the text must be identical (it prints numbers to four significant digits);
 * every figure ``*.png`` of the expected directory: the same size, and at most
   :data:`PIXEL_SHARE` of the pixels differing by more than :data:`PIXEL_TOLERANCE` in a
-  channel (anti-aliasing may move with the last bits of a coordinate).
+  channel (anti-aliasing may move with the last bits of a coordinate); its vector twin
+  ``*.svg`` must exist (its path coordinates carry the same last bits, so it is not compared
+  byte by byte).
 
 ``provenance.json`` says what made the report: it differs by design and is not compared.
 """
@@ -70,6 +72,11 @@ def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = Non
     differences += _text_differences(expected / "report.md", got / "report.md")
     for figure in sorted(expected.glob("*.png")):
         differences += _figure_differences(figure, got / figure.name)
+    differences += [
+        f"{vector.name}: missing"
+        for vector in sorted(expected.glob("*.svg"))
+        if not (got / vector.name).is_file()
+    ]
     return differences
 
 

@@ -1,9 +1,9 @@
-"""The report's figures, rendered with matplotlib's Agg backend to deterministic PNG bytes.
+"""The report's figures, rendered with matplotlib's Agg backend to deterministic PNG and SVG.
 
 Identical input gives identical bytes: each figure is drawn on its own
 :class:`~matplotlib.figure.Figure` (no pyplot state) under matplotlib's default style
-plus :data:`STYLE`, at a fixed size and :data:`DPI`, and saved without the ``Software``
-metadata entry (PNG files carry no timestamp).
+plus :data:`STYLE`, at a fixed size and :data:`DPI`, and saved as PNG without the
+``Software`` metadata entry (PNG files carry no timestamp) and as SVG without a date.
 
 - Figure 1 (:func:`reward_maps`): for one reward draw, the true reward map, and each
   policy's demonstration over the MAP reward map the robot inferred from it.
@@ -31,7 +31,7 @@ from matplotlib.figure import Figure
 from numpy.typing import NDArray
 
 from cirl_study.core.gridworld import feature_matrix
-from cirl_study.record import MEASURES, PAPER_POLICIES, TrialRecord
+from cirl_study.record import BEST_RESPONSE, MEASURES, PAPER_POLICIES, TrialRecord
 
 DPI = 120
 """Resolution of every figure, in dots per inch."""
@@ -42,6 +42,7 @@ STYLE: dict[str, Any] = {
     "axes.titlesize": 10,
     "figure.dpi": DPI,
     "savefig.dpi": DPI,
+    "svg.hashsalt": "cirl-study",
 }
 """Settings applied over matplotlib's default style."""
 
@@ -53,14 +54,30 @@ MEASURE_LABELS = {
     "reward_l2": "reward L2 distance",
 }
 LEVEL_MARKERS = ("o", "s", "^", "D", "v")
+POLICY_MARKERS = {"expert": "o", "best_response": "s"}
+DODGE = {"expert": 1 / 1.08, "best_response": 1.08}
+"""Factors that shift each policy's points sideways on a log x axis."""
 
 
-def render_png(figure: Figure) -> bytes:
-    """The PNG bytes of ``figure``, without metadata that could vary between runs."""
+@dataclass(frozen=True)
+class Rendered:
+    """One figure as a 120-dpi PNG and as an SVG (vector) file."""
+
+    png: bytes
+    svg: bytes
+
+
+def render(figure: Figure) -> Rendered:
+    """``figure`` as PNG and SVG bytes, without metadata that could vary between runs.
+
+    The SVG's element ids are salted with a fixed string (``svg.hashsalt`` in :data:`STYLE`)
+    and it carries no date, so identical input gives identical bytes in both formats.
+    """
     canvas = FigureCanvasAgg(figure)
-    buffer = io.BytesIO()
-    canvas.print_png(buffer, metadata={"Software": None})
-    return buffer.getvalue()
+    png, svg = io.BytesIO(), io.BytesIO()
+    canvas.print_png(png, metadata={"Software": None})
+    figure.savefig(svg, format="svg", metadata={"Date": None, "Creator": None})
+    return Rendered(png.getvalue(), svg.getvalue())
 
 
 def _new_figure(width: float, height: float) -> Figure:
@@ -126,37 +143,73 @@ def _draw_map(axes: Axes, values: NDArray[np.float64], limit: float, title: str)
 
 
 def _draw_path(axes: Axes, states: NDArray[np.float64]) -> None:
-    """The demonstration: an arrow per move, a white dot at the start, a square at the end."""
-    steps = np.diff(states, axis=0)
-    axes.quiver(
-        states[:-1, 0],
-        states[:-1, 1],
-        steps[:, 0],
-        steps[:, 1],
-        angles="xy",
-        scale_units="xy",
-        scale=1,
-        width=0.012,
-        color="black",
-    )
+    """The demonstration, step by step: each move an arrow coloured by its time step (light to
+    dark), a stay a ring, each cell numbered by the step it is reached at; back-and-forth moves
+    are offset sideways so both directions show."""
+    steps = len(states) - 1
+    colours = matplotlib.colormaps["Greys"](np.linspace(0.35, 1.0, max(steps, 1)))
+    seen: dict[frozenset[tuple[float, float]], int] = {}
+    for t in range(steps):
+        start, end = states[t], states[t + 1]
+        edge = frozenset({(float(start[0]), float(start[1])), (float(end[0]), float(end[1]))})
+        repeat = seen.get(edge, 0)
+        seen[edge] = repeat + 1
+        if len(edge) == 1:  # a stay: a ring, larger for each further stay on the cell
+            ring = {
+                "markerfacecolor": "none",
+                "markeredgecolor": colours[t],
+                "markeredgewidth": 1.5,
+            }
+            axes.plot(*start, marker="o", markersize=12 + 5 * repeat, linestyle="none", **ring)
+            continue
+        shift = 0.12 * repeat
+        normal = np.array([-(end - start)[1], (end - start)[0]]) * shift
+        arrow = {"arrowstyle": "-|>", "color": colours[t], "linewidth": 1.8}
+        axes.annotate("", xy=end + normal, xytext=start + normal, arrowprops=arrow)
+    visits: dict[tuple[float, float], list[int]] = {}
+    for t, cell in enumerate(states):
+        visits.setdefault((float(cell[0]), float(cell[1])), []).append(t)
+    for cell, times in visits.items():
+        axes.annotate(_step_label(times), cell, xytext=(4, 4), textcoords="offset points",
+                      fontsize=6)  # fmt: skip
     for index, marker in ((0, "o"), (-1, "s")):
         axes.plot(
             states[index, 0],
             states[index, 1],
             marker=marker,
-            markersize=9,
+            markersize=6,
             markerfacecolor="white",
             markeredgecolor="black",
             linestyle="none",
+            zorder=3,
         )
 
 
-def reward_maps(expert: TrialRecord, best_response: TrialRecord, title: str) -> bytes:
+def _step_label(times: list[int]) -> str:
+    """The steps at which a cell is occupied, runs shortened: ``[4, 5, 6, 9]`` -> ``4-6,9``."""
+    runs: list[list[int]] = []
+    for t in times:
+        if runs and t == runs[-1][-1] + 1:
+            runs[-1].append(t)
+        else:
+            runs.append([t])
+    return ",".join(f"{run[0]}-{run[-1]}" if len(run) > 1 else str(run[0]) for run in runs)
+
+
+def reward_maps(expert: TrialRecord, best_response: TrialRecord, title: str) -> Rendered:
+    """Figure 1, rendered: see :func:`reward_figure`."""
+    with matplotlib.style.context("default"), rc_context(STYLE):
+        return render(reward_figure(expert, best_response, title))
+
+
+def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -> Figure:
     """Figure 1: true reward; each demonstration over the MAP reward inferred from it.
 
     The reward of cell ``s`` is ``theta . phi(s)`` with ``phi_k(s) = exp(-||s - c_k||^2 /
     (2 sigma^2))``; the three panels share one symmetric colour scale. The demonstration
-    runs from the white dot to the white square; the crosses are the RBF centres.
+    runs from the white dot (step 0) to the white square, every step drawn and numbered, in
+    shades from light (first) to dark (last), a stay as a ring; the crosses are the RBF
+    centres. Each demonstration panel names its regret.
 
     Args:
         expert: the expert's trial record of the reward draw.
@@ -172,8 +225,8 @@ def reward_maps(expert: TrialRecord, best_response: TrialRecord, title: str) -> 
     limit = max(float(np.abs(values).max()) for values in maps) or 1.0
     titles = (
         "true reward",
-        "expert demonstration\nover its MAP reward",
-        "best-response demonstration\nover its MAP reward",
+        f"expert: regret {expert.measures.regret:.3g}\n(over its MAP reward)",
+        f"best response: regret {best_response.measures.regret:.3g}\n(over its MAP reward)",
     )
     with matplotlib.style.context("default"), rc_context(STYLE):
         figure = _new_figure(10.0, 3.8)
@@ -192,12 +245,14 @@ def reward_maps(expert: TrialRecord, best_response: TrialRecord, title: str) -> 
                 _draw_path(axes[panel], scenes[panel - 1].states)
             axes[panel].set_xlim(-0.5, scenes[0].width - 0.5)
             axes[panel].set_ylim(-0.5, scenes[0].height - 0.5)
+            axes[panel].set_xlabel("x (cell)")
+            axes[panel].set_ylabel("y (cell)")
         figure.colorbar(image, ax=list(axes), shrink=0.8, label="reward of the cell")
         figure.suptitle(title)
-        return render_png(figure)
+        return figure
 
 
-def measure_bars(cells: pd.DataFrame) -> bytes:
+def measure_bars(cells: pd.DataFrame) -> Rendered:
     """Figure 2 (left, middle): each measure's mean with its 95% CI by policy and level.
 
     Args:
@@ -235,7 +290,7 @@ def measure_bars(cells: pd.DataFrame) -> bytes:
             *axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, frameon=False
         )
         figure.suptitle("Lower is better: the three measures by policy and number of features")
-        return render_png(figure)
+        return render(figure)
 
 
 def _curves(
@@ -252,75 +307,98 @@ def _curves(
         axes.set_xscale("log")
 
 
-def lambda_curve(sweep: pd.DataFrame) -> bytes:
+def lambda_curve(sweep: pd.DataFrame) -> Rendered:
+    """Figure 2 (right), rendered: see :func:`lambda_figure`."""
+    with matplotlib.style.context("default"), rc_context(STYLE):
+        return render(lambda_figure(sweep))
+
+
+def lambda_figure(sweep: pd.DataFrame) -> Figure:
     """Figure 2 (right): regret against the robot's rationality lambda, log axis.
 
-    Best response solid, expert dashed, one marker per feature level; bars are 95% CIs.
+    One panel per feature level; in each, both policies in their colours and markers (expert
+    circles, best response squares), dodged sideways so that neither hides the other where
+    they coincide; bars are 95% CIs. A star marks the lambda at which the best response's
+    mean regret is lowest, the point of the paper's claim.
 
     Args:
         sweep: rows ``measure, rationality, policy, num_features, mean, ci95_low, ci95_high``.
     """
     regret = sweep[sweep["measure"] == "regret"]
-    series = []
-    for index, level in enumerate(sorted(regret["num_features"].unique())):
-        for policy, line in zip(PAPER_POLICIES, ("--", "-"), strict=True):
-            rows = regret[(regret["num_features"] == level) & (regret["policy"] == policy)]
-            style = {
-                "color": POLICY_COLOURS[policy],
-                "linestyle": line,
-                "marker": LEVEL_MARKERS[index % len(LEVEL_MARKERS)],
-            }
-            series.append((f"{POLICY_LABELS[policy]}, {level} features", rows, style))
+    levels = sorted(regret["num_features"].unique())
     with matplotlib.style.context("default"), rc_context(STYLE):
-        figure = _new_figure(6.0, 4.0)
-        axes = figure.subplots()
-        _curves(axes, regret, "rationality", series)
-        axes.set_xlabel("robot's rationality λ")
-        axes.set_ylabel("mean regret (95% CI)")
-        axes.set_title("Regret against the rationality the robot assumes")
-        axes.legend(frameon=False, fontsize=8)
-        return render_png(figure)
+        figure = _new_figure(4.2 * len(levels), 3.8)
+        panels = np.atleast_1d(figure.subplots(1, len(levels)))
+        for axes, level in zip(panels, levels, strict=True):
+            at_level = regret[regret["num_features"] == level]
+            _curves(axes, at_level, "rationality", _policy_series(at_level))
+            best = at_level[at_level["policy"] == BEST_RESPONSE]
+            lowest = best.loc[best["mean"].idxmin()]
+            axes.plot(lowest["rationality"] * DODGE[BEST_RESPONSE], lowest["mean"], marker="*",
+                      markersize=15, color="gold", markeredgecolor="black", linestyle="none",
+                      label="lowest best-response regret", zorder=4)  # fmt: skip
+            axes.set_title(f"{level} features")
+            axes.set_xlabel("robot's rationality λ")
+        panels[0].set_ylabel("mean regret (95% CI)")
+        panels[0].legend(frameon=False, fontsize=8, markerscale=1.2)
+        figure.suptitle("Regret against the rationality the robot assumes (lower is better)")
+        return figure
 
 
-def eta_curve(means: pd.DataFrame, chosen: pd.DataFrame) -> bytes:
+def _policy_series(rows: pd.DataFrame) -> list[tuple[str, pd.DataFrame, dict[str, Any]]]:
+    """Each policy's rows, dodged along a log x axis, in the policy's colour and marker."""
+    return [
+        (
+            POLICY_LABELS[policy],
+            rows[rows["policy"] == policy].assign(
+                rationality=rows.loc[rows["policy"] == policy, "rationality"] * DODGE[policy]
+            ),
+            {"color": POLICY_COLOURS[policy], "marker": POLICY_MARKERS[policy], "markersize": 6},
+        )
+        for policy in PAPER_POLICIES
+    ]
+
+
+def eta_curve(means: pd.DataFrame, choice: pd.DataFrame) -> Rendered:
     """The eta cross-validation: mean best-response regret against eta, chosen eta starred.
+
+    One panel per feature level (their regrets differ tenfold), in the best response's colour
+    as everywhere else; a gold star marks the chosen eta and a dashed line one standard error
+    above its mean: every eta below the line is as good by the one-standard-error rule.
 
     Args:
         means: rows ``num_features, eta, mean, ci95_low, ci95_high``.
-        chosen: rows ``num_features, eta, mean``.
+        choice: rows ``num_features, eta, mean, se``
+            (:func:`cirl_study.analysis.statistics.eta_choice_uncertainty`).
     """
     levels = sorted(means["num_features"].unique())
-    series = [
-        (
-            f"{level} features",
-            means[means["num_features"] == level],
-            {"marker": LEVEL_MARKERS[index % len(LEVEL_MARKERS)], "color": f"C{index}"},
-        )
-        for index, level in enumerate(levels)
-    ]
+    style = {
+        "color": POLICY_COLOURS[BEST_RESPONSE],
+        "marker": POLICY_MARKERS[BEST_RESPONSE],
+        "markersize": 5,
+    }
     with matplotlib.style.context("default"), rc_context(STYLE):
-        figure = _new_figure(6.0, 4.0)
-        axes = figure.subplots()
-        _curves(axes, means, "eta", series)
-        for index, level in enumerate(levels):
-            row = chosen[chosen["num_features"] == level]
-            axes.plot(
-                row["eta"],
-                row["mean"],
-                marker="*",
-                markersize=16,
-                color=f"C{index}",
-                markeredgecolor="black",
-                linestyle="none",
-            )
-        axes.set_xlabel("η (trade-off between reward and feature matching)")
-        axes.set_ylabel("mean best-response regret (95% CI)")
-        axes.set_title("Cross-validation of η (star: chosen)")
-        axes.legend(frameon=False)
-        return render_png(figure)
+        figure = _new_figure(4.2 * len(levels), 3.6)
+        panels = np.atleast_1d(figure.subplots(1, len(levels)))
+        for axes, level in zip(panels, levels, strict=True):
+            rows = means[means["num_features"] == level]
+            _curves(axes, rows, "eta", [(POLICY_LABELS[BEST_RESPONSE], rows, style)])
+            row = choice[choice["num_features"] == level]
+            if not row.empty:
+                line = float(row["mean"].iloc[0] + row["se"].iloc[0])
+                axes.axhline(line, color="black", linestyle="--", linewidth=0.8,
+                             label="one SE above the chosen")  # fmt: skip
+                axes.plot(row["eta"], row["mean"], marker="*", markersize=15, color="gold",
+                          markeredgecolor="black", linestyle="none", label="chosen η")  # fmt: skip
+            axes.set_title(f"{level} features")
+            axes.set_xlabel("η (trade-off between reward and feature matching)")
+        panels[0].set_ylabel("mean best-response regret (95% CI)")
+        panels[0].legend(frameon=False, fontsize=8)
+        figure.suptitle("Cross-validation of η: the lowest mean regret is chosen")
+        return render(figure)
 
 
-def robot_difference_curve(sweep: pd.DataFrame, reference: str, other: str) -> bytes:
+def robot_difference_curve(sweep: pd.DataFrame, reference: str, other: str) -> Rendered:
     """Mean paired regret difference ``other - reference`` against lambda, per feature level.
 
     One panel per feature level, one line per policy (the policy's colour; the policies
@@ -335,25 +413,16 @@ def robot_difference_curve(sweep: pd.DataFrame, reference: str, other: str) -> b
     """
     regret = sweep[sweep["measure"] == "regret"].rename(columns={"mean_diff": "mean"})
     levels = sorted(regret["num_features"].unique())
-    dodge = {policy: 1.08 ** (index - 0.5) for index, policy in enumerate(PAPER_POLICIES)}
     with matplotlib.style.context("default"), rc_context(STYLE):
         figure = _new_figure(4.0 * len(levels), 3.6)
         panels = np.atleast_1d(figure.subplots(1, len(levels), sharey=True))
         for axes, level in zip(panels, levels, strict=True):
             axes.axhline(0.0, color="black", linewidth=0.8)
-            series = []
-            for index, policy in enumerate(PAPER_POLICIES):
-                rows = regret[(regret["num_features"] == level) & (regret["policy"] == policy)]
-                rows = rows.assign(rationality=rows["rationality"] * dodge[policy])
-                style = {
-                    "color": POLICY_COLOURS[policy],
-                    "marker": LEVEL_MARKERS[index % len(LEVEL_MARKERS)],
-                }
-                series.append((POLICY_LABELS[policy], rows, style))
-            _curves(axes, regret, "rationality", series)
+            at_level = regret[regret["num_features"] == level]
+            _curves(axes, at_level, "rationality", _policy_series(at_level))
             axes.set_title(f"{level} features")
             axes.set_xlabel("robot's rationality λ")
         panels[0].set_ylabel(f"regret, {other} minus {reference} (95% CI)")
         panels[0].legend(frameon=False, fontsize=8, title="human")
         figure.suptitle(f"Below zero: {other} did better than {reference}")
-        return render_png(figure)
+        return render(figure)

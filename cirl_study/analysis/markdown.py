@@ -17,7 +17,13 @@ def number(value: float | int | None, digits: int = 4) -> str:
 
 
 def p_value(value: float | None) -> str:
-    """A p-value with three significant digits; one that underflowed to 0 as ``< 1e-300``."""
+    """A p-value with three significant digits; 0 as the bound ``< 1e-300``.
+
+    Every p-value of the study is accurate down to the smallest normal double (t and F tails
+    by scipy's regularised incomplete beta, the Tukey tail by
+    :func:`cirl_study.analysis.studentized_range.studentized_range_sf`), so a p of 0 means the
+    true value is below ``2.2e-308``: the bound printed holds.
+    """
     if value is None:
         return "–"
     return "< 1e-300" if value == 0 else f"{value:.3g}"

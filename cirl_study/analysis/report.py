@@ -69,6 +69,11 @@ def _link(key: str) -> str:
     return f"[{key}]({key})"
 
 
+def _image(alt: str, name: str) -> str:
+    """A figure embedded by its PNG, with a link to its SVG twin."""
+    return f"![{alt}]({name}) ([SVG]({_svg_name(name)}))"
+
+
 def _heading(level: int, key: str) -> str:
     return f"{'#' * level} {HEADINGS[key]}"
 
@@ -134,7 +139,7 @@ def _cells(results: Results) -> list[str]:
         "",
         table(header, rows, [False, True, False, True, True, True]),
         "",
-        f"![Figure 2, left: the three measures by policy and number of features]({name})",
+        _image("Figure 2, left: the three measures by policy and number of features", name),
     ]
 
 
@@ -210,7 +215,11 @@ def _tukey(results: Results) -> list[str]:
         "As the paper ran it: all pairs of the policy × features cells, error pooled over the "
         "cells. **This ignores the pairing** of the two policies within a reward draw, so it "
         "treats within-subject comparisons as if they were between independent groups; the "
-        "simple effects above are the paired analysis. Cells are named `policy, features`.",
+        "simple effects above are the paired analysis. Cells are named `policy, features`. "
+        "p (Tukey) is the studentized range's upper tail computed without cancellation, "
+        "accurate to about 1e-13 relative wherever it is a normal double; `< 1e-300` means "
+        "the true value is below 2.2e-308 (scipy's tail, used by pingouin, is 0 from q = 10.5 "
+        "on).",
         "",
         table(header, rows, [False, False, False, True, True, True, True, True]),
     ]
@@ -294,7 +303,7 @@ def _lambda_sweep(results: Results) -> list[str]:
         "",
         _certification(results),
         "",
-        f"![Figure 2, right: regret against lambda]({name})",
+        _image("Figure 2, right: regret against lambda", name),
     ]
 
 
@@ -337,6 +346,31 @@ def _eta_check(results: Results) -> str:
     )
 
 
+def _eta_uncertainty(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Per feature level, how clear-cut the chosen eta is (one bullet each)."""
+    lines = ["How clear-cut each choice is:", ""]
+    for row in rows:
+        one_se = ", ".join(f"{eta:g}" for eta in row["within_one_se"])
+        text = (
+            f"- {row['num_features']} features: η = {row['eta']:g} (mean regret "
+            f"{number(row['mean'])}, standard error {number(row['se'])}, {row['n']} draws)"
+        )
+        if row.get("runner_up") is not None:
+            separated = row["ci95_low"] > 0
+            text += (
+                f" against the runner-up η = {row['runner_up']:g} "
+                f"({number(row['runner_up_mean'])}): paired difference "
+                f"{number(row['mean_diff'])} {interval(row['ci95_low'], row['ci95_high'])}, "
+                f"p {p_value(row['p'])}, "
+                + ("the runner-up is worse" if separated else "not distinguishable")
+            )
+        lines.append(
+            f"{text}. By the one-standard-error rule (means within one standard error of the "
+            f"lowest) η ∈ {{{one_se}}} are all as good."
+        )
+    return lines
+
+
 def _eta_cv(results: Results) -> list[str]:
     lines = [_heading(2, "eta_cv"), ""]
     if not results["eta_cv"]["means"]:
@@ -356,9 +390,11 @@ def _eta_cv(results: Results) -> list[str]:
         f"Mean best-response regret [95% CI] per η, on reward draws disjoint from the main "
         f"block's. Chosen (lowest mean regret): {chosen}. {_eta_check(results)}",
         "",
+        *_eta_uncertainty(results["eta_cv"]["uncertainty"]),
+        "",
         _grid_table(means, "eta", "η", columns),
         "",
-        f"![eta cross-validation]({name})",
+        _image("eta cross-validation", name),
     ]
 
 
@@ -368,7 +404,7 @@ def _figure1(results: Results) -> list[str]:
     return [
         _heading(2, "figure1"),
         "",
-        f"![Figure 1: true reward and both demonstrations over their MAP rewards]({name})",
+        _image("Figure 1: true reward and both demonstrations over their MAP rewards", name),
         "",
         f"Reward draw `{chosen['subject']}` ({chosen['num_features']} features), chosen as "
         f"{chosen['rule']}: regret {number(chosen['regret_expert'])} after the expert's "
@@ -505,7 +541,7 @@ def _robots(results: Results) -> list[str]:
             [True, True, False, *[True] * 6],
         ),
         "",
-        f"![Regret difference of the two robots against lambda]({name})",
+        _image("Regret difference of the two robots against lambda", name),
     ]
 
 
@@ -520,7 +556,8 @@ def _rules(results: Results) -> list[str]:
         "",
         "A claim is *not tested* when the run has no data for it. Every number of this report "
         "is in [`results.json`](results.json) at full precision; the trials are in "
-        "[`trials.csv`](trials.csv).",
+        "[`trials.csv`](trials.csv). What made the run and this report (commit, date, "
+        "platform, CPU, BLAS and package versions) is in [`provenance.json`](provenance.json).",
     ]
 
 
@@ -602,10 +639,10 @@ def _figure1_records(
 
 
 def render_figures(records: Sequence[TrialRecord], results: Results) -> dict[str, bytes]:
-    """The PNG bytes of every figure the results support, by file name."""
+    """The PNG and SVG bytes of every figure the results support, by file name."""
     chosen = results["figure1"]
     pair = _figure1_records(records, chosen["subject"], chosen["robot"])
-    pngs = {
+    pngs: dict[str, figures.Rendered] = {
         FIGURES["figure1"][0]: figures.reward_maps(
             pair[EXPERT],
             pair[BEST_RESPONSE],
@@ -618,20 +655,30 @@ def render_figures(records: Sequence[TrialRecord], results: Results) -> dict[str
         pngs[FIGURES["figure2_lambda"][0]] = figures.lambda_curve(sweep)
     if results["eta_cv"]["means"]:
         pngs[FIGURES["eta_cv_curve"][0]] = figures.eta_curve(
-            pd.DataFrame(results["eta_cv"]["means"]), pd.DataFrame(results["eta_cv"]["chosen"])
+            pd.DataFrame(results["eta_cv"]["means"]),
+            pd.DataFrame(results["eta_cv"]["uncertainty"]),
         )
     robots = results["robots"]
     if robots is not None and robots["lambda_sweep"]:
         pngs[FIGURES["robots"][0]] = figures.robot_difference_curve(
             pd.DataFrame(robots["lambda_sweep"]), robots["reference"], robots["other"]
         )
-    return pngs
+    files = {}
+    for name, rendered in pngs.items():
+        files[name] = rendered.png
+        files[_svg_name(name)] = rendered.svg
+    return files
+
+
+def _svg_name(png_name: str) -> str:
+    return png_name.removesuffix(".png") + ".svg"
 
 
 def write_report(
     records: Sequence[TrialRecord],
     out_dir: Path | str,
     pipeline_name: str,
+    run_id: str | None = None,
     theory: Mapping[str, Any] | None = None,
     provenance: Mapping[str, Any] | None = None,
     partial: Mapping[str, Any] | None = None,
@@ -640,15 +687,17 @@ def write_report(
     """Analyse trial records and write the report directory.
 
     Writes ``report.md``, ``results.json`` (every number at full precision), ``trials.csv``
-    (the trial table) and the figures of :data:`FIGURES` into ``out_dir`` (created if
-    needed); a figure the run has no data for is not written, and a stale copy of it is
-    removed. ``provenance`` (what made the run and the report) goes to ``provenance.json``,
-    apart from the numbers, since it differs from machine to machine while they must not.
+    (the trial table) and the figures of :data:`FIGURES`, each as PNG and SVG, into
+    ``out_dir`` (created if needed); a figure the run has no data for is not written, and a
+    stale copy of it is removed. ``provenance`` (what made the run and the report) goes to
+    ``provenance.json``, apart from the numbers, since it differs from machine to machine
+    while they must not.
 
     Args:
         records: the trial records (docs/design.md §7), in any order.
         out_dir: the report directory.
         pipeline_name: the pipeline's name, shown in the report.
+        run_id: the run's id, stored as ``run_id`` in ``results.json``.
         theory: optional extra claims (see :func:`cirl_study.analysis.claims.external_claims`);
             stored under ``theory`` in ``results.json``.
         provenance: optional provenance, written as ``provenance.json``.
@@ -667,6 +716,7 @@ def write_report(
     check_design(records)
     progress("statistics")
     results = analyse(records, pipeline_name)
+    results["run_id"] = run_id
     results["partial"] = None if partial is None else plain(partial)
     results["claims"] = evaluate_claims(results, theory)
     if theory is not None:
@@ -683,11 +733,12 @@ def write_report(
         if provenance is not None:
             text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
             (out / "provenance.json").write_text(text + "\n", encoding="utf-8", newline="\n")
-        for name, _ in FIGURES.values():
-            if name in pngs:
-                (out / name).write_bytes(pngs[name])
-            else:
-                (out / name).unlink(missing_ok=True)
+        for png_name, _ in FIGURES.values():
+            for name in (png_name, _svg_name(png_name)):
+                if name in pngs:
+                    (out / name).write_bytes(pngs[name])
+                else:
+                    (out / name).unlink(missing_ok=True)
     except OSError as error:
         raise UserError(f"cannot write the report to {out}: {error.strerror}") from None
     return results

@@ -117,11 +117,12 @@ def eta_cv(records: Sequence[TrialRecord], table: pd.DataFrame) -> dict[str, Any
     """The cross-validation of the best response's eta, and whether the main block used it.
 
     ``means``: mean best-response regret with its CI per feature level and eta
-    (:func:`~cirl_study.analysis.statistics.eta_means`). ``chosen``: per feature level, the
-    eta :func:`~cirl_study.study.eta_cv.choose_etas` picks from the ``eta_cv`` records (the
-    choice the run made) and its mean regret. ``main_block``: per feature level of the
-    ``main`` block, the etas its best-response trials were played with (``main_etas``, one
-    in a sound run), the cross-validated eta (``chosen_eta``, ``None`` without
+    (:func:`~cirl_study.analysis.statistics.eta_means`). ``uncertainty``: how clear-cut each
+    choice is (:func:`~cirl_study.analysis.statistics.eta_choice_uncertainty`). ``chosen``:
+    per feature level, the eta :func:`~cirl_study.study.eta_cv.choose_etas` picks from the
+    ``eta_cv`` records (the choice the run made) and its mean regret. ``main_block``: per
+    feature level of the ``main`` block, the etas its best-response trials were played with
+    (``main_etas``, one in a sound run), the cross-validated eta (``chosen_eta``, ``None`` without
     cross-validation at that level) and whether they agree (``None`` when there is nothing
     to compare with).
 
@@ -147,8 +148,11 @@ def eta_cv(records: Sequence[TrialRecord], table: pd.DataFrame) -> dict[str, Any
         main_block.append(
             {"num_features": k, "main_etas": main_etas, "chosen_eta": chosen_eta, "agree": agree}
         )
+    chosen_etas = {k: choice.eta for k, choice in chosen.items()}
+    uncertainty = statistics.eta_choice_uncertainty(cv, chosen_etas) if not cv.empty else None
     return {
         "means": rows(statistics.eta_means(cv)) if not cv.empty else [],
+        "uncertainty": rows(uncertainty) if uncertainty is not None else [],
         "chosen": [
             {"num_features": k, "eta": choice.eta, "mean": choice.mean_regret[choice.eta]}
             for k, choice in sorted(chosen.items())

@@ -14,7 +14,9 @@ number here is a deterministic function of the table.
 from __future__ import annotations
 
 import itertools
+import math
 import warnings
+from collections.abc import Mapping
 
 import numpy as np
 import pandas as pd
@@ -22,6 +24,7 @@ import pingouin as pg
 from scipy import stats
 from statsmodels.stats.multitest import multipletests
 
+from cirl_study.analysis.studentized_range import studentized_range_sf
 from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_POLICIES
 
 CONFIDENCE = 0.95
@@ -369,10 +372,17 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     """Tukey HSD over the ``num_features x policy`` cells, as the paper did it.
 
     Every pair of cells is compared with ``q = sqrt(2) |mean_A - mean_B| / sqrt(MSE (1/n_A
-    + 1/n_B))`` against the studentized range distribution, ``MSE`` pooled over all
-    cells. This treats the cells as independent groups: it IGNORES THE PAIRING of the
-    two policies within a subject, so its within-level comparisons are conservative
-    compared with :func:`simple_effects`.
+    + 1/n_B)) = sqrt(2) |T|`` against the studentized range distribution of ``k`` cells on
+    ``N - k`` degrees of freedom (``N`` observations), ``MSE`` pooled over all cells. This
+    treats the cells as independent groups: it IGNORES THE PAIRING of the two policies
+    within a subject, so its within-level comparisons are conservative compared with
+    :func:`simple_effects`.
+
+    ``p_tukey`` is the accurate tail ``P(Q > q)`` of
+    :func:`cirl_study.analysis.studentized_range.studentized_range_sf` (relative error
+    ``<= 1e-8``), not pingouin's ``1 - CDF``, which is 0.0 from ``q ~ 10.5`` on (``k = 4``,
+    ``N = 2000``). A ``p_tukey`` of 0.0 therefore means the true p-value is below the
+    smallest normal double, ``2.2250738585072014e-308``. Everything else is pingouin's.
 
     References:
         Tukey (1949), Biometrics 5(2):99-114; Kramer (1956), Biometrics 12(3):307-310.
@@ -382,7 +392,16 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
         One row per pair of cells: ``measure, a_num_features, a_policy, b_num_features,
         b_policy, mean_a, mean_b, diff, se, T, p_tukey, hedges``.
     """
-    table = pg.pairwise_tukey(data=main, dv=measure, between=["num_features", "policy"])
+    cells = ["num_features", "policy"]
+    table = pg.pairwise_tukey(data=main, dv=measure, between=cells)
+    # pingouin's k and df: the observed cells, and the observations (NaN rows dropped) less k.
+    observed = main[[measure, *cells]].dropna()
+    k = observed.groupby(cells, observed=True).ngroups
+    df = len(observed) - k
+    p_tukey = [
+        math.nan if math.isnan(t) else studentized_range_sf(math.sqrt(2) * abs(t), k, df)
+        for t in table["T"]
+    ]
     return pd.DataFrame(
         {
             "measure": measure,
@@ -395,7 +414,7 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
             "diff": table["diff"],
             "se": table["se"],
             "T": table["T"],
-            "p_tukey": table["p_tukey"],
+            "p_tukey": p_tukey,
             "hedges": table["hedges"],
         }
     )
@@ -503,6 +522,54 @@ def lambda_sweep(sweep: pd.DataFrame, measures: tuple[str, ...]) -> pd.DataFrame
     """
     by = ["rationality", "policy", "num_features"]
     return pd.concat([group_means(sweep, measure, by) for measure in measures], ignore_index=True)
+
+
+def eta_choice_uncertainty(cv: pd.DataFrame, chosen: Mapping[int, float]) -> pd.DataFrame:
+    """How clear-cut the cross-validated eta is, per feature level.
+
+    With ``m_e`` the mean best-response regret at ``eta = e`` over the cross-validation
+    draws: the chosen ``e* = chosen[K]`` (the run's rule, lowest mean,
+    :func:`cirl_study.study.eta_cv.choose_etas`) against the runner-up ``e2`` (the lowest
+    mean among the other etas), by the paired difference ``d_s = y_{s,e2} - y_{s,e*}`` over
+    the draws (every draw plays every eta) with its t-based CI and two-sided p; and the
+    one-standard-error
+    rule: the etas whose mean is within ``SE(m_{e*}) = sd / sqrt(n)`` of the minimum, all as
+    good as the chosen one by that rule.
+
+    References:
+        Hastie, Tibshirani & Friedman (2009), *The Elements of Statistical Learning*, 2nd ed.,
+        section 7.10 (the one-standard-error rule).
+
+    Returns:
+        One row per feature level: ``num_features, n, eta, mean, se, runner_up, runner_up_mean,
+        mean_diff, ci95_low, ci95_high, t, df, p, d_z, within_one_se`` (``within_one_se`` a
+        sorted list of etas; the test columns are NaN with a single eta).
+    """
+    best = cv[(cv["policy"] == BEST_RESPONSE) & cv["eta"].notna()]
+    rows = []
+    for level, group in best.groupby("num_features", sort=True):
+        if int(level) not in chosen:
+            continue
+        wide = group.pivot(index="subject", columns="eta", values="regret").sort_index()
+        means = wide.mean()
+        eta = chosen[int(level)]
+        column = wide[eta].to_numpy()
+        se = float(np.std(column, ddof=1) / np.sqrt(len(column)))
+        row = {
+            "num_features": int(level),
+            "n": len(column),
+            "eta": eta,
+            "mean": float(means[eta]),
+            "se": se,
+            "within_one_se": sorted(float(e) for e, m in means.items() if m <= means[eta] + se),
+        }
+        others = means.drop(eta).sort_values(kind="mergesort")
+        if len(others):
+            runner_up = float(others.index[0])
+            row |= {"runner_up": runner_up, "runner_up_mean": float(others.iloc[0])}
+            row |= _paired_t(wide[runner_up].to_numpy(), column)
+        rows.append(row)
+    return pd.DataFrame(rows)
 
 
 def eta_means(cv: pd.DataFrame) -> pd.DataFrame:

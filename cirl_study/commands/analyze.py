@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import datetime
 import json
 import sys
 from pathlib import Path
@@ -9,16 +10,17 @@ from typing import Annotated
 
 import typer
 
-app = typer.Typer()
+app = typer.Typer(rich_markup_mode=None)
 """The ``analyze`` command, merged into :data:`cirl_study.cli.app`."""
 
-REPORTS_DIRECTORY = Path("reports")
-"""Parent of the default report directory ``reports/<pipeline name>``."""
+REPORT_NAME = "report"
+"""Name of the default report directory, inside the run directory it reports on."""
 
 
 RunArgument = Annotated[
     Path,
     typer.Argument(
+        metavar="RUN",
         help="Run directory holding the *.mcap log files, e.g. data/runs/paper.",
         show_default=False,
     ),
@@ -29,9 +31,15 @@ ReportDirectoryOption = Annotated[
     typer.Option(
         "--out",
         metavar="DIR",
-        show_default="reports/<pipeline name>",
-        help="Report directory: report.md, results.json, trials.csv and the figures.",
+        show_default="RUN/report",
+        help="Report directory: report.md, results.json, trials.csv and the figures. A "
+        "report of another run there is refused unless --force.",
     ),
+]
+
+ForceOption = Annotated[
+    bool,
+    typer.Option("--force", help="Overwrite a report of another run in the report directory."),
 ]
 
 
@@ -47,16 +55,19 @@ PartialOption = Annotated[
 
 @app.command()
 def analyze(
-    run: RunArgument, out: ReportDirectoryOption = None, partial: PartialOption = False
+    run: RunArgument,
+    out: ReportDirectoryOption = None,
+    partial: PartialOption = False,
+    force: ForceOption = False,
 ) -> None:
     """Analyse a run's logs: the paper's statistics, figures and claims, with verdicts.
 
     Mixed ANOVAs, simple effects, Tukey HSD, Wilcoxon tests, Cronbach's alpha, the lambda
     sweep and the eta cross-validation, written as report.md, results.json, trials.csv and
-    PNG figures. Reads only the run's MCAP logs, checking every CRC and that every file and
-    record belongs to the run. A run missing planned trials, or holding a damaged file, is
-    refused unless --partial; a foreign trial always is. Identical logs give an identical
-    report.
+    the figures (PNG and SVG). Reads only the run's MCAP logs, checking every CRC and that
+    every file and record belongs to the run. A run missing planned trials, or holding a
+    damaged file, is refused unless --partial; a foreign trial always is. Identical logs
+    give an identical report.
     """
     # The statistics and plotting libraries load only when an analysis is asked for.
     from cirl_study.analysis.report import write_report
@@ -93,19 +104,25 @@ def analyze(
             "damaged_files": len(contents.damaged),
             "main_subjects_left_out": len(left_out),
         }
-    target = out if out is not None else REPORTS_DIRECTORY / contents.identity.pipeline_name
+    target = out if out is not None else run / REPORT_NAME
+    if not force:
+        _refuse_another_runs_report(target, contents.identity.run_id)
     theory = office_supplies_claims(office_supplies_results())
     provenance = {
         "run": sorted(
             {json.dumps(p, sort_keys=True): p for p in contents.provenance}.values(),
             key=lambda p: json.dumps(p, sort_keys=True),
         ),
-        "report": machine_provenance(),
+        "report": {
+            "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
+            **machine_provenance(),
+        },
     }
     results = write_report(
         records,
         target,
         contents.identity.pipeline_name,
+        run_id=contents.identity.run_id,
         theory=theory,
         provenance=provenance,
         partial=partial_run,
@@ -120,3 +137,21 @@ def analyze(
         f"{reproduced} reproduced, {len(claims) - reproduced - untested} not reproduced, "
         f"{untested} not tested"
     )
+
+
+def _refuse_another_runs_report(target: Path, run_id: str) -> None:
+    """Refuse to overwrite the report of another run (by its ``results.json``'s ``run_id``)."""
+    from cirl_study.errors import UserError
+
+    existing = target / "results.json"
+    if not existing.is_file():
+        return
+    try:
+        theirs = json.loads(existing.read_text(encoding="utf-8")).get("run_id")
+    except (OSError, ValueError, AttributeError):
+        theirs = None
+    if theirs != run_id:
+        raise UserError(
+            f"{target}: holds the report of {'another run' if theirs is None else theirs}, not "
+            f"of {run_id}; give another --out, or --force to overwrite it"
+        )

@@ -9,7 +9,7 @@ import typer
 
 from cirl_study.analysis.compare import ABSOLUTE_TOLERANCE, RELATIVE_TOLERANCE, Tolerance
 
-app = typer.Typer()
+app = typer.Typer(rich_markup_mode=None)
 """The ``compare`` command, merged into :data:`cirl_study.cli.app`."""
 
 SHOWN = 20
@@ -19,9 +19,12 @@ SHOWN = 20
 @app.command()
 def compare(
     expected: Annotated[
-        Path, typer.Argument(help="Report directory to compare against (e.g. the committed one).")
+        Path,
+        typer.Argument(
+            metavar="EXPECTED", help="Report directory to compare against (e.g. the committed one)."
+        ),
     ],
-    got: Annotated[Path, typer.Argument(help="Report directory to check.")],
+    got: Annotated[Path, typer.Argument(metavar="GOT", help="Report directory to check.")],
     rtol: Annotated[
         float, typer.Option(help="Relative tolerance: |a - b| <= atol + rtol |a|.", min=0.0)
     ] = RELATIVE_TOLERANCE,

@@ -12,7 +12,7 @@ from rich.table import Table
 
 from cirl_study.theory.office_supplies import office_supplies_results
 
-app = typer.Typer()
+app = typer.Typer(rich_markup_mode=None)
 """The ``office-supplies`` command, merged into :data:`cirl_study.cli.app`."""
 
 _PAIRS = {
@@ -26,8 +26,8 @@ def _values_table(results: dict[str, Any]) -> Table:
     table = Table(title="Expected total reward of each pair")
     for column in ("pair", "human", "robot"):
         table.add_column(column)
-    table.add_column("value", justify="right")
-    table.add_column("", justify="right")
+    table.add_column("exact", justify="right")
+    table.add_column("decimal", justify="right")
     for key, (human, robot) in _PAIRS.items():
         value = results["values"][key]
         table.add_row(key, human, robot, value, f"{_decimal(value)}")
@@ -79,8 +79,9 @@ def _robot_cell(response: dict[str, str]) -> str:
 
 def _example_table(example: dict[str, Any]) -> Table:
     table = Table(
-        title=f"Section 3.3: H makes {example['observed']}, so R's belief is "
-        f"{example['belief']}; R acts as if theta = {example['theta_acting']}"
+        title=f"Section 3.3: after H makes {example['observed']}",
+        caption=f"R's belief is {example['belief']}; it acts as if theta = "
+        f"{example['theta_acting']}",
     )
     table.add_column("robot makes")
     table.add_column("E_belief[reward]", justify="right")

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+import tempfile
 from pathlib import Path
 from typing import Annotated
 
@@ -29,7 +31,11 @@ ReportOption = Annotated[
 ]
 
 
-app = typer.Typer()
+REPORTS_DIRECTORY = Path("reports")
+"""Parent of ``reproduce``'s default report directory ``reports/<pipeline name>``: the
+committed reports of the shipped pipelines."""
+
+app = typer.Typer(rich_markup_mode=None)
 """The ``reproduce`` command, merged into :data:`cirl_study.cli.app`."""
 
 
@@ -44,11 +50,32 @@ def reproduce(
 ) -> None:
     """Reproduce a study: play every trial of PIPELINE (run), then write its report (analyze).
 
-    With the defaults this regenerates reports/paper/ from nothing; run again, it resumes.
+    With the defaults this regenerates reports/paper/ from nothing (run again, it resumes)
+    and says whether the new report equals the one it replaced, number by number
+    (cirl-study compare).
     """
+    from cirl_study.analysis.compare import compare_reports
     from cirl_study.study.runner import default_out_dir
     from cirl_study.study.spec import load_pipeline, resolve_pipeline
 
-    run_directory = out or default_out_dir(load_pipeline(resolve_pipeline(pipeline)))
+    spec = load_pipeline(resolve_pipeline(pipeline))
+    run_directory = out or default_out_dir(spec)
+    target = report or REPORTS_DIRECTORY / spec.name
     run(pipeline, run_directory, workers, engine, scheduler)
-    analyze(run_directory, report)
+    with tempfile.TemporaryDirectory(prefix="cirl-study-previous-") as scratch:
+        previous = Path(scratch) / "report"
+        had_report = (target / "results.json").is_file() and (target / "trials.csv").is_file()
+        if had_report:
+            shutil.copytree(target, previous)
+        analyze(run_directory, target, force=True)
+        if not had_report:
+            typer.echo(f"{target}: a new report (there was none to compare with)")
+            return
+        differences = compare_reports(previous, target)
+    if differences:
+        typer.echo(
+            f"{target}: DIFFERS from the report it replaced in {len(differences)} place(s), "
+            f"e.g. {differences[0]}"
+        )
+    else:
+        typer.echo(f"{target}: equals the report it replaced, number by number")

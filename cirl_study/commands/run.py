@@ -25,7 +25,7 @@ from rich.text import Text
 from cirl_study.errors import UserError
 from cirl_study.study.spec import load_pipeline, resolve_pipeline
 
-app = typer.Typer()
+app = typer.Typer(rich_markup_mode=None)
 """The ``run`` command, merged into :data:`cirl_study.cli.app`."""
 
 if TYPE_CHECKING:

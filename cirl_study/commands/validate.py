@@ -10,7 +10,7 @@ import typer
 
 from cirl_study.logs import validate_run
 
-app = typer.Typer()
+app = typer.Typer(rich_markup_mode=None)
 """The ``validate`` command, merged into :data:`cirl_study.cli.app`."""
 
 
