@@ -4,6 +4,9 @@ The trial record's schema is generated from :class:`cirl_study.record.TrialRecor
 replay steps' from :class:`DemonstrationStep` and :class:`DeploymentStep`, so a schema can never
 disagree with the messages written under it. :data:`GRID_SCHEMA` is Foxglove's
 ``foxglove.Grid`` message in its JSON form, so Foxglove draws the reward maps in its 3D panel.
+It is written out here because the official ``foxglove-sdk`` package ships protobuf
+descriptors only; ``tests/test_logs_foxglove.py`` holds it to the SDK's descriptor field by
+field, and every logged grid to the SDK's own ``Grid`` type.
 :data:`CHANNELS` lists every channel a log file registers.
 """
 
