@@ -165,7 +165,7 @@ def test_the_plan_puts_every_robot_on_the_same_demonstrations(tmp_path: Path) ->
 def test_the_shipped_robots_pipeline_compares_both_robots() -> None:
     pipeline = load_pipeline(ROBOTS_PIPELINE)
     assert pipeline.main.robots == (MAP, POSTERIOR_MEAN)
-    assert sum(trial_counts(pipeline).values()) == 5320
+    assert sum(trial_counts(pipeline).values()) == 9800
 
 
 @pytest.fixture(scope="module")

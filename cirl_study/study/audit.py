@@ -65,11 +65,14 @@ class RunAudit:
 
     def missing_text(self) -> str:
         """``lambda_sweep: 500 of 16000 trials missing; ...`` (empty when nothing is)."""
-        return "; ".join(
+        text = "; ".join(
             f"{block.block}: {block.missing} of {block.planned} trials missing"
             for block in self.blocks
             if block.missing
         )
+        if text and not self.study_checked:
+            text += " (the study blocks are checked trial by trial once eta_cv is complete)"
+        return text
 
     def faults(self, resume: str) -> list[str]:
         """One line per fault: foreign trials; missing trials, with the ``resume`` command."""
