@@ -287,3 +287,13 @@ def test_a_full_disk_ends_the_run_in_one_line_and_loses_nothing(tmp_path: Path) 
     after = payloads(out)
     assert all(after[trial] == payload for trial, payload in logged.items())
     assert len(after) == 82
+
+
+def test_the_same_pipeline_under_another_name_is_the_same_run(tmp_path: Path, run: Path) -> None:
+    copy = tmp_path / "renamed.toml"
+    copy.write_bytes(SMOKE.read_bytes())
+    before = payloads(run)
+    result = invoke("run", copy, "--out", run)
+    assert result.exit_code == 0, result.output
+    assert "0 played now, 82 were already logged" in result.output
+    assert payloads(run) == before

@@ -16,7 +16,7 @@ import os
 import platform
 import subprocess
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
@@ -56,12 +56,13 @@ class RunIdentity:
     """The run a log file belongs to: its id and the pipeline file it plays.
 
     ``pipeline_sha256`` is the SHA-256 of the file's UTF-8 text: two files belong to one run
-    exactly when their identities are equal.
+    exactly when their identities are equal, which the file's name does not enter (the same
+    pipeline copied under another name is the same run).
     """
 
     run_id: str
     pipeline_name: str
-    pipeline_file: str
+    pipeline_file: str = field(compare=False)
     pipeline_text: str
 
     @property

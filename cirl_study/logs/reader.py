@@ -293,8 +293,6 @@ def _difference(first: RunIdentity, second: RunIdentity) -> str:
     if first.run_id != second.run_id:
         return f"run {first.run_id} against {second.run_id}"
     a, b = first.pipeline_sha256, second.pipeline_sha256
-    if a == b:
-        return f"pipeline {first.pipeline_file} against {second.pipeline_file}"
     shown = max(12, next((i for i, (x, y) in enumerate(zip(a, b, strict=True)) if x != y), 0) + 1)
     return f"pipeline sha256 {a[:shown]} against {b[:shown]}"
 
