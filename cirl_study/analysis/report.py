@@ -143,12 +143,18 @@ def _cells(results: Results) -> list[str]:
     ]
 
 
-def _anova(results: Results) -> list[str]:
+def _anova_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """An ANOVA table: effect, degrees of freedom, F, p and both effect sizes per row."""
+
     def degrees(row: Mapping[str, Any]) -> str:
         return f"{row['df1']}, {row['df2']}"
 
-    rows = _formatted(results["anova"], ["measure", "effect", degrees, "F", "p", "np2", "ges"])
+    cells = _formatted(rows, ["measure", "effect", degrees, "F", "p", "np2", "ges"])
     header = ["measure", "effect", "df", "F", "p", "partial η²", "generalised η²"]
+    return table(header, cells, [False, False, True, True, True, True, True])
+
+
+def _anova(results: Results) -> list[str]:
     return [
         _heading(3, "anova"),
         "",
@@ -156,7 +162,7 @@ def _anova(results: Results) -> list[str]:
         "one reward draw, at one feature level only). With two policies sphericity holds, so "
         "the p-values are uncorrected.",
         "",
-        table(header, rows, [False, False, True, True, True, True, True]),
+        _anova_table(results["anova"]),
     ]
 
 
@@ -459,10 +465,6 @@ def _robots(results: Results) -> list[str]:
         for row in main_regret
     ]
 
-    def degrees(row: Mapping[str, Any]) -> str:
-        return f"{row['df1']}, {row['df2']}"
-
-    anova = _formatted(robots["anova"], ["measure", "effect", degrees, "F", "p", "np2", "ges"])
     paired_columns: list[Column] = [
         "measure",
         "num_features",
@@ -500,11 +502,7 @@ def _robots(results: Results) -> list[str]:
         "subjects `num_features`. With two levels per within factor sphericity holds, so the "
         "p-values are uncorrected.",
         "",
-        table(
-            ["measure", "effect", "df", "F", "p", "partial η²", "generalised η²"],
-            anova,
-            [False, False, True, True, True, True, True],
-        ),
+        _anova_table(robots["anova"]),
         "",
         "### Paired differences in the main block",
         "",

@@ -16,7 +16,7 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.errors import UserError
-from cirl_study.logs.run_checks import design_faults
+from cirl_study.logs.run_checks import design_faults, incomplete_main_subjects
 from cirl_study.record import MAIN, MEASURES, PAPER_POLICIES, TrialRecord
 
 COLUMNS: tuple[str, ...] = (
@@ -86,19 +86,14 @@ def complete_main_subjects(
 ) -> tuple[list[TrialRecord], list[str]]:
     """The records without the ``main``-block trials of subjects that lack a cell.
 
-    For a partial run: a ``main`` subject must have a trial in every (policy, robot) cell the
-    block plays to enter the within-subjects analysis. Returns the records kept and the ids
-    of the subjects whose ``main`` trials were left out.
+    For a partial run: a ``main`` subject must have exactly one trial in every (policy,
+    robot) cell the block plays to enter the within-subjects analysis
+    (:func:`~cirl_study.logs.run_checks.incomplete_main_subjects`). Returns the records kept
+    and the ids of the subjects whose ``main`` trials were left out.
     """
-    main = [record for record in records if record.block == MAIN]
-    cells = {(record.policy, record.robot) for record in main}
-    held: dict[str, set[tuple[str, str]]] = {}
-    for record in main:
-        held.setdefault(record.subject, set()).add((record.policy, record.robot))
-    dropped = sorted(subject for subject, seen in held.items() if seen != cells)
-    gone = set(dropped)
-    kept = [r for r in records if not (r.block == MAIN and r.subject in gone)]
-    return kept, dropped
+    _, incomplete = incomplete_main_subjects(records)
+    kept = [r for r in records if not (r.block == MAIN and r.subject in incomplete)]
+    return kept, sorted(incomplete)
 
 
 def check_design(records: Sequence[TrialRecord]) -> None:

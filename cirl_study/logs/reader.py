@@ -220,9 +220,40 @@ def logged_trials(run_dir: str | Path, identity: RunIdentity) -> set[str]:
     refused rather than guessed at, so that a resumed run neither loses nor duplicates a
     trial, nor mixes runs.
     """
+    files = _indexed_files(Path(run_dir), identity)
+    return _refuse_duplicates(files)
+
+
+def read_trials(run_dir: str | Path, identity: RunIdentity, wanted: set[str]) -> list[TrialRecord]:
+    """The records of the ``wanted`` trials, reading only the files whose index lists one.
+
+    For a resumed run's cross-validation: every file is first read through its metadata
+    (:func:`logged_trials`' checks); only the files holding a wanted trial are decoded, with
+    :func:`read_run`'s checks of every record.
+    """
     run_dir = Path(run_dir)
+    files = _indexed_files(run_dir, identity)
+    _refuse_duplicates(files)
+    records = []
+    for indexed in files:
+        if not wanted.intersection(_trial_ids(indexed)):
+            continue
+        contents = _read_file(indexed.path)
+        if contents.faults:
+            raise UserError(f"{indexed.path}: unusable ({contents.faults[0]})")
+        _one_identity(run_dir, [contents])
+        records += [record for record in contents.records if record.trial_id in wanted]
+    return records
+
+
+def _indexed_files(run_dir: Path, identity: RunIdentity) -> list[_IntactFile | FileContents]:
+    """Every complete file of ``run_dir`` through its metadata, all of ``identity``'s run.
+
+    Raises:
+        UserError: a damaged or faulty file, or files of another run.
+    """
     if not run_dir.exists():
-        return set()
+        return []
     files = []
     for path in _complete_files(run_dir, require_any=False):
         contents = _read_file(path, decode_trials=False)
@@ -239,29 +270,7 @@ def logged_trials(run_dir: str | Path, identity: RunIdentity) -> set[str]:
                 f"{run_dir}: holds the logs of another run ({_difference(found, identity)}); "
                 "use another --out directory"
             )
-    return _refuse_duplicates(files)
-
-
-def read_trials(run_dir: str | Path, identity: RunIdentity, wanted: set[str]) -> list[TrialRecord]:
-    """The records of the ``wanted`` trials, reading only the files whose index lists one.
-
-    For a resumed run's cross-validation: every file is first read through its metadata
-    (:func:`logged_trials`' checks); only the files holding a wanted trial are decoded, with
-    :func:`read_run`'s checks of every record.
-    """
-    run_dir = Path(run_dir)
-    logged_trials(run_dir, identity)
-    records = []
-    for path in _complete_files(run_dir, require_any=False):
-        index = _intact_summary(path, decode_trials=False)
-        if index is None or not wanted.intersection(index.trial_ids):
-            continue
-        contents = _read_file(path)
-        if contents.faults:
-            raise UserError(f"{path}: unusable ({contents.faults[0]})")
-        _one_identity(run_dir, [contents])
-        records += [record for record in contents.records if record.trial_id in wanted]
-    return records
+    return files
 
 
 def _one_identity(run_dir: Path, files: list[_IntactFile | FileContents]) -> RunIdentity:

@@ -100,24 +100,37 @@ def _subject_faults(records: Iterable[TrialRecord]) -> list[str]:
 
 
 def _main_block_faults(records: Sequence[TrialRecord]) -> list[str]:
-    main = [record for record in records if record.block == MAIN]
-    if not main:
+    if not any(record.block == MAIN for record in records):
         return ["no trials in the main block: the policy x num_features study is missing"]
-    cells = sorted({_cell(record) for record in main})
-    trials: dict[str, Counter[str]] = defaultdict(Counter)
-    for record in main:
-        trials[record.subject][_cell(record)] += 1
-    incomplete = [
-        f"{subject} has {dict(sorted(count.items()))}"
-        for subject, count in sorted(trials.items())
-        if [count[cell] for cell in cells] != [1] * len(cells)
-    ]
+    cells, incomplete = incomplete_main_subjects(records)
     if not incomplete:
         return []
-    return [
-        f"main block incomplete: {len(incomplete)} subject(s) without exactly one trial of "
-        f"each of {', '.join(cells)}: {_examples(incomplete)}"
+    described = [
+        f"{subject} has {dict(sorted(count.items()))}"
+        for subject, count in sorted(incomplete.items())
     ]
+    return [
+        f"main block incomplete: {len(described)} subject(s) without exactly one trial of "
+        f"each of {', '.join(cells)}: {_examples(described)}"
+    ]
+
+
+def incomplete_main_subjects(
+    records: Iterable[TrialRecord],
+) -> tuple[list[str], dict[str, Counter[str]]]:
+    """The ``main`` block's within-subjects cells (``policy/robot``, sorted), and each subject
+    that lacks exactly one trial of every one of them, with its trials per cell."""
+    trials: dict[str, Counter[str]] = defaultdict(Counter)
+    for record in records:
+        if record.block == MAIN:
+            trials[record.subject][_cell(record)] += 1
+    cells = sorted({cell for count in trials.values() for cell in count})
+    incomplete = {
+        subject: count
+        for subject, count in trials.items()
+        if [count[cell] for cell in cells] != [1] * len(cells)
+    }
+    return cells, incomplete
 
 
 def _cell(record: TrialRecord) -> str:
