@@ -20,7 +20,9 @@ Notation as in the paper: ``theta`` the true reward weights :math:`\\theta \\in 
 
 from __future__ import annotations
 
+import hashlib
 import math
+import sys
 from typing import Annotated, Literal
 
 import msgspec
@@ -155,6 +157,59 @@ class TrialRecord(TrialSpec, **_STRUCT):
     def spec(self) -> TrialSpec:
         """The inputs this record was played from."""
         return TrialSpec(**{name: getattr(self, name) for name in TrialSpec.__struct_fields__})
+
+
+class TrialRow(msgspec.Struct, **_STRUCT):
+    """What the analysis and the run's checks keep of a record: one row of the trial table.
+
+    A record is ~15 KB in memory (its paths, rollouts and reward draw); a row is a few hundred
+    bytes, so a run of a million trials is read one file at a time into rows
+    (:meth:`of`) and analysed in memory. ``certified``: the robot certified its estimate
+    (``irl.converged``; a record without a fit report counts as certified). ``draw``: a
+    digest of the subject's reward draw (``num_features``, ``theta``, the features, the grid
+    and the start cell), equal for two records exactly when their draws are (up to a
+    BLAKE2b collision), so one subject's trials can be checked to share one draw.
+    """
+
+    trial_id: str
+    run_id: str
+    block: Block
+    subject: str
+    policy: str
+    robot: str
+    num_features: int
+    rationality: float
+    eta: float | None
+    seed: int
+    measures: Measures
+    certified: bool
+    draw: str
+
+    @classmethod
+    def of(cls, record: TrialRecord) -> TrialRow:
+        """The row of ``record`` (repeated names are interned: one copy per run)."""
+        return cls(
+            trial_id=record.trial_id,
+            run_id=sys.intern(record.run_id),
+            block=sys.intern(record.block),
+            subject=record.subject,
+            policy=sys.intern(record.policy),
+            robot=sys.intern(record.robot),
+            num_features=record.num_features,
+            rationality=record.rationality,
+            eta=record.eta,
+            seed=record.seed,
+            measures=record.measures,
+            certified=record.irl is None or record.irl.converged,
+            draw=draw_digest(record),
+        )
+
+
+def draw_digest(spec: TrialSpec) -> str:
+    """BLAKE2b digest of a trial's reward draw: ``num_features``, ``theta``, the features, the
+    grid and the start cell."""
+    drawn = (spec.num_features, spec.theta, spec.features, spec.grid, spec.start)
+    return hashlib.blake2b(_ENCODER.encode(drawn), digest_size=12).hexdigest()
 
 
 _ENCODER = msgspec.json.Encoder(order="sorted")

@@ -10,11 +10,12 @@ as plain data and validated into a :class:`~cirl_study.record.TrialRecord`.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 
 from cirl_study.core.gridworld import Gridworld, rbf_features
-from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord, from_builtins
+from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord, TrialRow, from_builtins
 
 WIDTH, HEIGHT, START, STEPS, SIGMA = 6, 5, (3, 2), 4, 1.5
 MOVES = {"N": (0, 1), "S": (0, -1), "E": (1, 0), "W": (-1, 0)}
@@ -165,3 +166,13 @@ def synthetic_records(
                     )
                 )
     return records
+
+
+def rows(records: list[TrialRecord]) -> list[TrialRow]:
+    """The rows the analysis reads (:class:`~cirl_study.record.TrialRow`) of ``records``."""
+    return [TrialRow.of(record) for record in records]
+
+
+def records_of(records: list[TrialRecord]) -> Callable[[set[str]], list[TrialRecord]]:
+    """``write_report``'s ``records_of`` over records held in memory."""
+    return lambda wanted: [record for record in records if record.trial_id in wanted]

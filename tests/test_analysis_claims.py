@@ -11,7 +11,7 @@ import copy
 from collections.abc import Callable
 
 import pytest
-from analysis_fixtures import synthetic_records
+from analysis_fixtures import rows, synthetic_records
 
 from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.results import analyse
@@ -47,7 +47,7 @@ def _within_level_tukey(results: dict) -> list[dict]:
 @pytest.fixture(scope="module")
 def holding() -> dict:
     """Results of a synthetic study, edited so that every paper claim holds."""
-    results = analyse(synthetic_records(subjects_per_level=10), "synthetic")
+    results = analyse(rows(synthetic_records(subjects_per_level=10)), "synthetic")
     for measure in MEASURES:
         _anova(results, measure, "policy").update(F=1000.0, p=1e-12)
         _anova(results, measure, "policy:num_features").update(p=1e-3)

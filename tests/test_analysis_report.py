@@ -10,7 +10,7 @@ from pathlib import Path
 import msgspec
 import pandas as pd
 import pytest
-from analysis_fixtures import synthetic_records
+from analysis_fixtures import records_of, rows, synthetic_records
 
 from cirl_study.analysis import statistics
 from cirl_study.analysis.markdown import anchor
@@ -41,10 +41,14 @@ def reports(records, tmp_path_factory) -> tuple[Path, Path]:
     """The same records written twice, the second time shuffled, to two directories."""
     first = tmp_path_factory.mktemp("first") / "paper"
     second = tmp_path_factory.mktemp("second") / "paper"
-    write_report(records, first, "paper", provenance=PROVENANCE)
+    write_report(
+        rows(records), first, "paper", records_of=records_of(records), provenance=PROVENANCE
+    )
     shuffled = records[:]
     random.Random(3).shuffle(shuffled)
-    write_report(shuffled, second, "paper", provenance=PROVENANCE)
+    write_report(
+        rows(shuffled), second, "paper", records_of=records_of(shuffled), provenance=PROVENANCE
+    )
     return first, second
 
 
@@ -73,7 +77,7 @@ def test_results_json_holds_every_section_at_full_precision(reports, records):
     assert {(r["measure"], r["effect"]) for r in results["anova"]} == {
         (m, e) for m in ("regret", "kl", "reward_l2") for e in statistics.EFFECTS
     }
-    table = trial_table(records)
+    table = trial_table(rows(records))
     expected = statistics.mixed_anova(table[table["block"] == "main"], "kl")
     got = [r for r in results["anova"] if r["measure"] == "kl"]
     assert [r["F"] for r in got] == expected["F"].tolist()  # exact: nothing rounded
@@ -84,7 +88,7 @@ def test_results_json_holds_every_section_at_full_precision(reports, records):
 def test_the_chosen_eta_is_the_runs_choice_and_the_main_block_used_it(reports, records):
     first, _ = reports
     results = json.loads((first / "results.json").read_text(encoding="utf-8"))
-    choices = choose_etas(records)
+    choices = choose_etas(rows(records))
     assert results["eta_cv"]["chosen"] == [
         {"num_features": k, "eta": c.eta, "mean": c.mean_regret[c.eta]}
         for (_, k), c in sorted(choices.items())
@@ -107,7 +111,7 @@ def test_a_main_block_played_with_another_eta_is_flagged(records, tmp_path):
         else r
         for r in records
     ]
-    results = write_report(changed, tmp_path, "paper")
+    results = write_report(rows(changed), tmp_path, "paper", records_of=records_of(changed))
     assert results["eta_cv"]["main_block"] == [
         {"num_features": 3, "main_etas": [1.0], "chosen_eta": 1.0, "agree": True},
         {"num_features": 10, "main_etas": [10.0], "chosen_eta": 1.0, "agree": False},
@@ -124,7 +128,7 @@ def test_a_main_block_played_with_another_eta_is_flagged(records, tmp_path):
 def test_trials_csv_is_the_trial_table(reports, records):
     first, _ = reports
     written = pd.read_csv(first / "trials.csv", dtype={"subject": str})
-    table = trial_table(records)
+    table = trial_table(rows(records))
     assert list(written.columns) == list(table.columns)
     assert written["trial_id"].tolist() == table["trial_id"].tolist()
     assert written["reward_l2"].tolist() == table["reward_l2"].tolist()
@@ -162,7 +166,14 @@ def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path
             }
         ]
     }
-    results = write_report(main_only, out, "main-only", theory=theory, provenance=PROVENANCE)
+    results = write_report(
+        rows(main_only),
+        out,
+        "main-only",
+        records_of=records_of(main_only),
+        theory=theory,
+        provenance=PROVENANCE,
+    )
     gone = {
         f"{figure}.{kind}" for figure in ("figure2_lambda", "eta_cv") for kind in ("png", "svg")
     }
@@ -188,5 +199,5 @@ def test_an_incomplete_design_writes_nothing(records, tmp_path):
     unpaired = [r for r in records if not (r.block == "main" and r.subject == "k10-s002")]
     unpaired.append(next(r for r in records if r.block == "main" and r.subject == "k10-s002"))
     with pytest.raises(UserError, match="k10-s002"):
-        write_report(unpaired, tmp_path / "out", "paper")
+        write_report(rows(unpaired), tmp_path / "out", "paper", records_of=records_of(unpaired))
     assert not (tmp_path / "out").exists()

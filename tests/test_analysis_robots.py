@@ -20,12 +20,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
+from test_logs_helpers import run_records
 
 from cirl_study.analysis.report import write_report
 from cirl_study.analysis.statistics import paired_differences, split_plot_anova
 from cirl_study.analysis.table import check_design
 from cirl_study.errors import UserError
-from cirl_study.logs.reader import read_run
+from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.record import ETA_CV, MAIN, MAP, POSTERIOR_MEAN
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
@@ -182,7 +183,7 @@ def two_robot_runs(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path
 def test_the_map_trials_of_a_two_robot_run_are_those_of_the_map_run(
     two_robot_runs: tuple[Path, Path],
 ) -> None:
-    one, two = (read_run(run).records for run in two_robot_runs)
+    one, two = (run_records(run) for run in two_robot_runs)
     assert {r.robot for r in two if r.block == ETA_CV} == {MAP}
 
     def key(record):
@@ -200,9 +201,21 @@ def test_the_map_trials_of_a_two_robot_run_are_those_of_the_map_run(
 def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
     two_robot_runs: tuple[Path, Path], tmp_path: Path
 ) -> None:
-    one, two = (read_run(run).records for run in two_robot_runs)
-    alone = write_report(one, tmp_path / "one", "smoke")
-    both = write_report(two, tmp_path / "two", "smoke")
+    reports = []
+    for run, name in zip(two_robot_runs, ("one", "two"), strict=True):
+        contents = read_run(run)
+        reports.append(
+            write_report(
+                contents.rows,
+                tmp_path / name,
+                "smoke",
+                records_of=lambda wanted, run=run, contents=contents: read_trials(
+                    run, contents.identity, wanted
+                ),
+            )
+        )
+    alone, both = reports
+    two = read_run(two_robot_runs[1]).rows
     assert alone["robots"] is None and not (tmp_path / "one" / "robots_lambda.png").exists()
     for key in ("anova", "simple_effects", "tukey_hsd", "cells", "cronbach_alpha", "lambda_sweep"):
         assert both[key] == alone[key]
@@ -227,7 +240,7 @@ def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
 
 
 def test_more_than_two_robots_are_refused(two_robot_runs: tuple[Path, Path]) -> None:
-    records = read_run(two_robot_runs[1]).records
+    records = read_run(two_robot_runs[1]).rows
     third = [
         msgspec.structs.replace(r, robot="third", trial_id=r.trial_id + "3")
         for r in records

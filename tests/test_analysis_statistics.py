@@ -8,11 +8,14 @@ per-subject differences and means.
 
 from __future__ import annotations
 
+import math
+import warnings
+
 import numpy as np
 import pandas as pd
 import pingouin as pg
 import pytest
-from analysis_fixtures import synthetic_records
+from analysis_fixtures import rows, synthetic_records
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
@@ -123,7 +126,7 @@ def test_mixed_anova_equals_t_tests_on_differences_and_means(sizes, seed):
 
 @pytest.fixture(scope="module")
 def main() -> pd.DataFrame:
-    table = trial_table(synthetic_records(subjects_per_level=9, lambdas=(1.0,), etas=(1.0,)))
+    table = trial_table(rows(synthetic_records(subjects_per_level=9, lambdas=(1.0,), etas=(1.0,))))
     return table[table["block"] == "main"]
 
 
@@ -193,6 +196,69 @@ def test_wilcoxon_tests_the_paired_differences_per_level(main):
         assert frame.at[level, "n"] == len(wide)
 
 
+@settings(max_examples=25, deadline=None)
+@given(
+    n=st.integers(2, 300),
+    seed=st.integers(0, 2**32 - 1),
+    ties=st.booleans(),
+)
+def test_the_bootstrap_is_scipys_bca_in_linear_time(n, seed, ties):
+    rng = np.random.default_rng(seed)
+    d = rng.standard_t(3, n) * rng.uniform(0.1, 5) + rng.normal()
+    if ties:
+        d = np.round(d)
+    got = statistics.bootstrap_mean_d_z(d)
+    for name, statistic in (("mean", np.mean), ("d_z", statistics._d_z)):
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")
+            expected = stats.bootstrap(
+                (d,),
+                statistic,
+                n_resamples=statistics.BOOTSTRAP_RESAMPLES,
+                confidence_level=statistics.CONFIDENCE,
+                method="BCa",
+                rng=np.random.default_rng(statistics.BOOTSTRAP_SEED),
+            ).confidence_interval
+        np.testing.assert_allclose(
+            got[name], (expected.low, expected.high), rtol=1e-10, atol=1e-12, equal_nan=True
+        )
+
+
+def test_the_bootstrap_batches_do_not_change_the_interval(monkeypatch):
+    d = np.random.default_rng(5).normal(0.3, 1.0, 400)
+    whole = statistics.bootstrap_mean_d_z(d)
+    monkeypatch.setattr(statistics, "BOOTSTRAP_BATCH_ELEMENTS", 7 * 400 + 3)
+    assert statistics.bootstrap_mean_d_z(d) == whole
+
+
+def test_a_constant_difference_has_no_bootstrap_interval():
+    intervals = statistics.bootstrap_mean_d_z(np.ones(12))
+    assert all(math.isnan(v) for pair in intervals.values() for v in pair)
+
+
+@settings(max_examples=25, deadline=None)
+@given(n=st.integers(6, 200), seed=st.integers(0, 2**32 - 1), decimals=st.integers(0, 2))
+def test_wilcoxon_equals_pingouins(n, seed, decimals):
+    rng = np.random.default_rng(seed)
+    best = np.round(rng.normal(0.0, 1.0, n), decimals)
+    expert = np.round(rng.normal(0.3, 1.0, n), decimals)
+    if np.all(best == expert):
+        return
+    main = pd.DataFrame(
+        {
+            "subject": [f"s{i:03d}" for i in range(n)] * 2,
+            "policy": ["best_response"] * n + ["expert"] * n,
+            "num_features": 3,
+            "regret": np.concatenate([best, expert]),
+        }
+    )
+    row = statistics.wilcoxon(main, "regret").iloc[0]
+    expected = pg.wilcoxon(best, expert).iloc[0]
+    assert row["W"] == expected["W_val"] and row["p"] == expected["p_val"]
+    assert row["rbc"] == pytest.approx(expected["RBC"], rel=1e-12, abs=1e-15)
+    assert row["cles"] == expected["CLES"]
+
+
 def test_group_means_use_the_t_interval():
     rows = pd.DataFrame({"g": ["a", "a", "a", "b", "c", "c"], "y": [1.0, 2.0, 4.0, 5.0, 2.0, 2.0]})
     frame = statistics.group_means(rows, "y", ["g"]).set_index("g")
@@ -255,7 +321,7 @@ def test_eta_means_are_the_best_responses_mean_regret_per_level_and_eta():
 
 
 def test_lambda_sweep_has_one_row_per_measure_lambda_policy_and_level():
-    table = trial_table(synthetic_records(subjects_per_level=3, lambdas=(0.1, 1.0, 10.0)))
+    table = trial_table(rows(synthetic_records(subjects_per_level=3, lambdas=(0.1, 1.0, 10.0))))
     sweep = statistics.lambda_sweep(table[table["block"] == "lambda_sweep"], MEASURES)
     assert len(sweep) == 3 * 3 * 2 * 2
     assert set(sweep["n"]) == {3}

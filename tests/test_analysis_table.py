@@ -8,11 +8,11 @@ import re
 
 import msgspec
 import pytest
-from analysis_fixtures import synthetic_records
+from analysis_fixtures import rows, synthetic_records
 
 from cirl_study.analysis.table import COLUMNS, check_design, trial_table
 from cirl_study.errors import UserError
-from cirl_study.record import TrialRecord, from_builtins, to_builtins
+from cirl_study.record import TrialRecord, TrialRow, from_builtins, to_builtins
 
 
 @pytest.fixture(scope="module")
@@ -21,7 +21,7 @@ def records() -> list[TrialRecord]:
 
 
 def test_one_row_per_record_with_the_documented_columns(records):
-    table = trial_table(records)
+    table = trial_table(rows(records))
     assert list(table.columns) == list(COLUMNS)
     assert len(table) == len(records)
     by_id = {record.trial_id: record for record in records}
@@ -35,16 +35,16 @@ def test_one_row_per_record_with_the_documented_columns(records):
 
 
 def test_columns_have_the_trials_csv_dtypes(records):
-    dtypes = trial_table(records).dtypes
+    dtypes = trial_table(rows(records)).dtypes
     assert all(dtypes[name].kind == "i" for name in ("num_features", "seed"))
     assert all(dtypes[name].kind == "f" for name in ("rationality", "eta", "regret", "kl"))
 
 
 def test_row_order_is_sorted_and_independent_of_record_order(records):
-    table = trial_table(records)
+    table = trial_table(rows(records))
     shuffled = records[:]
     random.Random(7).shuffle(shuffled)
-    assert trial_table(shuffled).equals(table)
+    assert trial_table(rows(shuffled)).equals(table)
     keys = list(
         zip(table["block"], table["num_features"], table["subject"], table["policy"], strict=True)
     )
@@ -76,7 +76,7 @@ def test_malformed_data_is_refused_before_it_becomes_a_record(records, path, val
 
 
 def test_a_complete_design_passes(records):
-    check_design(records)
+    check_design(rows(records))
 
 
 def _without(records, predicate):
@@ -85,7 +85,7 @@ def _without(records, predicate):
 
 def _refused(records, pattern: str) -> str:
     with pytest.raises(UserError, match=pattern) as error:
-        check_design(records)
+        check_design(rows(records))
     message = str(error.value)
     assert message.startswith("the run's design cannot be analysed: ") and "\n" not in message
     return message
@@ -119,7 +119,7 @@ def test_check_design_refuses_a_subject_at_two_feature_levels(records):
         else r
         for r in records
     ]
-    _refused(moved, r"disagree with their subject's draw: k3-s000 \(num_features")
+    _refused(moved, r"their subject's draw: k3-s000 \(.*: num_features 10 against 3\)")
 
 
 def test_check_design_refuses_cross_validation_draws_reused_in_the_test_blocks(records):
@@ -142,3 +142,19 @@ def test_check_design_needs_two_feature_levels_and_the_papers_policies(records):
     ]
     _refused(renamed, "the main block plays best_response, random; the analysis needs")
     _refused(_without(records, lambda r: r.block == "main"), "no trials in the main block")
+
+
+def test_a_row_keeps_the_identity_measures_and_a_digest_of_the_draw():
+    first, second = synthetic_records(subjects_per_level=1)[:2]
+    row = TrialRow.of(first)
+    for name in ("trial_id", "run_id", "block", "subject", "policy", "robot", "eta", "seed"):
+        assert getattr(row, name) == getattr(first, name)
+    assert row.measures == first.measures and row.certified
+    same_draw = msgspec.structs.replace(first, trial_id="other", theta_hat=second.theta_hat)
+    assert TrialRow.of(same_draw).draw == row.draw
+    for change in (
+        {"theta": (0.5, *first.theta[1:])},
+        {"features": msgspec.structs.replace(first.features, sigma=2.0)},
+        {"start": (0, 0)},
+    ):
+        assert TrialRow.of(msgspec.structs.replace(first, **change)).draw != row.draw

@@ -9,10 +9,17 @@ from __future__ import annotations
 
 import math
 import random
+from pathlib import Path
 from typing import Any
 
-from cirl_study.logs import RunIdentity, record_faults
+from cirl_study.logs import RunIdentity, read_run, read_trials, record_faults
 from cirl_study.record import TrialRecord, from_builtins
+
+
+def run_records(run: Path) -> list[TrialRecord]:
+    """Every record of the run in ``run``, whole (``read_run`` keeps only their rows)."""
+    contents = read_run(run)
+    return read_trials(run, contents.identity, {row.trial_id for row in contents.rows})
 
 
 def provenance_for(run_id: str = "run-test", name: str = "test") -> dict[str, str]:

@@ -11,7 +11,7 @@ from test_logs_helpers import make_record, make_study, provenance_for
 from cirl_study.errors import UserError
 from cirl_study.logs import RunIdentity, TrialLogWriter, logged_trials, read_run
 from cirl_study.logs.scan import scan_file
-from cirl_study.record import TrialRecord
+from cirl_study.record import TrialRecord, TrialRow
 
 PROVENANCE = {**provenance_for(name="smoke"), "git_commit": "abc"}
 IDENTITY = RunIdentity.of(PROVENANCE)
@@ -31,12 +31,16 @@ def run(tmp_path: Path) -> Path:
     return directory
 
 
-def test_records_of_every_file_sorted_by_trial_id(run: Path) -> None:
+def rows(records: list[TrialRecord]) -> list[TrialRow]:
+    return [TrialRow.of(record) for record in records]
+
+
+def test_the_rows_of_every_file_sorted_by_trial_id(run: Path) -> None:
     study = make_study(subjects=2)
     write(run / "b.mcap", study[:5])
     write(run / "a.mcap", study[5:])
     contents = read_run(run)
-    assert contents.records == sorted(study, key=lambda r: r.trial_id)
+    assert contents.rows == rows(sorted(study, key=lambda r: r.trial_id))
     assert contents.provenance == [PROVENANCE, PROVENANCE]
     assert contents.identity == IDENTITY and contents.identity.pipeline_name == "smoke"
     assert contents.warnings == [] and contents.damaged == []
@@ -52,7 +56,7 @@ def test_temporary_files_are_ignored(run: Path) -> None:
     assert (run / "b.mcap.tmp").exists()
     assert logged_trials(run, IDENTITY) == {r.trial_id for r in study[:2]}
     contents = read_run(run)
-    assert contents.records == sorted(study[:2], key=lambda r: r.trial_id)
+    assert contents.rows == rows(sorted(study[:2], key=lambda r: r.trial_id))
     assert contents.warnings == [
         f"{run}: 1 unfinished temporary file(s) of an interrupted run ignored; "
         "run the pipeline again to complete the run"
@@ -70,7 +74,7 @@ def test_a_truncated_file_is_salvaged_with_a_warning(run: Path) -> None:
         read_run(run)
     contents = read_run(run, salvage=True)
     assert contents.damaged == [path]
-    recovered = contents.records
+    recovered = contents.rows
     assert 0 < len(recovered) < len(study)
     by_position = {r.trial_id: i for i, r in enumerate(study)}
     assert sorted(by_position[r.trial_id] for r in recovered) == list(range(len(recovered)))
@@ -92,11 +96,11 @@ def test_a_damaged_chunk_is_skipped_and_counted(run: Path) -> None:
     with pytest.raises(UserError, match=f"{path}: damaged \\(damaged chunk"):
         read_run(run)
     contents = read_run(run, salvage=True)
-    assert 0 < len(contents.records) < len(study)
-    assert all(r in study for r in contents.records)
+    assert 0 < len(contents.rows) < len(study)
+    assert all(r in rows(study) for r in contents.rows)
     (warning,) = contents.warnings
     assert warning.startswith(f"{path}: damaged (damaged chunk at byte {chunk}: ")
-    assert f"recovered {len(contents.records)} trial(s) of {len(study)} from " in warning
+    assert f"recovered {len(contents.rows)} trial(s) of {len(study)} from " in warning
     with pytest.raises(UserError, match=f"{path} is damaged"):
         logged_trials(run, IDENTITY)
 

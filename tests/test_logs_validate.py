@@ -174,7 +174,9 @@ def test_a_subject_is_one_reward_draw(run: Path) -> None:
     )
     write(run / "a.mcap", [expert, best])
     (fault,) = validate_run(run).faults
-    assert fault.startswith("1 record(s) disagree with their subject's draw: k3-s0001 (theta of")
+    assert fault.startswith(
+        "1 record(s) disagree with their subject's draw: k3-s0001 (the reward draw of "
+    )
 
 
 def test_cross_validation_draws_are_not_test_draws(run: Path) -> None:

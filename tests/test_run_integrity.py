@@ -22,6 +22,8 @@ from typer.testing import CliRunner
 from cirl_study.cli import app
 from cirl_study.errors import UserError
 from cirl_study.logs import RunIdentity, logged_trials, read_run
+from cirl_study.logs.contents import read_file_contents
+from cirl_study.logs.format import log_files
 from cirl_study.logs.scan import scan_file
 from cirl_study.record import encode
 
@@ -42,7 +44,12 @@ def one_line(result, code: int, contains: str) -> str:
 
 
 def payloads(run: Path) -> dict[str, bytes]:
-    return {record.trial_id: encode(record) for record in read_run(run, salvage=True).records}
+    """Every record a run's files hold (their intact chunks), by trial id, as logged."""
+    return {
+        record.trial_id: encode(record)
+        for path in log_files(run)
+        for record in read_file_contents(path).records
+    }
 
 
 @pytest.fixture
@@ -134,7 +141,7 @@ def test_a_missing_file_is_named_per_block_and_resumed(
 ) -> None:
     victim = sorted(run.glob(f"{block}-*.mcap"))[0]
     victim.unlink()
-    kept = len(read_run(run).records)
+    kept = len(read_run(run).rows)
     missing = 82 - kept
     result = invoke("validate", run)
     assert result.exit_code == 1

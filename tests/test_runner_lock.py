@@ -62,7 +62,7 @@ def test_a_held_directory_is_refused_until_its_holder_dies(tmp_path: Path) -> No
     resumed = run(out, 1)
     _, stderr = resumed.communicate(timeout=300)
     assert resumed.returncode == 0, stderr
-    assert len(read_run(out).records) == 82
+    assert len(read_run(out).rows) == 82
 
 
 @pytest.mark.parametrize("writers", [2, 3])

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from cirl_study.record import Demonstration, Measures, TrialRecord, TrialSpec
+from cirl_study.record import Demonstration, Measures, TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.plan import (
     draw_subject,
@@ -182,7 +182,7 @@ def test_choose_etas_lowest_mean_then_smaller_eta(smoke: Pipeline) -> None:
         (10, 10.0): [2.0, 2.0, 2.0],
     }
     records = cv_records(trials, regret)
-    choices = choose_etas(records)
+    choices = choose_etas(rows(records))
     assert {key: c.eta for key, c in choices.items()} == {
         ("best_response", 3): 1.0,
         ("best_response", 10): 1.0,
@@ -192,7 +192,7 @@ def test_choose_etas_lowest_mean_then_smaller_eta(smoke: Pipeline) -> None:
     assert choice.subjects == 3
     # the same records read in another order choose the same; other blocks are ignored
     main = [played(t, 0.0) for t in study_trials(smoke, ETAS)]
-    assert choose_etas([*main, *records[::-1]]) == choices
+    assert choose_etas(rows([*main, *records[::-1]])) == choices
 
 
 def test_choose_etas_needs_every_draw_at_every_eta(smoke: Pipeline) -> None:
@@ -200,4 +200,8 @@ def test_choose_etas_needs_every_draw_at_every_eta(smoke: Pipeline) -> None:
     records = cv_records(trials, {(t.num_features, t.eta): [1.0] * 3 for t in trials})
     del records[4]
     with pytest.raises(ValueError, match="played on different numbers of draws"):
-        choose_etas(records)
+        choose_etas(rows(records))
+
+
+def rows(records: list[TrialRecord]) -> list[TrialRow]:
+    return [TrialRow.of(record) for record in records]

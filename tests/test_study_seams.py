@@ -7,13 +7,14 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from test_logs_helpers import run_records
 
 from cirl_study.core.estimate import Estimate
 from cirl_study.core.humans import HUMANS, Human, register_human
 from cirl_study.core.maxent import MaxEnt
 from cirl_study.core.robot import ROBOTS, register_robot
 from cirl_study.errors import UserError
-from cirl_study.logs import read_run, validate_run
+from cirl_study.logs import validate_run
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.runner import run_pipeline
 from cirl_study.study.spec import load_pipeline, parse_pipeline
@@ -63,7 +64,7 @@ def test_a_registered_policy_and_robot_play_a_pipeline(
     result = run_pipeline(pipeline, tmp_path / "run", LocalEngine(workers))
     assert result.played == result.total == 82
     assert validate_run(tmp_path / "run").ok
-    records = read_run(tmp_path / "run").records
+    records = run_records(tmp_path / "run")
     assert {r.policy for r in records} == {"stay_put", "best_response"}
     assert {r.robot for r in records} == {"prior_mean"}
     for record in records:
@@ -96,7 +97,7 @@ def test_the_posterior_mean_robot_plays_a_pipeline_and_logs_its_error(tmp_path: 
     result = run_pipeline(load_pipeline(path), tmp_path / "run", LocalEngine(2))
     assert result.played == 82
     assert validate_run(tmp_path / "run").ok
-    records = read_run(tmp_path / "run").records
+    records = run_records(tmp_path / "run")
     assert {r.robot for r in records} == {"posterior_mean"}
     for record in records:
         assert record.theta_hat_se is not None and record.effective_sample_size is not None

@@ -22,7 +22,15 @@ from cirl_study.analysis.markdown import anchor, interval, number, p_value, tabl
 from cirl_study.analysis.results import Results, analyse, plain
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.errors import UserError
-from cirl_study.record import BEST_RESPONSE, EXPERT, LAMBDA_SWEEP, MAIN, PAPER_POLICIES, TrialRecord
+from cirl_study.record import (
+    BEST_RESPONSE,
+    EXPERT,
+    LAMBDA_SWEEP,
+    MAIN,
+    PAPER_POLICIES,
+    TrialRecord,
+    TrialRow,
+)
 
 HEADINGS = {
     "claims": "Claims",
@@ -626,20 +634,32 @@ def render_markdown(results: Results) -> str:
 
 
 def _figure1_records(
-    records: Sequence[TrialRecord], subject: str, robot: str
+    trials: Sequence[TrialRow],
+    records_of: Callable[[set[str]], Sequence[TrialRecord]],
+    subject: str,
+    robot: str,
 ) -> dict[str, TrialRecord]:
-    found = {
-        record.policy: record
-        for record in records
-        if record.block == MAIN and record.subject == subject and record.robot == robot
+    """The ``main``-block records of ``subject`` watched by ``robot``, by policy."""
+    wanted = {
+        row.trial_id
+        for row in trials
+        if row.block == MAIN and row.subject == subject and row.robot == robot
     }
+    found = {record.policy: record for record in records_of(wanted)}
     return {policy: found[policy] for policy in PAPER_POLICIES}
 
 
-def render_figures(records: Sequence[TrialRecord], results: Results) -> dict[str, bytes]:
-    """The PNG and SVG bytes of every figure the results support, by file name."""
+def render_figures(
+    trials: Sequence[TrialRow],
+    records_of: Callable[[set[str]], Sequence[TrialRecord]],
+    results: Results,
+) -> dict[str, bytes]:
+    """The PNG and SVG bytes of every figure the results support, by file name.
+
+    Figure 1 draws two whole records, fetched by trial id with ``records_of``.
+    """
     chosen = results["figure1"]
-    pair = _figure1_records(records, chosen["subject"], chosen["robot"])
+    pair = _figure1_records(trials, records_of, chosen["subject"], chosen["robot"])
     pngs: dict[str, figures.Rendered] = {
         FIGURES["figure1"][0]: figures.reward_maps(
             pair[EXPERT],
@@ -673,16 +693,18 @@ def _svg_name(png_name: str) -> str:
 
 
 def write_report(
-    records: Sequence[TrialRecord],
+    trials: Sequence[TrialRow],
     out_dir: Path | str,
     pipeline_name: str,
+    *,
+    records_of: Callable[[set[str]], Sequence[TrialRecord]],
     run_id: str | None = None,
     theory: Mapping[str, Any] | None = None,
     provenance: Mapping[str, Any] | None = None,
     partial: Mapping[str, Any] | None = None,
     progress: Callable[[str], None] = lambda stage: None,
 ) -> Results:
-    """Analyse trial records and write the report directory.
+    """Analyse a run's trials and write the report directory.
 
     Writes ``report.md``, ``results.json`` (every number at full precision), ``trials.csv``
     (the trial table) and the figures of :data:`FIGURES`, each as PNG and SVG, into
@@ -692,9 +714,12 @@ def write_report(
     while they must not.
 
     Args:
-        records: the trial records (docs/design.md §7), in any order.
+        trials: the rows of the trial records (:class:`~cirl_study.record.TrialRow`), in
+            any order.
         out_dir: the report directory.
         pipeline_name: the pipeline's name, shown in the report.
+        records_of: the whole records of the given trial ids (for Figure 1), e.g. read
+            back from the logs with :func:`cirl_study.logs.read_trials`.
         run_id: the run's id, stored as ``run_id`` in ``results.json``.
         theory: optional extra claims (see :func:`cirl_study.analysis.claims.external_claims`);
             stored under ``theory`` in ``results.json``.
@@ -711,23 +736,23 @@ def write_report(
         UserError: the design cannot be analysed (see
             :func:`~cirl_study.analysis.table.check_design`).
     """
-    check_design(records)
+    check_design(trials)
     progress("statistics")
-    results = analyse(records, pipeline_name)
+    results = analyse(trials, pipeline_name)
     results["run_id"] = run_id
     results["partial"] = None if partial is None else plain(partial)
     results["claims"] = evaluate_claims(results, theory)
     if theory is not None:
         results["theory"] = plain(theory)
     progress("figures")
-    pngs = render_figures(records, results)
+    pngs = render_figures(trials, records_of, results)
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
         (out / "report.md").write_text(render_markdown(results), encoding="utf-8", newline="\n")
         text = json.dumps(results, indent=2, ensure_ascii=False, allow_nan=False)
         (out / "results.json").write_text(text + "\n", encoding="utf-8", newline="\n")
-        trial_table(records).to_csv(out / "trials.csv", index=False, lineterminator="\n")
+        trial_table(trials).to_csv(out / "trials.csv", index=False, lineterminator="\n")
         if provenance is not None:
             text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
             (out / "provenance.json").write_text(text + "\n", encoding="utf-8", newline="\n")

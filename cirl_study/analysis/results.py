@@ -1,4 +1,4 @@
-"""Every number of the report, computed from the trial records as JSON-ready data.
+"""Every number of the report, computed from the trials' rows as JSON-ready data.
 
 :func:`analyse` runs every test of :mod:`cirl_study.analysis.statistics` on the blocks
 they belong to, takes the cross-validated eta from the function the run chose it with
@@ -28,7 +28,7 @@ from cirl_study.record import (
     LAMBDA_SWEEP,
     MAIN,
     MEASURES,
-    TrialRecord,
+    TrialRow,
 )
 from cirl_study.study.eta_cv import choose_etas
 
@@ -113,33 +113,33 @@ def _design(main: pd.DataFrame) -> dict[str, Any]:
     }
 
 
-def eta_cv(records: Sequence[TrialRecord], table: pd.DataFrame) -> dict[str, Any]:
+def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> dict[str, Any]:
     """The cross-validation of the best response's eta, and whether the main block used it.
 
     ``means``: mean best-response regret with its CI per feature level and eta
     (:func:`~cirl_study.analysis.statistics.eta_means`). ``uncertainty``: how clear-cut each
     choice is (:func:`~cirl_study.analysis.statistics.eta_choice_uncertainty`). ``chosen``:
     per feature level, the eta :func:`~cirl_study.study.eta_cv.choose_etas` picks from the
-    ``eta_cv`` records (the choice the run made) and its mean regret. ``main_block``: per
+    ``eta_cv`` rows of ``trials`` (the choice the run made) and its mean regret. ``main_block``: per
     feature level of the ``main`` block, the etas its best-response trials were played with
     (``main_etas``, one in a sound run), the cross-validated eta (``chosen_eta``, ``None`` without
     cross-validation at that level) and whether they agree (``None`` when there is nothing
     to compare with).
 
     Raises:
-        UserError: the ``eta_cv`` records admit no choice (see ``choose_etas``).
+        UserError: the ``eta_cv`` trials admit no choice (see ``choose_etas``).
     """
     cv = table[table["block"] == ETA_CV]
     try:
-        choices = choose_etas(records)
+        choices = choose_etas(trials)
     except ValueError as error:
         raise UserError(f"eta cross-validation: {error}") from None
     chosen = {k: choice for (policy, k), choice in choices.items() if policy == BEST_RESPONSE}
     played: dict[int, set[float]] = {}
-    for record in records:
-        if record.block == MAIN and record.policy == BEST_RESPONSE and record.eta is not None:
-            played.setdefault(record.num_features, set()).add(record.eta)
-    levels = sorted({record.num_features for record in records if record.block == MAIN})
+    for row in trials:
+        if row.block == MAIN and row.policy == BEST_RESPONSE and row.eta is not None:
+            played.setdefault(row.num_features, set()).add(row.eta)
+    levels = sorted({row.num_features for row in trials if row.block == MAIN})
     main_block = []
     for k in levels:
         main_etas = sorted(played.get(k, ()))
@@ -227,11 +227,11 @@ def robot_comparison(table: pd.DataFrame, reference: str) -> dict[str, Any]:
     }
 
 
-def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
-    """Run every analysis of docs/design.md §5 on checked trial records.
+def analyse(trials: Sequence[TrialRow], pipeline_name: str) -> Results:
+    """Run every analysis of docs/design.md §5 on checked trials.
 
     Args:
-        records: the trial records, already accepted by
+        trials: the trials' rows (:class:`~cirl_study.record.TrialRow`), already accepted by
             :func:`~cirl_study.analysis.table.check_design`, in any order.
         pipeline_name: the pipeline's name, recorded in the results.
 
@@ -246,7 +246,7 @@ def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
         ``lambda_sweep`` is an empty list and ``eta_cv`` has empty ``means`` and ``chosen``
         when the run has no trials in that block (see :func:`eta_cv`).
     """
-    everything = trial_table(records)
+    everything = trial_table(trials)
     robots = sorted(set(everything.loc[everything["block"] == MAIN, "robot"]))
     reference = reference_robot(robots)
     table = everything[everything["robot"] == reference]
@@ -272,7 +272,7 @@ def analyse(records: Sequence[TrialRecord], pipeline_name: str) -> Results:
         "cronbach_alpha": plain(alpha),
         "lambda_sweep": rows(statistics.lambda_sweep(sweep, MEASURES)) if not sweep.empty else [],
         "certified": _certified(everything),
-        "eta_cv": eta_cv(records, table),
+        "eta_cv": eta_cv(trials, table),
         "figure1": {**figure1_subject(main), "robot": reference},
         "robots": robot_comparison(everything, reference) if len(robots) > 1 else None,
     }

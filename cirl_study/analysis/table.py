@@ -1,10 +1,10 @@
 """The tidy trial table: one row per trial record (docs/design.md §7).
 
-:func:`trial_table` projects the typed records (:class:`~cirl_study.record.TrialRecord`,
-already validated when they were decoded) into a :class:`pandas.DataFrame` whose row order
-depends only on the trials, never on the order the records came in, so every statistic
-computed from it is reproducible to the bit. :func:`check_design` refuses records whose
-study design the analysis cannot use.
+:func:`trial_table` turns the trials' rows (:class:`~cirl_study.record.TrialRow`, projected
+from records already validated when they were decoded) into a :class:`pandas.DataFrame`
+whose row order depends only on the trials, never on the order the records came in, so
+every statistic computed from it is reproducible to the bit. :func:`check_design` refuses
+trials whose study design the analysis cannot use.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import pandas as pd
 
 from cirl_study.errors import UserError
 from cirl_study.logs.run_checks import design_faults, incomplete_main_subjects
-from cirl_study.record import MAIN, MEASURES, PAPER_POLICIES, TrialRecord
+from cirl_study.record import MAIN, MEASURES, PAPER_POLICIES, TrialRow
 
 COLUMNS: tuple[str, ...] = (
     "trial_id",
@@ -49,55 +49,48 @@ SORT_KEYS: tuple[str, ...] = (
 """Row order of the trial table (``trial_id`` breaks any remaining tie)."""
 
 
-def _row(record: TrialRecord) -> dict[str, Any]:
-    """The table row of one record: its identity, inputs and measures."""
-    return {
-        "trial_id": record.trial_id,
-        "run_id": record.run_id,
-        "block": record.block,
-        "subject": record.subject,
-        "policy": record.policy,
-        "robot": record.robot,
-        "num_features": record.num_features,
-        "rationality": record.rationality,
-        "eta": math.nan if record.eta is None else record.eta,
-        "seed": record.seed,
-        **{measure: getattr(record.measures, measure) for measure in MEASURES},
-        "certified": record.irl is None or record.irl.converged,
+def _columns(rows: Sequence[TrialRow]) -> dict[str, list[Any]]:
+    """The table's columns, filled row by row (no per-row dict: a run may have millions)."""
+    columns = {
+        name: [getattr(row, name) for row in rows]
+        for name in COLUMNS
+        if name not in MEASURES and name != "eta"
     }
+    columns["eta"] = [math.nan if row.eta is None else row.eta for row in rows]
+    for measure in MEASURES:
+        columns[measure] = [getattr(row.measures, measure) for row in rows]
+    return columns
 
 
-def trial_table(records: Sequence[TrialRecord]) -> pd.DataFrame:
-    """Project trial records into the tidy trial table, one row per trial.
+def trial_table(rows: Sequence[TrialRow]) -> pd.DataFrame:
+    """The tidy trial table, one row per trial.
 
     Args:
-        records: the trial records, in any order.
+        rows: the trials' rows, in any order.
 
     Returns:
         A frame with the columns :data:`COLUMNS` (``eta`` is NaN for the expert),
         sorted by :data:`SORT_KEYS` and indexed ``0 .. n-1``.
     """
-    table = pd.DataFrame([_row(record) for record in records], columns=list(COLUMNS))
+    table = pd.DataFrame(_columns(rows), columns=list(COLUMNS))
     return table.sort_values(list(SORT_KEYS), kind="mergesort").reset_index(drop=True)
 
 
-def complete_main_subjects(
-    records: Sequence[TrialRecord],
-) -> tuple[list[TrialRecord], list[str]]:
-    """The records without the ``main``-block trials of subjects that lack a cell.
+def complete_main_subjects(rows: Sequence[TrialRow]) -> tuple[list[TrialRow], list[str]]:
+    """The trials without the ``main``-block trials of subjects that lack a cell.
 
     For a partial run: a ``main`` subject must have exactly one trial in every (policy,
     robot) cell the block plays to enter the within-subjects analysis
-    (:func:`~cirl_study.logs.run_checks.incomplete_main_subjects`). Returns the records kept
+    (:func:`~cirl_study.logs.run_checks.incomplete_main_subjects`). Returns the rows kept
     and the ids of the subjects whose ``main`` trials were left out.
     """
-    _, incomplete = incomplete_main_subjects(records)
-    kept = [r for r in records if not (r.block == MAIN and r.subject in incomplete)]
+    _, incomplete = incomplete_main_subjects(rows)
+    kept = [r for r in rows if not (r.block == MAIN and r.subject in incomplete)]
     return kept, sorted(incomplete)
 
 
-def check_design(records: Sequence[TrialRecord]) -> None:
-    """Check that the records hold a study design the analysis can use.
+def check_design(rows: Sequence[TrialRow]) -> None:
+    """Check that the trials' ``rows`` hold a study design the analysis can use.
 
     The run's design must be sound (:func:`cirl_study.logs.run_checks.design_faults`: unique
     trial ids, one reward draw per subject, a non-empty ``main`` block complete within
@@ -109,21 +102,21 @@ def check_design(records: Sequence[TrialRecord]) -> None:
     Raises:
         UserError: one line naming every fault found.
     """
-    faults = design_faults(records)
-    main = [record for record in records if record.block == MAIN]
-    policies = sorted({record.policy for record in main})
+    faults = design_faults(rows)
+    main = [row for row in rows if row.block == MAIN]
+    policies = sorted({row.policy for row in main})
     if main and policies != sorted(PAPER_POLICIES):
         faults.append(
             f"the main block plays {', '.join(policies)}; the analysis needs exactly "
             f"{', '.join(PAPER_POLICIES)}"
         )
-    levels = sorted({record.num_features for record in main})
+    levels = sorted({row.num_features for row in main})
     if len(levels) == 1:
         faults.append(
             f"the main block has only num_features={levels[0]}; the analysis needs at least "
             "two feature levels"
         )
-    robots = sorted({record.robot for record in main})
+    robots = sorted({row.robot for row in main})
     if len(robots) > 2:
         faults.append(
             f"the main block has {len(robots)} robots ({', '.join(robots)}); the analysis "

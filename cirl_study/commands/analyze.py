@@ -74,7 +74,7 @@ def analyze(
     from cirl_study.analysis.table import complete_main_subjects
     from cirl_study.analysis.theory_claims import office_supplies_claims
     from cirl_study.errors import UserError
-    from cirl_study.logs import read_run
+    from cirl_study.logs import read_run, read_trials
     from cirl_study.logs.provenance import machine_provenance
     from cirl_study.study.audit import audit_run, resume_command, run_pipeline_of
     from cirl_study.theory import office_supplies_results
@@ -88,15 +88,15 @@ def analyze(
     contents = read_run(run, salvage=partial)
     for warning in contents.warnings:
         typer.echo(f"warning: {warning}", err=True)
-    audit = audit_run(run_pipeline_of(contents.identity), contents.records)
+    audit = audit_run(run_pipeline_of(contents.identity), contents.rows)
     faults = audit.faults(resume_command(contents.identity, run))
     if audit.foreign or (faults and not partial):
         advice = "" if audit.foreign else ", or analyze it with --partial"
         raise UserError(f"{run}: not a complete run: {faults[0]}{advice}")
-    records, left_out = contents.records, []
+    trials, left_out = contents.rows, []
     partial_run = None
     if partial and not (audit.complete and not contents.damaged):
-        records, left_out = complete_main_subjects(records)
+        trials, left_out = complete_main_subjects(trials)
         partial_run = {
             "planned": audit.planned,
             "logged": audit.logged,
@@ -119,9 +119,10 @@ def analyze(
         },
     }
     results = write_report(
-        records,
+        trials,
         target,
         contents.identity.pipeline_name,
+        records_of=lambda wanted: read_trials(run, contents.identity, wanted),
         run_id=contents.identity.run_id,
         theory=theory,
         provenance=provenance,
@@ -132,7 +133,7 @@ def analyze(
     reproduced = sum(claim["reproduced"] for claim in claims)
     untested = sum(not claim["tested"] for claim in claims)
     typer.echo(
-        f"{'partial ' if partial_run else ''}report of {len(records)} trials written to "
+        f"{'partial ' if partial_run else ''}report of {len(trials)} trials written to "
         f"{target}: {len(claims)} claims, "
         f"{reproduced} reproduced, {len(claims) - reproduced - untested} not reproduced, "
         f"{untested} not tested"

@@ -38,7 +38,7 @@ def validate(
     from cirl_study.study.audit import plan_faults
 
     verdict = validate_run(run)
-    plan = plan_faults(run, verdict.records) if verdict.records else []
+    plan = plan_faults(run, verdict.rows) if verdict.rows else []
     verdict = dataclasses.replace(verdict, faults=(*plan, *verdict.faults))
     for file_verdict in verdict.files:
         typer.echo(file_verdict.line())

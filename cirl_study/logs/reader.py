@@ -1,4 +1,4 @@
-"""Reading a run directory: the trial records every analysis starts from.
+"""Reading a run directory: the trials every analysis starts from, one file at a time.
 
 Only complete files (``*.mcap``) are read; temporary files of an interrupted run are
 ignored with a warning. An intact file is read through its summary index with every CRC
@@ -45,15 +45,16 @@ from cirl_study.logs.scan import (
     decompressed_chunk,
     section_crcs_hold,
 )
-from cirl_study.record import TrialRecord
+from cirl_study.record import TrialRecord, TrialRow
 
 
 @dataclass(frozen=True)
 class RunContents:
-    """The trial records of a run (sorted by ``trial_id``), each file's provenance, the run's
-    identity, the damaged files salvaged and the warnings raised while reading."""
+    """The trials of a run as rows (:class:`~cirl_study.record.TrialRow`, sorted by
+    ``trial_id``), each file's provenance, the run's identity, the damaged files salvaged and
+    the warnings raised while reading."""
 
-    records: list[TrialRecord]
+    rows: list[TrialRow]
     provenance: list[dict[str, str]]
     identity: RunIdentity
     damaged: list[Path]
@@ -170,7 +171,11 @@ def _read_file(path: Path, *, decode_trials: bool = True) -> _IntactFile | FileC
 
 
 def read_run(run_dir: str | Path, *, salvage: bool = False) -> RunContents:
-    """Read every complete log file of ``run_dir`` (see the module docstring).
+    """Read every complete log file of ``run_dir`` into rows (see the module docstring).
+
+    Files are read one at a time and each record is kept only as its row, so memory grows
+    with the run's trial count by a row (a few hundred bytes), not a record (~15 KB), per
+    trial; :func:`read_trials` fetches whole records by id.
 
     Args:
         run_dir: the run directory.
@@ -178,8 +183,12 @@ def read_run(run_dir: str | Path, *, salvage: bool = False) -> RunContents:
             refusing it.
     """
     run_dir = Path(run_dir)
-    files = [_read_file(path) for path in _complete_files(run_dir)]
-    for contents in files:
+    rows: list[TrialRow] = []
+    identities: dict[RunIdentity, Path] = {}
+    first_file: dict[str, Path] = {}
+    provenance, damaged, warnings = [], [], []
+    for path in _complete_files(run_dir):
+        contents = _read_file(path)
         if contents.content_faults:
             damage = f"damaged ({contents.damage[0]}) and " if contents.damage else ""
             raise UserError(
@@ -192,20 +201,25 @@ def read_run(run_dir: str | Path, *, salvage: bool = False) -> RunContents:
                 "and run the pipeline again to replay its trials, or analyze with --partial "
                 "to keep what its intact chunks hold"
             )
-    warnings = [_salvage_warning(contents) for contents in files if contents.damage]
+        if contents.damage:
+            warnings.append(_salvage_warning(contents))
+            damaged.append(path)
+        identities.setdefault(_file_identity(contents), path)
+        _same_identity(run_dir, identities)
+        _refuse_duplicates(first_file, path, _trial_ids(contents))
+        provenance.append(contents.provenance)
+        rows += [TrialRow.of(record) for record in contents.records]
     unfinished = temp_files(run_dir)
     if unfinished:
         warnings.append(
             f"{run_dir}: {len(unfinished)} unfinished temporary file(s) of an interrupted run "
             "ignored; run the pipeline again to complete the run"
         )
-    identity = _one_identity(run_dir, files)
-    records = _without_duplicates(files)
     return RunContents(
-        records=sorted(records, key=lambda record: record.trial_id),
-        provenance=[contents.provenance for contents in files if contents.provenance is not None],
-        identity=identity,
-        damaged=[contents.path for contents in files if contents.damage],
+        rows=sorted(rows, key=lambda row: row.trial_id),
+        provenance=[p for p in provenance if p is not None],
+        identity=_same_identity(run_dir, identities),
+        damaged=damaged,
         warnings=warnings,
     )
 
@@ -220,20 +234,24 @@ def logged_trials(run_dir: str | Path, identity: RunIdentity) -> set[str]:
     refused rather than guessed at, so that a resumed run neither loses nor duplicates a
     trial, nor mixes runs.
     """
-    files = _indexed_files(Path(run_dir), identity)
-    return _refuse_duplicates(files)
+    first_file: dict[str, Path] = {}
+    for contents in _indexed_files(Path(run_dir), identity):
+        _refuse_duplicates(first_file, contents.path, _trial_ids(contents))
+    return set(first_file)
 
 
 def read_trials(run_dir: str | Path, identity: RunIdentity, wanted: set[str]) -> list[TrialRecord]:
     """The records of the ``wanted`` trials, reading only the files whose index lists one.
 
-    For a resumed run's cross-validation: every file is first read through its metadata
-    (:func:`logged_trials`' checks); only the files holding a wanted trial are decoded, with
-    :func:`read_run`'s checks of every record.
+    For a resumed run's cross-validation and the report's Figure 1: every file is first read
+    through its metadata (:func:`logged_trials`' checks); only the files holding a wanted
+    trial are decoded, with :func:`read_run`'s checks of every record.
     """
     run_dir = Path(run_dir)
     files = _indexed_files(run_dir, identity)
-    _refuse_duplicates(files)
+    first_file: dict[str, Path] = {}
+    for contents in files:
+        _refuse_duplicates(first_file, contents.path, _trial_ids(contents))
     records = []
     for indexed in files:
         if not wanted.intersection(_trial_ids(indexed)):
@@ -277,17 +295,27 @@ def _one_identity(run_dir: Path, files: list[_IntactFile | FileContents]) -> Run
     """The run identity every file states and every record carries, or a refusal."""
     identities: dict[RunIdentity, Path] = {}
     for contents in files:
-        try:
-            identity = RunIdentity.of(contents.provenance or {})
-        except ValueError as error:
-            raise UserError(f"{contents.path}: not a log of a cirl-study run: {error}") from None
-        identities.setdefault(identity, contents.path)
-        foreign = next((r for r in contents.records if r.run_id != identity.run_id), None)
-        if foreign is not None:
-            raise UserError(
-                f"{contents.path}: trial {foreign.trial_id} belongs to run {foreign.run_id}, "
-                f"the file to run {identity.run_id}"
-            )
+        identities.setdefault(_file_identity(contents), contents.path)
+    return _same_identity(run_dir, identities)
+
+
+def _file_identity(contents: _IntactFile | FileContents) -> RunIdentity:
+    """The run identity a file states, once every record of it is found to carry its run id."""
+    try:
+        identity = RunIdentity.of(contents.provenance or {})
+    except ValueError as error:
+        raise UserError(f"{contents.path}: not a log of a cirl-study run: {error}") from None
+    foreign = next((r for r in contents.records if r.run_id != identity.run_id), None)
+    if foreign is not None:
+        raise UserError(
+            f"{contents.path}: trial {foreign.trial_id} belongs to run {foreign.run_id}, "
+            f"the file to run {identity.run_id}"
+        )
+    return identity
+
+
+def _same_identity(run_dir: Path, identities: dict[RunIdentity, Path]) -> RunIdentity:
+    """The one identity of ``identities`` (each with the first file stating it), or a refusal."""
     if len(identities) > 1:
         (first, first_path), (second, second_path) = list(identities.items())[:2]
         raise UserError(
@@ -340,27 +368,18 @@ def _salvage_warning(contents: FileContents) -> str:
     )
 
 
-def _without_duplicates(files: list[_IntactFile | FileContents]) -> list[TrialRecord]:
-    """All records of ``files``; a trial id logged in two files is refused."""
-    _refuse_duplicates(files)
-    return [record for contents in files for record in contents.records]
-
-
 def _trial_ids(contents: _IntactFile | FileContents) -> list[str]:
     if isinstance(contents, _IntactFile):
         return contents.trial_ids
     return [record.trial_id for record in contents.records]
 
 
-def _refuse_duplicates(files: list[_IntactFile | FileContents]) -> set[str]:
-    """The trial ids of ``files``; one logged in two files is refused."""
-    first_file: dict[str, Path] = {}
-    for contents in files:
-        for trial_id in _trial_ids(contents):
-            if trial_id in first_file:
-                raise UserError(
-                    f"trial {trial_id} is logged twice: in {first_file[trial_id]} "
-                    f"and in {contents.path}"
-                )
-            first_file[trial_id] = contents.path
-    return set(first_file)
+def _refuse_duplicates(first_file: dict[str, Path], path: Path, trial_ids: list[str]) -> None:
+    """Add the ``trial_ids`` of ``path`` to ``first_file`` (each id's file); an id already
+    there, logged in two files, is refused."""
+    for trial_id in trial_ids:
+        if trial_id in first_file:
+            raise UserError(
+                f"trial {trial_id} is logged twice: in {first_file[trial_id]} and in {path}"
+            )
+        first_file[trial_id] = path

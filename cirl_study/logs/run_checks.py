@@ -3,14 +3,16 @@
 * No trial id is logged twice; all files state one run (run id and pipeline file) and hold
   only its records.
 * A subject is one reward draw: all its records agree on ``num_features``, ``theta``, the
-  features, the grid and the start cell (so a subject lies at one feature level).
+  features, the grid and the start cell (their :attr:`~cirl_study.record.TrialRow.draw`
+  digest; so a subject lies at one feature level).
 * The ``main`` block is non-empty, complete and within subjects: every subject in it has
   exactly one trial of every (robot, policy) pair the block plays.
 * Cross-validation draws are disjoint from the test draws: no ``eta_cv`` subject appears in
   another block.
 
 :func:`design_faults` is the one design check of the project: ``validate`` reports its faults
-and ``analyze`` refuses a run that has any.
+and ``analyze`` refuses a run that has any. The checks read the records' rows
+(:class:`~cirl_study.record.TrialRow`), so a run of any size is checked in memory.
 """
 
 from __future__ import annotations
@@ -20,59 +22,56 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 from cirl_study.logs.provenance import RunIdentity
-from cirl_study.record import ETA_CV, MAIN, TrialRecord
-
-SUBJECT_FIELDS = ("num_features", "theta", "features", "grid", "start")
-"""Record fields on which all trials of one subject must agree."""
+from cirl_study.record import ETA_CV, MAIN, TrialRow
 
 EXAMPLES = 3
 """How many examples a fault message names before it only counts."""
 
 
 def run_faults(
-    files: Sequence[tuple[Path, list[TrialRecord], dict[str, str] | None]],
+    files: Sequence[tuple[Path, list[TrialRow], dict[str, str] | None]],
 ) -> list[str]:
-    """Run-level faults of ``files``: ``(path, trial records, provenance)`` per log file.
+    """Run-level faults of ``files``: ``(path, trial rows, provenance)`` per log file.
 
     Besides the design's: a trial logged in two files; files stating different runs
     (:class:`~cirl_study.logs.provenance.RunIdentity`: run id and pipeline file); records
     of another run than their file's.
     """
     faults = _duplicate_faults(files)
-    records = [record for _, file_records, _ in files for record in file_records]
+    rows = [row for _, file_rows, _ in files for row in file_rows]
     runs: dict[str, list[str]] = defaultdict(list)
-    for path, file_records, provenance in files:
+    for path, file_rows, provenance in files:
         try:
             identity = RunIdentity.of(provenance or {})
         except ValueError:
             continue  # a file fault already
         runs[f"{identity.run_id} (pipeline sha256 {identity.pipeline_sha256})"].append(path.name)
-        foreign = sorted({r.run_id for r in file_records} - {identity.run_id})
+        foreign = sorted({r.run_id for r in file_rows} - {identity.run_id})
         if foreign:
             faults.append(f"{path.name} holds records of run(s) {_examples(foreign)}")
     if len(runs) > 1:
         described = [f"{run} in {_examples(names)}" for run, names in runs.items()]
         faults.append(f"files of {len(runs)} runs: {'; '.join(described)}")
-    unique = list({record.trial_id: record for record in records}.values())
+    unique = list({row.trial_id: row for row in rows}.values())
     return faults + design_faults(unique)
 
 
-def design_faults(records: Sequence[TrialRecord]) -> list[str]:
-    """Faults of the study design held by ``records`` (see the module docstring)."""
-    counts = Counter(record.trial_id for record in records)
+def design_faults(rows: Sequence[TrialRow]) -> list[str]:
+    """Faults of the study design held by the trials' ``rows`` (see the module docstring)."""
+    counts = Counter(row.trial_id for row in rows)
     repeated = sorted(trial for trial, count in counts.items() if count > 1)
     faults = [f"{len(repeated)} trial id(s) repeated: {_examples(repeated)}"] if repeated else []
-    return faults + _subject_faults(records) + _main_block_faults(records) + _shared_draws(records)
+    return faults + _subject_faults(rows) + _main_block_faults(rows) + _shared_draws(rows)
 
 
 def _duplicate_faults(
-    files: Sequence[tuple[Path, list[TrialRecord], dict[str, str] | None]],
+    files: Sequence[tuple[Path, list[TrialRow], dict[str, str] | None]],
 ) -> list[str]:
     first_file: dict[str, Path] = {}
     duplicates = []
-    for path, records, _ in files:
-        for record in records:
-            trial_id = record.trial_id
+    for path, rows, _ in files:
+        for row in rows:
+            trial_id = row.trial_id
             if trial_id in first_file and first_file[trial_id] != path:
                 duplicates.append(f"{trial_id} in {first_file[trial_id].name} and {path.name}")
             first_file.setdefault(trial_id, path)
@@ -81,16 +80,20 @@ def _duplicate_faults(
     return [f"{len(duplicates)} trial id(s) logged in two files: {_examples(duplicates)}"]
 
 
-def _subject_faults(records: Iterable[TrialRecord]) -> list[str]:
-    first: dict[str, TrialRecord] = {}
+def _subject_faults(rows: Iterable[TrialRow]) -> list[str]:
+    first: dict[str, TrialRow] = {}
     disagreeing: list[str] = []
-    for record in records:
-        reference = first.setdefault(record.subject, record)
-        fields = [f for f in SUBJECT_FIELDS if getattr(record, f) != getattr(reference, f)]
-        if fields:
+    for row in rows:
+        reference = first.setdefault(row.subject, row)
+        if row.draw != reference.draw:
+            levels = (
+                f": num_features {row.num_features} against {reference.num_features}"
+                if row.num_features != reference.num_features
+                else ""
+            )
             disagreeing.append(
-                f"{record.subject} ({', '.join(fields)} of {record.trial_id} "
-                f"differ from {reference.trial_id})"
+                f"{row.subject} (the reward draw of {row.trial_id} differs from "
+                f"{reference.trial_id}'s{levels})"
             )
     if not disagreeing:
         return []
@@ -99,10 +102,10 @@ def _subject_faults(records: Iterable[TrialRecord]) -> list[str]:
     ]
 
 
-def _main_block_faults(records: Sequence[TrialRecord]) -> list[str]:
-    if not any(record.block == MAIN for record in records):
+def _main_block_faults(rows: Sequence[TrialRow]) -> list[str]:
+    if not any(row.block == MAIN for row in rows):
         return ["no trials in the main block: the policy x num_features study is missing"]
-    cells, incomplete = incomplete_main_subjects(records)
+    cells, incomplete = incomplete_main_subjects(rows)
     if not incomplete:
         return []
     described = [
@@ -116,14 +119,14 @@ def _main_block_faults(records: Sequence[TrialRecord]) -> list[str]:
 
 
 def incomplete_main_subjects(
-    records: Iterable[TrialRecord],
+    rows: Iterable[TrialRow],
 ) -> tuple[list[str], dict[str, Counter[str]]]:
     """The ``main`` block's within-subjects cells (``policy/robot``, sorted), and each subject
     that lacks exactly one trial of every one of them, with its trials per cell."""
     trials: dict[str, Counter[str]] = defaultdict(Counter)
-    for record in records:
-        if record.block == MAIN:
-            trials[record.subject][_cell(record)] += 1
+    for row in rows:
+        if row.block == MAIN:
+            trials[row.subject][_cell(row)] += 1
     cells = sorted({cell for count in trials.values() for cell in count})
     incomplete = {
         subject: count
@@ -133,15 +136,15 @@ def incomplete_main_subjects(
     return cells, incomplete
 
 
-def _cell(record: TrialRecord) -> str:
+def _cell(row: TrialRow) -> str:
     """The within-subjects cell of a ``main`` trial: ``policy/robot``."""
-    return f"{record.policy}/{record.robot}"
+    return f"{row.policy}/{row.robot}"
 
 
-def _shared_draws(records: Iterable[TrialRecord]) -> list[str]:
+def _shared_draws(rows: Iterable[TrialRow]) -> list[str]:
     blocks: dict[str, set[str]] = defaultdict(set)
-    for record in records:
-        blocks[record.subject].add(record.block)
+    for row in rows:
+        blocks[row.subject].add(row.block)
     shared = sorted(s for s, b in blocks.items() if ETA_CV in b and len(b) > 1)
     if not shared:
         return []

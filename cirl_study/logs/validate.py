@@ -19,7 +19,7 @@ from cirl_study.logs.contents import read_file_contents
 from cirl_study.logs.format import log_files, temp_files
 from cirl_study.logs.reader import check_run_directory
 from cirl_study.logs.run_checks import run_faults
-from cirl_study.record import TrialRecord
+from cirl_study.record import TrialRow
 
 #: Faults shown on a verdict line before the rest are only counted.
 SHOWN_FAULTS = 3
@@ -46,12 +46,13 @@ class FileVerdict:
 
 @dataclass(frozen=True)
 class RunVerdict:
-    """The verdict on a run: one per file plus the run-level faults, and the records read."""
+    """The verdict on a run: one per file plus the run-level faults, and the rows of the
+    records read (:class:`~cirl_study.record.TrialRow`), per file."""
 
     run_dir: Path
     files: tuple[FileVerdict, ...]
     faults: tuple[str, ...]
-    records: tuple[tuple[Path, list[TrialRecord], dict[str, str] | None], ...] = ()
+    rows: tuple[tuple[Path, list[TrialRow], dict[str, str] | None], ...] = ()
 
     @property
     def ok(self) -> bool:
@@ -85,7 +86,8 @@ def validate_run(run_dir: str | Path) -> RunVerdict:
     for path in log_files(run_dir):
         contents = read_file_contents(path)
         verdicts.append(FileVerdict(path, len(contents.records), tuple(contents.faults)))
-        files.append((path, contents.records, contents.provenance))
+        rows = [TrialRow.of(record) for record in contents.records]
+        files.append((path, rows, contents.provenance))
     faults = run_faults(files) if verdicts else ["no complete log files (*.mcap)"]
     unfinished = temp_files(run_dir)
     if unfinished:

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from cirl_study.errors import UserError
 from cirl_study.logs.provenance import RunIdentity
-from cirl_study.record import ETA_CV, TrialRecord
+from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
 from cirl_study.study.spec import Pipeline, parse_pipeline
@@ -105,9 +105,9 @@ def run_pipeline_of(identity: RunIdentity) -> Pipeline:
         ) from None
 
 
-def audit_run(pipeline: Pipeline, records: Sequence[TrialRecord]) -> RunAudit:
-    """Compare the logged ``records`` with the trials ``pipeline`` plans."""
-    logged = {record.trial_id: record for record in records}
+def audit_run(pipeline: Pipeline, rows: Sequence[TrialRow]) -> RunAudit:
+    """Compare the logged trials (their ``rows``) with the trials ``pipeline`` plans."""
+    logged = {row.trial_id: row for row in rows}
     cv_plan = eta_cv_trials(pipeline)
     cv_ids = {trial.trial_id for trial in cv_plan}
     cv_logged = [logged[trial_id] for trial_id in cv_ids if trial_id in logged]
@@ -122,21 +122,21 @@ def audit_run(pipeline: Pipeline, records: Sequence[TrialRecord]) -> RunAudit:
         blocks += [BlockAudit(block, counts[block], found[block]) for block in study_blocks]
         foreign = sorted(set(logged) - planned)
     else:
-        found = Counter(record.block for record in records)
+        found = Counter(row.block for row in rows)
         blocks += [
             BlockAudit(block, counts[block], min(found[block], counts[block]))
             for block in study_blocks
         ]
         foreign = sorted(
             trial_id
-            for trial_id, record in logged.items()
-            if (record.block == ETA_CV and trial_id not in cv_ids) or record.block not in counts
+            for trial_id, row in logged.items()
+            if (row.block == ETA_CV and trial_id not in cv_ids) or row.block not in counts
         )
     return RunAudit(tuple(blocks), tuple(foreign), len(cv_logged) == len(cv_plan))
 
 
 def plan_faults(
-    run_dir: Path, files: Sequence[tuple[Path, list[TrialRecord], dict[str, str] | None]]
+    run_dir: Path, files: Sequence[tuple[Path, list[TrialRow], dict[str, str] | None]]
 ) -> list[str]:
     """The faults of a run's logged trials against its plan.
 
@@ -156,8 +156,8 @@ def plan_faults(
         pipeline = run_pipeline_of(identity)
     except UserError as error:
         return [str(error)]
-    records = [record for _, file_records, _ in files for record in file_records]
-    return audit_run(pipeline, records).faults(resume_command(identity, run_dir))
+    rows = [row for _, file_rows, _ in files for row in file_rows]
+    return audit_run(pipeline, rows).faults(resume_command(identity, run_dir))
 
 
 def resume_command(identity: RunIdentity, run_dir: Path) -> str:

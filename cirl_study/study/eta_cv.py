@@ -14,7 +14,7 @@ from collections import defaultdict
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
-from cirl_study.record import ETA_CV, TrialRecord
+from cirl_study.record import ETA_CV, TrialRow
 
 
 @dataclass(frozen=True)
@@ -36,12 +36,12 @@ class EtaChoice:
     subjects: int
 
 
-def choose_etas(records: Iterable[TrialRecord]) -> dict[tuple[str, int], EtaChoice]:
-    """Per ``(policy, num_features)``, the eta with the lowest mean regret over ``eta_cv`` records.
+def choose_etas(rows: Iterable[TrialRow]) -> dict[tuple[str, int], EtaChoice]:
+    """Per ``(policy, num_features)``, the eta with the lowest mean regret over ``eta_cv`` trials.
 
-    Records of other blocks are ignored. Means are exactly rounded sums (:func:`math.fsum`)
-    over the draws, so they do not depend on the order the records come in; ties go to the
-    smaller eta.
+    ``rows`` are the trials' :class:`~cirl_study.record.TrialRow`; other blocks are ignored.
+    Means are exactly rounded sums (:func:`math.fsum`) over the draws, so they do not depend
+    on the order the trials come in; ties go to the smaller eta.
 
     Raises:
         ValueError: an ``eta_cv`` record has no eta, or the etas of one feature level were
@@ -50,12 +50,12 @@ def choose_etas(records: Iterable[TrialRecord]) -> dict[tuple[str, int], EtaChoi
     regrets: dict[tuple[str, int], dict[float, list[float]]] = defaultdict(
         lambda: defaultdict(list)
     )
-    for record in records:
-        if record.block != ETA_CV:
+    for row in rows:
+        if row.block != ETA_CV:
             continue
-        if record.eta is None:
-            raise ValueError(f"cross-validation trial {record.trial_id} has no eta")
-        regrets[record.policy, record.num_features][record.eta].append(record.measures.regret)
+        if row.eta is None:
+            raise ValueError(f"cross-validation trial {row.trial_id} has no eta")
+        regrets[row.policy, row.num_features][row.eta].append(row.measures.regret)
     choices = {}
     for (policy, k), by_eta in sorted(regrets.items()):
         sizes = {len(values) for values in by_eta.values()}

@@ -38,7 +38,7 @@ from cirl_study.logs import (
 )
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
 from cirl_study.logs.lock import writer_lock
-from cirl_study.record import TrialRecord, TrialSpec
+from cirl_study.record import TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.engines import Engine
 from cirl_study.study.eta_cv import EtaChoice, choose_etas
 from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
@@ -263,17 +263,17 @@ def _cross_validate(
     float exactly), which spares reading the files just written.
     """
     logged_before = {trial.trial_id for trial in trials} & session.done
-    records: dict[str, TrialRecord] = {}
+    rows: dict[str, TrialRow] = {}
     if logged_before:
         identity = RunIdentity.of(session.provenance)
         logged = read_trials(session.out_dir, identity, logged_before)
-        records = {record.trial_id: record for record in logged}
+        rows = {record.trial_id: TrialRow.of(record) for record in logged}
     for batch in session.play(trials):
-        records.update((record.trial_id, record) for record in batch)
-    missing = [trial.trial_id for trial in trials if trial.trial_id not in records]
+        rows.update((record.trial_id, TrialRow.of(record)) for record in batch)
+    missing = [trial.trial_id for trial in trials if trial.trial_id not in rows]
     if missing:
         raise UserError(f"cross-validation trial {missing[0]} is missing from the logs")
-    return choose_etas(records[trial.trial_id] for trial in trials)
+    return choose_etas(rows[trial.trial_id] for trial in trials)
 
 
 def run_pipeline(
