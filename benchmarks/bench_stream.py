@@ -43,6 +43,9 @@ learning_steps = 2
 deployment_steps = 2
 sigma = 1.0
 feature_levels = [2, 3]
+centres = "per_draw"
+demonstrator_stays = true
+deployment_start = "uniform"
 
 [eta_cv]
 subjects = 2

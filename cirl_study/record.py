@@ -46,6 +46,7 @@ MEASURES: tuple[str, ...] = ("regret", "kl", "reward_l2")
 """The three dependent measures of docs/design.md §4, in the paper's order."""
 
 Block = Literal["main", "eta_cv", "lambda_sweep"]
+DeploymentStart = Literal["uniform", "demonstration"]
 Action = Literal["stay", "N", "S", "E", "W"]
 NonEmptyText = Annotated[str, msgspec.Meta(min_length=1)]
 PositiveInt = Annotated[int, msgspec.Meta(ge=1)]
@@ -114,8 +115,12 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
 
     ``eta`` is ``None`` exactly for a policy without a trade-off (the expert); ``robot``
     names the estimator (:mod:`cirl_study.core.robot`). The game is common knowledge:
-    ``grid``, the learning phase's ``start`` and the two horizons, the ``features``; the
-    subject's reward draw is ``theta``. ``seed`` seeds the trial's own generator.
+    ``grid``, the learning phase's ``start`` and the two horizons, the ``features``, whether
+    the human may ``stay`` while demonstrating (``demonstrator_stays``) and where the robot's
+    deployment starts (``deployment_start``: every cell, uniformly, or the learning phase's
+    ``start``); the subject's reward draw is ``theta``. ``seed`` seeds the trial's own
+    generator. ``universe`` is the id of the multiverse universe the trial belongs to
+    (:class:`cirl_study.study.spec.Universe`), ``None`` in a single study.
     :func:`cirl_study.core.gridworld.gridworld` and
     :func:`cirl_study.core.gridworld.feature_matrix` turn the game into arrays.
     """
@@ -136,6 +141,9 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
     features: RBFFeatures
     theta: Annotated[tuple[Weight, ...], msgspec.Meta(min_length=1)]
     robot: NonEmptyText = MAP
+    demonstrator_stays: bool = True
+    deployment_start: DeploymentStart = "uniform"
+    universe: NonEmptyText | None = None
 
 
 class TrialRecord(TrialSpec, **_STRUCT):
@@ -173,6 +181,7 @@ class TrialRow(msgspec.Struct, **_STRUCT):
 
     trial_id: str
     run_id: str
+    universe: str | None
     block: Block
     subject: str
     policy: str
@@ -191,6 +200,7 @@ class TrialRow(msgspec.Struct, **_STRUCT):
         return cls(
             trial_id=record.trial_id,
             run_id=sys.intern(record.run_id),
+            universe=None if record.universe is None else sys.intern(record.universe),
             block=sys.intern(record.block),
             subject=record.subject,
             policy=sys.intern(record.policy),

@@ -91,11 +91,11 @@ def test_the_chosen_eta_is_the_runs_choice_and_the_main_block_used_it(reports, r
     choices = choose_etas(rows(records))
     assert results["eta_cv"]["chosen"] == [
         {"num_features": k, "eta": c.eta, "mean": c.mean_regret[c.eta]}
-        for (_, k), c in sorted(choices.items())
+        for (_, _, k), c in sorted(choices.items())
     ]
     assert results["eta_cv"]["main_block"] == [
         {"num_features": k, "main_etas": [1.0], "chosen_eta": c.eta, "agree": True}
-        for (_, k), c in sorted(choices.items())
+        for (_, _, k), c in sorted(choices.items())
     ]
     assert [c.eta for c in choices.values()] == [1.0, 1.0]
     text = (first / "report.md").read_text(encoding="utf-8")

@@ -153,7 +153,9 @@ def test_the_plan_puts_every_robot_on_the_same_demonstrations(tmp_path: Path) ->
     pipeline = load_pipeline(robots_smoke(tmp_path, '["posterior_mean", "map"]'))
     assert pipeline.main.reference_robot == MAP
     assert {t.robot for t in eta_cv_trials(pipeline)} == {MAP}
-    study = study_trials(pipeline, {("best_response", 3): 1.0, ("best_response", 10): 1.0})
+    study = study_trials(
+        pipeline, {(None, "best_response", 3): 1.0, (None, "best_response", 10): 1.0}
+    )
     cells: dict[tuple, set[str]] = {}
     for t in study:
         cells.setdefault((t.block, t.subject, t.policy, t.rationality, t.eta), set()).add(t.robot)

@@ -102,14 +102,24 @@ def test_regret_is_a_batched_function():
 
 
 @pytest.mark.parametrize("rationality", [1e-4, 1.0, 1e3])
-def test_regret_ignores_the_rationality_and_the_phase_start(rationality):
+def test_regret_ignores_the_rationality_and_averages_the_fixed_starts(rationality):
+    # A fixed deployment start gives that start's regret; uniform starts, their mean.
     rng, features = _game(4, 3, 3, seed=10)
     thetas, theta_hats = rng.uniform(-1, 1, size=(2, 4, 3))
     batch = np.broadcast_to(features, (4, 12, 3))
-    reference = regret(_deployment(batch, 4, 3, 3), thetas, theta_hats)
-    for start in (None, 0, 7):
-        model = _deployment(batch, 4, 3, 3, rationality, start=start)
-        np.testing.assert_array_equal(regret(model, thetas, theta_hats), reference)
+    uniform = regret(_deployment(batch, 4, 3, 3), thetas, theta_hats)
+    np.testing.assert_array_equal(
+        regret(_deployment(batch, 4, 3, 3, rationality), thetas, theta_hats), uniform
+    )
+    per_start = np.stack(
+        [
+            regret(_deployment(batch, 4, 3, 3, rationality, start=start), thetas, theta_hats)
+            for start in range(12)
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(per_start.mean(axis=1), uniform, rtol=1e-12, atol=1e-15)
+    assert (per_start >= 0).all() and (per_start.max(axis=1) > per_start.min(axis=1)).any()
 
 
 # ---- KL -------------------------------------------------------------------------------------
@@ -156,15 +166,20 @@ def test_kl_is_not_symmetric_and_the_reference_sees_it():
     assert _kl(theta, theta_hat, features, 3, 3, 3, 2.0) == pytest.approx(forward, rel=1e-10)
 
 
-def test_kl_averages_over_every_start_whatever_the_phase_start():
-    # The measures take the expectation over a uniform start: a start in the phase plays no part.
+def test_kl_averages_over_the_uniform_starts_or_takes_the_fixed_one():
+    # Uniform starts give the mean over every cell; a fixed start, that cell's KL.
     rng, features = _game(3, 4, 2, seed=12)
     thetas, theta_hats = rng.uniform(-1, 1, size=(2, 3, 2))
     batch = np.broadcast_to(features, (3, 12, 2))
     everywhere = trajectory_kl(_deployment(batch, 3, 4, 3, 2.0), thetas, theta_hats)
-    for start in (0, 5):
-        model = _deployment(batch, 3, 4, 3, 2.0, start=start)
-        np.testing.assert_array_equal(trajectory_kl(model, thetas, theta_hats), everywhere)
+    per_start = np.stack(
+        [
+            trajectory_kl(_deployment(batch, 3, 4, 3, 2.0, start=start), thetas, theta_hats)
+            for start in range(12)
+        ],
+        axis=1,
+    )
+    np.testing.assert_allclose(per_start.mean(axis=1), everywhere, rtol=1e-12, atol=1e-15)
     for b in range(3):
         want = bf.kl(3, 4, features, thetas[b], theta_hats[b], 3, 2.0)
         assert everywhere[b] == pytest.approx(want, rel=1e-9, abs=1e-13)

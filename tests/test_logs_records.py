@@ -181,6 +181,18 @@ def _reverse_deploy(record: dict[str, Any]) -> None:
     record["deployment"]["paths"][0].reverse()
 
 
+def _stay_while_stays_are_off(record: dict[str, Any]) -> None:
+    demonstration = record["demonstration"]
+    demonstration["states"][1] = demonstration["states"][0]
+    demonstration["states"][2:] = [demonstration["states"][0]] * (len(demonstration["states"]) - 2)
+    demonstration["actions"] = ["stay"] * len(demonstration["actions"])
+    record["demonstrator_stays"] = False
+
+
+def _deploy_from_the_start_elsewhere(record: dict[str, Any]) -> None:
+    record["deployment_start"] = "demonstration"
+
+
 INCONSISTENT = {
     "unknown policy": (_set("policy", "oracle"), "policy 'oracle' is not a known human policy"),
     "unknown robot": (_set("robot", "oracle"), "robot 'oracle' is not a known robot"),
@@ -200,6 +212,11 @@ INCONSISTENT = {
     "negative regret": (_set("measures.regret", -0.1), "measures.regret is -0.1 < 0"),
     "negative kl": (_set("measures.kl", -1e-6), "measures.kl is -1e-06 < 0"),
     "reward_l2 off": (_set("measures.reward_l2", 1.0), "measures.reward_l2 is 1.0 but"),
+    "a stay the game forbids": (_stay_while_stays_are_off, "demonstrator_stays is false"),
+    "rollouts away from the start": (
+        _deploy_from_the_start_elsewhere,
+        "a deployment rollout starts away from the demonstration's start",
+    ),
 }
 
 

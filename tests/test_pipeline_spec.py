@@ -61,6 +61,12 @@ def test_paper_pipeline_is_the_study_of_the_issue() -> None:
     assert paper.lambda_sweep.subjects == 500
     assert paper.lambda_sweep.rationalities == tuple(10.0**e for e in range(-4, 4))
     assert trial_counts(paper) == {"eta_cv": 1800, "main": 2000, "lambda_sweep": 16000}
+    assert (game.centres, game.demonstrator_stays, game.deployment_start) == (
+        "per_draw",
+        True,
+        "uniform",
+    )
+    assert paper.multiverse is None
 
 
 def test_smoke_pipeline_has_the_paper_shape() -> None:
@@ -125,6 +131,10 @@ BAD_VALUES = [
     ("game.feature_levels", [3.5], "game.feature_levels must be a non-empty list"),
     ("game.feature_levels", 3, "game.feature_levels must be a non-empty list"),
     ("game.feature_levels", [3, 3], "game.feature_levels must not repeat a value"),
+    ("game.centres", "random", "game.centres must be one of per_draw, shared, lattice"),
+    ("game.centres", _DELETE, "game.centres is missing"),
+    ("game.demonstrator_stays", 1, "game.demonstrator_stays must be true or false, got 1"),
+    ("game.deployment_start", "corner", "game.deployment_start must be one of uniform, demo"),
     ("eta_cv.subjects", 0, "eta_cv.subjects must be a positive integer, got 0"),
     ("eta_cv.etas", [], "eta_cv.etas must be a non-empty list of numbers in ["),
     ("eta_cv.etas", [0.0, 1.0], "eta_cv.etas must be a non-empty list of numbers in ["),

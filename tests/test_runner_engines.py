@@ -86,7 +86,7 @@ def test_a_directory_of_another_pipeline_is_refused(serial_run: Path, tmp_path: 
 
 def test_batches_never_mix_blocks_and_cover_every_trial(smoke: Pipeline) -> None:
     trials = eta_cv_trials(smoke) + study_trials(
-        smoke, {("best_response", 3): 1.0, ("best_response", 10): 1.0}
+        smoke, {(None, "best_response", 3): 1.0, (None, "best_response", 10): 1.0}
     )
     batches = split_batches(trials, 7)
     assert [t for batch in batches for t in batch] == trials

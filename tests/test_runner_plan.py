@@ -24,7 +24,7 @@ from cirl_study.study.plan import (
 from cirl_study.study.spec import Pipeline, load_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
-ETAS = {("best_response", 3): 0.1, ("best_response", 10): 10.0}
+ETAS = {(None, "best_response", 3): 0.1, (None, "best_response", 10): 10.0}
 
 
 @pytest.fixture(scope="module")
@@ -93,7 +93,7 @@ def test_policies_and_etas(smoke: Pipeline) -> None:
     for t in eta_cv_trials(smoke):
         assert t.policy == "best_response" and t.eta in smoke.eta_cv.etas
     for t in study_trials(smoke, ETAS):
-        assert t.eta == ETAS.get((t.policy, t.num_features))
+        assert t.eta == ETAS.get((None, t.policy, t.num_features))
         assert t.rationality in (smoke.main.rationality, *smoke.lambda_sweep.rationalities)
 
 
@@ -184,10 +184,10 @@ def test_choose_etas_lowest_mean_then_smaller_eta(smoke: Pipeline) -> None:
     records = cv_records(trials, regret)
     choices = choose_etas(rows(records))
     assert {key: c.eta for key, c in choices.items()} == {
-        ("best_response", 3): 1.0,
-        ("best_response", 10): 1.0,
+        (None, "best_response", 3): 1.0,
+        (None, "best_response", 10): 1.0,
     }
-    choice = choices["best_response", 3]
+    choice = choices[None, "best_response", 3]
     assert choice.mean_regret == {0.1: 3.0, 1.0: 2.0, 10.0: 6.1 / 3}
     assert choice.subjects == 3
     # the same records read in another order choose the same; other blocks are ignored

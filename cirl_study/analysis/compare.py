@@ -3,8 +3,9 @@
 A report is reproduced when its numbers are, not its bytes: the last bits of a float depend on
 the CPU's and the BLAS kernels' rounding. :func:`compare_reports` compares
 
-* ``results.json`` (every number of the report, recursively) and ``trials.csv`` (every
-  measure of every trial): two numbers ``a`` (expected) and ``b`` agree when
+* ``results.json`` (every number of the report, recursively) and every ``*.csv`` table
+  (``trials.csv``: every measure of every trial; a multiverse's ``universes.csv``: every
+  universe's verdicts and effects): two numbers ``a`` (expected) and ``b`` agree when
   ``|a - b| <= atol + rtol * |a|``; strings, booleans, nulls, keys and row identities must be
   equal;
 * ``report.md``: the text must be identical (it prints numbers to four significant digits);
@@ -62,13 +63,20 @@ def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = Non
     """Every difference between the report directories ``expected`` and ``got`` (empty if none).
 
     Raises:
-        UserError: a directory lacks ``results.json`` or ``trials.csv``.
+        UserError: a directory lacks ``results.json``, the expected one any ``*.csv`` table,
+            or the other a table the expected one has.
     """
     tolerance = tolerance or Tolerance()
     differences = list(
         _json_differences(_load_json(expected), _load_json(got), "results.json", tolerance)
     )
-    differences += _table_differences(_load_csv(expected), _load_csv(got), tolerance)
+    tables = sorted(path.name for path in expected.glob("*.csv"))
+    if not tables:
+        raise UserError(f"{expected}: no table (*.csv) to compare")
+    for name in tables:
+        differences += _table_differences(
+            name, _load_csv(expected / name), _load_csv(got / name), tolerance
+        )
     differences += _text_differences(expected / "report.md", got / "report.md")
     for figure in sorted(expected.glob("*.png")):
         differences += _figure_differences(figure, got / figure.name)
@@ -88,8 +96,7 @@ def _load_json(directory: Path) -> Any:
         raise UserError(f"{path}: cannot read: {error}") from None
 
 
-def _load_csv(directory: Path) -> list[dict[str, str]]:
-    path = directory / "trials.csv"
+def _load_csv(path: Path) -> list[dict[str, str]]:
     try:
         with path.open(newline="") as stream:
             return list(csv.DictReader(stream))
@@ -120,12 +127,12 @@ def _json_differences(a: Any, b: Any, where: str, tolerance: Tolerance) -> Itera
 
 
 def _table_differences(
-    a: list[dict[str, str]], b: list[dict[str, str]], tolerance: Tolerance
+    name: str, a: list[dict[str, str]], b: list[dict[str, str]], tolerance: Tolerance
 ) -> Iterator[str]:
     if len(a) != len(b):
-        yield f"trials.csv: {len(a)} rows != {len(b)} rows"
+        yield f"{name}: {len(a)} rows != {len(b)} rows"
     for index, (x, y) in enumerate(zip(a, b, strict=False)):
-        where = f"trials.csv row {index + 2} ({x.get('trial_id')})"
+        where = f"{name} row {index + 2} ({x.get('trial_id', x.get('universe'))})"
         if list(x) != list(y):
             yield f"{where}: columns differ"
             continue

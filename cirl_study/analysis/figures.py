@@ -28,6 +28,7 @@ from matplotlib import rc_context
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 from numpy.typing import NDArray
 
 from cirl_study.core.gridworld import feature_matrix
@@ -426,3 +427,77 @@ def robot_difference_curve(sweep: pd.DataFrame, reference: str, other: str) -> R
         panels[0].legend(frameon=False, fontsize=8, title="human")
         figure.suptitle(f"Below zero: {other} did better than {reference}")
         return render(figure)
+
+
+def specification_curve(
+    effects: pd.DataFrame, choices: pd.DataFrame, measure: str, marked: str
+) -> Rendered:
+    """The specification curve of one measure (Simonsohn, Simmons & Nelson 2020).
+
+    Top: each universe's policy effect (mean of ``best response - expert``, 95% CI), sorted
+    by size; filled where ``p < .05``, hollow otherwise; the universe ``marked`` (the
+    pipeline's own, the paper's reading) in red. Below: the dashboard, one row per level of
+    every axis that varies, a mark where the universe above made that choice.
+
+    Args:
+        effects: rows ``universe, mean_diff, ci95_low, ci95_high, p`` of this measure.
+        choices: one row per universe (index: its id), one column per varied axis.
+        measure: the measure's name (:data:`MEASURE_LABELS`).
+        marked: the id of the universe to mark.
+    """
+    ordered = effects.sort_values(["mean_diff", "universe"], kind="mergesort").reset_index(
+        drop=True
+    )
+    x = np.arange(len(ordered), dtype=np.float64)
+    significant = (ordered["p"] < 0.05).to_numpy()
+    rows = [(axis, level) for axis in choices.columns for level in _levels(choices[axis])]
+    with matplotlib.style.context("default"), rc_context(STYLE):
+        figure = _new_figure(max(6.0, 0.12 * len(ordered) + 3.0), 3.2 + 0.22 * len(rows))
+        curve, dashboard = figure.subplots(
+            2, 1, sharex=True, height_ratios=[3.0, max(1.0, 0.22 * len(rows))]
+        )
+        curve.axhline(0.0, color="black", linewidth=0.8)
+        colours = np.where(ordered["universe"] == marked, "#d62728", "#1f77b4")
+        errors = np.vstack(
+            [
+                ordered["mean_diff"] - ordered["ci95_low"],
+                ordered["ci95_high"] - ordered["mean_diff"],
+            ]
+        )
+        curve.errorbar(x, ordered["mean_diff"], yerr=errors, fmt="none", ecolor="#9e9e9e", lw=0.8)
+        for filled in (True, False):
+            at = significant == filled
+            curve.scatter(
+                x[at],
+                ordered["mean_diff"][at],
+                s=18,
+                c=colours[at] if filled else "white",
+                edgecolors=colours[at],
+                zorder=3,
+            )
+        curve.set_ylabel(f"{MEASURE_LABELS[measure]}: best response - expert")
+        keys = [
+            Line2D([], [], linestyle="none", marker="o", color="#1f77b4", label="p < .05"),
+            Line2D(
+                [], [], linestyle="none", marker="o", color="#1f77b4", markerfacecolor="white",
+                label="p >= .05",
+            ),
+        ]  # fmt: skip
+        curve.legend(handles=keys, frameon=False, fontsize=8, loc="upper left")
+        for position, universe in enumerate(ordered["universe"]):
+            for row, (axis, level) in enumerate(rows):
+                if choices.at[universe, axis] == level:
+                    dashboard.scatter(
+                        position, row, s=10, marker="s", c=colours[position], linewidths=0
+                    )
+        dashboard.set_yticks(np.arange(len(rows)), [f"{axis} = {level}" for axis, level in rows])
+        dashboard.set_ylim(len(rows) - 0.5, -0.5)
+        dashboard.set_xlabel("universes, by effect (red: the pipeline's own settings)")
+        dashboard.set_xticks([])
+        figure.suptitle(f"Specification curve: the policy effect on {MEASURE_LABELS[measure]}")
+        return render(figure)
+
+
+def _levels(column: pd.Series) -> list[Any]:
+    """A dashboard axis's levels in the order they first appear."""
+    return list(dict.fromkeys(column.tolist()))

@@ -9,7 +9,6 @@ input.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -19,9 +18,9 @@ import pandas as pd
 from cirl_study.analysis import figures
 from cirl_study.analysis.claims import SIGNIFICANCE, evaluate_claims
 from cirl_study.analysis.markdown import anchor, interval, number, p_value, table
+from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.results import Results, analyse, plain
 from cirl_study.analysis.table import check_design, trial_table
-from cirl_study.errors import UserError
 from cirl_study.record import (
     BEST_RESPONSE,
     EXPERT,
@@ -746,22 +745,13 @@ def write_report(
         results["theory"] = plain(theory)
     progress("figures")
     pngs = render_figures(trials, records_of, results)
-    out = Path(out_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        (out / "report.md").write_text(render_markdown(results), encoding="utf-8", newline="\n")
-        text = json.dumps(results, indent=2, ensure_ascii=False, allow_nan=False)
-        (out / "results.json").write_text(text + "\n", encoding="utf-8", newline="\n")
-        trial_table(trials).to_csv(out / "trials.csv", index=False, lineterminator="\n")
-        if provenance is not None:
-            text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
-            (out / "provenance.json").write_text(text + "\n", encoding="utf-8", newline="\n")
-        for png_name, _ in FIGURES.values():
-            for name in (png_name, _svg_name(png_name)):
-                if name in pngs:
-                    (out / name).write_bytes(pngs[name])
-                else:
-                    (out / name).unlink(missing_ok=True)
-    except OSError as error:
-        raise UserError(f"cannot write the report to {out}: {error.strerror}") from None
+    names = [n for png_name, _ in FIGURES.values() for n in (png_name, _svg_name(png_name))]
+    write_report_directory(
+        out_dir,
+        markdown=render_markdown(results),
+        results=results,
+        tables={"trials.csv": trial_table(trials)},
+        figures={name: pngs.get(name) for name in names},
+        provenance=provenance,
+    )
     return results

@@ -134,7 +134,7 @@ def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> dict[str, Any]:
         choices = choose_etas(trials)
     except ValueError as error:
         raise UserError(f"eta cross-validation: {error}") from None
-    chosen = {k: choice for (policy, k), choice in choices.items() if policy == BEST_RESPONSE}
+    chosen = {k: choice for (_, policy, k), choice in choices.items() if policy == BEST_RESPONSE}
     played: dict[int, set[float]] = {}
     for row in trials:
         if row.block == MAIN and row.policy == BEST_RESPONSE and row.eta is not None:

@@ -16,11 +16,12 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 import pandas as pd
 import pingouin as pg
-from scipy import stats
+from scipy import special, stats
 from statsmodels.stats.multitest import multipletests
 
 from cirl_study.analysis.studentized_range import studentized_range_sf
@@ -648,3 +649,90 @@ def eta_means(cv: pd.DataFrame) -> pd.DataFrame:
     """
     best = cv[(cv["policy"] == BEST_RESPONSE) & cv["eta"].notna()]
     return group_means(best, "regret", ["num_features", "eta"])
+
+
+JOINT_RESAMPLES = 5000
+"""Sign-flip resamples of :func:`joint_sign_flip_test` (Simonsohn et al. ask for >= 500)."""
+
+JOINT_SEED = 2020
+"""Seed of the generator of :func:`joint_sign_flip_test`'s sign flips."""
+
+
+def joint_sign_flip_test(
+    differences: np.ndarray,
+    resamples: int = JOINT_RESAMPLES,
+    seed: int = JOINT_SEED,
+    batch: int = 100,
+) -> dict[str, Any]:
+    """Joint test across universes that the effect is negative (Simonsohn et al. 2020).
+
+    ``differences`` is ``U x S``: ``d_{u,s} = y_{s,br} - y_{s,expert}`` of subject ``s`` in
+    universe ``u`` (every universe plays the same subjects; negative: the best response did
+    better). Per universe, the paired t-statistic ``t_u = mean(d_u) / (sd(d_u) / sqrt(S))`` on
+    ``S - 1`` degrees of freedom. Three statistics of the whole specification curve:
+
+    * ``median_effect``: the median over universes of ``mean(d_u)``;
+    * ``share_significant``: the share of universes with a two-sided ``p < .05`` in the
+      claimed direction, ``t_u < -t_{.975, S-1}``;
+    * ``stouffer_z``: ``sum_u z_u / sqrt(U)`` with ``z_u = Phi^{-1}(1 - p_u)`` and ``p_u =
+      P(T_{S-1} <= t_u)`` the one-sided p-value (computed from ``log p_u``, so it is exact in
+      the far tail where ``p_u`` itself underflows).
+
+    Their null distribution: under "no effect in any universe" each subject's differences are
+    symmetric about 0, so flipping the sign of subject ``s``'s differences in *every* universe
+    at once (``d*_{u,s} = e_s d_{u,s}``, ``e_s = +-1`` fair and independent) keeps the
+    dependence between universes that share the subjects. ``resamples`` flips drawn from a
+    generator seeded with ``seed``; each p-value is ``(1 + #{null at least as extreme}) / (1 +
+    resamples)`` (Phipson & Smyth 2010), one-sided towards a negative effect. The sums are
+    numpy's (pairwise, in a fixed order), not BLAS's, so the counts do not depend on the
+    machine.
+
+    References:
+        Simonsohn, Simmons & Nelson (2020), Nature Human Behaviour 4:1208-1214.
+        Stouffer et al. (1949), *The American Soldier*, vol. 1.
+        Phipson & Smyth (2010), Statistical Applications in Genetics and Molecular Biology 9(1).
+
+    Returns:
+        ``universes, subjects, resamples, seed``, and for each statistic ``{"observed",
+        "p"}`` under its key.
+    """
+    d = np.asarray(differences, dtype=np.float64)
+    universes, subjects = d.shape
+    squares = np.sum(d**2, axis=1)
+    observed = _curve_statistics(d.mean(axis=1), squares, subjects)
+    rng = np.random.default_rng(seed)
+    extreme = dict.fromkeys(observed, 0)
+    for start in range(0, resamples, batch):
+        flips = rng.choice(np.array([-1.0, 1.0]), size=(min(batch, resamples - start), subjects))
+        means = (flips[:, None, :] * d[None, :, :]).sum(axis=2) / subjects
+        null = _curve_statistics(means.T, squares[:, None], subjects)
+        extreme["median_effect"] += int(np.sum(null["median_effect"] <= observed["median_effect"]))
+        for key in ("share_significant", "stouffer_z"):
+            extreme[key] += int(np.sum(null[key] >= observed[key]))
+    return {
+        "universes": universes,
+        "subjects": subjects,
+        "resamples": resamples,
+        "seed": seed,
+        **{
+            key: {"observed": float(value), "p": (1 + extreme[key]) / (1 + resamples)}
+            for key, value in observed.items()
+        },
+    }
+
+
+def _curve_statistics(
+    means: np.ndarray, squares: np.ndarray, subjects: int
+) -> dict[str, np.ndarray]:
+    """The three statistics of :func:`joint_sign_flip_test` from each universe's mean
+    difference and sum of squares (axis 0: universes; further axes: resamples)."""
+    variance = np.maximum(squares - subjects * means**2, 0.0) / (subjects - 1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = means / np.sqrt(variance / subjects)
+    critical = stats.t.ppf(0.975, subjects - 1)
+    z = -special.ndtri_exp(stats.t.logcdf(t, subjects - 1))
+    return {
+        "median_effect": np.median(means, axis=0),
+        "share_significant": np.mean(t < -critical, axis=0),
+        "stouffer_z": np.sum(z, axis=0) / np.sqrt(means.shape[0]),
+    }

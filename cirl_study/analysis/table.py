@@ -16,12 +16,17 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.errors import UserError
-from cirl_study.logs.run_checks import design_faults, incomplete_main_subjects
+from cirl_study.logs.run_checks import (
+    design_faults,
+    incomplete_main_subjects,
+    subject_in_universe,
+)
 from cirl_study.record import MAIN, MEASURES, PAPER_POLICIES, TrialRow
 
 COLUMNS: tuple[str, ...] = (
     "trial_id",
     "run_id",
+    "universe",
     "block",
     "subject",
     "policy",
@@ -33,10 +38,12 @@ COLUMNS: tuple[str, ...] = (
     *MEASURES,
     "certified",
 )
-"""Columns of the trial table, in order. ``certified``: the robot certified its estimate
+"""Columns of the trial table, in order. ``universe``: the trial's multiverse universe (empty
+in a single study). ``certified``: the robot certified its estimate
 (``irl.converged``; a record without a fit report counts as certified)."""
 
 SORT_KEYS: tuple[str, ...] = (
+    "universe",
     "block",
     "num_features",
     "subject",
@@ -85,7 +92,7 @@ def complete_main_subjects(rows: Sequence[TrialRow]) -> tuple[list[TrialRow], li
     and the ids of the subjects whose ``main`` trials were left out.
     """
     _, incomplete = incomplete_main_subjects(rows)
-    kept = [r for r in rows if not (r.block == MAIN and r.subject in incomplete)]
+    kept = [r for r in rows if not (r.block == MAIN and subject_in_universe(r) in incomplete)]
     return kept, sorted(incomplete)
 
 

@@ -70,6 +70,7 @@ def analyze(
     give an identical report.
     """
     # The statistics and plotting libraries load only when an analysis is asked for.
+    from cirl_study.analysis.multiverse_report import write_multiverse_report
     from cirl_study.analysis.report import write_report
     from cirl_study.analysis.table import complete_main_subjects
     from cirl_study.analysis.theory_claims import office_supplies_claims
@@ -88,14 +89,22 @@ def analyze(
     contents = read_run(run, salvage=partial)
     for warning in contents.warnings:
         typer.echo(f"warning: {warning}", err=True)
-    audit = audit_run(run_pipeline_of(contents.identity), contents.rows)
+    pipeline = run_pipeline_of(contents.identity)
+    audit = audit_run(pipeline, contents.rows)
     faults = audit.faults(resume_command(contents.identity, run))
     if audit.foreign or (faults and not partial):
-        advice = "" if audit.foreign else ", or analyze it with --partial"
+        whole = audit.foreign or pipeline.multiverse is not None
+        advice = "" if whole else ", or analyze it with --partial"
         raise UserError(f"{run}: not a complete run: {faults[0]}{advice}")
     trials, left_out = contents.rows, []
     partial_run = None
-    if partial and not (audit.complete and not contents.damaged):
+    complete = audit.complete and not contents.damaged
+    if pipeline.multiverse is not None and not complete:
+        raise UserError(
+            f"{run}: a multiverse is analysed only whole (its universes share the reward "
+            f"draws); resume it with `{resume_command(contents.identity, run)}`"
+        )
+    if partial and not complete:
         trials, left_out = complete_main_subjects(trials)
         partial_run = {
             "planned": audit.planned,
@@ -107,7 +116,6 @@ def analyze(
     target = out if out is not None else run / REPORT_NAME
     if not force:
         _refuse_another_runs_report(target, contents.identity.run_id)
-    theory = office_supplies_claims(office_supplies_results())
     provenance = {
         "run": sorted(
             {json.dumps(p, sort_keys=True): p for p in contents.provenance}.values(),
@@ -118,6 +126,25 @@ def analyze(
             **machine_provenance(),
         },
     }
+    if pipeline.multiverse is not None:
+        multiverse = write_multiverse_report(
+            trials,
+            target,
+            pipeline,
+            run_id=contents.identity.run_id,
+            provenance=provenance,
+            progress=stage,
+        )
+        shares = ", ".join(
+            f"{claim['id']} {claim['reproduced']}/{claim['universes']}"
+            for claim in multiverse["claims"]
+        )
+        typer.echo(
+            f"multiverse report of {len(trials)} trials in {len(multiverse['universes'])} "
+            f"universes written to {target}: universes reproducing each claim: {shares}"
+        )
+        return
+    theory = office_supplies_claims(office_supplies_results())
     results = write_report(
         trials,
         target,

@@ -95,10 +95,15 @@ def _summary(result: RunResult, engine: str) -> str:
     playing = result.playing_seconds
     rate = result.played / playing if playing > 0 else 0.0
     floor = result.play_seconds / result.workers
-    etas = "; ".join(
-        f"{policy} at K={k} -> {choice.eta:g} (mean regret {choice.mean_regret[choice.eta]:.4g})"
-        for (policy, k), choice in sorted(result.etas.items())
-    )
+    universes = {universe for universe, _, _ in result.etas}
+    if universes != {None}:
+        etas = f"{len(result.etas)} choices in {len(universes)} universes (see the report)"
+    else:
+        etas = "; ".join(
+            f"{policy} at K={k} -> {choice.eta:g} "
+            f"(mean regret {choice.mean_regret[choice.eta]:.4g})"
+            for (_, policy, k), choice in sorted(result.etas.items())
+        )
     return "\n".join(
         [
             f"run {result.run_id}: {result.total} trials logged in {result.out_dir} "

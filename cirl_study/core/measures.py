@@ -2,10 +2,12 @@
 
 All three compare the true reward weights :math:`\\theta` with the robot's estimate
 :math:`\\hat\\theta` on the deployment phase: ``T`` steps from a start cell drawn
-uniformly from all cells. Expectations over the start are taken exactly, by
-averaging over every cell. Each takes the MaxEnt model of the deployment phase
+uniformly from all cells (``phase.start = None``; the paper's setting) or from one fixed
+start (``phase.start = s``). Expectations over the start are taken exactly, by averaging
+over every cell, :math:`\\frac{1}{|S|}\\sum_s`; a fixed start replaces that average by the
+value at ``s``. Each takes the MaxEnt model of the deployment phase
 (:class:`cirl_study.core.maxent.MaxEnt`: its dynamics, the trials' features and
-:math:`\\lambda`); the start cell of its phase plays no part.
+:math:`\\lambda`).
 
 * ``regret``: :math:`\\frac{1}{|S|}\\sum_s V^*_\\theta(s) - V^{\\pi_{\\hat\\theta}}_\\theta(s)`,
   where :math:`\\pi_{\\hat\\theta}` is the optimal (hard-max) ``T``-step policy for
@@ -24,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from cirl_study.core.maxent import MaxEnt
+from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.planning import (
     FloatArray,
     evaluate_policy,
@@ -35,17 +37,20 @@ from cirl_study.core.planning import (
 
 
 def regret(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
-    """Mean over start cells of :math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta`, ``(B,)``."""
+    """:math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta` over the deployment's starts ``(B,)``.
+
+    The values :math:`V` sum :math:`r_\\theta(s_t)`, ``t = 1..T``, from each start.
+    """
     successors, horizon = deployment.phase.successors, deployment.phase.horizon
     true_rewards = deployment.cell_rewards(theta)
     best = optimal_plan(true_rewards, successors, horizon).values[0]
     robot = optimal_plan(deployment.cell_rewards(theta_hat), successors, horizon).actions
     achieved = evaluate_policy(true_rewards, successors, robot)[0]
-    return (best - achieved).mean(axis=1)
+    return over_starts(best - achieved, deployment.phase)
 
 
 def trajectory_kl(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
-    """Mean over start cells of the KL between MaxEnt trajectory distributions, ``(B,)``."""
+    """The KL between MaxEnt trajectory distributions over the deployment's starts, ``(B,)``."""
     successors, horizon = deployment.phase.successors, deployment.phase.horizon
     rationality = deployment.rationality
     true = soft_value_iteration(deployment.cell_rewards(theta), successors, horizon, rationality)
@@ -61,7 +66,12 @@ def trajectory_kl(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) 
         # Each per-step KL is >= 0; clipping removes only rounding below zero.
         step = np.maximum((true.policy[t] * log_ratio[t]).sum(axis=-1), 0.0)
         divergence = step + (true.policy[t] * divergence[:, gather]).sum(axis=-1)
-    return divergence.mean(axis=1)
+    return over_starts(divergence, deployment.phase)
+
+
+def over_starts(values: FloatArray, phase: Phase) -> FloatArray:
+    """``(B, S)`` values per start cell, averaged over the phase's starts: ``(B,)``."""
+    return values.mean(axis=1) if phase.start is None else values[:, phase.start]
 
 
 def reward_l2(features: FloatArray, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:

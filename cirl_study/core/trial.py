@@ -5,12 +5,14 @@ reward weights :math:`\\theta`, the robot's rationality :math:`\\lambda`, the hu
 (with its trade-off :math:`\\eta` where it has one), the robot and the two horizons. It plays:
 
 1. **Learning phase.** The human demonstrates a ``learning_steps`` path from the fixed start
-   cell (:data:`cirl_study.core.humans.HUMANS`).
+   cell (:data:`cirl_study.core.humans.HUMANS`), without the ``stay`` action unless
+   ``demonstrator_stays``; the robot's model of the phase has the same moves.
 2. **Inference.** The robot estimates :math:`\\hat\\theta` from the demonstration
    (:data:`cirl_study.core.robot.ROBOTS`).
 3. **Deployment phase.** The robot acts optimally for :math:`r_{\\hat\\theta}` for
-   ``deployment_steps`` steps from a uniformly drawn start; the measures take the exact
-   expectation over that start (:mod:`cirl_study.core.measures`).
+   ``deployment_steps`` steps from a uniformly drawn start (``deployment_start =
+   "uniform"``; the measures take the exact expectation over that start,
+   :mod:`cirl_study.core.measures`) or from the learning phase's start.
 
 :func:`play_trials` plays many trials at once, vectorised over trials that share the game's
 shape, rationality, policy and robot, and returns one :class:`~cirl_study.record.TrialRecord`
@@ -24,7 +26,14 @@ from collections.abc import Hashable, Sequence
 
 import numpy as np
 
-from cirl_study.core.gridworld import Gridworld, feature_matrix, gridworld, path_actions
+from cirl_study.core.gridworld import (
+    ACTIONS,
+    UNAVAILABLE,
+    Gridworld,
+    feature_matrix,
+    gridworld,
+    path_actions,
+)
 from cirl_study.core.humans import HUMANS
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.measures import regret, reward_l2, trajectory_kl
@@ -66,7 +75,8 @@ def check_playable(spec: TrialSpec) -> None:
 def _group_key(spec: TrialSpec) -> Hashable:
     return (
         spec.grid, spec.start, spec.learning_steps, spec.deployment_steps, spec.features.sigma,
-        spec.num_features, spec.rationality, spec.policy, spec.robot,
+        spec.num_features, spec.rationality, spec.policy, spec.robot, spec.demonstrator_stays,
+        spec.deployment_start,
     )  # fmt: skip
 
 
@@ -92,13 +102,17 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     grid = gridworld(first)
     theta = np.array([spec.theta for spec in specs], dtype=np.float64)
     features = np.stack([feature_matrix(spec) for spec in specs])
+    start = grid.index(*first.start)
     learning = MaxEnt(
-        Phase(grid.successors, grid.index(*first.start), first.learning_steps),
+        Phase(demonstrator_moves(grid, first), start, first.learning_steps),
         features,
         first.rationality,
     )
+    deployment_start = start if first.deployment_start == "demonstration" else None
     deployment = MaxEnt(
-        Phase(grid.successors, None, first.deployment_steps), features, first.rationality
+        Phase(grid.successors, deployment_start, first.deployment_steps),
+        features,
+        first.rationality,
     )
 
     human = HUMANS[first.policy]
@@ -115,7 +129,7 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     robot_plan = optimal_plan(
         deployment.cell_rewards(theta_hat), grid.successors, first.deployment_steps
     )
-    rollouts = _deployment_rollouts(grid, specs, robot_plan.actions)
+    rollouts = _deployment_rollouts(grid, specs, deployment_start, robot_plan.actions)
     return [
         TrialRecord(
             **{name: getattr(spec, name) for name in TrialSpec.__struct_fields__},
@@ -144,17 +158,30 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     ]
 
 
+def demonstrator_moves(grid: Gridworld, spec: TrialSpec) -> np.ndarray:
+    """The successor table of the learning phase: the grid's, less ``stay`` unless the human
+    may stay (``spec.demonstrator_stays``)."""
+    if spec.demonstrator_stays:
+        return grid.successors
+    moves = grid.successors.copy()
+    moves[:, ACTIONS.index("stay")] = UNAVAILABLE
+    return moves
+
+
 def _cells(grid: Gridworld, path: np.ndarray) -> tuple[tuple[int, int], ...]:
     return tuple(grid.coords(s) for s in path)
 
 
 def _deployment_rollouts(
-    grid: Gridworld, specs: Sequence[TrialSpec], policy: np.ndarray
+    grid: Gridworld, specs: Sequence[TrialSpec], start: int | None, policy: np.ndarray
 ) -> list[np.ndarray]:
     """The robot's paths ``(B, T + 1)`` from each trial's own few replay start cells.
 
-    The start cells are drawn from the trial's ``seed``, without replacement.
+    The start cells are drawn from the trial's ``seed``, without replacement, when the
+    deployment starts anywhere (``start`` is ``None``); else the one path from ``start``.
     """
+    if start is not None:
+        return [follow_policy(grid.successors, np.full(len(specs), start), policy)]
     starts = np.array(
         [
             np.random.default_rng(spec.seed).choice(

@@ -4,8 +4,10 @@ Types and ranges are checked by decoding into :class:`~cirl_study.record.TrialRe
 (:func:`decode_trial`). Consistency, in docs/design.md's notation: ``len(theta) =
 len(theta_hat) = K`` = number of RBF centres; the start cell ``s_0`` lies on the grid; the
 demonstration is a path ``(s_0, ..., s_T_learn)`` of available moves from ``s_0`` with
-``T_learn`` actions, each the move between consecutive cells; every deployment rollout is such a
-path of ``T_deploy`` moves from its start; ``regret >= 0`` and ``kl >= 0`` (up to rounding);
+``T_learn`` actions, each the move between consecutive cells, none of them ``stay`` unless
+``demonstrator_stays``; every deployment rollout is such a path of ``T_deploy`` moves from its
+start, which is the demonstration's start when ``deployment_start`` says so; ``regret >= 0``
+and ``kl >= 0`` (up to rounding);
 ``reward_l2 = ||Phi theta - Phi theta_hat||_2`` recomputed from the record. The policy and the
 robot are registered ones (:data:`~cirl_study.core.humans.HUMANS`,
 :data:`~cirl_study.core.robot.ROBOTS`), and ``eta`` is null exactly for a policy without a
@@ -94,8 +96,12 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
                 f"{list(cell)} -> {list(next_cell)}"
             )
             break
+    if not r.demonstrator_stays and "stay" in actions:
+        yield "the demonstration stays put, but demonstrator_stays is false"
     if r.deployment is not None:
         starts, paths = r.deployment.starts, r.deployment.paths
+        if r.deployment_start == "demonstration" and any(s != r.start for s in starts):
+            yield f"a deployment rollout starts away from the demonstration's start {list(r.start)}"
         if len(starts) != len(paths):
             yield f"deployment has {len(starts)} starts and {len(paths)} paths"
         for i, (start, path) in enumerate(zip(starts, paths, strict=False)):

@@ -4,7 +4,8 @@
   only its records.
 * A subject is one reward draw: all its records agree on ``num_features``, ``theta``, the
   features, the grid and the start cell (their :attr:`~cirl_study.record.TrialRow.draw`
-  digest; so a subject lies at one feature level).
+  digest; so a subject lies at one feature level). In a multiverse this holds within each
+  universe (:func:`subject_in_universe`): universes differ in the features by design.
 * The ``main`` block is non-empty, complete and within subjects: every subject in it has
   exactly one trial of every (robot, policy) pair the block plays.
 * Cross-validation draws are disjoint from the test draws: no ``eta_cv`` subject appears in
@@ -80,11 +81,17 @@ def _duplicate_faults(
     return [f"{len(duplicates)} trial id(s) logged in two files: {_examples(duplicates)}"]
 
 
+def subject_in_universe(row: TrialRow) -> str:
+    """The subject of a trial within its universe: ``<subject>@<universe>`` (in a single study,
+    the subject)."""
+    return row.subject if row.universe is None else f"{row.subject}@{row.universe}"
+
+
 def _subject_faults(rows: Iterable[TrialRow]) -> list[str]:
     first: dict[str, TrialRow] = {}
     disagreeing: list[str] = []
     for row in rows:
-        reference = first.setdefault(row.subject, row)
+        reference = first.setdefault(subject_in_universe(row), row)
         if row.draw != reference.draw:
             levels = (
                 f": num_features {row.num_features} against {reference.num_features}"
@@ -122,18 +129,23 @@ def incomplete_main_subjects(
     rows: Iterable[TrialRow],
 ) -> tuple[list[str], dict[str, Counter[str]]]:
     """The ``main`` block's within-subjects cells (``policy/robot``, sorted), and each subject
-    that lacks exactly one trial of every one of them, with its trials per cell."""
+    (:func:`subject_in_universe`) that lacks exactly one trial of every cell its universe
+    plays, with its trials per cell."""
     trials: dict[str, Counter[str]] = defaultdict(Counter)
+    universe_of: dict[str, str | None] = {}
+    cells_of: dict[str | None, set[str]] = defaultdict(set)
     for row in rows:
         if row.block == MAIN:
-            trials[row.subject][_cell(row)] += 1
-    cells = sorted({cell for count in trials.values() for cell in count})
+            subject = subject_in_universe(row)
+            trials[subject][_cell(row)] += 1
+            universe_of[subject] = row.universe
+            cells_of[row.universe].add(_cell(row))
     incomplete = {
         subject: count
         for subject, count in trials.items()
-        if [count[cell] for cell in cells] != [1] * len(cells)
+        if any(count[cell] != 1 for cell in cells_of[universe_of[subject]])
     }
-    return cells, incomplete
+    return sorted(set().union(*cells_of.values())), incomplete
 
 
 def _cell(row: TrialRow) -> str:

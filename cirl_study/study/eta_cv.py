@@ -22,6 +22,8 @@ class EtaChoice:
     """The cross-validated eta of one policy at one feature level.
 
     Attributes:
+        universe: the id of the multiverse universe whose cross-validation this is, ``None``
+            in a single study.
         policy: the policy whose trade-off was chosen.
         num_features: the feature level ``K``.
         eta: the eta with the lowest mean regret (ties to the smaller eta).
@@ -29,6 +31,7 @@ class EtaChoice:
         subjects: the number of cross-validation draws behind each mean.
     """
 
+    universe: str | None
     policy: str
     num_features: int
     eta: float
@@ -36,8 +39,9 @@ class EtaChoice:
     subjects: int
 
 
-def choose_etas(rows: Iterable[TrialRow]) -> dict[tuple[str, int], EtaChoice]:
-    """Per ``(policy, num_features)``, the eta with the lowest mean regret over ``eta_cv`` trials.
+def choose_etas(rows: Iterable[TrialRow]) -> dict[tuple[str | None, str, int], EtaChoice]:
+    """Per ``(universe, policy, num_features)``, the eta with the lowest mean regret over
+    ``eta_cv`` trials (``universe`` is ``None`` in a single study).
 
     ``rows`` are the trials' :class:`~cirl_study.record.TrialRow`; other blocks are ignored.
     Means are exactly rounded sums (:func:`math.fsum`) over the draws, so they do not depend
@@ -47,7 +51,7 @@ def choose_etas(rows: Iterable[TrialRow]) -> dict[tuple[str, int], EtaChoice]:
         ValueError: an ``eta_cv`` record has no eta, or the etas of one feature level were
             not all played on the same number of draws.
     """
-    regrets: dict[tuple[str, int], dict[float, list[float]]] = defaultdict(
+    regrets: dict[tuple[str | None, str, int], dict[float, list[float]]] = defaultdict(
         lambda: defaultdict(list)
     )
     for row in rows:
@@ -55,16 +59,22 @@ def choose_etas(rows: Iterable[TrialRow]) -> dict[tuple[str, int], EtaChoice]:
             continue
         if row.eta is None:
             raise ValueError(f"cross-validation trial {row.trial_id} has no eta")
-        regrets[row.policy, row.num_features][row.eta].append(row.measures.regret)
+        regrets[row.universe, row.policy, row.num_features][row.eta].append(row.measures.regret)
     choices = {}
-    for (policy, k), by_eta in sorted(regrets.items()):
+    for (universe, policy, k), by_eta in sorted(regrets.items(), key=_universe_first):
         sizes = {len(values) for values in by_eta.values()}
         if len(sizes) != 1:
+            where = "" if universe is None else f" in universe {universe}"
             raise ValueError(
-                f"cross-validation of {policy} at K={k}: the etas were played on different "
-                f"numbers of draws ({', '.join(map(str, sorted(sizes)))})"
+                f"cross-validation of {policy} at K={k}{where}: the etas were played on "
+                f"different numbers of draws ({', '.join(map(str, sorted(sizes)))})"
             )
         means = {eta: math.fsum(values) / len(values) for eta, values in sorted(by_eta.items())}
         best = min(means, key=lambda eta: (means[eta], eta))
-        choices[policy, k] = EtaChoice(policy, k, best, means, sizes.pop())
+        choices[universe, policy, k] = EtaChoice(universe, policy, k, best, means, sizes.pop())
     return choices
+
+
+def _universe_first(item: tuple[tuple[str | None, str, int], object]) -> tuple[str, str, int]:
+    (universe, policy, k), _ = item
+    return (universe or "", policy, k)

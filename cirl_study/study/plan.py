@@ -10,28 +10,36 @@ robot; its id spells all of these out, e.g.
 Python's shortest round-trip form; an expert trial has no ``eta`` part). Every robot of the
 pipeline watches the same subjects under the same policies: the robot is a within-subjects
 factor of the ``main`` and ``lambda_sweep`` blocks, and the eta cross-validation is played by
-the reference robot alone (:attr:`cirl_study.study.spec.MainSpec.reference_robot`).
+the reference robot alone (:attr:`cirl_study.study.spec.MainSpec.reference_robot`). In a
+multiverse (:mod:`cirl_study.study.multiverse`) a trial's id ends with ``@`` and its universe's
+id, e.g. ``main:main-k03-s0001:expert:lambda=1.0:robot=map@sigma=2.5,centres=per_draw,...``.
 
 Randomness. Every stream is a :class:`numpy.random.SeedSequence` with the pipeline's root
 seed as entropy and, as spawn key, the BLAKE2b hash of the identity string
 (``subject:<subject id>`` or ``trial:<trial id>``). Nothing depends on the order in which
-trials are planned, batched or played. A subject's stream draws, in this order, its ``K``
-RBF centres uniformly over the continuous extent ``[0, width-1] x [0, height-1]`` and then
+trials are planned, batched or played. A subject's stream draws, in this order, ``K`` RBF
+centres uniformly over the continuous extent ``[0, width-1] x [0, height-1]`` and then
 ``theta ~ Uniform[-1, 1]^K``; every trial of the subject (both policies, every lambda) sees
-the same centres and ``theta``. A trial's ``seed`` is the first 53 bits of its own stream
-(an integer that every JSON reader holds exactly).
+the same centres and ``theta``. The centres drawn are the subject's own when
+``game.centres = "per_draw"``; with ``"shared"`` every subject at ``K`` features uses the
+centres of the stream ``centres:k<K>`` (drawn the same way), with ``"lattice"`` those of
+:func:`lattice_centres`, and ``theta`` is the same draw under every placement. A trial's
+``seed`` is the first 53 bits of the stream of its id without the universe (an integer that
+every JSON reader holds exactly).
 """
 
 from __future__ import annotations
 
 import hashlib
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from cirl_study.record import ETA_CV, LAMBDA_SWEEP, MAIN, Grid, RBFFeatures, TrialSpec
-from cirl_study.study.spec import Pipeline
+from cirl_study.study.multiverse import cv_universe, universe_pipeline, universes
+from cirl_study.study.spec import GameSpec, Pipeline, Universe
 
 CV_GROUP = "cv"
 """Subject-id prefix of the cross-validation draws."""
@@ -55,9 +63,14 @@ def subject_id(group: str, num_features: int, index: int) -> str:
 def trial_id(
     block: str, subject: str, policy: str, rationality: float, eta: float | None, robot: str
 ) -> str:
-    """Stable id of a trial, spelling out its whole identity."""
+    """Stable id of a trial of a single study, spelling out its whole identity."""
     eta_part = "" if eta is None else f":eta={float(eta)!r}"
     return f"{block}:{subject}:{policy}:lambda={float(rationality)!r}{eta_part}:robot={robot}"
+
+
+def in_universe(trial: str, universe: Universe | None) -> str:
+    """The id of ``trial`` in ``universe``: ``<trial>@<universe id>`` (as is in a single study)."""
+    return trial if universe is None else f"{trial}@{universe.id}"
 
 
 def trial_seed(root_seed: int, trial: str) -> int:
@@ -76,16 +89,48 @@ class Subject:
 
 
 def draw_subject(pipeline: Pipeline, group: str, num_features: int, index: int) -> Subject:
-    """Draw subject ``index`` of ``group``: centres ``c_k`` then ``theta``, from its own stream."""
+    """Draw subject ``index`` of ``group``: centres ``c_k`` then ``theta``, from its own stream;
+    the centres are replaced by the shared or lattice ones when ``game.centres`` says so."""
     ident = subject_id(group, num_features, index)
     game = pipeline.game
     rng = np.random.default_rng(random_stream(pipeline.seed, f"subject:{ident}"))
-    centers = rng.uniform((0.0, 0.0), (game.width - 1, game.height - 1), size=(num_features, 2))
+    centers = _uniform_centres(rng, game, num_features)
     theta = rng.uniform(-1.0, 1.0, size=num_features)
+    if game.centres == "shared":
+        shared = np.random.default_rng(random_stream(pipeline.seed, f"centres:k{num_features:02d}"))
+        centers = _uniform_centres(shared, game, num_features)
+    elif game.centres == "lattice":
+        centers = lattice_centres(game.width, game.height, num_features)
     features = RBFFeatures(
         centers=tuple((float(x), float(y)) for x, y in centers), sigma=game.sigma
     )
     return Subject(ident, num_features, features, tuple(float(t) for t in theta))
+
+
+def _uniform_centres(rng: np.random.Generator, game: GameSpec, count: int) -> np.ndarray:
+    """``count`` centres uniform over ``[0, width-1] x [0, height-1]``, ``(count, 2)``."""
+    return rng.uniform((0.0, 0.0), (game.width - 1, game.height - 1), size=(count, 2))
+
+
+def lattice_centres(width: int, height: int, count: int) -> np.ndarray:
+    """``count`` centres on a regular ``rows x columns`` lattice, ``(count, 2)``, row by row.
+
+    ``rows x columns = count``, with the factor pair whose aspect ``columns / rows`` is
+    closest (in log ratio) to the grid's ``width / height``, the wider of a tie (a prime
+    ``count`` is one row).
+    Each lattice cell's centre: ``x = (width - 1)(i + 1/2) / columns``, ``y = (height - 1)(j +
+    1/2) / rows``, so e.g. 10 centres on the paper's 10 x 10 grid lie on a 2 x 5 lattice.
+    """
+    pairs = [(rows, count // rows) for rows in range(1, count + 1) if count % rows == 0]
+
+    def misfit(pair: tuple[int, int]) -> tuple[float, int]:
+        rows, columns = pair  # ties (a pair and its transpose on a square grid): more columns
+        return round(abs(math.log(columns * height / (rows * width))), 12), -columns
+
+    rows, columns = min(pairs, key=misfit)
+    xs = (width - 1) * (np.arange(columns) + 0.5) / columns
+    ys = (height - 1) * (np.arange(rows) + 0.5) / rows
+    return np.array([(x, y) for y in ys for x in xs])
 
 
 def _subjects(pipeline: Pipeline, group: str, num_features: int, count: int) -> list[Subject]:
@@ -104,7 +149,7 @@ def _trial(
     ident = trial_id(block, subject.id, policy, rationality, eta, robot)
     game = pipeline.game
     return TrialSpec(
-        trial_id=ident,
+        trial_id=in_universe(ident, pipeline.universe),
         run_id=pipeline.run_id,
         block=block,
         subject=subject.id,
@@ -120,12 +165,22 @@ def _trial(
         features=subject.features,
         theta=subject.theta,
         robot=robot,
+        demonstrator_stays=game.demonstrator_stays,
+        deployment_start=game.deployment_start,
+        universe=None if pipeline.universe is None else pipeline.universe.id,
     )
 
 
 def eta_cv_trials(pipeline: Pipeline) -> list[TrialSpec]:
     """Block ``eta_cv``: each policy with a trade-off at every eta of the grid, on ``cv`` draws,
-    watched by the reference robot."""
+    watched by the reference robot; in a multiverse, that of every cross-validation universe
+    (:func:`~cirl_study.study.multiverse.cv_universe`)."""
+    if pipeline.multiverse is not None:
+        return [
+            trial
+            for universe in _cv_universes(pipeline)
+            for trial in eta_cv_trials(universe_pipeline(pipeline, universe))
+        ]
     cv = pipeline.eta_cv
     robot = pipeline.main.reference_robot
     trials = []
@@ -140,19 +195,38 @@ def eta_cv_trials(pipeline: Pipeline) -> list[TrialSpec]:
     return trials
 
 
-def study_trials(pipeline: Pipeline, etas: Mapping[tuple[str, int], float]) -> list[TrialSpec]:
-    """Blocks ``main`` and ``lambda_sweep`` on the ``main`` draws, for every robot.
+def study_trials(
+    pipeline: Pipeline, etas: Mapping[tuple[str | None, str, int], float]
+) -> list[TrialSpec]:
+    """Blocks ``main`` and ``lambda_sweep`` on the ``main`` draws, for every robot (and in a
+    multiverse, block ``main`` of every universe).
 
-    A policy with a trade-off plays at feature level ``K`` with ``etas[policy, K]`` (the
-    cross-validated choice, :func:`cirl_study.study.eta_cv.choose_etas`); the sweep plays the
+    A policy with a trade-off plays at feature level ``K`` with ``etas[universe, policy, K]``
+    (the cross-validated choice, :func:`cirl_study.study.eta_cv.choose_etas`; ``universe`` is
+    the id of the cross-validation universe, ``None`` in a single study); the sweep plays the
     first ``lambda_sweep.subjects`` draws of the main block.
     """
+    if pipeline.multiverse is None:
+        return _study_trials(pipeline, None, etas)
+    return [
+        trial
+        for universe in universes(pipeline)
+        for trial in _study_trials(
+            universe_pipeline(pipeline, universe), cv_universe(pipeline, universe).id, etas
+        )
+    ]
+
+
+def _study_trials(
+    pipeline: Pipeline, cv: str | None, etas: Mapping[tuple[str | None, str, int], float]
+) -> list[TrialSpec]:
+    """:func:`study_trials` of a single study, with the etas of cross-validation ``cv``."""
     main, sweep = pipeline.main, pipeline.lambda_sweep
     levels = pipeline.game.feature_levels
     subjects = {k: _subjects(pipeline, TEST_GROUP, k, main.subjects) for k in levels}
 
     def eta_of(policy: str, k: int) -> float | None:
-        return etas[policy, k] if policy in pipeline.policies_with_eta else None
+        return etas[cv, policy, k] if policy in pipeline.policies_with_eta else None
 
     main_block = [
         _trial(pipeline, MAIN, subject, policy, main.rationality, eta_of(policy, k), robot)
@@ -174,6 +248,14 @@ def study_trials(pipeline: Pipeline, etas: Mapping[tuple[str, int], float]) -> l
 
 def trial_counts(pipeline: Pipeline) -> dict[str, int]:
     """Number of trials of each block (known before eta is chosen)."""
+    if pipeline.multiverse is not None:
+        cv = trial_counts(universe_pipeline(pipeline, pipeline.multiverse.base))[ETA_CV]
+        main = trial_counts(universe_pipeline(pipeline, pipeline.multiverse.base))[MAIN]
+        return {
+            ETA_CV: cv * len(_cv_universes(pipeline)),
+            MAIN: main * len(universes(pipeline)),
+            LAMBDA_SWEEP: 0,
+        }
     levels = len(pipeline.game.feature_levels)
     policies = len(pipeline.main.policies) * len(pipeline.main.robots)
     sweep = pipeline.lambda_sweep
@@ -183,3 +265,8 @@ def trial_counts(pipeline: Pipeline) -> dict[str, int]:
         MAIN: levels * pipeline.main.subjects * policies,
         LAMBDA_SWEEP: levels * sweep.subjects * len(sweep.rationalities) * policies,
     }
+
+
+def _cv_universes(pipeline: Pipeline) -> list[Universe]:
+    """The distinct cross-validation universes of a multiverse, in the order first needed."""
+    return list(dict.fromkeys(cv_universe(pipeline, u) for u in universes(pipeline)))

@@ -121,7 +121,7 @@ class RunResult:
     """Wall-clock seconds from the start of play (when the progress bar starts) to the last
     trial logged: ``seconds`` less start-up, checks and kernel preparation."""
     workers: int
-    etas: dict[tuple[str, int], EtaChoice]
+    etas: dict[tuple[str | None, str, int], EtaChoice]
 
 
 @dataclass
@@ -255,7 +255,7 @@ class _Session:
 
 def _cross_validate(
     session: _Session, trials: Sequence[TrialSpec]
-) -> dict[tuple[str, int], EtaChoice]:
+) -> dict[tuple[str | None, str, int], EtaChoice]:
     """Play block ``eta_cv`` and choose eta from its records.
 
     The records of trials logged before this call are read back from the logs; those played

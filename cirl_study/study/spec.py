@@ -16,6 +16,9 @@ shape, with every key required::
     deployment_steps = 9      # T_deploy
     sigma = 1.5               # RBF width, in cells
     feature_levels = [3, 10]  # K, the between-subjects factor
+    centres = "per_draw"      # RBF centres: per_draw, shared or lattice (CENTRE_PLACEMENTS)
+    demonstrator_stays = true # may the human stay put during the demonstration?
+    deployment_start = "uniform"  # the robot's start: uniform or demonstration
 
     [eta_cv]                  # cross-validation of the best response's eta
     subjects = 100            # reward draws per feature level, disjoint from the test draws
@@ -32,6 +35,19 @@ shape, with every key required::
     subjects = 500            # the first `subjects` reward draws of the main block
     rationalities = [1e-4, ..., 1e3]
 
+A pipeline may instead declare a ``[multiverse]`` (and then no ``[lambda_sweep]``): the study
+played in many *universes*, each a choice of the open settings :data:`AXES`
+(:mod:`cirl_study.study.multiverse`)::
+
+    [multiverse.cross]        # the full factorial of these axes ...
+    sigma = [1.0, 1.5, 2.5, 4.0]
+    centres = ["per_draw", "shared", "lattice"]
+    [multiverse.alone]        # ... plus each of these levels varied alone ...
+    steps = [7, 11]
+    [[multiverse.universes]]  # ... plus these universes; unnamed settings as in the file
+    sigma = 2.5
+    robot = "posterior_mean"
+
 :func:`load_pipeline` parses and validates a file into the frozen dataclasses below;
 every problem is one :class:`~cirl_study.errors.UserError` line naming the file and
 the key, e.g. ``pipelines/x.toml: main.subjects must be a positive integer, got 0``.
@@ -41,12 +57,13 @@ from __future__ import annotations
 
 import codecs
 import hashlib
+import itertools
 import json
 import math
 import re
 import tomllib
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -61,9 +78,24 @@ MAX_PIPELINE_BYTES = 1 << 20
 _NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
+CENTRE_PLACEMENTS: tuple[str, ...] = ("per_draw", "shared", "lattice")
+"""Where the ``K`` RBF centres lie (:func:`cirl_study.study.plan.draw_subject`): drawn uniformly
+with each reward draw (the paper's reading), drawn once per feature level and shared by every
+reward draw, or on a regular lattice."""
+
+DEPLOYMENT_STARTS: tuple[str, ...] = ("uniform", "demonstration")
+"""Where the robot's deployment starts: a cell drawn uniformly (the measures average over every
+cell; the paper), or the demonstration's start cell."""
+
+
 @dataclass(frozen=True)
 class GameSpec:
-    """The gridworld, horizons, RBF width and the feature levels (docs/design.md §1)."""
+    """The gridworld, horizons, RBF features and the feature levels (docs/design.md §1).
+
+    ``centres`` is one of :data:`CENTRE_PLACEMENTS`; ``demonstrator_stays`` whether the human
+    may take the ``stay`` action during the demonstration (the robot always may); and
+    ``deployment_start`` one of :data:`DEPLOYMENT_STARTS`.
+    """
 
     width: int
     height: int
@@ -72,6 +104,9 @@ class GameSpec:
     deployment_steps: int
     sigma: float
     feature_levels: tuple[int, ...]
+    centres: str
+    demonstrator_stays: bool
+    deployment_start: str
 
 
 @dataclass(frozen=True)
@@ -117,12 +152,61 @@ class LambdaSweepSpec:
     rationalities: tuple[float, ...]
 
 
+AXES: tuple[str, ...] = (
+    "sigma",
+    "centres",
+    "demonstrator_stays",
+    "steps",
+    "rationality",
+    "robot",
+    "deployment_start",
+)
+"""The open settings a multiverse varies: ``game.sigma``, ``game.centres``,
+``game.demonstrator_stays``, ``steps`` (``game.learning_steps = game.deployment_steps``),
+``rationality`` (``main.rationality = eta_cv.rationality``), ``robot`` (the one robot of
+``main.robots``) and ``game.deployment_start``."""
+
+
+@dataclass(frozen=True)
+class Universe:
+    """One choice of every open setting of :data:`AXES` (see :mod:`cirl_study.study.multiverse`)."""
+
+    sigma: float
+    centres: str
+    demonstrator_stays: bool
+    steps: int
+    rationality: float
+    robot: str
+    deployment_start: str
+
+    @property
+    def id(self) -> str:
+        """A readable id spelling out every choice, e.g. ``sigma=1.5,centres=per_draw,stays=yes,
+        steps=9,lambda=1,robot=map,start=uniform``: a function of the choices alone, so adding
+        a level to an axis never renames an existing universe."""
+        return (
+            f"sigma={self.sigma:g},centres={self.centres},"
+            f"stays={'yes' if self.demonstrator_stays else 'no'},steps={self.steps},"
+            f"lambda={self.rationality:g},robot={self.robot},start={self.deployment_start}"
+        )
+
+
+@dataclass(frozen=True)
+class MultiverseSpec:
+    """The universes of a multiverse pipeline, the file's own choices (``base``) first."""
+
+    base: Universe
+    universes: tuple[Universe, ...]
+
+
 @dataclass(frozen=True)
 class Pipeline:
     """A validated pipeline file.
 
     ``text`` is the file's whole text and ``sha256`` the hash of its UTF-8 bytes: two runs
-    are the same run exactly when their pipeline files hash alike.
+    are the same run exactly when their pipeline files hash alike. ``multiverse`` is ``None``
+    for a single study; ``universe`` is set on the pipeline of one universe of a multiverse
+    (:func:`cirl_study.study.multiverse.universe_pipeline`), whose trials carry its id.
     """
 
     name: str
@@ -135,6 +219,8 @@ class Pipeline:
     path: Path
     text: str
     sha256: str
+    multiverse: MultiverseSpec | None = None
+    universe: Universe | None = None
 
     @property
     def policies_with_eta(self) -> tuple[str, ...]:
@@ -226,6 +312,18 @@ class _Table:
             self.fail(key, f"must be a string, got {_show(value)}")
         return value
 
+    def boolean(self, key: str) -> bool:
+        value = self.value(key)
+        if not isinstance(value, bool):
+            self.fail(key, f"must be true or false, got {_show(value)}")
+        return value
+
+    def choice(self, key: str, known: tuple[str, ...]) -> str:
+        value = self.value(key)
+        if value not in known:
+            self.fail(key, f"must be one of {', '.join(known)}, got {_show(value)}")
+        return value
+
     def integer(self, key: str, minimum: int, what: str) -> int:
         value = self.value(key)
         if not _is_integer(value) or value < minimum:
@@ -305,7 +403,7 @@ def parse_pipeline(text: str, path: Path) -> Pipeline:
         label,
         "",
         data,
-        ("name", "description", "seed", "game", "eta_cv", "main", "lambda_sweep"),
+        ("name", "description", "seed", "game", "eta_cv", "main", "lambda_sweep", "multiverse"),
     )
     name = top.string("name")
     if not _NAME_PATTERN.fullmatch(name):
@@ -318,10 +416,11 @@ def parse_pipeline(text: str, path: Path) -> Pipeline:
         name=name,
         description=top.string("description"),
         seed=top.integer("seed", 0, "a non-negative integer"),
-        game=_game(top),
-        eta_cv=_eta_cv(top),
+        game=(game := _game(top)),
+        eta_cv=(eta_cv := _eta_cv(top)),
         main=(main := _main(top)),
-        lambda_sweep=_lambda_sweep(top, main),
+        lambda_sweep=_lambda_sweep(top, main) if "multiverse" not in top.data else NO_SWEEP,
+        multiverse=_multiverse(top, game, eta_cv, main) if "multiverse" in top.data else None,
         path=path,
         text=text,
         sha256=hashlib.sha256(text.encode()).hexdigest(),
@@ -339,6 +438,9 @@ def _game(top: _Table) -> GameSpec:
             "deployment_steps",
             "sigma",
             "feature_levels",
+            "centres",
+            "demonstrator_stays",
+            "deployment_start",
         ),
     )
     width = game.integer("width", 2, "an integer of at least 2")
@@ -364,6 +466,9 @@ def _game(top: _Table) -> GameSpec:
         deployment_steps=game.integer("deployment_steps", 1, "a positive integer"),
         sigma=game.number_in("sigma", _sigma_limits(width, height)),
         feature_levels=_feature_levels(game, width * height),
+        centres=game.choice("centres", CENTRE_PLACEMENTS),
+        demonstrator_stays=game.boolean("demonstrator_stays"),
+        deployment_start=game.choice("deployment_start", DEPLOYMENT_STARTS),
     )
 
 
@@ -410,6 +515,10 @@ def _main(top: _Table) -> MainSpec:
     )
 
 
+NO_SWEEP = LambdaSweepSpec(subjects=0, rationalities=())
+"""The lambda sweep of a multiverse (none: lambda is one of its axes)."""
+
+
 def _lambda_sweep(top: _Table, main: MainSpec) -> LambdaSweepSpec:
     block = top.table("lambda_sweep", ("subjects", "rationalities"))
     subjects = block.integer("subjects", 1, "a positive integer")
@@ -422,6 +531,112 @@ def _lambda_sweep(top: _Table, main: MainSpec) -> LambdaSweepSpec:
     return LambdaSweepSpec(
         subjects=subjects, rationalities=block.numbers_in("rationalities", RATIONALITY)
     )
+
+
+def _multiverse(top: _Table, game: GameSpec, eta_cv: EtaCVSpec, main: MainSpec) -> MultiverseSpec:
+    """The universes of ``[multiverse]``: the file's own (the base) first, then those of
+    ``cross`` (a full factorial), ``alone`` (one level varied at a time) and ``universes``
+    (listed), each once, in that order."""
+    if "lambda_sweep" in top.data:
+        top.fail(
+            "lambda_sweep",
+            "must not be given with [multiverse] (lambda is one of its axes: rationality)",
+        )
+    if len(main.robots) != 1:
+        top.fail("main.robots", "must name one robot in a multiverse (robot is one of its axes)")
+    if game.learning_steps != game.deployment_steps:
+        top.fail(
+            "game.deployment_steps",
+            "must equal game.learning_steps in a multiverse (one axis, steps, sets both)",
+        )
+    if eta_cv.rationality != main.rationality:
+        top.fail(
+            "eta_cv.rationality",
+            "must equal main.rationality in a multiverse (one axis, rationality, sets both)",
+        )
+    base = Universe(
+        sigma=game.sigma,
+        centres=game.centres,
+        demonstrator_stays=game.demonstrator_stays,
+        steps=game.learning_steps,
+        rationality=main.rationality,
+        robot=main.robots[0],
+        deployment_start=game.deployment_start,
+    )
+    block = top.table("multiverse", ("cross", "alone", "universes"))
+    levels = _AxisLevels(game)
+    universes = [base]
+    if "cross" in block.data:
+        cross = block.table("cross", AXES)
+        axes = {axis: levels.of(cross, axis) for axis in AXES if axis in cross.data}
+        universes += [
+            replace(base, **dict(zip(axes, chosen, strict=True)))
+            for chosen in itertools.product(*axes.values())
+        ]
+    if "alone" in block.data:
+        alone = block.table("alone", AXES)
+        universes += [
+            replace(base, **{axis: level})
+            for axis in AXES
+            if axis in alone.data
+            for level in levels.of(alone, axis)
+        ]
+    if "universes" in block.data:
+        listed = block.value("universes")
+        if not isinstance(listed, list) or not all(isinstance(u, dict) for u in listed):
+            block.fail("universes", f"must be an array of tables, got {_show(listed)}")
+        for position, entry in enumerate(listed):
+            table = _Table(top.label, f"multiverse.universes[{position}].", entry, AXES)
+            universes.append(
+                replace(base, **{axis: levels.one(table, axis) for axis in AXES if axis in entry})
+            )
+    return MultiverseSpec(base, tuple(dict.fromkeys(universes)))
+
+
+class _AxisLevels:
+    """Validation of an axis's levels: the range the same setting has in ``[game]``/``[main]``."""
+
+    def __init__(self, game: GameSpec):
+        from cirl_study.core.robot import ROBOTS
+
+        sigma = _sigma_limits(game.width, game.height)
+        self.checks: dict[str, tuple[Callable[[Any], bool], str]] = {
+            "sigma": (
+                lambda v: _is_positive_number(v) and sigma.low <= v <= sigma.high,
+                f"numbers in {sigma}",
+            ),
+            "centres": (lambda v: v in CENTRE_PLACEMENTS, ", ".join(CENTRE_PLACEMENTS)),
+            "demonstrator_stays": (lambda v: isinstance(v, bool), "true or false"),
+            "steps": (lambda v: _is_integer(v) and v >= 1, "positive integers"),
+            "rationality": (
+                lambda v: _is_positive_number(v) and RATIONALITY.low <= v <= RATIONALITY.high,
+                f"numbers in {RATIONALITY}",
+            ),
+            "robot": (lambda v: isinstance(v, str) and v in ROBOTS, ", ".join(ROBOTS)),
+            "deployment_start": (lambda v: v in DEPLOYMENT_STARTS, ", ".join(DEPLOYMENT_STARTS)),
+        }
+
+    def of(self, table: _Table, axis: str) -> list[Any]:
+        """The distinct levels ``table[axis]`` lists."""
+        ok, what = self.checks[axis]
+        value = table.value(axis)
+        if not isinstance(value, list) or not value or not all(ok(v) for v in value):
+            table.fail(axis, f"must be a non-empty list of {what}, got {_show(value)}")
+        if len(set(value)) != len(value):
+            table.fail(axis, f"must not repeat a level, got {_show(value)}")
+        return [_level(axis, v) for v in value]
+
+    def one(self, table: _Table, axis: str) -> Any:
+        """The one level ``table[axis]`` names."""
+        ok, what = self.checks[axis]
+        value = table.value(axis)
+        if not ok(value):
+            table.fail(axis, f"must be one of {what}, got {_show(value)}")
+        return _level(axis, value)
+
+
+def _level(axis: str, value: Any) -> Any:
+    return float(value) if axis in ("sigma", "rationality") else value
 
 
 def load_pipeline(path: Path) -> Pipeline:

@@ -1,0 +1,270 @@
+"""Every number of a multiverse's report: the paper's claims in every universe, and across them.
+
+:func:`analyse_multiverse` takes the rows of a multiverse run (:mod:`cirl_study.study.multiverse`)
+and its pipeline, and returns plain JSON-ready data:
+
+* ``universes``: per universe, its settings, the paper's claims judged on its trials with the
+  paper report's own rules (:func:`cirl_study.analysis.claims.evaluate_claims` on
+  :func:`cirl_study.analysis.results.analyse` of its ``main`` block and the cross-validation it
+  used), the cross-validated etas, the mixed ANOVA and the cell means;
+* ``effects``: per universe and measure, the policy effect: the mean over every ``main``
+  subject (both feature levels) of ``d_s = y_{s,br} - y_{s,expert}``, with its paired-t 95%
+  CI, ``t``, ``p`` and ``d_z`` (:func:`cirl_study.analysis.statistics.paired_differences`);
+* ``claims``: per claim, how many universes reproduce it (``tested`` universes only), whether
+  the base universe does, and the share reproduced at each level of each axis;
+* ``regression``: per measure, an OLS regression of the universes' policy effects on the axis
+  levels (treatment coding, each axis's base level as the reference), with each axis's share
+  of the effect's variance across universes (type II sums of squares over the total);
+* ``joint_test``: per measure, the joint test of Simonsohn et al. that the best response beats
+  the expert (:func:`cirl_study.analysis.statistics.joint_sign_flip_test`).
+"""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+import pandas as pd
+import statsmodels.api as sm
+from statsmodels.stats.anova import anova_lm
+
+from cirl_study.analysis import statistics
+from cirl_study.analysis.claims import evaluate_claims
+from cirl_study.analysis.results import Results, analyse, plain, rows
+from cirl_study.analysis.table import check_design, trial_table
+from cirl_study.record import ETA_CV, EXPERT, MAIN, MEASURES, TrialRow
+from cirl_study.study.multiverse import cv_universe, universes
+from cirl_study.study.spec import AXES, Pipeline, Universe
+
+PAPER_CLAIMS: tuple[str, ...] = (
+    "policy_effect",
+    "policy_f_above_962",
+    "interaction_kl_l2",
+    "cronbach_alpha",
+    "tukey_br_ahead",
+)
+"""The paper's claims a universe can test (the lambda claim needs a sweep, which a universe
+does not play: lambda is one of the axes)."""
+
+
+def universe_trials(
+    trials: Sequence[TrialRow], pipeline: Pipeline
+) -> dict[Universe, list[TrialRow]]:
+    """Per universe, the rows its study is analysed on: its ``main`` trials and the
+    cross-validation trials of its cross-validation universe."""
+    by_universe: dict[str | None, list[TrialRow]] = defaultdict(list)
+    for row in trials:
+        by_universe[row.universe].append(row)
+    chosen = {}
+    for universe in universes(pipeline):
+        cv = cv_universe(pipeline, universe).id
+        chosen[universe] = [r for r in by_universe[universe.id] if r.block == MAIN] + [
+            r for r in by_universe[cv] if r.block == ETA_CV
+        ]
+    return chosen
+
+
+def level_label(value: Any) -> str:
+    """An axis level as the report writes it: ``yes``/``no``, numbers in ``%g``, names as is."""
+    if isinstance(value, bool):
+        return "yes" if value else "no"
+    if isinstance(value, float):
+        return f"{value:g}"
+    return str(value)
+
+
+def settings(universe: Universe) -> dict[str, Any]:
+    """A universe's choices, by axis."""
+    return {axis: getattr(universe, axis) for axis in AXES}
+
+
+def analyse_multiverse(
+    trials: Sequence[TrialRow],
+    pipeline: Pipeline,
+    progress: Callable[[str], None] = lambda stage: None,
+) -> Results:
+    """Every number of the multiverse report (see the module docstring).
+
+    Raises:
+        UserError: a universe's trials do not hold a design the paper analysis can use
+            (:func:`~cirl_study.analysis.table.check_design`).
+    """
+    assert pipeline.multiverse is not None
+    base = pipeline.multiverse.base
+    per_universe = []
+    chosen = universe_trials(trials, pipeline)
+    for position, (universe, rows_of_universe) in enumerate(chosen.items(), start=1):
+        progress(f"universe {position} of {len(chosen)}: {universe.id}")
+        check_design(rows_of_universe)
+        results = analyse(rows_of_universe, pipeline.name)
+        claims = {
+            claim["id"]: claim for claim in evaluate_claims(results) if claim["id"] in PAPER_CLAIMS
+        }
+        per_universe.append(
+            {
+                "id": universe.id,
+                "base": universe == base,
+                "settings": settings(universe),
+                "claims": {
+                    key: {k: claim[k] for k in ("tested", "reproduced", "values")}
+                    for key, claim in claims.items()
+                },
+                "eta": results["eta_cv"]["chosen"],
+                "anova": results["anova"],
+                "cells": results["cells"],
+                "cronbach_alpha": results["cronbach_alpha"],
+            }
+        )
+    progress("across universes")
+    table = trial_table(trials)
+    main = table[table["block"] == MAIN]
+    effects = _effects(main)
+    return {
+        "pipeline": pipeline.name,
+        "base_universe": base.id,
+        "axes": _axes(pipeline),
+        "trials": {
+            "total": len(table),
+            **{b: int(n) for b, n in table["block"].value_counts().items()},
+        },
+        "universes": plain(per_universe),
+        "effects": rows(effects),
+        "claims": _claim_shares(per_universe, pipeline),
+        "regression": {m: _regression(effects, m, pipeline) for m in MEASURES},
+        "joint_test": {m: _joint_test(main, m) for m in MEASURES},
+    }
+
+
+def _axes(pipeline: Pipeline) -> dict[str, list[Any]]:
+    """Each axis's levels across the universes, the base level first."""
+    assert pipeline.multiverse is not None
+    levels: dict[str, list[Any]] = {axis: [] for axis in AXES}
+    for universe in universes(pipeline):
+        for axis in AXES:
+            if getattr(universe, axis) not in levels[axis]:
+                levels[axis].append(getattr(universe, axis))
+    return levels
+
+
+def _effects(main: pd.DataFrame) -> pd.DataFrame:
+    """Per universe and measure, the paired policy effect over every ``main`` subject."""
+    frames = [
+        statistics.paired_differences(main, measure, "policy", EXPERT, ["universe"])
+        for measure in MEASURES
+    ]
+    effects = pd.concat(frames, ignore_index=True).drop(columns=["level", "p_holm"])
+    return effects.sort_values(["measure", "universe"], kind="mergesort").reset_index(drop=True)
+
+
+def _claim_shares(per_universe: list[dict[str, Any]], pipeline: Pipeline) -> list[dict[str, Any]]:
+    """Per claim: universes reproducing it, the base universe's verdict, shares by axis level."""
+    shares = []
+    levels = _axes(pipeline)
+    for claim in PAPER_CLAIMS:
+        tested = [u for u in per_universe if u["claims"][claim]["tested"]]
+        by_level = {
+            axis: [
+                {
+                    "level": level,
+                    "universes": len(at := [u for u in tested if u["settings"][axis] == level]),
+                    "reproduced": sum(u["claims"][claim]["reproduced"] for u in at),
+                }
+                for level in levels[axis]
+            ]
+            for axis in AXES
+            if len(levels[axis]) > 1
+        }
+        shares.append(
+            {
+                "id": claim,
+                "universes": len(tested),
+                "reproduced": sum(u["claims"][claim]["reproduced"] for u in tested),
+                "base_reproduced": next(
+                    u["claims"][claim]["reproduced"] for u in per_universe if u["base"]
+                ),
+                "holds_in": [u["id"] for u in tested if u["claims"][claim]["reproduced"]],
+                "by_level": by_level,
+            }
+        )
+    return shares
+
+
+def _regression(effects: pd.DataFrame, measure: str, pipeline: Pipeline) -> dict[str, Any]:
+    """OLS of the universes' policy effects on the axis levels, and each axis's share of the
+    effect's variance (type II SS over the total SS); ``None`` parts when the universes are too
+    few for the model (no residual degrees of freedom)."""
+    levels = _axes(pipeline)
+    varied = [axis for axis in AXES if len(levels[axis]) > 1]
+    assert pipeline.multiverse is not None
+    frame = effects[effects["measure"] == measure].set_index("universe")
+    by_id = {u.id: u for u in universes(pipeline)}
+    data = pd.DataFrame(
+        [
+            {
+                "effect": frame.at[uid, "mean_diff"],
+                **{a: level_label(getattr(by_id[uid], a)) for a in varied},
+            }
+            for uid in frame.index
+        ]
+    )
+    terms = [f"C({axis}, Treatment(reference={level_label(levels[axis][0])!r}))" for axis in varied]
+    formula = "effect ~ " + (" + ".join(terms) if terms else "1")
+    model = sm.OLS.from_formula(formula, data).fit()
+    result: dict[str, Any] = {"universes": len(data), "df_residual": float(model.df_resid)}
+    if model.df_resid < 1:
+        return {**result, "coefficients": None, "variance_shares": None}
+    interval = model.conf_int(0.05)
+    coefficients = []
+    for name in model.params.index:
+        axis, level = _term(name, varied)
+        coefficients.append(
+            {
+                "axis": axis,
+                "level": level,
+                "estimate": float(model.params[name]),
+                "ci95_low": float(interval.loc[name, 0]),
+                "ci95_high": float(interval.loc[name, 1]),
+                "p": float(model.pvalues[name]),
+            }
+        )
+    shares = None
+    if terms:
+        anova = anova_lm(model, typ=2)
+        total = float(np.sum((data["effect"] - data["effect"].mean()) ** 2))
+        shares = {
+            axis: float(anova.loc[term, "sum_sq"]) / total if total > 0 else None
+            for axis, term in zip(varied, terms, strict=True)
+        }
+        shares["residual"] = float(anova.loc["Residual", "sum_sq"]) / total if total > 0 else None
+    return {
+        **result,
+        "r_squared": float(model.rsquared),
+        "coefficients": coefficients,
+        "variance_shares": shares,
+    }
+
+
+def _term(name: str, axes: list[str]) -> tuple[str | None, str | None]:
+    """``(axis, level)`` of a coefficient name of :func:`_regression` (``None`` for the
+    intercept, which is the universe at every axis's base level)."""
+    if name == "Intercept":
+        return None, None
+    for axis in axes:
+        if name.startswith(f"C({axis},"):
+            return axis, name.rsplit("[T.", 1)[1].rstrip("]")
+    raise ValueError(f"unexpected regression term {name}")
+
+
+def _joint_test(main: pd.DataFrame, measure: str) -> dict[str, Any]:
+    """:func:`~cirl_study.analysis.statistics.joint_sign_flip_test` on the ``main`` block."""
+    wide = main.pivot_table(
+        index="universe", columns=["subject", "policy"], values=measure, aggfunc="first"
+    ).sort_index()
+    differences = (
+        wide.xs("best_response", axis=1, level="policy") - wide.xs(EXPERT, axis=1, level="policy")
+    ).sort_index(axis=1)
+    if differences.isna().to_numpy().any():
+        raise ValueError("the universes do not all play the same subjects")
+    return statistics.joint_sign_flip_test(differences.to_numpy())

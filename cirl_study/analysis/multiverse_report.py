@@ -1,0 +1,365 @@
+"""The report of a multiverse run: ``report.md``, ``results.json``, ``universes.csv``, figures.
+
+:func:`write_multiverse_report` turns the rows of a multiverse run into a directory that reads
+well on GitHub: which of the paper's claims hold in how many universes, at which levels of
+which settings, the specification curve of the policy effect on each measure with the joint
+test of Simonsohn et al., and one line per universe. Like the paper report it is a
+deterministic function of the trials (their order does not matter). ``universes.csv`` holds
+one row per universe (its settings, its verdicts and its policy effects) in place of the paper
+report's ``trials.csv``: the trials themselves are in the run's logs.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import pandas as pd
+
+from cirl_study.analysis import figures
+from cirl_study.analysis.markdown import interval, number, p_value, table
+from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
+from cirl_study.analysis.output import write_report_directory
+from cirl_study.analysis.results import Results, plain
+from cirl_study.record import MEASURES, TrialRow
+from cirl_study.study.spec import AXES, Pipeline
+
+CLAIM_TEXT = {
+    "policy_effect": "best response beats expert on every measure, p < .0001",
+    "policy_f_above_962": "policy F > 962 on every measure",
+    "interaction_kl_l2": "KL and L2: policy x features interaction, gap larger at fewer features",
+    "cronbach_alpha": "Cronbach's alpha of the measures is .47",
+    "tukey_br_ahead": "Tukey HSD: best response ahead in every cell",
+}
+"""Each paper claim a universe tests, in a few words (the rules: the paper report's)."""
+
+MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
+
+FIGURE_NAMES = {measure: f"specification_curve_{measure}.png" for measure in MEASURES}
+"""The specification curve of each measure."""
+
+
+def _header(results: Results) -> list[str]:
+    universes = results["universes"]
+    base = results["base_universe"]
+    varied = {axis: levels for axis, levels in results["axes"].items() if len(levels) > 1}
+    lines = [
+        f"# Multiverse: {results['pipeline']}",
+        "",
+        f"The paper's study (the eta cross-validation and the main policy x num_features "
+        f"design) played in **{len(universes)} universes**, each a choice of the settings the "
+        f"paper leaves open, on the same reward draws ({results['trials']['total']} trials). "
+        "Each universe's claims are judged with the paper report's own rules; the lambda claim "
+        "needs a sweep, which a universe does not play (lambda is an axis).",
+        "",
+        f"The base universe, the pipeline's own settings: `{base}`.",
+        "",
+        table(
+            ["setting", "levels (base first)"],
+            [
+                [axis, ", ".join(level_label(level) for level in levels)]
+                for axis, levels in varied.items()
+            ],
+            [False, False],
+        ),
+    ]
+    return lines
+
+
+def _claims(results: Results) -> list[str]:
+    rows = []
+    for claim in results["claims"]:
+        reproduced, tested = claim["reproduced"], claim["universes"]
+        rows.append(
+            [
+                f"{claim['id']}: {CLAIM_TEXT[claim['id']]}",
+                f"{reproduced} of {tested}",
+                "✅" if claim["base_reproduced"] else "❌",
+                _where(claim),
+            ]
+        )
+    return [
+        "## Claims across universes",
+        "",
+        table(
+            ["claim", "universes reproducing it", "base universe", "levels where it always holds"],
+            rows,
+            [False, True, False, False],
+        ),
+        "",
+        "Per level of each setting, the universes at that level that reproduce the claim:",
+        "",
+        *_level_tables(results),
+    ]
+
+
+def _where(claim: Mapping[str, Any]) -> str:
+    """The axis levels at which every universe reproduces the claim (or a word why none)."""
+    if claim["reproduced"] == 0:
+        return "none"
+    if claim["reproduced"] == claim["universes"]:
+        return "everywhere"
+    always = [
+        f"{axis} = {level_label(level['level'])}"
+        for axis, levels in claim["by_level"].items()
+        for level in levels
+        if level["universes"] and level["reproduced"] == level["universes"]
+    ]
+    return ", ".join(always) if always else "no single level"
+
+
+def _level_tables(results: Results) -> list[str]:
+    claims = results["claims"]
+    lines = []
+    for axis in AXES:
+        if axis not in claims[0]["by_level"]:
+            continue
+        levels = claims[0]["by_level"][axis]
+        header = [axis, *(claim["id"] for claim in claims)]
+        body = [
+            [
+                f"{level_label(level['level'])} ({level['universes']} universes)",
+                *(_share(claim["by_level"][axis][i]) for claim in claims),
+            ]
+            for i, level in enumerate(levels)
+        ]
+        lines += [table(header, body, [False, *[True] * len(claims)]), ""]
+    return lines
+
+
+def _share(level: Mapping[str, Any]) -> str:
+    return f"{level['reproduced']} / {level['universes']}"
+
+
+def _effect(row: Mapping[str, Any], measure: str) -> str:
+    low, high = row[f"{measure}_ci95_low"], row[f"{measure}_ci95_high"]
+    return f"{number(row[f'{measure}_effect'])} {interval(low, high)}"
+
+
+def _holds(results: Results) -> list[str]:
+    lines = ["## Where the claims the base universe does not reproduce hold", ""]
+    for claim in results["claims"]:
+        if claim["base_reproduced"]:
+            continue
+        holds = claim["holds_in"]
+        lines.append(f"- **{claim['id']}** ({CLAIM_TEXT[claim['id']]}): ")
+        if not holds:
+            lines[-1] += "in no universe."
+        else:
+            lines[-1] += f"in {len(holds)} universe(s): " + "; ".join(f"`{u}`" for u in holds)
+    return lines
+
+
+def _curves(results: Results) -> list[str]:
+    lines = [
+        "## The policy effect across universes",
+        "",
+        "Per measure, the mean over every main-block subject of best response minus expert "
+        "(negative: the best response did better), universes sorted by it, with the joint test "
+        "of Simonsohn, Simmons & Nelson (2020) that the best response beats the expert: the "
+        "median effect, the share of universes significant in that direction (two-sided "
+        "p < .05) and Stouffer's Z, each against the null of sign flips shared by all "
+        "universes.",
+        "",
+    ]
+    rows = []
+    for measure in MEASURES:
+        test = results["joint_test"][measure]
+        rows.append(
+            [
+                MEASURE_NAMES[measure],
+                number(test["median_effect"]["observed"]),
+                p_value(test["median_effect"]["p"]),
+                number(test["share_significant"]["observed"]),
+                p_value(test["share_significant"]["p"]),
+                number(test["stouffer_z"]["observed"]),
+                p_value(test["stouffer_z"]["p"]),
+            ]
+        )
+    resamples = results["joint_test"][MEASURES[0]]["resamples"]
+    lines += [
+        table(
+            ["measure", "median effect", "p", "share significant", "p", "Stouffer Z", "p"],
+            rows,
+            [False, *[True] * 6],
+        ),
+        "",
+        f"p-values from {resamples} sign-flip resamples: none is below "
+        f"{1 / (resamples + 1):.2g}, the smallest such a test can give.",
+        "",
+    ]
+    for measure in MEASURES:
+        lines += [f"![Specification curve, {MEASURE_NAMES[measure]}]({FIGURE_NAMES[measure]})", ""]
+    return lines
+
+
+def _regression(results: Results) -> list[str]:
+    lines = [
+        "## What moves the effect",
+        "",
+        "Per measure, an OLS regression of the universes' policy effects on the settings "
+        "(each setting's base level the reference): each setting's share of the effect's "
+        "variance across universes (type II sums of squares over the total), then the "
+        "coefficients.",
+        "",
+    ]
+    shares_rows = []
+    for measure in MEASURES:
+        fit = results["regression"][measure]
+        if fit["variance_shares"] is None:
+            continue
+        shares_rows.append(
+            [
+                MEASURE_NAMES[measure],
+                *(number(fit["variance_shares"][axis], 3) for axis in fit["variance_shares"]),
+                number(fit["r_squared"], 3),
+            ]
+        )
+    first = next(
+        (results["regression"][m] for m in MEASURES if results["regression"][m]["variance_shares"]),
+        None,
+    )
+    if first is None:
+        return [*lines, "Too few universes for the regression (no residual degrees of freedom)."]
+    axes = list(first["variance_shares"])
+    lines += [
+        table(["measure", *axes, "R²"], shares_rows, [False, *[True] * (len(axes) + 1)]),
+        "",
+    ]
+    for measure in MEASURES:
+        fit = results["regression"][measure]
+        rows = [
+            [
+                "intercept (base universe)" if c["axis"] is None else f"{c['axis']} = {c['level']}",
+                number(c["estimate"]),
+                interval(c["ci95_low"], c["ci95_high"]),
+                p_value(c["p"]),
+            ]
+            for c in fit["coefficients"]
+        ]
+        lines += [
+            f"**{MEASURE_NAMES[measure]}** ({fit['universes']} universes, "
+            f"{int(fit['df_residual'])} residual df):",
+            "",
+            table(["term", "estimate", "95% CI", "p"], rows, [False, True, False, True]),
+            "",
+        ]
+    return lines
+
+
+def universe_table(results: Results) -> pd.DataFrame:
+    """One row per universe: its settings, its verdicts and its policy effect per measure."""
+    effects = pd.DataFrame(results["effects"]).set_index(["universe", "measure"])
+    rows = []
+    for universe in results["universes"]:
+        row: dict[str, Any] = {"universe": universe["id"], "base": universe["base"]}
+        row |= {axis: universe["settings"][axis] for axis in AXES}
+        row |= {claim: universe["claims"][claim]["reproduced"] for claim in PAPER_CLAIMS}
+        for measure in MEASURES:
+            effect = effects.loc[(universe["id"], measure)]
+            row |= {
+                f"{measure}_effect": effect["mean_diff"],
+                f"{measure}_ci95_low": effect["ci95_low"],
+                f"{measure}_ci95_high": effect["ci95_high"],
+                f"{measure}_p": effect["p"],
+            }
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def _universes(results: Results) -> list[str]:
+    frame = universe_table(results)
+    varied = [axis for axis, levels in results["axes"].items() if len(levels) > 1]
+    rows = [
+        [
+            ("**base** " if row["base"] else "")
+            + ", ".join(f"{a} = {level_label(row[a])}" for a in varied),
+            *("✅" if row[claim] else "❌" for claim in PAPER_CLAIMS),
+            *(_effect(row, measure) for measure in MEASURES),
+        ]
+        for _, row in frame.iterrows()
+    ]
+    return [
+        "## Universes",
+        "",
+        table(
+            ["settings", *PAPER_CLAIMS, *(f"{MEASURE_NAMES[m]} effect [95% CI]" for m in MEASURES)],
+            rows,
+            [False, *[False] * len(PAPER_CLAIMS), *[True] * len(MEASURES)],
+        ),
+        "",
+        "Every number of every universe (its ANOVA, cell means, etas and claim values) is in "
+        "`results.json`; one row per universe in `universes.csv`.",
+    ]
+
+
+def render_markdown(results: Results) -> str:
+    """``report.md`` of a multiverse: every section, from the results alone."""
+    sections = [
+        _header(results),
+        _claims(results),
+        _holds(results),
+        _curves(results),
+        _regression(results),
+        _universes(results),
+    ]
+    return "\n\n".join("\n".join(section) for section in sections if section) + "\n"
+
+
+def render_figures(results: Results) -> dict[str, bytes]:
+    """The specification curves, PNG and SVG, by file name."""
+    effects = pd.DataFrame(results["effects"])
+    varied = [axis for axis, levels in results["axes"].items() if len(levels) > 1]
+    choices = pd.DataFrame(
+        [{axis: level_label(u["settings"][axis]) for axis in varied} for u in results["universes"]],
+        index=[u["id"] for u in results["universes"]],
+    )
+    files = {}
+    for measure in MEASURES:
+        rendered = figures.specification_curve(
+            effects[effects["measure"] == measure],
+            choices,
+            measure,
+            results["base_universe"],
+        )
+        name = FIGURE_NAMES[measure]
+        files[name] = rendered.png
+        files[name.removesuffix(".png") + ".svg"] = rendered.svg
+    return files
+
+
+def write_multiverse_report(
+    trials: Sequence[TrialRow],
+    out_dir: Path | str,
+    pipeline: Pipeline,
+    *,
+    run_id: str,
+    provenance: Mapping[str, Any] | None = None,
+    progress: Callable[[str], None] = lambda stage: None,
+) -> Results:
+    """Analyse a multiverse run's trials and write its report directory.
+
+    Writes ``report.md``, ``results.json`` (every number at full precision),
+    ``universes.csv`` and a specification curve per measure (PNG and SVG) into ``out_dir``,
+    and ``provenance`` (if given) as ``provenance.json``.
+
+    Returns:
+        The content of ``results.json``.
+
+    Raises:
+        UserError: a universe's design cannot be analysed, or the report cannot be written.
+    """
+    results = analyse_multiverse(trials, pipeline, progress)
+    results["run_id"] = run_id
+    progress("figures")
+    results = plain(results)
+    write_report_directory(
+        out_dir,
+        markdown=render_markdown(results),
+        results=results,
+        tables={"universes.csv": universe_table(results)},
+        figures=render_figures(results),
+        provenance=provenance,
+    )
+    return results

@@ -1,0 +1,69 @@
+"""A multiverse: the study played in every universe of its pipeline's open settings.
+
+The paper leaves much of its game unstated; a pipeline fixes each open setting by argument.
+A multiverse pipeline (``[multiverse]``, :func:`cirl_study.study.spec.parse_pipeline`) names
+alternative levels of the settings :data:`~cirl_study.study.spec.AXES`, and the study (the
+eta cross-validation and the ``main`` block's policy x num_features design) is played in
+every *universe*, one choice of every setting (Steegen, Tuerlinckx, Gelman & Vanpaemel 2016,
+"Increasing transparency through a multiverse analysis"; Simonsohn, Simmons & Nelson 2020,
+"Specification curve analysis").
+
+A universe's pipeline (:func:`universe_pipeline`) is the multiverse's with the universe's
+settings: the same root seed, the same run, the same subjects. A subject's stream draws its
+centres and then ``theta`` whatever the placement (:func:`cirl_study.study.plan.draw_subject`),
+so every universe sees the same ``theta`` for a subject, and the universes are compared on
+common random numbers; a trial's seed is that of its id without the universe, so the base
+universe's trials are those of the pipeline played as a single study.
+
+The eta cross-validation of a universe is played by the base pipeline's robot, as in the
+paper and the robots study: the human's teaching is tuned once, against the paper's learner,
+and each robot then watches the same demonstrations. Universes that differ only in their
+robot therefore share one cross-validation, that of their *cross-validation universe*
+(:func:`cv_universe`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from cirl_study.study.spec import Pipeline, Universe
+
+
+def universes(pipeline: Pipeline) -> tuple[Universe, ...]:
+    """The universes of a multiverse pipeline, its own settings (the base) first."""
+    if pipeline.multiverse is None:
+        raise ValueError(f"pipeline {pipeline.name} is not a multiverse")
+    return pipeline.multiverse.universes
+
+
+def universe_pipeline(pipeline: Pipeline, universe: Universe) -> Pipeline:
+    """The single study of ``universe``: ``pipeline`` with its settings, and no multiverse.
+
+    ``sigma``, ``centres``, ``demonstrator_stays`` and ``deployment_start`` go to ``game``,
+    ``steps`` to both horizons, ``rationality`` to ``main`` and ``eta_cv``, ``robot`` to
+    ``main.robots``; the run id stays the multiverse's, and ``universe`` is set.
+    """
+    game = replace(
+        pipeline.game,
+        sigma=universe.sigma,
+        centres=universe.centres,
+        demonstrator_stays=universe.demonstrator_stays,
+        learning_steps=universe.steps,
+        deployment_steps=universe.steps,
+        deployment_start=universe.deployment_start,
+    )
+    return replace(
+        pipeline,
+        game=game,
+        eta_cv=replace(pipeline.eta_cv, rationality=universe.rationality),
+        main=replace(pipeline.main, rationality=universe.rationality, robots=(universe.robot,)),
+        multiverse=None,
+        universe=universe,
+    )
+
+
+def cv_universe(pipeline: Pipeline, universe: Universe) -> Universe:
+    """The universe whose cross-validation ``universe`` uses: its own, with the base robot."""
+    if pipeline.multiverse is None:
+        raise ValueError(f"pipeline {pipeline.name} is not a multiverse")
+    return replace(universe, robot=pipeline.multiverse.base.robot)

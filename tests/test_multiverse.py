@@ -1,0 +1,432 @@
+"""The multiverse (cirl_study.study.multiverse and cirl_study.analysis.multiverse).
+
+Expansion of ``[multiverse]`` into universes, their ids and trials, the open settings each
+axis varies (centre placement, a demonstrator who may not stay, the deployment start), the
+base universe against the single study, resuming mid-multiverse, the joint sign-flip test
+against exact enumeration, and the report end to end.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import msgspec
+import numpy as np
+import path_enumeration as pe
+import pytest
+from scipy import special, stats
+from test_logs_helpers import run_records
+from typer.testing import CliRunner
+
+from cirl_study.analysis import statistics
+from cirl_study.analysis.multiverse import analyse_multiverse
+from cirl_study.analysis.results import analyse
+from cirl_study.cli import app
+from cirl_study.core.gridworld import Gridworld, rbf_features
+from cirl_study.core.maxent import MaxEnt, Phase
+from cirl_study.core.trial import demonstrator_moves, play_trials
+from cirl_study.errors import UserError
+from cirl_study.logs import read_run, validate_run
+from cirl_study.logs.format import log_files
+from cirl_study.record import MAIN, encode
+from cirl_study.study.engines import LocalEngine
+from cirl_study.study.multiverse import cv_universe, universe_pipeline
+from cirl_study.study.plan import (
+    draw_subject,
+    eta_cv_trials,
+    lattice_centres,
+    study_trials,
+    trial_counts,
+)
+from cirl_study.study.runner import run_pipeline
+from cirl_study.study.spec import load_pipeline, parse_pipeline
+
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
+
+MULTIVERSE = """
+[multiverse.cross]
+sigma = [0.75, 1.5]
+centres = ["per_draw", "lattice"]
+
+[multiverse.alone]
+demonstrator_stays = [false]
+deployment_start = ["demonstration"]
+robot = ["posterior_mean"]
+"""
+
+
+def multiverse_text(tables: str = MULTIVERSE, name: str = "mv") -> str:
+    """The smoke pipeline as a multiverse: no lambda sweep, the given ``[multiverse]``."""
+    text = SMOKE.read_text()
+    text = text[: text.index("[lambda_sweep]")].replace('name = "smoke"', f'name = "{name}"')
+    return text + tables
+
+
+def multiverse(tmp_path: Path, tables: str = MULTIVERSE, name: str = "mv") -> Path:
+    path = tmp_path / f"{name}.toml"
+    path.write_text(multiverse_text(tables, name))
+    return path
+
+
+def etas_for(pipeline):
+    """The same eta for every cross-validation universe, policy and feature level."""
+    return {
+        (trial.universe, trial.policy, trial.num_features): 1.0 for trial in eta_cv_trials(pipeline)
+    }
+
+
+# ---- expansion and identity --------------------------------------------------------------
+
+
+def test_the_universes_are_the_base_the_cross_product_the_alone_levels_and_the_listed():
+    tables = MULTIVERSE + "\n[[multiverse.universes]]\nsigma = 1.5\nsteps = 3\n"
+    pipeline = parse_pipeline(multiverse_text(tables), Path("mv.toml"))
+    universes = pipeline.multiverse.universes
+    base = pipeline.multiverse.base
+    assert universes[0] == base and base.id == (
+        "sigma=0.75,centres=per_draw,stays=yes,steps=4,lambda=1,robot=map,start=uniform"
+    )
+    crossed = {(u.sigma, u.centres) for u in universes[:4]}
+    assert crossed == set(itertools.product((0.75, 1.5), ("per_draw", "lattice")))
+    assert len(universes) == 1 + 4 - 1 + 3 + 1  # the base is in the cross product once
+    assert universes[-1].steps == 3 and universes[-1].sigma == 1.5
+    assert len({u.id for u in universes}) == len(universes)
+    assert pipeline.lambda_sweep.rationalities == ()
+    counts = trial_counts(pipeline)
+    # cross-validation shared by the posterior-mean universe and the base
+    assert counts == {"eta_cv": 18 * (len(universes) - 1), "main": 16 * len(universes),
+                      "lambda_sweep": 0}  # fmt: skip
+    assert len(eta_cv_trials(pipeline)) == counts["eta_cv"]
+    assert len(study_trials(pipeline, etas_for(pipeline))) == counts["main"]
+
+
+@pytest.mark.parametrize(
+    "tables, message",
+    [
+        (MULTIVERSE + "[lambda_sweep]\nsubjects = 1\nrationalities = [1.0]\n",
+         "lambda_sweep must not be given with [multiverse]"),
+        ("[multiverse.cross]\nsigma = [0.75, 0.75]\n", "multiverse.cross.sigma must not repeat"),
+        ("[multiverse.cross]\nsigma = [0.001]\n", "multiverse.cross.sigma must be a non-empty"),
+        ('[multiverse.alone]\nrobot = ["oracle"]\n', "multiverse.alone.robot must be a non"),
+        ("[multiverse.alone]\ncentres = [\"random\"]\n", "centres must be a non-empty list"),
+        ("[multiverse.alone]\nsteps = [0]\n", "multiverse.alone.steps must be a non-empty list"),
+        ("[multiverse.alone]\ncolour = [1]\n", "multiverse.alone.colour is not a known key"),
+        ("[[multiverse.universes]]\nrationality = 1e9\n",
+         "multiverse.universes[0].rationality must be one of numbers in"),
+        ("[multiverse]\nuniverses = 3\n", "multiverse.universes must be an array of tables"),
+    ],
+)  # fmt: skip
+def test_a_bad_multiverse_is_one_line_naming_the_key(tables: str, message: str):
+    with pytest.raises(UserError, match=message.replace("[", r"\[").replace("]", r"\]")):
+        parse_pipeline(multiverse_text(tables), Path("mv.toml"))
+
+
+def test_a_multiverse_has_one_robot_and_one_horizon():
+    text = multiverse_text().replace('robots = ["map"]', 'robots = ["map", "posterior_mean"]')
+    with pytest.raises(UserError, match="main.robots must name one robot"):
+        parse_pipeline(text, Path("mv.toml"))
+    text = multiverse_text().replace("deployment_steps = 4", "deployment_steps = 3")
+    with pytest.raises(UserError, match="game.deployment_steps must equal game.learning_steps"):
+        parse_pipeline(text, Path("mv.toml"))
+
+
+def test_adding_a_level_changes_no_existing_universe_or_trial(tmp_path: Path):
+    small = load_pipeline(multiverse(tmp_path, "[multiverse.cross]\nsigma = [0.75, 1.5]\n", "a"))
+    more = '[multiverse.cross]\nsigma = [0.75, 1.5, 3.0]\ncentres = ["per_draw", "shared"]\n'
+    large = load_pipeline(multiverse(tmp_path, more, "a"))
+
+    def by_id(trials):
+        # the run id is the pipeline's hash: the same trial in another run differs only there
+        return {t.trial_id: msgspec.structs.replace(t, run_id="-") for t in trials}
+
+    small_trials = by_id(eta_cv_trials(small) + study_trials(small, etas_for(small)))
+    large_trials = by_id(eta_cv_trials(large) + study_trials(large, etas_for(large)))
+    assert set(small_trials) < set(large_trials)
+    for trial_id, trial in small_trials.items():
+        assert large_trials[trial_id] == trial
+
+
+def test_the_base_universe_plays_the_single_study_and_reports_its_numbers(
+    tmp_path: Path, smoke_run: Path
+):
+    # The universe with the pipeline's own settings is the pipeline played as a single study:
+    # the same trials (ids up to the universe suffix, seeds, draws), the same records, and the
+    # same main-block statistics as the single study's report.
+    pipeline = load_pipeline(multiverse(tmp_path, "[multiverse.alone]\nsigma = [1.5]\n"))
+    single = load_pipeline(SMOKE)
+    base = universe_pipeline(pipeline, pipeline.multiverse.base)
+    suffix = f"@{pipeline.multiverse.base.id}"
+    mine = {t.trial_id.removesuffix(suffix): t for t in eta_cv_trials(base)}
+    theirs = {t.trial_id: t for t in eta_cv_trials(single)}
+    assert mine.keys() == theirs.keys()
+    for trial_id, trial in theirs.items():
+        assert mine[trial_id].seed == trial.seed
+        assert (mine[trial_id].theta, mine[trial_id].features) == (trial.theta, trial.features)
+
+    run = tmp_path / "run"
+    run_pipeline(pipeline, run, LocalEngine(2))
+    records = {
+        r.trial_id.removesuffix(suffix): r
+        for r in run_records(run)
+        if r.universe == pipeline.multiverse.base.id
+    }
+    single_records = {r.trial_id: r for r in run_records(smoke_run) if r.block != "lambda_sweep"}
+    assert records.keys() == single_records.keys()
+    for trial_id, record in single_records.items():
+        assert records[trial_id].measures == record.measures
+        assert records[trial_id].demonstration == record.demonstration
+
+    results = analyse_multiverse(read_run(run).rows, pipeline)
+    (base_results,) = [u for u in results["universes"] if u["base"]]
+    alone = analyse(read_run(smoke_run).rows, "smoke")
+    assert base_results["anova"] == alone["anova"]
+    assert base_results["cells"] == alone["cells"]
+    assert base_results["cronbach_alpha"] == alone["cronbach_alpha"]
+    assert base_results["eta"] == alone["eta_cv"]["chosen"]
+
+
+# ---- the open settings ---------------------------------------------------------------------
+
+
+def test_centres_shared_by_every_draw_or_on_a_lattice_keep_each_draws_theta():
+    pipeline = parse_pipeline(multiverse_text(), Path("mv.toml"))
+    per_draw, shared, lattice = (
+        universe_pipeline(pipeline, replace(pipeline.multiverse.base, centres=c))
+        for c in ("per_draw", "shared", "lattice")
+    )
+    subjects = {
+        name: [draw_subject(p, "main", 3, i) for i in range(1, 5)]
+        for name, p in (("per_draw", per_draw), ("shared", shared), ("lattice", lattice))
+    }
+    for i in range(4):
+        assert len({subjects[name][i].theta for name in subjects}) == 1
+    assert len({s.features.centers for s in subjects["per_draw"]}) == 4
+    assert len({s.features.centers for s in subjects["shared"]}) == 1
+    assert subjects["shared"][0].features.centers != subjects["per_draw"][0].features.centers
+    (centres,) = {s.features.centers for s in subjects["lattice"]}
+    assert np.allclose(centres, [(2 / 3, 2), (2, 2), (10 / 3, 2)])  # 5 x 5 grid, 1 x 3 lattice
+
+
+@pytest.mark.parametrize(
+    "width, height, count, shape",
+    [(10, 10, 10, (2, 5)), (10, 10, 3, (1, 3)), (10, 10, 4, (2, 2)), (10, 5, 8, (2, 4)),
+     (5, 10, 8, (4, 2)), (10, 10, 7, (1, 7))],
+)  # fmt: skip
+def test_lattice_centres_are_the_cells_of_the_closest_to_square_factorisation(
+    width, height, count, shape
+):
+    centres = lattice_centres(width, height, count)
+    rows, columns = shape
+    assert centres.shape == (count, 2)
+    assert len(set(centres[:, 0])) == columns and len(set(centres[:, 1])) == rows
+    assert np.allclose(
+        np.sort(np.unique(centres[:, 0])), (width - 1) * (np.arange(columns) + 0.5) / columns
+    )
+    assert centres[:, 0].min() > 0 and centres[:, 0].max() < width - 1
+
+
+def test_a_demonstrator_who_may_not_stay_never_stays_and_the_robot_knows_it(tmp_path: Path):
+    pipeline = load_pipeline(
+        multiverse(tmp_path, "[multiverse.alone]\ndemonstrator_stays = [false]\n")
+    )
+    universe = next(u for u in pipeline.multiverse.universes if not u.demonstrator_stays)
+    trials = [t for t in study_trials(pipeline, etas_for(pipeline)) if t.universe == universe.id]
+    records = play_trials(trials)
+    assert all("stay" not in r.demonstration.actions for r in records)
+    stays = play_trials([msgspec.structs.replace(t, demonstrator_stays=True) for t in trials])
+    assert any("stay" in r.demonstration.actions for r in stays)  # else the test shows nothing
+    # The robot's model of the learning phase is MaxEnt over the paths without a stay.
+    spec = trials[0]
+    grid = Gridworld(spec.grid.width, spec.grid.height)
+    features = rbf_features(grid, spec.features.centers, spec.features.sigma)
+    start = grid.index(*spec.start)
+    model = MaxEnt(Phase(demonstrator_moves(grid, spec), start, 3), features[None], 1.0)
+    paths = [
+        path
+        for path in pe.enumerate_paths(spec.grid.width, spec.grid.height, start, 3)
+        if all(a != b for a, b in itertools.pairwise(path))
+    ]
+    counts = pe.feature_counts(paths, features)
+    theta = np.array(spec.theta)
+    want = pe.log_partition(counts, theta, 1.0)
+    assert model.log_partition(theta[None])[0] == pytest.approx(want, rel=1e-12)
+
+
+def test_a_deployment_from_the_demonstrations_start_is_measured_there(tmp_path: Path):
+    pipeline = load_pipeline(
+        multiverse(tmp_path, '[multiverse.alone]\ndeployment_start = ["demonstration"]\n')
+    )
+    universe = next(u for u in pipeline.multiverse.universes if u.deployment_start != "uniform")
+    trials = [t for t in study_trials(pipeline, etas_for(pipeline)) if t.universe == universe.id]
+    trials = trials[:6]
+    there = play_trials(trials)
+    everywhere = play_trials(
+        [msgspec.structs.replace(t, deployment_start="uniform") for t in trials]
+    )
+    for at_start, uniform in zip(there, everywhere, strict=True):
+        assert at_start.theta_hat == uniform.theta_hat  # the same demonstration and estimate
+        assert at_start.measures.reward_l2 == uniform.measures.reward_l2
+        assert at_start.deployment.starts == (at_start.start,)
+    assert any(
+        a.measures.regret != b.measures.regret for a, b in zip(there, everywhere, strict=True)
+    )
+
+
+# ---- runs: resume, validate, the report ------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def multiverse_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    directory = tmp_path_factory.mktemp("multiverse")
+    pipeline = load_pipeline(multiverse(directory))
+    run = directory / "run"
+    run_pipeline(pipeline, run, LocalEngine(2))
+    return run
+
+
+def payloads(run: Path) -> dict[str, bytes]:
+    return {record.trial_id: encode(record) for record in run_records(run)}
+
+
+def test_an_interrupted_multiverse_resumes_to_the_same_trials(tmp_path: Path, multiverse_run: Path):
+    run = tmp_path / "run"
+    shutil.copytree(multiverse_run, run)
+    files = log_files(run)
+    for victim in (files[0], files[len(files) // 2], files[-1]):
+        victim.unlink()
+    result = CliRunner().invoke(app, ["analyze", str(run)])
+    assert result.exit_code == 2 and "missing" in result.stderr and "--partial" not in result.stderr
+    assert "resume with `cirl-study run" in result.stderr
+    pipeline = load_pipeline(multiverse_run.parent / "mv.toml")
+    resumed = run_pipeline(pipeline, run, LocalEngine(1))
+    assert resumed.played > 0 and resumed.resumed > 0
+    assert payloads(run) == payloads(multiverse_run)
+    assert validate_run(run).ok
+
+
+def test_the_multiverse_report(tmp_path: Path, multiverse_run: Path):
+    result = CliRunner().invoke(app, ["analyze", str(multiverse_run), "--out", str(tmp_path / "r")])
+    assert result.exit_code == 0, result.output
+    assert "multiverse report of" in result.stdout and "universes" in result.stdout
+    report = tmp_path / "r"
+    results = json.loads((report / "results.json").read_text())
+    pipeline = load_pipeline(multiverse_run.parent / "mv.toml")
+    assert [u["id"] for u in results["universes"]] == [u.id for u in pipeline.multiverse.universes]
+    assert sum(u["base"] for u in results["universes"]) == 1
+    for claim in results["claims"]:
+        assert claim["reproduced"] == len(claim["holds_in"]) <= claim["universes"]
+        for levels in claim["by_level"].values():
+            assert sum(level["universes"] for level in levels) == claim["universes"]
+            assert sum(level["reproduced"] for level in levels) == claim["reproduced"]
+    assert len((report / "universes.csv").read_text().splitlines()) == len(results["universes"]) + 1
+    for measure in ("regret", "kl", "reward_l2"):
+        assert (report / f"specification_curve_{measure}.png").is_file()
+        assert (report / f"specification_curve_{measure}.svg").is_file()
+        test = results["joint_test"][measure]
+        assert test["resamples"] >= 500 and 0 < test["stouffer_z"]["p"] <= 1
+    text = (report / "report.md").read_text()
+    assert "## Claims across universes" in text and "Specification curve" in text
+    again = CliRunner().invoke(app, ["compare", str(report), str(report)])
+    assert again.exit_code == 0
+    # the cross-validation a universe used is that of its cross-validation universe
+    posterior = next(u for u in results["universes"] if u["settings"]["robot"] != "map")
+    base = next(u for u in results["universes"] if u["base"])
+    assert posterior["eta"] == base["eta"]
+    robots = [u for u in pipeline.multiverse.universes if u.robot != "map"]
+    assert [cv_universe(pipeline, u) for u in robots] == [pipeline.multiverse.base]
+
+
+# ---- the joint test --------------------------------------------------------------------------
+
+
+def _exact_joint_p(d: np.ndarray) -> dict[str, float]:
+    """The p-values of the joint test over all 2^S sign vectors (the exact null)."""
+    universes, subjects = d.shape
+    critical = stats.t.ppf(0.975, subjects - 1)
+
+    def statistics_of(x):
+        mean = x.mean(axis=1)
+        t = mean / (x.std(axis=1, ddof=1) / math.sqrt(subjects))
+        z = -special.ndtri_exp(stats.t.logcdf(t, subjects - 1))
+        return np.median(mean), np.mean(t < -critical), z.sum() / math.sqrt(universes)
+
+    observed = statistics_of(d)
+    null = np.array(
+        [
+            statistics_of(d * np.array(signs))
+            for signs in itertools.product((-1, 1), repeat=subjects)
+        ]
+    )
+    return {
+        "median_effect": float(np.mean(null[:, 0] <= observed[0])),
+        "share_significant": float(np.mean(null[:, 1] >= observed[1])),
+        "stouffer_z": float(np.mean(null[:, 2] >= observed[2])),
+    }
+
+
+@pytest.mark.parametrize("shift", [0.0, -0.4])
+def test_the_joint_test_agrees_with_the_exact_sign_flip_null(shift: float):
+    rng = np.random.default_rng(7)
+    subject = rng.normal(0, 1, 12)  # shared by every universe: the universes are dependent
+    d = subject[None, :] + rng.normal(0, 0.5, (4, 12)) + shift
+    exact = _exact_joint_p(d)
+    got = statistics.joint_sign_flip_test(d, resamples=20000, seed=3)
+    for key, p in exact.items():
+        # Monte Carlo p against the exact one: within 4 standard errors (+ the +1 correction)
+        assert abs(got[key]["p"] - p) <= 4 * math.sqrt(p * (1 - p) / 20000) + 1e-4, key
+
+
+def test_the_joint_test_finds_a_clear_effect_and_holds_its_level_under_the_null():
+    rng = np.random.default_rng(11)
+    clear = rng.normal(-1.0, 1.0, (6, 40))
+    result = statistics.joint_sign_flip_test(clear, resamples=500)
+    assert all(result[key]["p"] == 1 / 501 for key in ("median_effect", "stouffer_z"))
+    rejections = 0
+    for seed in range(200):
+        null = np.random.default_rng(seed).normal(0.0, 1.0, (5, 30))
+        rejections += (
+            statistics.joint_sign_flip_test(null, resamples=200, seed=seed)["stouffer_z"]["p"]
+            <= 0.05
+        )
+    assert 2 <= rejections <= 20  # 5% of 200 is 10; a binomial 99.9% range
+
+
+def test_the_joint_test_is_a_function_of_its_inputs_and_seed():
+    d = np.random.default_rng(2).normal(-0.1, 1.0, (3, 25))
+    assert statistics.joint_sign_flip_test(d) == statistics.joint_sign_flip_test(d.copy())
+    assert statistics.joint_sign_flip_test(d, batch=7) == statistics.joint_sign_flip_test(d)
+
+
+def test_a_main_block_of_one_universe_is_its_own():
+    pipeline = parse_pipeline(multiverse_text(), Path("mv.toml"))
+    trials = study_trials(pipeline, etas_for(pipeline))
+    assert {t.universe for t in trials} == {u.id for u in pipeline.multiverse.universes}
+    assert all(t.block == MAIN and t.trial_id.endswith(f"@{t.universe}") for t in trials)
+
+
+def test_the_shipped_multiverse_is_the_paper_study_in_53_universes():
+    pipeline = load_pipeline(SMOKE.parent / "multiverse.toml")
+    paper = load_pipeline(SMOKE.parent / "paper.toml")
+    assert len(pipeline.multiverse.universes) == 53
+    base = universe_pipeline(pipeline, pipeline.multiverse.base)
+    suffix = f"@{pipeline.multiverse.base.id}"
+    etas = {(None, "best_response", 3): 0.316, (None, "best_response", 10): 1.0}
+
+    def without_universe(trials):
+        return [
+            msgspec.structs.replace(
+                t, trial_id=t.trial_id.removesuffix(suffix), run_id="-", universe=None
+            )
+            for t in trials
+        ]
+
+    def of_paper(trials):
+        return [msgspec.structs.replace(t, run_id="-") for t in trials if t.block != "lambda_sweep"]
+
+    assert without_universe(eta_cv_trials(base)) == of_paper(eta_cv_trials(paper))
+    assert without_universe(study_trials(base, etas)) == of_paper(study_trials(paper, etas))
