@@ -35,7 +35,7 @@ from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.results import Results, analyse, plain, rows
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.record import ETA_CV, EXPERT, MAIN, MEASURES, TrialRow
-from cirl_study.study.multiverse import cv_universe, universes
+from cirl_study.study.multiverse import base_universe, cv_universe, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe
 
 PAPER_CLAIMS: tuple[str, ...] = (
@@ -91,8 +91,7 @@ def analyse_multiverse(
         UserError: a universe's trials do not hold a design the paper analysis can use
             (:func:`~cirl_study.analysis.table.check_design`).
     """
-    assert pipeline.multiverse is not None
-    base = pipeline.multiverse.base
+    base = base_universe(pipeline)
     per_universe = []
     chosen = universe_trials(trials, pipeline)
     for position, (universe, rows_of_universe) in enumerate(chosen.items(), start=1):
@@ -139,7 +138,6 @@ def analyse_multiverse(
 
 def _axes(pipeline: Pipeline) -> dict[str, list[Any]]:
     """Each axis's levels across the universes, the base level first."""
-    assert pipeline.multiverse is not None
     levels: dict[str, list[Any]] = {axis: [] for axis in AXES}
     for universe in universes(pipeline):
         for axis in AXES:
@@ -197,7 +195,6 @@ def _regression(effects: pd.DataFrame, measure: str, pipeline: Pipeline) -> dict
     few for the model (no residual degrees of freedom)."""
     levels = _axes(pipeline)
     varied = [axis for axis in AXES if len(levels[axis]) > 1]
-    assert pipeline.multiverse is not None
     frame = effects[effects["measure"] == measure].set_index("universe")
     by_id = {u.id: u for u in universes(pipeline)}
     data = pd.DataFrame(

@@ -83,7 +83,12 @@ def _claims(results: Results) -> list[str]:
         "## Claims across universes",
         "",
         table(
-            ["claim", "universes reproducing it", "base universe", "levels where it always holds"],
+            [
+                "claim",
+                "universes reproducing it",
+                "base universe",
+                "levels at which it always holds",
+            ],
             rows,
             [False, True, False, False],
         ),
@@ -101,7 +106,7 @@ def _where(claim: Mapping[str, Any]) -> str:
     if claim["reproduced"] == claim["universes"]:
         return "everywhere"
     always = [
-        f"{axis} = {level_label(level['level'])}"
+        f"{axis} = {level_label(level['level'])} ({_share(level)})"
         for axis, levels in claim["by_level"].items()
         for level in levels
         if level["universes"] and level["reproduced"] == level["universes"]

@@ -26,14 +26,23 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from cirl_study.study.spec import Pipeline, Universe
+from cirl_study.study.spec import MultiverseSpec, Pipeline, Universe
 
 
 def universes(pipeline: Pipeline) -> tuple[Universe, ...]:
     """The universes of a multiverse pipeline, its own settings (the base) first."""
+    return _multiverse(pipeline).universes
+
+
+def base_universe(pipeline: Pipeline) -> Universe:
+    """The universe of a multiverse pipeline's own settings."""
+    return _multiverse(pipeline).base
+
+
+def _multiverse(pipeline: Pipeline) -> MultiverseSpec:
     if pipeline.multiverse is None:
         raise ValueError(f"pipeline {pipeline.name} is not a multiverse")
-    return pipeline.multiverse.universes
+    return pipeline.multiverse
 
 
 def universe_pipeline(pipeline: Pipeline, universe: Universe) -> Pipeline:
@@ -64,6 +73,4 @@ def universe_pipeline(pipeline: Pipeline, universe: Universe) -> Pipeline:
 
 def cv_universe(pipeline: Pipeline, universe: Universe) -> Universe:
     """The universe whose cross-validation ``universe`` uses: its own, with the base robot."""
-    if pipeline.multiverse is None:
-        raise ValueError(f"pipeline {pipeline.name} is not a multiverse")
-    return replace(universe, robot=pipeline.multiverse.base.robot)
+    return replace(universe, robot=base_universe(pipeline).robot)
