@@ -36,6 +36,10 @@ BLOCKS: tuple[str, ...] = (MAIN, LAMBDA_SWEEP, ETA_CV)
 EXPERT, BEST_RESPONSE = "expert", "best_response"
 """The paper's human policies: demonstration by expert, and the instructive best response."""
 
+LITERAL = "literal"
+"""The Boltzmann-rational demonstrator of Ho et al. (2016), who draws her path from the robot's
+own model (:func:`cirl_study.core.humans.literal_paths`)."""
+
 PAPER_POLICIES: tuple[str, ...] = (EXPERT, BEST_RESPONSE)
 """The levels of the paper's within-subjects factor ``policy``, baseline first."""
 

@@ -5,6 +5,7 @@ import path_enumeration as bf
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from scipy import stats
 
 from cirl_study.core.humans import (
     HUMANS,
@@ -12,13 +13,18 @@ from cirl_study.core.humans import (
     best_response_paths,
     best_response_target,
     expert_paths,
+    literal_paths,
     register_human,
 )
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.path_search import NearestPaths, nearest_paths
-from cirl_study.record import BEST_RESPONSE, EXPERT
+from cirl_study.record import BEST_RESPONSE, EXPERT, LITERAL
 
 PAPER = {"width": 10, "height": 10, "start": bf.cell(10, 5, 5), "horizon": 9}
+
+
+SEEDS = np.arange(3)
+"""Seeds of a batch of three trials."""
 
 
 def _batch(features, size):
@@ -249,10 +255,10 @@ def test_the_paper_s_humans_are_registered_by_name():
     model = _model(_batch(features, 3), width, height, start, horizon, rationality)
     thetas, etas = rng.uniform(-1, 1, size=(3, 3)), np.array([0.1, 1.0, 10.0])
     np.testing.assert_array_equal(
-        HUMANS[EXPERT].demonstrate(model, thetas, None), expert_paths(model, thetas)
+        HUMANS[EXPERT].demonstrate(model, thetas, None, SEEDS), expert_paths(model, thetas)
     )
     np.testing.assert_array_equal(
-        HUMANS[BEST_RESPONSE].demonstrate(model, thetas, etas),
+        HUMANS[BEST_RESPONSE].demonstrate(model, thetas, etas, SEEDS),
         best_response_paths(model, thetas, etas),
     )
 
@@ -260,5 +266,51 @@ def test_the_paper_s_humans_are_registered_by_name():
 def test_a_policy_name_is_registered_once():
     expert = HUMANS[EXPERT]
     with pytest.raises(ValueError):
-        register_human(EXPERT, Human(lambda model, theta, eta: None, takes_eta=False))
+        register_human(EXPERT, Human(lambda model, theta, eta, seeds: None, takes_eta=False))
     assert HUMANS[EXPERT] is expert
+
+
+# ---- the literal demonstrator ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("rationality", [0.5, 2.0, 20.0])
+def test_literal_paths_are_drawn_from_the_maxent_distribution(rationality):
+    # Every path from s_0, with its exact probability by enumeration, against 20,000 draws
+    # (one per seed): a chi-square test of the counts (the draws are fixed by their seeds).
+    width, height, start, horizon = 3, 3, 4, 3
+    rng = np.random.default_rng(5)
+    features = bf.rbf_features(width, height, rng.uniform(0, 2, size=(2, 2)), 1.0)
+    theta = rng.uniform(-1, 1, size=2)
+    draws = 20_000
+    model = _model(_batch(features, draws), width, height, start, horizon, rationality)
+    paths = literal_paths(model, np.tile(theta, (draws, 1)), np.arange(draws))
+    every = bf.enumerate_paths(width, height, start, horizon)
+    probability = np.exp(bf.path_log_probs(bf.feature_counts(every, features), theta, rationality))
+    index = {path: i for i, path in enumerate(every)}
+    counts = np.bincount([index[tuple(p)] for p in paths], minlength=len(every))
+    assert counts.sum() == draws  # every draw is a path of the phase
+    expected = probability * draws
+    pooled = expected >= 5  # the chi-square approximation; the rest pooled into one cell
+    observed = np.append(counts[pooled], counts[~pooled].sum())
+    wanted = np.append(expected[pooled], expected[~pooled].sum())
+    keep = wanted > 0
+    _, p = stats.chisquare(observed[keep], wanted[keep] * observed.sum() / wanted[keep].sum())
+    assert p > 1e-3
+
+
+def test_a_literal_path_depends_on_its_seed_alone():
+    width, height, start, horizon = 4, 4, 5, 4
+    features = bf.rbf_features(width, height, [[0.0, 0.0], [3.0, 3.0]], 1.5)
+    thetas = np.array([[0.5, -0.5], [0.2, 0.9], [-0.7, 0.1]])
+    model = _model(_batch(features, 3), width, height, start, horizon)
+    together = literal_paths(model, thetas, np.array([11, 12, 13]))
+    for b, seed in enumerate((11, 12, 13)):
+        alone = _model(_batch(features, 1), width, height, start, horizon)
+        np.testing.assert_array_equal(
+            literal_paths(alone, thetas[b : b + 1], np.array([seed])), together[b : b + 1]
+        )
+    np.testing.assert_array_equal(
+        HUMANS[LITERAL].demonstrate(model, thetas, None, SEEDS),
+        literal_paths(model, thetas, SEEDS),
+    )
+    assert not HUMANS[LITERAL].takes_eta

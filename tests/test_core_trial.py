@@ -306,7 +306,7 @@ def test_an_unplayable_spec_is_refused(case):
 LAST_PATH, STAY_PUT = "test-last-path", "test-stay-put"
 
 
-def _last_path(model, theta, eta):
+def _last_path(model, theta, eta, seeds):
     """At every step the highest-index available action: the lexicographically last path."""
     assert eta is None
     phase = model.phase
@@ -325,7 +325,7 @@ def toy_humans():
     """Register two toy policies for one test; yields the etas the one with a trade-off got."""
     received = []
 
-    def stay_put(model, theta, eta):
+    def stay_put(model, theta, eta, seeds):
         received.append(np.array(eta))
         return np.full((len(theta), model.phase.horizon + 1), model.phase.start_cell)
 

@@ -105,6 +105,18 @@ def test_the_universes_are_the_base_the_cross_product_the_alone_levels_and_the_l
     assert len(study_trials(pipeline, etas_for(pipeline))) == counts["main"]
 
 
+def test_universe_ids_tell_close_numbers_apart():
+    pipeline = parse_pipeline(
+        multiverse_text("[multiverse.alone]\nsigma = [0.7500001, 1.0, 2.0000000001]\n"),
+        Path("mv.toml"),
+    )
+    ids = [u.id for u in pipeline.multiverse.universes]
+    assert len(set(ids)) == 4
+    assert [i.split(",")[0] for i in ids] == [
+        "sigma=0.75", "sigma=0.7500001", "sigma=1", "sigma=2.0000000001",
+    ]  # fmt: skip
+
+
 @pytest.mark.parametrize(
     "tables, message",
     [

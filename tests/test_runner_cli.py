@@ -74,3 +74,16 @@ def test_run_prints_a_summary(tmp_path: Path) -> None:
     again = CliRunner().invoke(app, ["run", str(SMOKE), "--out", str(out), "--workers", "1"])
     assert again.exit_code == 0
     assert "0 played now, 82 were already logged" in again.stdout
+
+
+def test_a_study_of_humans_without_a_trade_off_plays_no_cross_validation(tmp_path: Path) -> None:
+    pipeline = tmp_path / "literal.toml"
+    text = SMOKE.read_text().replace('["expert", "best_response"]', '["expert", "literal"]')
+    pipeline.write_text(text)
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["run", str(pipeline), "--out", str(out), "--workers", "1"])
+    assert result.exit_code == 0, result.output
+    assert "64 trials logged" in result.stdout  # main 16 + lambda_sweep 48, no eta_cv
+    assert (
+        result.stdout.splitlines()[2] == "eta by cross-validation: none (no policy has a trade-off)"
+    )

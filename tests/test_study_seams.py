@@ -22,7 +22,9 @@ from cirl_study.study.spec import load_pipeline, parse_pipeline
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
 
-def stay_put(model: MaxEnt, theta: np.ndarray, eta: np.ndarray | None) -> np.ndarray:
+def stay_put(
+    model: MaxEnt, theta: np.ndarray, eta: np.ndarray | None, seeds: np.ndarray
+) -> np.ndarray:
     """A human who never moves: ``s_0`` at every step (``stay`` is always available)."""
     return np.full((len(theta), model.phase.horizon + 1), model.phase.start_cell)
 

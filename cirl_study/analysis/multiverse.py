@@ -36,7 +36,7 @@ from cirl_study.analysis.results import Results, analyse, plain, rows
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.record import ETA_CV, EXPERT, MAIN, MEASURES, TrialRow
 from cirl_study.study.multiverse import base_universe, cv_universe, universes
-from cirl_study.study.spec import AXES, Pipeline, Universe
+from cirl_study.study.spec import AXES, Pipeline, Universe, shortest_number
 
 PAPER_CLAIMS: tuple[str, ...] = (
     "policy_effect",
@@ -67,11 +67,12 @@ def universe_trials(
 
 
 def level_label(value: Any) -> str:
-    """An axis level as the report writes it: ``yes``/``no``, numbers in ``%g``, names as is."""
+    """An axis level as the report writes it: ``yes``/``no``, numbers in their shortest exact
+    form (:func:`~cirl_study.study.spec.shortest_number`), names as they are."""
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):
-        return f"{value:g}"
+        return shortest_number(value)
     return str(value)
 
 
@@ -126,7 +127,7 @@ def analyse_multiverse(
         "axes": _axes(pipeline),
         "trials": {
             "total": len(table),
-            **{b: int(n) for b, n in table["block"].value_counts().items()},
+            **{str(b): int(n) for b, n in sorted(table["block"].value_counts().items())},
         },
         "universes": plain(per_universe),
         "effects": rows(effects),

@@ -95,8 +95,10 @@ def _summary(result: RunResult, engine: str) -> str:
     playing = result.playing_seconds
     rate = result.played / playing if playing > 0 else 0.0
     floor = result.play_seconds / result.workers
-    universes = {universe for universe, _, _ in result.etas}
-    if universes != {None}:
+    universes = {universe for universe, _, _ in result.etas} - {None}
+    if not result.etas:
+        etas = "none (no policy has a trade-off)"
+    elif universes:
         etas = f"{len(result.etas)} choices in {len(universes)} universes (see the report)"
     else:
         etas = "; ".join(

@@ -18,11 +18,16 @@
   plus a constant, so :math:`\\tau^H` is the path whose counts are nearest to
   :math:`\\phi_\\theta + \\theta/(2\\eta)`, found exactly by
   :func:`cirl_study.core.path_search.nearest_paths`.
+* **Literal demonstrator** (Ho, Littman, MacGlashan, Cushman & Austerweil 2016, "Showing
+  versus doing"): Boltzmann-rational, she draws her path from the very model the robot
+  assumes, :math:`P(\\tau \\mid \\theta, \\lambda) \\propto \\exp(\\lambda\\,
+  \\theta^\\top \\phi(\\tau))`, with the trial's seed (:func:`literal_paths`).
 
 A human policy is a :class:`Human`: a function of the robot's MaxEnt model of the learning
 phase (:class:`cirl_study.core.maxent.MaxEnt`, which carries the dynamics, the features and
-the robot's :math:`\\lambda`), the true :math:`\\theta` and, for a policy with a trade-off, its
-:math:`\\eta`. Paths are returned as ``(B, T + 1)`` arrays of flat cell indices, starting at
+the robot's :math:`\\lambda`), the true :math:`\\theta`, for a policy with a trade-off its
+:math:`\\eta`, and the trials' seeds (for a policy that draws; :func:`human_generator`). Paths
+are returned as ``(B, T + 1)`` arrays of flat cell indices, starting at
 :math:`s_0`. Policies are looked up by name in :data:`HUMANS`; adding one is one function and
 one :func:`register_human` line.
 """
@@ -36,8 +41,24 @@ import numpy as np
 
 from cirl_study.core.maxent import MaxEnt
 from cirl_study.core.path_search import nearest_paths
-from cirl_study.core.planning import FloatArray, IntArray, follow_policy, optimal_plan, rollout
-from cirl_study.record import BEST_RESPONSE, EXPERT
+from cirl_study.core.planning import (
+    FloatArray,
+    IntArray,
+    follow_policy,
+    optimal_plan,
+    rollout,
+    soft_value_iteration,
+)
+from cirl_study.record import BEST_RESPONSE, EXPERT, LITERAL
+
+HUMAN_STREAM = 2
+"""Spawn key of a human's random stream, apart from the robot's
+(:data:`cirl_study.core.estimate.ROBOT_STREAM`) and the replay's uses of the trial's seed."""
+
+
+def human_generator(seed: int) -> np.random.Generator:
+    """The random generator of the human of the trial with ``seed``."""
+    return np.random.default_rng(np.random.SeedSequence(int(seed), spawn_key=(HUMAN_STREAM,)))
 
 
 def expert_paths(model: MaxEnt, theta: FloatArray) -> IntArray:
@@ -76,18 +97,55 @@ def best_response_paths(model: MaxEnt, theta: FloatArray, eta: FloatArray) -> In
     return rollout(phase.successors, phase.start_cell, found.actions)
 
 
+def literal_paths(model: MaxEnt, theta: FloatArray, seeds: IntArray) -> IntArray:
+    """Literal demonstration: a path drawn from :math:`P(\\tau \\mid \\theta, \\lambda) \\propto
+    \\exp(\\lambda\\, \\theta^\\top \\phi(\\tau))` over the phase's paths from :math:`s_0`.
+
+    That distribution is the Markov chain of the soft policy :math:`\\pi_t(a \\mid s) =
+    \\exp(Q_t(s, a) - V_t(s))` of finite-horizon soft value iteration
+    (:func:`cirl_study.core.planning.soft_value_iteration`: :math:`V_T = 0`, :math:`Q_t(s, a) =
+    \\lambda r(s') + V_{t+1}(s')`), since the product of its steps telescopes to
+    :math:`\\exp(\\lambda \\theta^\\top \\phi(\\tau) - V_0(s_0))`. So each move is drawn in
+    turn, :math:`a_t \\sim \\pi_t(\\cdot \\mid s_t)`, by inverting the cumulative policy at one
+    uniform per step from the trial's :func:`human_generator`; the path depends on its trial
+    alone.
+
+    Args:
+        model: the MaxEnt model of the learning phase (its :math:`\\lambda` is the human's).
+        theta: ``(B, K)`` true reward weights.
+        seeds: ``(B,)`` the trials' seeds.
+    """
+    phase = model.phase
+    plan = soft_value_iteration(
+        model.cell_rewards(theta), phase.successors, phase.horizon, model.rationality
+    )
+    batch = len(theta)
+    uniforms = np.array([human_generator(seed).random(phase.horizon) for seed in seeds])
+    paths = np.empty((batch, phase.horizon + 1), dtype=np.int64)
+    paths[:, 0] = phase.start_cell
+    rows = np.arange(batch)
+    for t in range(phase.horizon):
+        cumulative = np.cumsum(plan.policy[t][rows, paths[:, t]], axis=1)
+        # The first action whose cumulative probability exceeds u (scaled by the total, which
+        # rounding may leave a hair below 1): unavailable moves have probability 0.
+        action = np.argmax(cumulative > uniforms[:, t, None] * cumulative[:, -1:], axis=1)
+        paths[:, t + 1] = phase.successors[paths[:, t], action]
+    return paths
+
+
 @dataclass(frozen=True)
 class Human:
     """A human policy: how she demonstrates, and whether she trades reward against teaching.
 
     Attributes:
-        demonstrate: ``demonstrate(model, theta, eta)`` returns the ``(B, T + 1)`` paths;
-            ``eta`` is ``(B,)`` when :attr:`takes_eta`, else ``None``.
+        demonstrate: ``demonstrate(model, theta, eta, seeds)`` returns the ``(B, T + 1)``
+            paths; ``eta`` is ``(B,)`` when :attr:`takes_eta`, else ``None``; ``seeds`` are the
+            trials' seeds.
         takes_eta: whether the policy has the trade-off :math:`\\eta`, chosen by
             cross-validation before the test trials (docs/design.md §3).
     """
 
-    demonstrate: Callable[[MaxEnt, FloatArray, FloatArray | None], IntArray]
+    demonstrate: Callable[[MaxEnt, FloatArray, FloatArray | None, IntArray], IntArray]
     takes_eta: bool
 
 
@@ -102,5 +160,13 @@ def register_human(name: str, human: Human) -> None:
     HUMANS[name] = human
 
 
-register_human(EXPERT, Human(lambda model, theta, _: expert_paths(model, theta), takes_eta=False))
-register_human(BEST_RESPONSE, Human(best_response_paths, takes_eta=True))
+register_human(
+    EXPERT, Human(lambda model, theta, _eta, _seeds: expert_paths(model, theta), takes_eta=False)
+)
+register_human(
+    BEST_RESPONSE,
+    Human(lambda model, theta, eta, _seeds: best_response_paths(model, theta, eta), takes_eta=True),
+)
+register_human(
+    LITERAL, Human(lambda model, theta, _eta, seeds: literal_paths(model, theta, seeds), False)
+)

@@ -117,8 +117,8 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
 
     human = HUMANS[first.policy]
     eta = np.array([spec.eta for spec in specs], dtype=np.float64) if human.takes_eta else None
-    demos = human.demonstrate(learning, theta, eta)
     seeds = np.array([spec.seed for spec in specs], dtype=np.int64)
+    demos = human.demonstrate(learning, theta, eta, seeds)
     estimate = ROBOTS[first.robot](learning, demos, seeds)
     theta_hat = estimate.theta_hat
     measures = {

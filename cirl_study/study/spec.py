@@ -185,10 +185,17 @@ class Universe:
         steps=9,lambda=1,robot=map,start=uniform``: a function of the choices alone, so adding
         a level to an axis never renames an existing universe."""
         return (
-            f"sigma={self.sigma:g},centres={self.centres},"
+            f"sigma={shortest_number(self.sigma)},centres={self.centres},"
             f"stays={'yes' if self.demonstrator_stays else 'no'},steps={self.steps},"
-            f"lambda={self.rationality:g},robot={self.robot},start={self.deployment_start}"
+            f"lambda={shortest_number(self.rationality)},robot={self.robot},"
+            f"start={self.deployment_start}"
         )
+
+
+def shortest_number(value: float) -> str:
+    """``value`` in Python's shortest round-trip form, less a trailing ``.0`` (``1.5``, ``4``,
+    ``1e-05``): distinct numbers give distinct text (universe ids and level labels)."""
+    return repr(float(value)).removesuffix(".0")
 
 
 @dataclass(frozen=True)
