@@ -168,5 +168,6 @@ register_human(
     Human(lambda model, theta, eta, _seeds: best_response_paths(model, theta, eta), takes_eta=True),
 )
 register_human(
-    LITERAL, Human(lambda model, theta, _eta, seeds: literal_paths(model, theta, seeds), False)
+    LITERAL,
+    Human(lambda model, theta, _eta, seeds: literal_paths(model, theta, seeds), takes_eta=False),
 )
