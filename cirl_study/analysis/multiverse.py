@@ -118,21 +118,22 @@ def analyse_multiverse(
             }
         )
     progress("across universes")
+    levels = _axes(pipeline)
     table = trial_table(trials)
     main = table[table["block"] == MAIN]
     effects = _effects(main)
     return {
         "pipeline": pipeline.name,
         "base_universe": base.id,
-        "axes": _axes(pipeline),
+        "axes": levels,
         "trials": {
             "total": len(table),
             **{str(b): int(n) for b, n in sorted(table["block"].value_counts().items())},
         },
         "universes": plain(per_universe),
         "effects": rows(effects),
-        "claims": _claim_shares(per_universe, pipeline),
-        "regression": {m: _regression(effects, m, pipeline) for m in MEASURES},
+        "claims": _claim_shares(per_universe, levels),
+        "regression": {m: _regression(effects, m, levels, pipeline) for m in MEASURES},
         "joint_test": {m: _joint_test(main, m) for m in MEASURES},
     }
 
@@ -157,10 +158,12 @@ def _effects(main: pd.DataFrame) -> pd.DataFrame:
     return effects.sort_values(["measure", "universe"], kind="mergesort").reset_index(drop=True)
 
 
-def _claim_shares(per_universe: list[dict[str, Any]], pipeline: Pipeline) -> list[dict[str, Any]]:
-    """Per claim: universes reproducing it, the base universe's verdict, shares by axis level."""
+def _claim_shares(
+    per_universe: list[dict[str, Any]], levels: dict[str, list[Any]]
+) -> list[dict[str, Any]]:
+    """Per claim: universes reproducing it, the base universe's verdict, shares at each of the
+    axis ``levels`` (:func:`_axes`)."""
     shares = []
-    levels = _axes(pipeline)
     for claim in PAPER_CLAIMS:
         tested = [u for u in per_universe if u["claims"][claim]["tested"]]
         by_level = {
@@ -190,11 +193,12 @@ def _claim_shares(per_universe: list[dict[str, Any]], pipeline: Pipeline) -> lis
     return shares
 
 
-def _regression(effects: pd.DataFrame, measure: str, pipeline: Pipeline) -> dict[str, Any]:
-    """OLS of the universes' policy effects on the axis levels, and each axis's share of the
-    effect's variance (type II SS over the total SS); ``None`` parts when the universes are too
-    few for the model (no residual degrees of freedom)."""
-    levels = _axes(pipeline)
+def _regression(
+    effects: pd.DataFrame, measure: str, levels: dict[str, list[Any]], pipeline: Pipeline
+) -> dict[str, Any]:
+    """OLS of the universes' policy effects on the axis ``levels`` (:func:`_axes`), and each
+    axis's share of the effect's variance (type II SS over the total SS); ``None`` parts when
+    the universes are too few for the model (no residual degrees of freedom)."""
     varied = [axis for axis in AXES if len(levels[axis]) > 1]
     frame = effects[effects["measure"] == measure].set_index("universe")
     by_id = {u.id: u for u in universes(pipeline)}

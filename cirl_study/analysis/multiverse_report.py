@@ -18,6 +18,7 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.analysis import figures
+from cirl_study.analysis.claims import MEASURE_NAMES
 from cirl_study.analysis.markdown import interval, number, p_value, table
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
 from cirl_study.analysis.output import write_report_directory
@@ -34,16 +35,20 @@ CLAIM_TEXT = {
 }
 """Each paper claim a universe tests, in a few words (the rules: the paper report's)."""
 
-MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
 
 FIGURE_NAMES = {measure: f"specification_curve_{measure}.png" for measure in MEASURES}
 """The specification curve of each measure."""
 
 
+def _varied(results: Results) -> list[str]:
+    """The axes whose levels differ between the universes."""
+    return [axis for axis, levels in results["axes"].items() if len(levels) > 1]
+
+
 def _header(results: Results) -> list[str]:
     universes = results["universes"]
     base = results["base_universe"]
-    varied = {axis: levels for axis, levels in results["axes"].items() if len(levels) > 1}
+    varied = {axis: results["axes"][axis] for axis in _varied(results)}
     lines = [
         f"# Multiverse: {results['pipeline']}",
         "",
@@ -275,7 +280,7 @@ def universe_table(results: Results) -> pd.DataFrame:
 
 def _universes(results: Results) -> list[str]:
     frame = universe_table(results)
-    varied = [axis for axis, levels in results["axes"].items() if len(levels) > 1]
+    varied = _varied(results)
     rows = [
         [
             ("**base** " if row["base"] else "")
@@ -315,7 +320,7 @@ def render_markdown(results: Results) -> str:
 def render_figures(results: Results) -> dict[str, bytes]:
     """The specification curves, PNG and SVG, by file name."""
     effects = pd.DataFrame(results["effects"])
-    varied = [axis for axis, levels in results["axes"].items() if len(levels) > 1]
+    varied = _varied(results)
     choices = pd.DataFrame(
         [{axis: level_label(u["settings"][axis]) for axis in varied} for u in results["universes"]],
         index=[u["id"] for u in results["universes"]],

@@ -16,7 +16,7 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.analysis import figures
-from cirl_study.analysis.claims import SIGNIFICANCE, evaluate_claims
+from cirl_study.analysis.claims import MEASURE_NAMES, SIGNIFICANCE, evaluate_claims
 from cirl_study.analysis.markdown import anchor, interval, number, p_value, table
 from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.results import Results, analyse, plain
@@ -56,7 +56,6 @@ FIGURES = {
 }
 """File name and link text of each figure, by key."""
 
-MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
 POLICY_NAMES = {"expert": "expert", "best_response": "best response"}
 VERDICTS = {True: "✅ reproduced", False: "❌ not reproduced", None: "➖ not tested"}
 

@@ -234,10 +234,7 @@ def logged_trials(run_dir: str | Path, identity: RunIdentity) -> set[str]:
     refused rather than guessed at, so that a resumed run neither loses nor duplicates a
     trial, nor mixes runs.
     """
-    first_file: dict[str, Path] = {}
-    for contents in _indexed_files(Path(run_dir), identity):
-        _refuse_duplicates(first_file, contents.path, _trial_ids(contents))
-    return set(first_file)
+    return _distinct_trial_ids(_indexed_files(Path(run_dir), identity))
 
 
 def read_trials(run_dir: str | Path, identity: RunIdentity, wanted: set[str]) -> list[TrialRecord]:
@@ -249,9 +246,7 @@ def read_trials(run_dir: str | Path, identity: RunIdentity, wanted: set[str]) ->
     """
     run_dir = Path(run_dir)
     files = _indexed_files(run_dir, identity)
-    first_file: dict[str, Path] = {}
-    for contents in files:
-        _refuse_duplicates(first_file, contents.path, _trial_ids(contents))
+    _distinct_trial_ids(files)
     records = []
     for indexed in files:
         if not wanted.intersection(_trial_ids(indexed)):
@@ -372,6 +367,14 @@ def _trial_ids(contents: _IntactFile | FileContents) -> list[str]:
     if isinstance(contents, _IntactFile):
         return contents.trial_ids
     return [record.trial_id for record in contents.records]
+
+
+def _distinct_trial_ids(files: list[_IntactFile | FileContents]) -> set[str]:
+    """The trial ids of ``files``; one logged in two files is refused."""
+    first_file: dict[str, Path] = {}
+    for contents in files:
+        _refuse_duplicates(first_file, contents.path, _trial_ids(contents))
+    return set(first_file)
 
 
 def _refuse_duplicates(first_file: dict[str, Path], path: Path, trial_ids: list[str]) -> None:

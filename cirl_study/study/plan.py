@@ -249,11 +249,11 @@ def _study_trials(
 def trial_counts(pipeline: Pipeline) -> dict[str, int]:
     """Number of trials of each block (known before eta is chosen)."""
     if pipeline.multiverse is not None:
-        cv = trial_counts(universe_pipeline(pipeline, pipeline.multiverse.base))[ETA_CV]
-        main = trial_counts(universe_pipeline(pipeline, pipeline.multiverse.base))[MAIN]
+        # Every universe plays the same subjects, levels and policies, with one robot.
+        base = trial_counts(universe_pipeline(pipeline, pipeline.multiverse.base))
         return {
-            ETA_CV: cv * len(_cv_universes(pipeline)),
-            MAIN: main * len(universes(pipeline)),
+            ETA_CV: base[ETA_CV] * len(_cv_universes(pipeline)),
+            MAIN: base[MAIN] * len(universes(pipeline)),
             LAMBDA_SWEEP: 0,
         }
     levels = len(pipeline.game.feature_levels)
