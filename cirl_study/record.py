@@ -40,17 +40,26 @@ LITERAL = "literal"
 """The Boltzmann-rational demonstrator of Ho et al. (2016), who draws her path from the robot's
 own model (:func:`cirl_study.core.humans.literal_paths`)."""
 
+PEDAGOGIC, REGRET_OPTIMAL = "pedagogic", "regret_optimal"
+"""The teaching humans: Ho et al.'s pedagogic shower, and the demonstration that minimises the
+MAP robot's regret (:mod:`cirl_study.core.teaching`)."""
+
 PAPER_POLICIES: tuple[str, ...] = (EXPERT, BEST_RESPONSE)
 """The levels of the paper's within-subjects factor ``policy``, baseline first."""
 
 MAP, POSTERIOR_MEAN = "map", "posterior_mean"
 """The robots: the paper's MAP estimate of MaxEnt IRL, and the Bayes-optimal posterior mean."""
 
+LITERAL_ROBOT, PRAGMATIC = "literal", "pragmatic"
+"""The robots of a hypothesis space: Bayes with the literal likelihood, and Bayes assuming the
+pedagogic human (Fisac et al. 2017; :mod:`cirl_study.core.teaching`)."""
+
 MEASURES: tuple[str, ...] = ("regret", "kl", "reward_l2")
 """The three dependent measures of docs/design.md §4, in the paper's order."""
 
 Block = Literal["main", "eta_cv", "lambda_sweep"]
 DeploymentStart = Literal["uniform", "demonstration"]
+PedagogicChoice = Literal["draw", "mode"]
 Action = Literal["stay", "N", "S", "E", "W"]
 NonEmptyText = Annotated[str, msgspec.Meta(min_length=1)]
 PositiveInt = Annotated[int, msgspec.Meta(ge=1)]
@@ -114,6 +123,25 @@ class Deployment(msgspec.Struct, **_STRUCT):
     paths: tuple[Path, ...]
 
 
+class Teaching(msgspec.Struct, **_STRUCT):
+    """A trial's hypothesis space and teaching settings (:mod:`cirl_study.core.hypotheses`).
+
+    ``hypotheses`` reward weights per subject, the true ``theta`` first when
+    ``includes_truth``, the others drawn from the prior with ``hypothesis_seed`` (one per
+    subject, so all its trials share the space). ``alpha`` is the pedagogic exponent;
+    ``demonstration`` whether the pedagogic human shows a path drawn from her distribution or
+    its most likely path; ``search_etas`` are the trade-offs whose best responses seed the
+    regret-optimal search.
+    """
+
+    hypotheses: Annotated[int, msgspec.Meta(ge=2)]
+    includes_truth: bool
+    hypothesis_seed: Coordinate
+    alpha: Positive
+    demonstration: PedagogicChoice
+    search_etas: tuple[Positive, ...]
+
+
 class TrialSpec(msgspec.Struct, **_STRUCT):
     """Identity and inputs of one trial: everything needed to play it.
 
@@ -123,7 +151,8 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
     the human may ``stay`` while demonstrating (``demonstrator_stays``) and where the robot's
     deployment starts (``deployment_start``: every cell, uniformly, or the learning phase's
     ``start``); the subject's reward draw is ``theta``. ``seed`` seeds the trial's own
-    generator. ``universe`` is the id of the multiverse universe the trial belongs to
+    generator. ``teaching`` is the hypothesis space of a pipeline with teaching players
+    (``None`` otherwise). ``universe`` is the id of the multiverse universe the trial belongs to
     (:class:`cirl_study.study.spec.Universe`), ``None`` in a single study.
     :func:`cirl_study.core.gridworld.gridworld` and
     :func:`cirl_study.core.gridworld.feature_matrix` turn the game into arrays.
@@ -148,6 +177,7 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
     demonstrator_stays: bool = True
     deployment_start: DeploymentStart = "uniform"
     universe: NonEmptyText | None = None
+    teaching: Teaching | None = None
 
 
 class TrialRecord(TrialSpec, **_STRUCT):

@@ -7,17 +7,16 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
+from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.humans import (
-    HUMANS,
-    Human,
     best_response_paths,
     best_response_target,
     expert_paths,
     literal_paths,
-    register_human,
 )
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.path_search import NearestPaths, nearest_paths
+from cirl_study.core.players import HUMANS, Human, register_human
 from cirl_study.record import BEST_RESPONSE, EXPERT, LITERAL
 
 PAPER = {"width": 10, "height": 10, "start": bf.cell(10, 5, 5), "horizon": 9}
@@ -255,10 +254,11 @@ def test_the_paper_s_humans_are_registered_by_name():
     model = _model(_batch(features, 3), width, height, start, horizon, rationality)
     thetas, etas = rng.uniform(-1, 1, size=(3, 3)), np.array([0.1, 1.0, 10.0])
     np.testing.assert_array_equal(
-        HUMANS[EXPERT].demonstrate(model, thetas, None, SEEDS), expert_paths(model, thetas)
+        HUMANS[EXPERT].demonstrate(Apprenticeship(model, model), thetas, None, SEEDS),
+        expert_paths(model, thetas),
     )
     np.testing.assert_array_equal(
-        HUMANS[BEST_RESPONSE].demonstrate(model, thetas, etas, SEEDS),
+        HUMANS[BEST_RESPONSE].demonstrate(Apprenticeship(model, model), thetas, etas, SEEDS),
         best_response_paths(model, thetas, etas),
     )
 
@@ -266,7 +266,7 @@ def test_the_paper_s_humans_are_registered_by_name():
 def test_a_policy_name_is_registered_once():
     expert = HUMANS[EXPERT]
     with pytest.raises(ValueError):
-        register_human(EXPERT, Human(lambda model, theta, eta, seeds: None, takes_eta=False))
+        register_human(EXPERT, Human(lambda game, theta, eta, seeds: None, takes_eta=False))
     assert HUMANS[EXPERT] is expert
 
 
@@ -310,7 +310,7 @@ def test_a_literal_path_depends_on_its_seed_alone():
             literal_paths(alone, thetas[b : b + 1], np.array([seed])), together[b : b + 1]
         )
     np.testing.assert_array_equal(
-        HUMANS[LITERAL].demonstrate(model, thetas, None, SEEDS),
+        HUMANS[LITERAL].demonstrate(Apprenticeship(model, model), thetas, None, SEEDS),
         literal_paths(model, thetas, SEEDS),
     )
     assert not HUMANS[LITERAL].takes_eta

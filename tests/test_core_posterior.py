@@ -21,10 +21,11 @@ import path_enumeration as bf
 import pytest
 from scipy import integrate
 
+from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.estimate import Estimate
 from cirl_study.core.maxent import MaxEnt, Phase
+from cirl_study.core.players import ROBOTS
 from cirl_study.core.posterior import posterior_mean_estimate
-from cirl_study.core.robot import ROBOTS
 
 # The tiny game: a 3 x 3 grid, 3 steps from the centre (81 paths), RBF width 1.
 WIDTH, HEIGHT, START, HORIZON, SIGMA = 3, 3, 4, 3, 1.0
@@ -247,7 +248,7 @@ def test_the_posterior_mean_robot_is_registered():
     features, counts, path, demo = _game(2)
     model = _model(features, 1.0)
     robot = ROBOTS["posterior_mean"]
-    registered = robot(model, path[None], np.array([21]))
+    registered = robot.estimate(Apprenticeship(model, model), path[None], np.array([21]))
     direct = posterior_mean_estimate(model, path[None], np.array([21]))
     np.testing.assert_array_equal(registered.theta_hat, direct.theta_hat)
     assert registered.theta_hat_se is not None and registered.effective_sample_size is not None

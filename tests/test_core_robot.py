@@ -11,9 +11,11 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.estimate import Estimate
 from cirl_study.core.maxent import MaxEnt, Phase
-from cirl_study.core.robot import ROBOTS, map_estimate, register_robot
+from cirl_study.core.players import ROBOTS, register_robot
+from cirl_study.core.robot import map_estimate
 from cirl_study.record import MAP
 
 KKT_TOL = 1e-6 + 1e-9  # feature-count units, |dL/dtheta_k| / lambda: the fit's 1e-6 + rounding
@@ -91,7 +93,7 @@ def test_the_map_robot_is_registered_and_a_name_is_taken_once():
     width, height, start, horizon, rationality = 4, 4, 5, 4, 1.0
     _, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=7)
     model = MaxEnt(Phase(bf.move_table(width, height), start, horizon), features[None], rationality)
-    registered = ROBOTS[MAP](model, paths[:1], np.array([3]))
+    registered = ROBOTS[MAP].estimate(Apprenticeship(model, model), paths[:1], np.array([3]))
     np.testing.assert_array_equal(registered.theta_hat, map_estimate(model, paths[:1]).theta_hat)
     assert registered.theta_hat_se is None and registered.effective_sample_size is None
     robot = ROBOTS[MAP]

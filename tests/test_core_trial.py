@@ -7,7 +7,7 @@ import numpy as np
 import path_enumeration as bf
 import pytest
 
-from cirl_study.core.humans import HUMANS, Human, register_human
+from cirl_study.core.players import HUMANS, Human, register_human
 from cirl_study.core.trial import check_playable, play_trials
 from cirl_study.record import (
     MAP,
@@ -306,10 +306,10 @@ def test_an_unplayable_spec_is_refused(case):
 LAST_PATH, STAY_PUT = "test-last-path", "test-stay-put"
 
 
-def _last_path(model, theta, eta, seeds):
+def _last_path(game, theta, eta, seeds):
     """At every step the highest-index available action: the lexicographically last path."""
     assert eta is None
-    phase = model.phase
+    phase = game.learning.phase
     rows = np.arange(len(theta))
     paths = np.empty((len(theta), phase.horizon + 1), dtype=np.int64)
     paths[:, 0] = phase.start_cell
@@ -325,9 +325,10 @@ def toy_humans():
     """Register two toy policies for one test; yields the etas the one with a trade-off got."""
     received = []
 
-    def stay_put(model, theta, eta, seeds):
+    def stay_put(game, theta, eta, seeds):
         received.append(np.array(eta))
-        return np.full((len(theta), model.phase.horizon + 1), model.phase.start_cell)
+        phase = game.learning.phase
+        return np.full((len(theta), phase.horizon + 1), phase.start_cell)
 
     try:
         register_human(LAST_PATH, Human(_last_path, takes_eta=False))

@@ -29,7 +29,7 @@ from cirl_study.analysis.results import analyse
 from cirl_study.cli import app
 from cirl_study.core.gridworld import Gridworld, rbf_features
 from cirl_study.core.maxent import MaxEnt, Phase
-from cirl_study.core.trial import demonstrator_moves, play_trials
+from cirl_study.core.trial import play_trials
 from cirl_study.errors import UserError
 from cirl_study.logs import read_run, validate_run
 from cirl_study.logs.format import log_files
@@ -257,7 +257,9 @@ def test_a_demonstrator_who_may_not_stay_never_stays_and_the_robot_knows_it(tmp_
     grid = Gridworld(spec.grid.width, spec.grid.height)
     features = rbf_features(grid, spec.features.centers, spec.features.sigma)
     start = grid.index(*spec.start)
-    model = MaxEnt(Phase(demonstrator_moves(grid, spec), start, 3), features[None], 1.0)
+    model = MaxEnt(
+        Phase(grid.demonstrator_moves(spec.demonstrator_stays), start, 3), features[None], 1.0
+    )
     paths = [
         path
         for path in pe.enumerate_paths(spec.grid.width, spec.grid.height, start, 3)

@@ -9,10 +9,9 @@ import numpy as np
 import pytest
 from test_logs_helpers import run_records
 
+from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.estimate import Estimate
-from cirl_study.core.humans import HUMANS, Human, register_human
-from cirl_study.core.maxent import MaxEnt
-from cirl_study.core.robot import ROBOTS, register_robot
+from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot, register_human, register_robot
 from cirl_study.errors import UserError
 from cirl_study.logs import validate_run
 from cirl_study.study.engines import LocalEngine
@@ -23,14 +22,16 @@ SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
 
 def stay_put(
-    model: MaxEnt, theta: np.ndarray, eta: np.ndarray | None, seeds: np.ndarray
+    game: Apprenticeship, theta: np.ndarray, eta: np.ndarray | None, seeds: np.ndarray
 ) -> np.ndarray:
     """A human who never moves: ``s_0`` at every step (``stay`` is always available)."""
-    return np.full((len(theta), model.phase.horizon + 1), model.phase.start_cell)
+    phase = game.learning.phase
+    return np.full((len(theta), phase.horizon + 1), phase.start_cell)
 
 
-def prior_mean(model: MaxEnt, demos: np.ndarray, seeds: np.ndarray) -> Estimate:
+def prior_mean(game: Apprenticeship, demos: np.ndarray, seeds: np.ndarray) -> Estimate:
     """A robot that ignores the demonstration and acts on the prior mean, theta = 0."""
+    model = game.learning
     batch, k = len(demos), model.features.shape[2]
     theta_hat = np.zeros((batch, k))
     return Estimate(
@@ -44,7 +45,7 @@ def prior_mean(model: MaxEnt, demos: np.ndarray, seeds: np.ndarray) -> Estimate:
 @pytest.fixture
 def registered() -> Iterator[None]:
     register_human("stay_put", Human(stay_put, takes_eta=False))
-    register_robot("prior_mean", prior_mean)
+    register_robot("prior_mean", Robot(prior_mean))
     yield
     del HUMANS["stay_put"], ROBOTS["prior_mean"]
 
@@ -90,7 +91,7 @@ def test_a_name_is_registered_once(registered: None) -> None:
     with pytest.raises(ValueError, match="already registered"):
         register_human("stay_put", Human(stay_put, takes_eta=False))
     with pytest.raises(ValueError, match="already registered"):
-        register_robot("map", prior_mean)
+        register_robot("map", Robot(prior_mean))
 
 
 def test_the_posterior_mean_robot_plays_a_pipeline_and_logs_its_error(tmp_path: Path) -> None:

@@ -12,6 +12,7 @@ plus :data:`STYLE`, at a fixed size and :data:`DPI`, and saved as PNG without th
 - :func:`eta_curve`: the cross-validation of the best response's eta.
 - :func:`robot_difference_curve`: a run with two robots, the paired regret difference of
   the other robot to the reference against lambda.
+- :func:`teaching_bars`: a teaching study's measures by human, robot and feature level.
 """
 
 from __future__ import annotations
@@ -291,6 +292,61 @@ def measure_bars(cells: pd.DataFrame) -> Rendered:
             *axes[0].get_legend_handles_labels(), loc="outside lower center", ncols=2, frameon=False
         )
         figure.suptitle("Lower is better: the three measures by policy and number of features")
+        return render(figure)
+
+
+ROBOT_COLOURS = ("#4c72b0", "#dd8452", "#55a868", "#c44e52", "#8172b3")
+"""Colours of the robots of a teaching study, in the pipeline's order."""
+
+
+def teaching_bars(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str]) -> Rendered:
+    """Every measure's mean with its 95% CI by human (groups) and robot (bars), one row of
+    panels per feature level.
+
+    Args:
+        cells: rows ``measure, num_features, policy, robot, mean, ci95_low, ci95_high``.
+        humans: the humans, in the order drawn.
+        robots: the robots, in the order drawn.
+    """
+    levels = sorted(cells["num_features"].unique())
+    positions = np.arange(len(humans), dtype=np.float64)
+    width = 0.8 / len(robots)
+    with matplotlib.style.context("default"), rc_context(STYLE):
+        figure = _new_figure(11.0, 2.9 * len(levels) + 0.6)
+        grid = figure.subplots(len(levels), len(MEASURES), squeeze=False)
+        for row, level in zip(grid, levels, strict=True):
+            for panel, measure in zip(row, MEASURES, strict=True):
+                for index, robot in enumerate(robots):
+                    chosen = (
+                        cells[
+                            (cells["measure"] == measure)
+                            & (cells["num_features"] == level)
+                            & (cells["robot"] == robot)
+                        ]
+                        .set_index("policy")
+                        .loc[list(humans)]
+                    )
+                    errors = np.vstack(
+                        [chosen["mean"] - chosen["ci95_low"], chosen["ci95_high"] - chosen["mean"]]
+                    )
+                    panel.bar(
+                        positions + (index - (len(robots) - 1) / 2) * width,
+                        chosen["mean"],
+                        width,
+                        yerr=errors,
+                        capsize=2,
+                        color=ROBOT_COLOURS[index % len(ROBOT_COLOURS)],
+                        label=f"robot {robot}",
+                    )
+                panel.set_xticks(positions, [h.replace("_", " ") for h in humans], rotation=20)
+                panel.set_title(f"{MEASURE_LABELS[measure]}, {level} features")
+        figure.legend(
+            *grid[0][0].get_legend_handles_labels(),
+            loc="outside lower center",
+            ncols=len(robots),
+            frameon=False,
+        )
+        figure.suptitle("Lower is better: mean (95% CI) by human and robot")
         return render(figure)
 
 

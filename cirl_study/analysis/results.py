@@ -18,7 +18,7 @@ import pandas as pd
 
 from cirl_study.analysis import statistics
 from cirl_study.analysis.table import trial_table
-from cirl_study.core.robot import reference_robot
+from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
 from cirl_study.record import (
     BEST_RESPONSE,

@@ -73,6 +73,7 @@ def analyze(
     from cirl_study.analysis.multiverse_report import write_multiverse_report
     from cirl_study.analysis.report import write_report
     from cirl_study.analysis.table import complete_main_subjects
+    from cirl_study.analysis.teaching_report import write_teaching_report
     from cirl_study.analysis.theory_claims import office_supplies_claims
     from cirl_study.errors import UserError
     from cirl_study.logs import read_run, read_trials
@@ -142,6 +143,27 @@ def analyze(
         typer.echo(
             f"multiverse report of {len(trials)} trials in {len(multiverse['universes'])} "
             f"universes written to {target}: universes reproducing each claim: {shares}"
+        )
+        return
+    if pipeline.teaching is not None:
+        if not complete:
+            raise UserError(
+                f"{run}: a teaching study is analysed only whole; resume it with "
+                f"`{resume_command(contents.identity, run)}`"
+            )
+        teaching = write_teaching_report(
+            trials,
+            target,
+            pipeline,
+            run_id=contents.identity.run_id,
+            provenance=provenance,
+            progress=stage,
+        )
+        answered = sum(q["holds"] is not None for q in teaching["questions"])
+        held = sum(bool(q["holds"]) for q in teaching["questions"])
+        typer.echo(
+            f"teaching report of {len(trials)} trials written to {target}: "
+            f"{len(teaching['questions'])} questions, {held} of {answered} tested claims hold"
         )
         return
     theory = office_supplies_claims(office_supplies_results())

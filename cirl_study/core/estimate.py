@@ -1,8 +1,9 @@
 """What a robot returns, and where its random numbers come from (docs/design.md §2).
 
-Every robot of :data:`cirl_study.core.robot.ROBOTS` is an :data:`Estimator`: given the MaxEnt
-model of the learning phase, the demonstrations and the trials' seeds, it returns an
-:class:`Estimate` per trial.
+Every robot of :data:`cirl_study.core.players.ROBOTS` is an :data:`Estimator`: given the
+batch's game (:class:`~cirl_study.core.apprenticeship.Apprenticeship`, whose ``learning`` is
+the MaxEnt model of the learning phase), the demonstrations and the trials' seeds, it returns
+an :class:`Estimate` per trial.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from cirl_study.core.maxent import MaxEnt
+from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.planning import FloatArray, IntArray
 
 
@@ -39,11 +40,11 @@ class Estimate:
     effective_sample_size: FloatArray | None = None
 
 
-Estimator = Callable[[MaxEnt, IntArray, NDArray[np.int64]], Estimate]
-"""A robot: ``estimate(model, demos, seeds)`` for the batch of ``model``'s trials.
+Estimator = Callable[[Apprenticeship, IntArray, NDArray[np.int64]], Estimate]
+"""A robot: ``estimate(game, demos, seeds)`` for the batch of ``game``'s trials.
 
-``demos`` ``(B, T + 1)`` are the demonstrations' cells (``model.path_counts(demos)`` their
-feature counts).
+``demos`` ``(B, T + 1)`` are the demonstrations' cells (``game.learning.path_counts(demos)``
+their feature counts).
 
 ``seeds`` ``(B,)`` are the trials' own seeds (:attr:`cirl_study.record.TrialSpec.seed`); a
 robot that draws random numbers derives its generator from them with

@@ -96,6 +96,15 @@ class Gridworld:
         flat = target[..., 1] * self.width + target[..., 0]
         return np.where(inside, flat, UNAVAILABLE)
 
+    def demonstrator_moves(self, stays: bool) -> NDArray[np.int64]:
+        """The successor table of the learning phase: :attr:`successors`, less ``stay``
+        unless the human may stay (``TrialSpec.demonstrator_stays``)."""
+        if stays:
+            return self.successors
+        moves = self.successors.copy()
+        moves[:, ACTIONS.index("stay")] = UNAVAILABLE
+        return moves
+
 
 def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[np.float64]:
     """Radial-basis features of every cell.

@@ -23,19 +23,16 @@
   assumes, :math:`P(\\tau \\mid \\theta, \\lambda) \\propto \\exp(\\lambda\\,
   \\theta^\\top \\phi(\\tau))`, with the trial's seed (:func:`literal_paths`).
 
-A human policy is a :class:`Human`: a function of the robot's MaxEnt model of the learning
-phase (:class:`cirl_study.core.maxent.MaxEnt`, which carries the dynamics, the features and
-the robot's :math:`\\lambda`), the true :math:`\\theta`, for a policy with a trade-off its
-:math:`\\eta`, and the trials' seeds (for a policy that draws; :func:`human_generator`). Paths
-are returned as ``(B, T + 1)`` arrays of flat cell indices, starting at
-:math:`s_0`. Policies are looked up by name in :data:`HUMANS`; adding one is one function and
-one :func:`register_human` line.
+Each is a function of the robot's MaxEnt model of the learning phase
+(:class:`cirl_study.core.maxent.MaxEnt`, which carries the dynamics, the features and the
+robot's :math:`\\lambda`), the true :math:`\\theta`, for a policy with a trade-off its
+:math:`\\eta`, and for a policy that draws the trials' seeds (:func:`human_generator`). Paths
+are returned as ``(B, T + 1)`` arrays of flat cell indices, starting at :math:`s_0`. The
+teaching humans are in :mod:`cirl_study.core.teaching`; every policy is registered by name in
+:data:`cirl_study.core.players.HUMANS`.
 """
 
 from __future__ import annotations
-
-from collections.abc import Callable
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -49,7 +46,6 @@ from cirl_study.core.planning import (
     rollout,
     soft_value_iteration,
 )
-from cirl_study.record import BEST_RESPONSE, EXPERT, LITERAL
 
 HUMAN_STREAM = 2
 """Spawn key of a human's random stream, apart from the robot's
@@ -131,43 +127,3 @@ def literal_paths(model: MaxEnt, theta: FloatArray, seeds: IntArray) -> IntArray
         action = np.argmax(cumulative > uniforms[:, t, None] * cumulative[:, -1:], axis=1)
         paths[:, t + 1] = phase.successors[paths[:, t], action]
     return paths
-
-
-@dataclass(frozen=True)
-class Human:
-    """A human policy: how she demonstrates, and whether she trades reward against teaching.
-
-    Attributes:
-        demonstrate: ``demonstrate(model, theta, eta, seeds)`` returns the ``(B, T + 1)``
-            paths; ``eta`` is ``(B,)`` when :attr:`takes_eta`, else ``None``; ``seeds`` are the
-            trials' seeds.
-        takes_eta: whether the policy has the trade-off :math:`\\eta`, chosen by
-            cross-validation before the test trials (docs/design.md §3).
-    """
-
-    demonstrate: Callable[[MaxEnt, FloatArray, FloatArray | None, IntArray], IntArray]
-    takes_eta: bool
-
-
-HUMANS: dict[str, Human] = {}
-"""Every human policy, by the name a pipeline and a trial record use (``policy``)."""
-
-
-def register_human(name: str, human: Human) -> None:
-    """Make ``human`` playable as the policy ``name``."""
-    if name in HUMANS:
-        raise ValueError(f"a human policy named {name!r} is already registered")
-    HUMANS[name] = human
-
-
-register_human(
-    EXPERT, Human(lambda model, theta, _eta, _seeds: expert_paths(model, theta), takes_eta=False)
-)
-register_human(
-    BEST_RESPONSE,
-    Human(lambda model, theta, eta, _seeds: best_response_paths(model, theta, eta), takes_eta=True),
-)
-register_human(
-    LITERAL,
-    Human(lambda model, theta, _eta, seeds: literal_paths(model, theta, seeds), takes_eta=False),
-)

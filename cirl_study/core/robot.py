@@ -2,8 +2,8 @@
 
 A robot turns the demonstration :math:`\\tau_{demo}` into an estimate :math:`\\hat\\theta`,
 reading it through the MaxEnt model of the learning phase
-(:class:`cirl_study.core.maxent.MaxEnt`). Robots are looked up by name in :data:`ROBOTS`;
-adding one is one function and one :func:`register_robot` line.
+(:class:`cirl_study.core.maxent.MaxEnt`). Every robot is registered by name in
+:data:`cirl_study.core.players.ROBOTS`; this module holds the paper's.
 
 ``map`` (the paper's robot) is the MAP under the uniform prior on the box
 :math:`[-1, 1]^K`: the maximiser of the concave log-likelihood
@@ -32,18 +32,16 @@ enters the estimate: it is the same on every CPU.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
-from cirl_study.core.estimate import Estimate, Estimator
+from cirl_study.core.estimate import Estimate
 from cirl_study.core.maxent import DemonstrationClass, MaxEnt
 from cirl_study.core.planning import FloatArray, IntArray
-from cirl_study.core.posterior import posterior_mean_estimate
-from cirl_study.record import MAP, POSTERIOR_MEAN
 
 BOX = (-1.0, 1.0)
 """Support of the uniform prior on each reward weight."""
@@ -503,28 +501,3 @@ def _armijo_search(
         result[rows], best[rows], longer[rows] = candidate[ok], value[ok], True
         growing, alpha = rows, 2.0 * alpha
     return result, best, accepted, full, longer
-
-
-ROBOTS: dict[str, Estimator] = {}
-"""Every robot, by the name a pipeline and a trial record use (``robot``)."""
-
-
-def reference_robot(robots: Iterable[str]) -> str:
-    """The reference among ``robots``: the first in the order of :data:`ROBOTS`.
-
-    ``map``, the paper's robot, whenever it is one of them. The reference robot plays the
-    eta cross-validation, and the paper's claims are judged on its trials.
-    """
-    present = set(robots)
-    return next(name for name in ROBOTS if name in present)
-
-
-def register_robot(name: str, estimate: Estimator) -> None:
-    """Make ``estimate`` playable as the robot ``name``."""
-    if name in ROBOTS:
-        raise ValueError(f"a robot named {name!r} is already registered")
-    ROBOTS[name] = estimate
-
-
-register_robot(MAP, lambda model, demos, seeds: map_estimate(model, demos))
-register_robot(POSTERIOR_MEAN, posterior_mean_estimate)

@@ -5,18 +5,20 @@ reward weights :math:`\\theta`, the robot's rationality :math:`\\lambda`, the hu
 (with its trade-off :math:`\\eta` where it has one), the robot and the two horizons. It plays:
 
 1. **Learning phase.** The human demonstrates a ``learning_steps`` path from the fixed start
-   cell (:data:`cirl_study.core.humans.HUMANS`), without the ``stay`` action unless
+   cell (:data:`cirl_study.core.players.HUMANS`), without the ``stay`` action unless
    ``demonstrator_stays``; the robot's model of the phase has the same moves.
 2. **Inference.** The robot estimates :math:`\\hat\\theta` from the demonstration
-   (:data:`cirl_study.core.robot.ROBOTS`).
+   (:data:`cirl_study.core.players.ROBOTS`).
 3. **Deployment phase.** The robot acts optimally for :math:`r_{\\hat\\theta}` for
    ``deployment_steps`` steps from a uniformly drawn start (``deployment_start =
    "uniform"``; the measures take the exact expectation over that start,
    :mod:`cirl_study.core.measures`) or from the learning phase's start.
 
 :func:`play_trials` plays many trials at once, vectorised over trials that share the game's
-shape, rationality, policy and robot, and returns one :class:`~cirl_study.record.TrialRecord`
-per trial. A record depends only on its own spec, never on the other trials in the batch.
+shape and rationality: each policy's demonstrations together, each demonstration once however
+many robots watch it, then each robot's estimates together. It returns one
+:class:`~cirl_study.record.TrialRecord` per trial. A record depends only on its own spec,
+never on the other trials in the batch.
 """
 
 from __future__ import annotations
@@ -25,20 +27,21 @@ from collections import defaultdict
 from collections.abc import Hashable, Sequence
 
 import numpy as np
+from msgspec.structs import replace
 
+from cirl_study.core.apprenticeship import Apprenticeship
+from cirl_study.core.estimate import Estimate
 from cirl_study.core.gridworld import (
-    ACTIONS,
-    UNAVAILABLE,
     Gridworld,
     feature_matrix,
     gridworld,
     path_actions,
 )
-from cirl_study.core.humans import HUMANS
+from cirl_study.core.hypotheses import HypothesisSpace, draw_hypotheses
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.measures import regret, reward_l2, trajectory_kl
-from cirl_study.core.planning import follow_policy, optimal_plan
-from cirl_study.core.robot import ROBOTS
+from cirl_study.core.planning import IntArray, follow_policy, optimal_plan
+from cirl_study.core.players import HUMANS, ROBOTS
 from cirl_study.record import (
     Demonstration,
     Deployment,
@@ -60,8 +63,11 @@ def check_playable(spec: TrialSpec) -> None:
     human = HUMANS.get(spec.policy)
     if human is None:
         raise ValueError(f"unknown policy {spec.policy!r}; known: {', '.join(HUMANS)}")
-    if spec.robot not in ROBOTS:
+    robot = ROBOTS.get(spec.robot)
+    if robot is None:
         raise ValueError(f"unknown robot {spec.robot!r}; known: {', '.join(ROBOTS)}")
+    if (human.teaches or robot.teaches) and spec.teaching is None:
+        raise ValueError(f"{spec.policy} with {spec.robot} needs a hypothesis space (teaching)")
     if (spec.eta is None) == human.takes_eta:
         raise ValueError(
             f"eta must be given exactly for a policy with a trade-off ({spec.policy}: "
@@ -73,10 +79,12 @@ def check_playable(spec: TrialSpec) -> None:
 
 
 def _group_key(spec: TrialSpec) -> Hashable:
+    """What the trials played together share: the game's shape, its rationality and the
+    teaching settings (every policy and robot of a subject are played in one group)."""
     return (
         spec.grid, spec.start, spec.learning_steps, spec.deployment_steps, spec.features.sigma,
-        spec.num_features, spec.rationality, spec.policy, spec.robot, spec.demonstrator_stays,
-        spec.deployment_start,
+        spec.num_features, spec.rationality, spec.demonstrator_stays, spec.deployment_start,
+        None if spec.teaching is None else replace(spec.teaching, hypothesis_seed=0),
     )  # fmt: skip
 
 
@@ -96,15 +104,73 @@ def play_trials(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     return records  # type: ignore[return-value]
 
 
+def _by(specs: Sequence[TrialSpec], name: str) -> dict[str, IntArray]:
+    """The positions of ``specs`` by their value of the field ``name``, in order of appearance."""
+    positions: dict[str, list[int]] = defaultdict(list)
+    for position, spec in enumerate(specs):
+        positions[getattr(spec, name)].append(position)
+    return {value: np.array(rows, dtype=np.int64) for value, rows in positions.items()}
+
+
+def _demonstrations(
+    game: Apprenticeship, specs: Sequence[TrialSpec], theta: np.ndarray, seeds: np.ndarray
+) -> np.ndarray:
+    """Every trial's demonstration ``(B, T + 1)``, each distinct one played once.
+
+    Trials of one policy with the same seed (the demonstration's, see
+    :func:`cirl_study.study.plan.trial_seed`) and ``eta`` show the same path, whichever robot
+    watches: it is computed for the first of them and shared.
+    """
+    demos = np.empty((len(specs), game.learning.phase.horizon + 1), dtype=np.int64)
+    for policy, rows in _by(specs, "policy").items():
+        first: dict[tuple[int, float | None], int] = {}
+        for row in rows:
+            first.setdefault((specs[row].seed, specs[row].eta), int(row))
+        distinct = np.array(list(first.values()), dtype=np.int64)
+        human = HUMANS[policy]
+        eta = (
+            np.array([specs[row].eta for row in distinct], dtype=np.float64)
+            if human.takes_eta
+            else None
+        )
+        shown = human.demonstrate(game.take(distinct), theta[distinct], eta, seeds[distinct])
+        which = {key: index for index, key in enumerate(first)}
+        demos[rows] = shown[[which[specs[row].seed, specs[row].eta] for row in rows]]
+    return demos
+
+
+def _estimates(
+    game: Apprenticeship, specs: Sequence[TrialSpec], demos: np.ndarray, seeds: np.ndarray
+) -> list[Estimate]:
+    """Every trial's estimate by its robot, one call per robot; as a list with one
+    single-trial :class:`Estimate` per trial (in order)."""
+    estimates: list[Estimate | None] = [None] * len(specs)
+    for robot, rows in _by(specs, "robot").items():
+        found = ROBOTS[robot].estimate(game.take(rows), demos[rows], seeds[rows])
+        for index, row in enumerate(rows):
+            estimates[row] = Estimate(
+                theta_hat=found.theta_hat[index],
+                log_likelihood=found.log_likelihood[index],
+                iterations=found.iterations[index],
+                converged=found.converged[index],
+                theta_hat_se=None if found.theta_hat_se is None else found.theta_hat_se[index],
+                effective_sample_size=None
+                if found.effective_sample_size is None
+                else found.effective_sample_size[index],
+            )
+    return estimates  # type: ignore[return-value]
+
+
 def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
-    """Play trials that share the game's shape, rationality, policy and robot, vectorised."""
+    """Play trials that share the game's shape and rationality, vectorised: each policy's
+    demonstrations together (each distinct one once), then each robot's estimates together."""
     first = specs[0]
     grid = gridworld(first)
     theta = np.array([spec.theta for spec in specs], dtype=np.float64)
     features = np.stack([feature_matrix(spec) for spec in specs])
     start = grid.index(*first.start)
     learning = MaxEnt(
-        Phase(demonstrator_moves(grid, first), start, first.learning_steps),
+        Phase(grid.demonstrator_moves(first.demonstrator_stays), start, first.learning_steps),
         features,
         first.rationality,
     )
@@ -114,13 +180,11 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
         features,
         first.rationality,
     )
-
-    human = HUMANS[first.policy]
-    eta = np.array([spec.eta for spec in specs], dtype=np.float64) if human.takes_eta else None
+    game = Apprenticeship(learning, deployment, _hypotheses(specs, learning, theta), first.teaching)
     seeds = np.array([spec.seed for spec in specs], dtype=np.int64)
-    demos = human.demonstrate(learning, theta, eta, seeds)
-    estimate = ROBOTS[first.robot](learning, demos, seeds)
-    theta_hat = estimate.theta_hat
+    demos = _demonstrations(game, specs, theta, seeds)
+    estimates = _estimates(game, specs, demos, seeds)
+    theta_hat = np.array([estimate.theta_hat for estimate in estimates])
     measures = {
         "regret": regret(deployment, theta, theta_hat),
         "kl": trajectory_kl(deployment, theta, theta_hat),
@@ -139,15 +203,15 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
             ),
             measures=Measures(**{name: float(values[b]) for name, values in measures.items()}),
             theta_hat_se=None
-            if estimate.theta_hat_se is None
-            else tuple(float(v) for v in estimate.theta_hat_se[b]),
+            if estimates[b].theta_hat_se is None
+            else tuple(float(v) for v in estimates[b].theta_hat_se),
             effective_sample_size=None
-            if estimate.effective_sample_size is None
-            else float(estimate.effective_sample_size[b]),
+            if estimates[b].effective_sample_size is None
+            else float(estimates[b].effective_sample_size),
             irl=FitDiagnostics(
-                log_likelihood=float(estimate.log_likelihood[b]),
-                iterations=int(estimate.iterations[b]),
-                converged=bool(estimate.converged[b]),
+                log_likelihood=float(estimates[b].log_likelihood),
+                iterations=int(estimates[b].iterations),
+                converged=bool(estimates[b].converged),
             ),
             deployment=Deployment(
                 starts=tuple(grid.coords(path[b, 0]) for path in rollouts),
@@ -158,14 +222,18 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     ]
 
 
-def demonstrator_moves(grid: Gridworld, spec: TrialSpec) -> np.ndarray:
-    """The successor table of the learning phase: the grid's, less ``stay`` unless the human
-    may stay (``spec.demonstrator_stays``)."""
-    if spec.demonstrator_stays:
-        return grid.successors
-    moves = grid.successors.copy()
-    moves[:, ACTIONS.index("stay")] = UNAVAILABLE
-    return moves
+def _hypotheses(
+    specs: Sequence[TrialSpec], learning: MaxEnt, theta: np.ndarray
+) -> HypothesisSpace | None:
+    """The trials' hypothesis spaces, drawn from each subject's ``hypothesis_seed``."""
+    teaching = specs[0].teaching
+    if teaching is None:
+        return None
+    seeds = np.array([spec.teaching.hypothesis_seed for spec in specs])  # type: ignore[union-attr]
+    thetas = draw_hypotheses(
+        theta, seeds, teaching.hypotheses, includes_truth=teaching.includes_truth
+    )
+    return HypothesisSpace(learning, thetas, teaching.includes_truth, teaching.alpha)
 
 
 def _cells(grid: Gridworld, path: np.ndarray) -> tuple[tuple[int, int], ...]:

@@ -46,7 +46,7 @@ KEY_PACKAGES: tuple[str, ...] = (
 )
 """Distributions whose versions can change the numbers or the files a run or report holds."""
 
-LOG_FORMAT_VERSION = "4"
+LOG_FORMAT_VERSION = "5"
 """Version of the log format: 3 names the run (``run_id``) and holds its pipeline file
 (``pipeline_toml``) in every file's provenance; 2 introduced the typed record."""
 

@@ -9,9 +9,9 @@ demonstration is a path ``(s_0, ..., s_T_learn)`` of available moves from ``s_0`
 start, which is the demonstration's start when ``deployment_start`` says so; ``regret >= 0``
 and ``kl >= 0`` (up to rounding);
 ``reward_l2 = ||Phi theta - Phi theta_hat||_2`` recomputed from the record. The policy and the
-robot are registered ones (:data:`~cirl_study.core.humans.HUMANS`,
-:data:`~cirl_study.core.robot.ROBOTS`), and ``eta`` is null exactly for a policy without a
-trade-off.
+robot are registered ones (:data:`~cirl_study.core.players.HUMANS`,
+:data:`~cirl_study.core.players.ROBOTS`), ``eta`` is null exactly for a policy without a
+trade-off, and a record with a teaching human or robot has its hypothesis space (``teaching``).
 """
 
 from __future__ import annotations
@@ -25,9 +25,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cirl_study.core.gridworld import Gridworld, action_between, rbf_features
-from cirl_study.core.humans import HUMANS
 from cirl_study.core.measures import reward_l2
-from cirl_study.core.robot import ROBOTS
+from cirl_study.core.players import HUMANS, ROBOTS
 from cirl_study.record import DecodeError, Grid, RBFFeatures, TrialRecord, decode
 
 NEGATIVE_TOLERANCE = 1e-9
@@ -71,8 +70,14 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
         yield (
             f"eta is {r.eta} for policy {r.policy} (null exactly for a policy without a trade-off)"
         )
-    if r.robot not in ROBOTS:
+    robot = ROBOTS.get(r.robot)
+    if robot is None:
         yield f"robot {r.robot!r} is not a known robot ({', '.join(ROBOTS)})"
+    teaches = [
+        name for name, player in ((r.policy, human), (r.robot, robot)) if player and player.teaches
+    ]
+    if teaches and r.teaching is None:
+        yield f"{' and '.join(teaches)} need a hypothesis space, and teaching is null"
     k = r.num_features
     lengths = {
         "theta": len(r.theta),

@@ -24,8 +24,14 @@ the same centres and ``theta``. The centres drawn are the subject's own when
 ``game.centres = "per_draw"``; with ``"shared"`` every subject at ``K`` features uses the
 centres of the stream ``centres:k<K>`` (drawn the same way), with ``"lattice"`` those of
 :func:`lattice_centres`, and ``theta`` is the same draw under every placement. A trial's
-``seed`` is the first 53 bits of the stream of its id without the universe (an integer that
-every JSON reader holds exactly).
+``seed`` is the first 53 bits of the stream of its *demonstration's* id: the trial id without
+the robot and the universe (:func:`demonstration_id`; an integer that every JSON reader holds
+exactly). So every robot watches the same demonstration, drawn once from that seed, also from
+a human who draws (``literal``, ``pedagogic``); and the trials of a subject are planned next to
+each other (feature level, subject, policy, robot), so a batch plays a demonstration once for
+all its robots. A subject's reward hypotheses (a pipeline with
+``[teaching]``) are drawn from the stream ``hypotheses:<subject id>`` (its first 53 bits are
+the trials' ``teaching.hypothesis_seed``), so every trial of the subject shares them.
 """
 
 from __future__ import annotations
@@ -37,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from cirl_study.record import ETA_CV, LAMBDA_SWEEP, MAIN, Grid, RBFFeatures, TrialSpec
+from cirl_study.record import ETA_CV, LAMBDA_SWEEP, MAIN, Grid, RBFFeatures, Teaching, TrialSpec
 from cirl_study.study.multiverse import cv_universe, universe_pipeline, universes
 from cirl_study.study.spec import GameSpec, Pipeline, Universe
 
@@ -60,12 +66,20 @@ def subject_id(group: str, num_features: int, index: int) -> str:
     return f"{group}-k{num_features:02d}-s{index:04d}"
 
 
+def demonstration_id(
+    block: str, subject: str, policy: str, rationality: float, eta: float | None
+) -> str:
+    """Stable id of a demonstration: who shows what to a robot of rationality ``lambda``."""
+    eta_part = "" if eta is None else f":eta={float(eta)!r}"
+    return f"{block}:{subject}:{policy}:lambda={float(rationality)!r}{eta_part}"
+
+
 def trial_id(
     block: str, subject: str, policy: str, rationality: float, eta: float | None, robot: str
 ) -> str:
-    """Stable id of a trial of a single study, spelling out its whole identity."""
-    eta_part = "" if eta is None else f":eta={float(eta)!r}"
-    return f"{block}:{subject}:{policy}:lambda={float(rationality)!r}{eta_part}:robot={robot}"
+    """Stable id of a trial of a single study, spelling out its whole identity: its
+    demonstration's id and the robot that watches it."""
+    return f"{demonstration_id(block, subject, policy, rationality, eta)}:robot={robot}"
 
 
 def in_universe(trial: str, universe: Universe | None) -> str:
@@ -73,9 +87,10 @@ def in_universe(trial: str, universe: Universe | None) -> str:
     return trial if universe is None else f"{trial}@{universe.id}"
 
 
-def trial_seed(root_seed: int, trial: str) -> int:
-    """The ``seed`` of trial ``trial``: 53 bits of its own stream."""
-    return int(random_stream(root_seed, f"trial:{trial}").generate_state(1, np.uint64)[0] >> 11)
+def trial_seed(root_seed: int, demonstration: str) -> int:
+    """The ``seed`` of the trials of demonstration ``demonstration``: 53 bits of its stream."""
+    stream = random_stream(root_seed, f"trial:{demonstration}")
+    return int(stream.generate_state(1, np.uint64)[0] >> 11)
 
 
 @dataclass(frozen=True)
@@ -146,10 +161,12 @@ def _trial(
     eta: float | None,
     robot: str,
 ) -> TrialSpec:
-    ident = trial_id(block, subject.id, policy, rationality, eta, robot)
+    shown = demonstration_id(block, subject.id, policy, rationality, eta)
     game = pipeline.game
     return TrialSpec(
-        trial_id=in_universe(ident, pipeline.universe),
+        trial_id=in_universe(
+            trial_id(block, subject.id, policy, rationality, eta, robot), pipeline.universe
+        ),
         run_id=pipeline.run_id,
         block=block,
         subject=subject.id,
@@ -157,7 +174,7 @@ def _trial(
         num_features=subject.num_features,
         rationality=rationality,
         eta=eta,
-        seed=trial_seed(pipeline.seed, ident),
+        seed=trial_seed(pipeline.seed, shown),
         grid=Grid(width=game.width, height=game.height),
         start=game.start,
         learning_steps=game.learning_steps,
@@ -168,6 +185,23 @@ def _trial(
         demonstrator_stays=game.demonstrator_stays,
         deployment_start=game.deployment_start,
         universe=None if pipeline.universe is None else pipeline.universe.id,
+        teaching=_teaching(pipeline, subject),
+    )
+
+
+def _teaching(pipeline: Pipeline, subject: Subject) -> Teaching | None:
+    """The subject's hypothesis space and the pipeline's teaching settings, if it has them."""
+    spec = pipeline.teaching
+    if spec is None:
+        return None
+    stream = random_stream(pipeline.seed, f"hypotheses:{subject.id}")
+    return Teaching(
+        hypotheses=spec.hypotheses,
+        includes_truth=spec.includes_truth,
+        hypothesis_seed=int(stream.generate_state(1, np.uint64)[0] >> 11),
+        alpha=spec.alpha,
+        demonstration=spec.demonstration,
+        search_etas=pipeline.eta_cv.etas,
     )
 
 
@@ -231,17 +265,17 @@ def _study_trials(
     main_block = [
         _trial(pipeline, MAIN, subject, policy, main.rationality, eta_of(policy, k), robot)
         for k in levels
-        for robot in main.robots
-        for policy in main.policies
         for subject in subjects[k]
+        for policy in main.policies
+        for robot in main.robots
     ]
     sweep_block = [
         _trial(pipeline, LAMBDA_SWEEP, subject, policy, rationality, eta_of(policy, k), robot)
         for k in levels
         for rationality in sweep.rationalities
-        for robot in main.robots
-        for policy in main.policies
         for subject in subjects[k][: sweep.subjects]
+        for policy in main.policies
+        for robot in main.robots
     ]
     return main_block + sweep_block
 

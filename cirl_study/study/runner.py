@@ -142,7 +142,7 @@ def warm_up(pipeline: Pipeline) -> None:
     the engine starts its workers, lets forked workers inherit them and keeps the progress
     bar for playing. Nothing is logged.
     """
-    from cirl_study.core.humans import HUMANS
+    from cirl_study.core.players import HUMANS
     from cirl_study.core.trial import play_trials
 
     base = (eta_cv_trials(pipeline) or study_trials(pipeline, {}))[0]

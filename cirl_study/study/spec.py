@@ -35,6 +35,16 @@ shape, with every key required::
     subjects = 500            # the first `subjects` reward draws of the main block
     rationalities = [1e-4, ..., 1e3]
 
+A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human, the
+``literal`` or ``pragmatic`` robot; :mod:`cirl_study.core.teaching`) declares their hypothesis
+space in ``[teaching]``, and then has no ``[lambda_sweep]``::
+
+    [teaching]
+    hypotheses = 64           # reward hypotheses per reward draw (at least 2)
+    includes_truth = true     # the true theta is one of them (else all are prior draws)
+    alpha = 1.0               # the pedagogic exponent
+    demonstration = "draw"    # the pedagogic human draws her path, or shows its mode
+
 A pipeline may instead declare a ``[multiverse]`` (and then no ``[lambda_sweep]``): the study
 played in many *universes*, each a choice of the open settings :data:`AXES`
 (:mod:`cirl_study.study.multiverse`)::
@@ -122,9 +132,9 @@ class EtaCVSpec:
 class MainSpec:
     """The main study: every policy of ``policies`` on ``subjects`` draws per feature level.
 
-    ``policies`` are names of :data:`cirl_study.core.humans.HUMANS` (within subjects, in the
+    ``policies`` are names of :data:`cirl_study.core.players.HUMANS` (within subjects, in the
     order the report compares them: baseline first); ``robots`` are names of
-    :data:`cirl_study.core.robot.ROBOTS`, also within subjects: every robot watches the same
+    :data:`cirl_study.core.players.ROBOTS`, also within subjects: every robot watches the same
     demonstrations of the ``main`` and ``lambda_sweep`` blocks. One of them is the
     *reference* (:func:`cirl_study.core.robot.reference_robot`: ``map`` when present): it
     plays the eta cross-validation, so each policy's eta, and with it the human's
@@ -139,9 +149,25 @@ class MainSpec:
     @property
     def reference_robot(self) -> str:
         """The robot of the eta cross-validation (see the class docstring)."""
-        from cirl_study.core.robot import reference_robot
+        from cirl_study.core.players import reference_robot
 
         return reference_robot(self.robots)
+
+
+@dataclass(frozen=True)
+class TeachingSpec:
+    """The hypothesis space of a pipeline's teaching players (:mod:`cirl_study.core.teaching`).
+
+    Every subject has ``hypotheses`` reward hypotheses, the true ``theta`` among them when
+    ``includes_truth`` (as in Ho et al. 2016; it flatters every learner) or all drawn from
+    the prior; ``alpha`` is the pedagogic exponent and ``demonstration`` whether the
+    pedagogic human draws her path (``draw``) or shows the most likely one (``mode``).
+    """
+
+    hypotheses: int
+    includes_truth: bool
+    alpha: float
+    demonstration: str
 
 
 @dataclass(frozen=True)
@@ -228,11 +254,12 @@ class Pipeline:
     sha256: str
     multiverse: MultiverseSpec | None = None
     universe: Universe | None = None
+    teaching: TeachingSpec | None = None
 
     @property
     def policies_with_eta(self) -> tuple[str, ...]:
         """The policies of the main study that have a trade-off eta to cross-validate."""
-        from cirl_study.core.humans import HUMANS
+        from cirl_study.core.players import HUMANS
 
         return tuple(policy for policy in self.main.policies if HUMANS[policy].takes_eta)
 
@@ -410,8 +437,11 @@ def parse_pipeline(text: str, path: Path) -> Pipeline:
         label,
         "",
         data,
-        ("name", "description", "seed", "game", "eta_cv", "main", "lambda_sweep", "multiverse"),
-    )
+        (
+            "name", "description", "seed", "game", "eta_cv", "main", "lambda_sweep",
+            "multiverse", "teaching",
+        ),
+    )  # fmt: skip
     name = top.string("name")
     if not _NAME_PATTERN.fullmatch(name):
         top.fail(
@@ -426,8 +456,9 @@ def parse_pipeline(text: str, path: Path) -> Pipeline:
         game=(game := _game(top)),
         eta_cv=(eta_cv := _eta_cv(top)),
         main=(main := _main(top)),
-        lambda_sweep=_lambda_sweep(top, main) if "multiverse" not in top.data else NO_SWEEP,
+        lambda_sweep=_lambda_sweep(top, main) if _has_sweep(top) else NO_SWEEP,
         multiverse=_multiverse(top, game, eta_cv, main) if "multiverse" in top.data else None,
+        teaching=_teaching(top, game, main),
         path=path,
         text=text,
         sha256=hashlib.sha256(text.encode()).hexdigest(),
@@ -510,8 +541,7 @@ def _eta_cv(top: _Table) -> EtaCVSpec:
 
 def _main(top: _Table) -> MainSpec:
     # The registries live with the numerical core, loaded only when a pipeline is read.
-    from cirl_study.core.humans import HUMANS
-    from cirl_study.core.robot import ROBOTS
+    from cirl_study.core.players import HUMANS, ROBOTS
 
     block = top.table("main", ("subjects", "rationality", "policies", "robots"))
     return MainSpec(
@@ -523,7 +553,56 @@ def _main(top: _Table) -> MainSpec:
 
 
 NO_SWEEP = LambdaSweepSpec(subjects=0, rationalities=())
-"""The lambda sweep of a multiverse (none: lambda is one of its axes)."""
+"""The lambda sweep of a multiverse (none: lambda is one of its axes) and of a teaching study
+(none: its players are compared at the main study's lambda)."""
+
+
+def _has_sweep(top: _Table) -> bool:
+    return "multiverse" not in top.data and "teaching" not in top.data
+
+
+PEDAGOGIC_CHOICES = ("draw", "mode")
+"""How the pedagogic human picks her path from her distribution."""
+
+ALPHA = Limits(1e-3, 1e3, "from all but literal to all but the most telling path")
+
+
+def _teaching(top: _Table, game: GameSpec, main: MainSpec) -> TeachingSpec | None:
+    """The ``[teaching]`` table: required exactly when a human or robot of ``main`` teaches."""
+    from cirl_study.core.gridworld import Gridworld
+    from cirl_study.core.hypotheses import MAX_PATHS, path_count
+    from cirl_study.core.maxent import Phase
+    from cirl_study.core.players import HUMANS, ROBOTS
+
+    teaching = [p for p in main.policies if HUMANS[p].teaches]
+    teaching += [r for r in main.robots if ROBOTS[r].teaches]
+    if "teaching" not in top.data:
+        if teaching:
+            top.fail("teaching", f"is missing ({', '.join(teaching)} need a hypothesis space)")
+        return None
+    if "multiverse" in top.data:
+        top.fail("teaching", "must not be given with [multiverse]")
+    if "lambda_sweep" in top.data:
+        top.fail("lambda_sweep", "must not be given with [teaching] (its study has no sweep)")
+    block = top.table("teaching", ("hypotheses", "includes_truth", "alpha", "demonstration"))
+    grid = Gridworld(game.width, game.height)
+    learning = Phase(
+        grid.demonstrator_moves(game.demonstrator_stays), grid.index(*game.start),
+        game.learning_steps,
+    )  # fmt: skip
+    paths = path_count(learning)
+    if paths > MAX_PATHS:
+        top.fail(
+            "game.learning_steps",
+            f"gives {paths:,} learning paths, more than the {MAX_PATHS:,} a hypothesis space "
+            "enumerates",
+        )
+    return TeachingSpec(
+        hypotheses=block.integer("hypotheses", 2, "an integer of at least 2"),
+        includes_truth=block.boolean("includes_truth"),
+        alpha=block.number_in("alpha", ALPHA),
+        demonstration=block.choice("demonstration", PEDAGOGIC_CHOICES),
+    )
 
 
 def _lambda_sweep(top: _Table, main: MainSpec) -> LambdaSweepSpec:
@@ -604,7 +683,7 @@ class _AxisLevels:
     """Validation of an axis's levels: the range the same setting has in ``[game]``/``[main]``."""
 
     def __init__(self, game: GameSpec):
-        from cirl_study.core.robot import ROBOTS
+        from cirl_study.core.players import ROBOTS
 
         sigma = _sigma_limits(game.width, game.height)
         self.checks: dict[str, tuple[Callable[[Any], bool], str]] = {

@@ -1,0 +1,54 @@
+"""The two-phase apprenticeship game of a batch of trials, as its players know it.
+
+One object carries what a human or a robot may read (docs/design.md §1-3): the MaxEnt model
+of the learning phase (its dynamics, the trials' features and the robot's :math:`\\lambda`),
+the model of the deployment phase (the regret-optimal human plans for it), and, in a
+pipeline with teaching players, the trials' hypothesis spaces and teaching settings.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from cirl_study.core.hypotheses import HypothesisSpace
+from cirl_study.core.maxent import MaxEnt
+from cirl_study.core.planning import IntArray
+from cirl_study.record import Teaching
+
+
+@dataclass(frozen=True, eq=False)
+class Apprenticeship:
+    """A batch of ``B`` trials' game.
+
+    Attributes:
+        learning: the MaxEnt model of the learning phase, in which the human demonstrates.
+        deployment: the MaxEnt model of the deployment phase, in which the robot acts alone.
+        hypotheses: the trials' hypothesis spaces (``None`` without teaching players).
+        teaching: the teaching settings the trials share (``None`` likewise).
+    """
+
+    learning: MaxEnt
+    deployment: MaxEnt
+    hypotheses: HypothesisSpace | None = None
+    teaching: Teaching | None = None
+
+    def take(self, rows: IntArray) -> Apprenticeship:
+        """The game of the trials ``rows`` only (an index array)."""
+        return Apprenticeship(
+            self.learning.take(rows),
+            self.deployment.take(rows),
+            None if self.hypotheses is None else self.hypotheses.take(rows),
+            self.teaching,
+        )
+
+    def space(self) -> HypothesisSpace:
+        """The hypothesis spaces; an error for a game without them."""
+        if self.hypotheses is None:
+            raise ValueError("this game has no hypothesis space: its pipeline has no [teaching]")
+        return self.hypotheses
+
+    def settings(self) -> Teaching:
+        """The teaching settings; an error for a game without them."""
+        if self.teaching is None:
+            raise ValueError("this game has no teaching settings: its pipeline has no [teaching]")
+        return self.teaching

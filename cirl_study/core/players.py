@@ -1,0 +1,137 @@
+"""The players by name: every human policy and every robot a pipeline may name.
+
+A human policy is a :class:`Human`; a robot is an
+:data:`~cirl_study.core.estimate.Estimator`. Both read the batch's game
+(:class:`~cirl_study.core.apprenticeship.Apprenticeship`). Adding one is one function in its
+own module and one :func:`register_human` or :func:`register_robot` line here.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass
+
+from cirl_study.core.apprenticeship import Apprenticeship
+from cirl_study.core.estimate import Estimator
+from cirl_study.core.humans import best_response_paths, expert_paths, literal_paths
+from cirl_study.core.planning import FloatArray, IntArray
+from cirl_study.core.posterior import posterior_mean_estimate
+from cirl_study.core.robot import map_estimate
+from cirl_study.core.teaching import (
+    literal_estimate,
+    pedagogic_paths,
+    pragmatic_estimate,
+    regret_optimal_paths,
+)
+from cirl_study.record import (
+    BEST_RESPONSE,
+    EXPERT,
+    LITERAL,
+    LITERAL_ROBOT,
+    MAP,
+    PEDAGOGIC,
+    POSTERIOR_MEAN,
+    PRAGMATIC,
+    REGRET_OPTIMAL,
+)
+
+
+@dataclass(frozen=True)
+class Human:
+    """A human policy: how she demonstrates, and whether she trades reward against teaching.
+
+    Attributes:
+        demonstrate: ``demonstrate(game, theta, eta, seeds)`` returns the ``(B, T + 1)``
+            paths; ``eta`` is ``(B,)`` when :attr:`takes_eta`, else ``None``; ``seeds`` are the
+            trials' seeds.
+        takes_eta: whether the policy has the trade-off :math:`\\eta`, chosen by
+            cross-validation before the test trials (docs/design.md §3).
+        teaches: whether she needs the trials' hypothesis space (a pipeline's ``[teaching]``).
+    """
+
+    demonstrate: Callable[[Apprenticeship, FloatArray, FloatArray | None, IntArray], IntArray]
+    takes_eta: bool
+    teaches: bool = False
+
+
+@dataclass(frozen=True)
+class Robot:
+    """A robot: its estimator, and whether it needs the trials' hypothesis space."""
+
+    estimate: Estimator
+    teaches: bool = False
+
+
+HUMANS: dict[str, Human] = {}
+"""Every human policy, by the name a pipeline and a trial record use (``policy``)."""
+
+ROBOTS: dict[str, Robot] = {}
+"""Every robot, by the name a pipeline and a trial record use (``robot``)."""
+
+
+def register_human(name: str, human: Human) -> None:
+    """Make ``human`` playable as the policy ``name``."""
+    if name in HUMANS:
+        raise ValueError(f"a human policy named {name!r} is already registered")
+    HUMANS[name] = human
+
+
+def register_robot(name: str, robot: Robot) -> None:
+    """Make ``robot`` playable as the robot ``name``."""
+    if name in ROBOTS:
+        raise ValueError(f"a robot named {name!r} is already registered")
+    ROBOTS[name] = robot
+
+
+def reference_robot(robots: Iterable[str]) -> str:
+    """The reference among ``robots``: the first in the order of :data:`ROBOTS`.
+
+    ``map``, the paper's robot, whenever it is one of them. The reference robot plays the
+    eta cross-validation, and the paper's claims are judged on its trials.
+    """
+    present = set(robots)
+    return next(name for name in ROBOTS if name in present)
+
+
+register_human(
+    EXPERT,
+    Human(lambda game, theta, _eta, _seeds: expert_paths(game.learning, theta), takes_eta=False),
+)
+register_human(
+    BEST_RESPONSE,
+    Human(
+        lambda game, theta, eta, _seeds: best_response_paths(game.learning, theta, eta),
+        takes_eta=True,
+    ),
+)
+register_human(
+    LITERAL,
+    Human(
+        lambda game, theta, _eta, seeds: literal_paths(game.learning, theta, seeds),
+        takes_eta=False,
+    ),
+)
+register_human(
+    PEDAGOGIC,
+    Human(
+        lambda game, theta, _eta, seeds: pedagogic_paths(game, theta, seeds),
+        takes_eta=False,
+        teaches=True,
+    ),
+)
+register_human(
+    REGRET_OPTIMAL,
+    Human(
+        lambda game, theta, _eta, seeds: regret_optimal_paths(game, theta, seeds),
+        takes_eta=False,
+        teaches=True,
+    ),
+)
+
+register_robot(MAP, Robot(lambda game, demos, _seeds: map_estimate(game.learning, demos)))
+register_robot(
+    POSTERIOR_MEAN,
+    Robot(lambda game, demos, seeds: posterior_mean_estimate(game.learning, demos, seeds)),
+)
+register_robot(LITERAL_ROBOT, Robot(literal_estimate, teaches=True))
+register_robot(PRAGMATIC, Robot(pragmatic_estimate, teaches=True))

@@ -1,0 +1,599 @@
+"""A teaching study end to end: its ``[teaching]`` table, a run, its report and its verdicts.
+
+A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human, the
+``literal`` or ``pragmatic`` robot) declares their hypothesis space in ``[teaching]``
+(:mod:`cirl_study.study.spec`); every trial carries it (:mod:`cirl_study.study.plan`); the run
+is analysed by :mod:`cirl_study.analysis.teaching` into the report of
+:mod:`cirl_study.analysis.teaching_report`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import defaultdict
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+from test_logs_helpers import run_records
+from typer.testing import CliRunner
+
+from cirl_study.analysis.teaching import analyse_teaching
+from cirl_study.cli import app
+from cirl_study.core.gridworld import Gridworld
+from cirl_study.core.hypotheses import MAX_PATHS, path_count
+from cirl_study.core.maxent import Phase
+from cirl_study.errors import UserError
+from cirl_study.logs import validate_run
+from cirl_study.record import MAIN, MEASURES, Measures, TrialRecord, TrialRow, encode
+from cirl_study.study.engines import LocalEngine
+from cirl_study.study.runner import run_pipeline
+from cirl_study.study.spec import Pipeline, TeachingSpec, parse_pipeline
+
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
+
+TEACHING = """
+[teaching]
+hypotheses = 16
+includes_truth = true
+alpha = 1.0
+demonstration = "draw"
+"""
+"""A valid ``[teaching]`` table (the tests edit it by string replacement)."""
+
+MULTIVERSE = """
+[multiverse.alone]
+steps = [5]
+"""
+"""A valid ``[multiverse]`` table for the smoke pipeline (one robot, equal horizons)."""
+
+POLICIES = '["expert", "best_response", "literal", "pedagogic", "regret_optimal"]'
+ROBOTS = '["map", "literal", "pragmatic"]'
+
+
+def smoke_text(
+    *,
+    policies: str | None = None,
+    robots: str | None = None,
+    sweep: bool = True,
+    extra: str = "",
+) -> str:
+    """``pipelines/smoke.toml`` with ``main.policies`` and ``main.robots`` replaced, its
+    ``[lambda_sweep]`` kept or cut (it is the file's last table) and ``extra`` appended."""
+    text = SMOKE.read_text()
+    assert text.count("[lambda_sweep]") == 1 and text.rstrip().endswith("]")
+    if policies is not None:
+        old = 'policies = ["expert", "best_response"]'
+        assert old in text
+        text = text.replace(old, f"policies = {policies}")
+    if robots is not None:
+        assert 'robots = ["map"]' in text
+        text = text.replace('robots = ["map"]', f"robots = {robots}")
+    if not sweep:
+        text = text[: text.index("[lambda_sweep]")]
+    return text + extra
+
+
+def teaching_text(**changes: str) -> str:
+    """The :data:`TEACHING` table with ``key = value`` lines replaced (value as TOML text)."""
+    text = TEACHING
+    for key, value in changes.items():
+        lines = [line for line in text.splitlines() if line.startswith(f"{key} = ")]
+        assert len(lines) == 1, key
+        text = text.replace(lines[0], f"{key} = {value}")
+    return text
+
+
+def refused(text: str, path: Path) -> str:
+    """The one-line message with which ``parse_pipeline`` refuses ``text`` (read as ``path``)."""
+    with pytest.raises(UserError) as caught:
+        parse_pipeline(text, path)
+    message = str(caught.value)
+    assert message.startswith(f"{path}: "), message
+    assert "\n" not in message, message
+    return message
+
+
+# ---------------------------------------------------------------------------------------------
+# 1. The [teaching] table
+
+
+def paths_of(width: int, height: int, start: tuple[int, int], steps: int) -> int:
+    """Learning paths of a ``steps``-move phase from ``start`` (the demonstrator may stay)."""
+    grid = Gridworld(width, height)
+    return path_count(Phase(grid.demonstrator_moves(True), grid.index(*start), steps))
+
+
+def big_grid_text() -> str:
+    """A teaching pipeline on the paper's 10x10 grid with 12 learning steps: too many paths."""
+    text = smoke_text(policies='["expert", "pedagogic"]', sweep=False, extra=TEACHING)
+    for old, new in [
+        ("width = 5", "width = 10"),
+        ("height = 5", "height = 10"),
+        ("start = [2, 2]", "start = [5, 5]"),
+        ("learning_steps = 4", "learning_steps = 12"),
+    ]:
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    return text
+
+
+REFUSALS: list[tuple[str, Callable[[], str], str]] = [
+    (
+        "a teaching human without [teaching]",
+        lambda: smoke_text(policies='["expert", "pedagogic"]'),
+        "teaching is missing (pedagogic need a hypothesis space)",
+    ),
+    (
+        "the regret-optimal human without [teaching]",
+        lambda: smoke_text(policies='["expert", "regret_optimal"]'),
+        "teaching is missing (regret_optimal need a hypothesis space)",
+    ),
+    (
+        "a teaching robot without [teaching]",
+        lambda: smoke_text(robots='["map", "pragmatic"]'),
+        "teaching is missing (pragmatic need a hypothesis space)",
+    ),
+    (
+        "the literal robot without [teaching]",
+        lambda: smoke_text(robots='["literal"]'),
+        "teaching is missing (literal need a hypothesis space)",
+    ),
+    (
+        "[teaching] with [lambda_sweep]",
+        lambda: smoke_text(policies='["expert", "pedagogic"]', extra=TEACHING),
+        "lambda_sweep must not be given with [teaching] (its study has no sweep)",
+    ),
+    (
+        "[teaching] with [multiverse]",
+        lambda: (
+            smoke_text(policies='["expert", "pedagogic"]', sweep=False, extra=TEACHING) + MULTIVERSE
+        ),
+        "teaching must not be given with [multiverse]",
+    ),
+    (
+        "one hypothesis",
+        lambda: smoke_text(
+            policies='["expert", "pedagogic"]', sweep=False, extra=teaching_text(hypotheses="1")
+        ),
+        "teaching.hypotheses must be an integer of at least 2, got 1",
+    ),
+    (
+        "alpha = 0",
+        lambda: smoke_text(
+            policies='["expert", "pedagogic"]', sweep=False, extra=teaching_text(alpha="0")
+        ),
+        "teaching.alpha must be a number in [0.001, 1000]",
+    ),
+    (
+        "alpha a string",
+        lambda: smoke_text(
+            policies='["expert", "pedagogic"]', sweep=False, extra=teaching_text(alpha='"1.0"')
+        ),
+        "teaching.alpha must be a number in [0.001, 1000] (from all but literal to all but the "
+        'most telling path), got "1.0"',
+    ),
+    (
+        "an unknown demonstration",
+        lambda: smoke_text(
+            policies='["expert", "pedagogic"]',
+            sweep=False,
+            extra=teaching_text(demonstration='"best"'),
+        ),
+        'teaching.demonstration must be one of draw, mode, got "best"',
+    ),
+    (
+        "an unknown key",
+        lambda: smoke_text(
+            policies='["expert", "pedagogic"]', sweep=False, extra=TEACHING + "prior = 2\n"
+        ),
+        "teaching.prior is not a known key (expected one of: hypotheses, includes_truth, "
+        "alpha, demonstration)",
+    ),
+    (
+        "too many learning paths",
+        big_grid_text,
+        f"game.learning_steps gives {paths_of(10, 10, (5, 5), 12):,} learning paths, more "
+        f"than the {MAX_PATHS:,} a hypothesis space enumerates",
+    ),
+]
+
+
+@pytest.mark.parametrize(
+    ("text_of", "expected"),
+    [(text_of, expected) for _, text_of, expected in REFUSALS],
+    ids=[name for name, _, _ in REFUSALS],
+)
+def test_a_bad_teaching_pipeline_is_refused_in_one_line(
+    text_of: Callable[[], str], expected: str, tmp_path: Path
+) -> None:
+    """Each misuse of ``[teaching]`` is one ``UserError`` line naming the file and the key."""
+    message = refused(text_of(), tmp_path / "teach.toml")
+    assert expected in message, message
+
+
+def test_the_path_limit_lies_between_the_paper_phase_and_the_refused_one() -> None:
+    """The refused phase really has too many paths, and the paper's own does not."""
+    assert paths_of(10, 10, (5, 5), 9) <= MAX_PATHS < paths_of(10, 10, (5, 5), 12)
+
+
+def test_a_valid_teaching_pipeline_parses_into_its_spec(tmp_path: Path) -> None:
+    """``[teaching]`` becomes ``pipeline.teaching``, and the study has no lambda sweep."""
+    text = smoke_text(
+        policies='["expert", "pedagogic"]',
+        robots='["map", "literal", "pragmatic"]',
+        sweep=False,
+        extra=teaching_text(
+            hypotheses="12", includes_truth="false", alpha="2.5", demonstration='"mode"'
+        ),
+    )
+    pipeline = parse_pipeline(text, tmp_path / "teach.toml")
+    assert pipeline.teaching == TeachingSpec(
+        hypotheses=12, includes_truth=False, alpha=2.5, demonstration="mode"
+    )
+    assert isinstance(pipeline.teaching.alpha, float)
+    assert pipeline.lambda_sweep.subjects == 0 and pipeline.lambda_sweep.rationalities == ()
+    assert pipeline.multiverse is None
+    assert pipeline.main.robots == ("map", "literal", "pragmatic")
+
+
+def test_a_pipeline_without_teaching_players_has_no_teaching(tmp_path: Path) -> None:
+    """The smoke pipeline needs no hypothesis space and keeps its sweep."""
+    pipeline = parse_pipeline(smoke_text(), tmp_path / "smoke.toml")
+    assert pipeline.teaching is None and pipeline.lambda_sweep.subjects == 4
+
+
+# ---------------------------------------------------------------------------------------------
+# 2. A small teaching run
+
+
+def small_teaching_text() -> str:
+    """The small teaching pipeline: 5x5, 4 learning steps, 3 draws per level (2 for eta),
+    every human with every robot, 8 hypotheses."""
+    text = smoke_text(
+        policies=POLICIES,
+        robots=ROBOTS,
+        sweep=False,
+        extra=teaching_text(hypotheses="8"),
+    )
+    for old, new in [
+        ("[eta_cv]\nsubjects = 3\n", "[eta_cv]\nsubjects = 2\n"),
+        ("[main]\nsubjects = 4\n", "[main]\nsubjects = 3\n"),
+    ]:
+        assert text.count(old) == 1, old
+        text = text.replace(old, new)
+    return text
+
+
+@dataclass(frozen=True)
+class TeachingRuns:
+    """The small teaching pipeline, played once with two workers and once with one."""
+
+    pipeline: Pipeline
+    two_workers: Path
+    one_worker: Path
+    played: tuple[int, int]
+    totals: tuple[int, int]
+
+
+@pytest.fixture(scope="module")
+def teaching_runs(tmp_path_factory: pytest.TempPathFactory) -> TeachingRuns:
+    """Play the small teaching pipeline with ``LocalEngine(2)`` and ``LocalEngine(1)``."""
+    root = tmp_path_factory.mktemp("teaching")
+    path = root / "teach.toml"
+    path.write_text(small_teaching_text())
+    pipeline = parse_pipeline(path.read_text(), path)
+    two = run_pipeline(pipeline, root / "run2", LocalEngine(2))
+    one = run_pipeline(pipeline, root / "run1", LocalEngine(1))
+    return TeachingRuns(
+        pipeline, root / "run2", root / "run1", (two.played, one.played), (two.total, one.total)
+    )
+
+
+def test_the_small_teaching_run_plays_every_trial_and_validates(
+    teaching_runs: TeachingRuns,
+) -> None:
+    """eta_cv: 2 levels x 2 draws x 3 etas (best response only); main: 2 x 3 x 5 humans x 3
+    robots; no sweep. Both runs are complete and sound."""
+    assert teaching_runs.totals == (102, 102) and teaching_runs.played == (102, 102)
+    for run in (teaching_runs.two_workers, teaching_runs.one_worker):
+        verdict = validate_run(run)
+        assert verdict.ok, verdict
+
+
+def sorted_records(run: Path) -> list[TrialRecord]:
+    """Every record of ``run``, by trial id."""
+    return sorted(run_records(run), key=lambda record: record.trial_id)
+
+
+def test_the_run_does_not_depend_on_the_number_of_workers(teaching_runs: TeachingRuns) -> None:
+    """Two workers and one play the very same records, byte for byte."""
+    two = sorted_records(teaching_runs.two_workers)
+    one = sorted_records(teaching_runs.one_worker)
+    assert [r.trial_id for r in two] == [r.trial_id for r in one]
+    assert len({r.trial_id for r in two}) == len(two) == 102
+    for a, b in zip(two, one, strict=True):
+        assert encode(a) == encode(b), a.trial_id
+
+
+def test_every_trial_carries_its_subjects_hypothesis_space(teaching_runs: TeachingRuns) -> None:
+    """``teaching`` is set on every record, with the pipeline's settings; its seed is one per
+    subject and differs between subjects."""
+    records = run_records(teaching_runs.two_workers)
+    spec = teaching_runs.pipeline.teaching
+    assert spec is not None
+    seeds: dict[str, set[int]] = defaultdict(set)
+    for record in records:
+        teaching = record.teaching
+        assert teaching is not None, record.trial_id
+        assert (teaching.hypotheses, teaching.includes_truth) == (8, True)
+        assert (teaching.alpha, teaching.demonstration) == (1.0, "draw")
+        assert teaching.search_etas == teaching_runs.pipeline.eta_cv.etas
+        seeds[record.subject].add(teaching.hypothesis_seed)
+    assert all(len(subject_seeds) == 1 for subject_seeds in seeds.values()), seeds
+    assert len(seeds) == 2 * 3 + 2 * 2  # main and cross-validation draws at K = 3 and 10
+    one_each = [next(iter(subject_seeds)) for subject_seeds in seeds.values()]
+    assert len(set(one_each)) == len(one_each)
+
+
+def test_every_robot_watches_the_same_demonstration(teaching_runs: TeachingRuns) -> None:
+    """Records of one subject, block, policy (and eta) but different robots show the same
+    demonstration: the robot is a within-subjects factor (a design property)."""
+    records = run_records(teaching_runs.two_workers)
+    shown: dict[tuple[Any, ...], dict[str, bytes]] = defaultdict(dict)
+    for record in records:
+        key = (record.block, record.subject, record.policy, record.rationality, record.eta)
+        shown[key][record.robot] = encode(record.demonstration)
+    main = {key: by_robot for key, by_robot in shown.items() if key[0] == MAIN}
+    assert len(main) == 2 * 3 * 5
+    assert all(set(by_robot) == {"map", "literal", "pragmatic"} for by_robot in main.values())
+    differing = {
+        key: sorted(by_robot) for key, by_robot in shown.items() if len(set(by_robot.values())) != 1
+    }
+    assert not differing, differing
+
+
+# ---------------------------------------------------------------------------------------------
+# 3. The report of the run
+
+QUESTIONS = {
+    "paper_best_response",
+    "milli_dragan_crossover",
+    "milli_dragan_robustness",
+    "best_response_vs_pedagogic",
+    "regret_optimal_gap",
+}
+
+REPORT_FILES = {
+    "report.md",
+    "results.json",
+    "trials.csv",
+    "teaching_measures.png",
+    "teaching_measures.svg",
+}
+
+
+def analyze(run: Path, out: Path) -> str:
+    """``cirl-study analyze RUN --out OUT``; its output, once it succeeded."""
+    result = CliRunner().invoke(app, ["analyze", str(run), "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    return result.output
+
+
+@pytest.fixture(scope="module")
+def teaching_report(
+    teaching_runs: TeachingRuns, tmp_path_factory: pytest.TempPathFactory
+) -> tuple[Path, str]:
+    """The report directory of the two-worker run, and what ``analyze`` printed."""
+    out = tmp_path_factory.mktemp("teaching-report") / "report"
+    return out, analyze(teaching_runs.two_workers, out)
+
+
+def test_analyze_writes_the_teaching_report(teaching_report: tuple[Path, str]) -> None:
+    """The teaching report's files, its questions and its design."""
+    out, output = teaching_report
+    assert output.startswith(f"teaching report of 102 trials written to {out}: 5 questions")
+    assert {p.name for p in out.iterdir()} == REPORT_FILES | {"provenance.json"}
+    assert all((out / name).stat().st_size > 0 for name in REPORT_FILES)
+    results = json.loads((out / "results.json").read_text(encoding="utf-8"))
+    assert {q["id"] for q in results["questions"]} == QUESTIONS
+    assert len(results["questions"]) == len(QUESTIONS)
+    assert all(q["tested"] for q in results["questions"])
+    design = results["design"]
+    assert design["humans"] == json.loads(POLICIES) and design["robots"] == json.loads(ROBOTS)
+    assert design["feature_levels"] == [3, 10]
+    assert design["subjects_per_level"] == {"3": 3, "10": 3}
+    assert design["trials"] == {"main": 90, "eta_cv": 12}
+    assert design["teaching"] == {
+        "hypotheses": 8,
+        "includes_truth": True,
+        "alpha": 1.0,
+        "demonstration": "draw",
+    }
+    assert results["run_id"].startswith("smoke-")
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert report.startswith("# Teaching study: `smoke`")
+    trials = (out / "trials.csv").read_text(encoding="utf-8").splitlines()
+    assert len(trials) == 1 + 102
+
+
+def test_reanalysing_gives_the_same_report(
+    teaching_runs: TeachingRuns, teaching_report: tuple[Path, str], tmp_path: Path
+) -> None:
+    """The report is a function of the trials: analysing the run again (over its report) or
+    the run played by one worker writes byte-identical ``report.md`` and ``results.json``."""
+    out, _ = teaching_report
+    first = {name: (out / name).read_bytes() for name in ("report.md", "results.json")}
+    analyze(teaching_runs.two_workers, out)  # the same run's report: overwritten unforced
+    other = tmp_path / "other"
+    analyze(teaching_runs.one_worker, other)
+    for name, data in first.items():
+        assert (out / name).read_bytes() == data, name
+        assert (other / name).read_bytes() == data, name
+
+
+def test_no_demonstration_beats_the_regret_optimal_one(teaching_report: tuple[Path, str]) -> None:
+    """The regret-optimal search starts from the expert's and every best response's path, so
+    neither of them can do better than what it finds (MAP robot)."""
+    out, _ = teaching_report
+    results = json.loads((out / "results.json").read_text(encoding="utf-8"))
+    gaps = results["regret_optimal"]["gaps"]
+    checked = [g for g in gaps if g["policy"] in ("expert", "best_response")]
+    assert {(g["policy"], g["num_features"]) for g in checked} == {
+        (policy, k) for policy in ("expert", "best_response") for k in (3, 10)
+    }
+    for gap in checked:
+        assert gap["n"] == 3
+        assert gap["smallest_gap"] >= -1e-9, gap
+        assert gap["mean_gap"] >= -1e-9, gap
+
+
+# ---------------------------------------------------------------------------------------------
+# 4. The verdicts of Milli & Dragan's 2 x 2, on synthetic rows
+
+SYNTHETIC_HUMANS = ("expert", "literal", "pedagogic")
+SYNTHETIC_ROBOTS = ("map", "literal", "pragmatic")
+
+
+def synthetic_pipeline(tmp_path: Path) -> Pipeline:
+    """A teaching pipeline naming the synthetic study's humans and robots."""
+    text = smoke_text(
+        policies=json.dumps(list(SYNTHETIC_HUMANS)),
+        robots=json.dumps(list(SYNTHETIC_ROBOTS)),
+        sweep=False,
+        extra=TEACHING,
+    )
+    return parse_pipeline(text, tmp_path / "synthetic.toml")
+
+
+def synthetic_rows(
+    pragmatic_with_pedagogic: float,
+    pragmatic_with_literal: float,
+    subjects: int = 30,
+    seed: int = 0,
+) -> list[TrialRow]:
+    """The ``main`` block of a complete teaching design on made-up measures.
+
+    Every human with every robot on ``subjects`` draws at K = 3 and at K = 10. Every measure of
+    a trial is the subject's level (around 1) plus small noise, plus
+    ``pragmatic_with_pedagogic`` (resp. ``pragmatic_with_literal``) for the pragmatic robot
+    watching the pedagogic (resp. literal) human: the robot effect ``pragmatic - literal``
+    under each human of the 2 x 2.
+    """
+    rng = np.random.default_rng(seed)
+    shift = {
+        ("pedagogic", "pragmatic"): pragmatic_with_pedagogic,
+        ("literal", "pragmatic"): pragmatic_with_literal,
+    }
+    rows = []
+    for k in (3, 10):
+        for index in range(subjects):
+            subject = f"main-k{k:02d}-s{index + 1:04d}"
+            level = 1.0 + 0.2 * rng.uniform()
+            for human in SYNTHETIC_HUMANS:
+                for robot in SYNTHETIC_ROBOTS:
+                    value = level + shift.get((human, robot), 0.0)
+                    measures = {m: value + rng.normal(0.0, 0.05) for m in MEASURES}
+                    assert min(measures.values()) > 0
+                    rows.append(
+                        TrialRow(
+                            trial_id=f"main:{subject}:{human}:lambda=1.0:robot={robot}",
+                            run_id="synthetic-run",
+                            universe=None,
+                            block="main",
+                            subject=subject,
+                            policy=human,
+                            robot=robot,
+                            num_features=k,
+                            rationality=1.0,
+                            eta=None,
+                            seed=int(rng.integers(0, 2**53)),
+                            measures=Measures(**measures),
+                            certified=True,
+                            draw=f"draw-of-{subject}",
+                        )
+                    )
+    return rows
+
+
+def questions_of(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """The results' questions by id."""
+    return {q["id"]: q for q in results["questions"]}
+
+
+def robot_effects(results: dict[str, Any], measure: str) -> dict[str, float]:
+    """The pooled simple effect ``pragmatic - literal`` robot of ``measure``, by human."""
+    return {
+        row["policy"]: row["mean_diff"]
+        for row in results["milli_dragan"]["robot_effect"]
+        if row["measure"] == measure
+    }
+
+
+def test_a_crossover_whose_loss_exceeds_its_gain_is_crossover_and_robustness(
+    tmp_path: Path,
+) -> None:
+    """The pragmatic robot gains 0.3 with the pedagogic human and loses 0.6 with the literal
+    one: Milli & Dragan's crossover and the literal robot's robustness both hold."""
+    results = analyse_teaching(synthetic_rows(-0.3, 0.6), synthetic_pipeline(tmp_path))
+    questions = questions_of(results)
+    assert set(questions) == {
+        "paper_best_response",
+        "milli_dragan_crossover",
+        "milli_dragan_robustness",
+    }
+    crossover = questions["milli_dragan_crossover"]
+    robustness = questions["milli_dragan_robustness"]
+    assert crossover["tested"] and crossover["holds"] is True
+    assert crossover["by_measure"] == {m: True for m in MEASURES}
+    assert robustness["tested"] and robustness["holds"] is True
+    assert robustness["by_measure"] == {m: True for m in MEASURES}
+    for measure in MEASURES:
+        effects = robot_effects(results, measure)
+        assert math.isclose(effects["pedagogic"], -0.3, abs_tol=0.05), effects
+        assert math.isclose(effects["literal"], 0.6, abs_tol=0.05), effects
+    # no best response played: the paper's question is asked, not tested
+    paper = questions["paper_best_response"]
+    assert paper["tested"] is False and paper["holds"] is False
+    assert "regret_optimal" not in results and "best_response_vs_pedagogic" not in results
+
+
+def test_a_pragmatic_robot_better_under_both_humans_is_no_crossover(tmp_path: Path) -> None:
+    """The pragmatic robot is ahead with either human: neither crossover nor robustness."""
+    results = analyse_teaching(synthetic_rows(-0.3, -0.2), synthetic_pipeline(tmp_path))
+    questions = questions_of(results)
+    assert questions["milli_dragan_crossover"]["holds"] is False
+    assert questions["milli_dragan_crossover"]["by_measure"] == {m: False for m in MEASURES}
+    assert questions["milli_dragan_robustness"]["holds"] is False
+    assert questions["milli_dragan_robustness"]["by_measure"] == {m: False for m in MEASURES}
+
+
+def test_a_crossover_whose_gain_exceeds_its_loss_is_not_robustness(tmp_path: Path) -> None:
+    """The pragmatic robot gains 0.6 with the pedagogic human and loses only 0.3 with the
+    literal one: the crossover holds, but the literal robot is not the more robust choice."""
+    results = analyse_teaching(synthetic_rows(-0.6, 0.3), synthetic_pipeline(tmp_path))
+    questions = questions_of(results)
+    assert questions["milli_dragan_crossover"]["holds"] is True
+    assert questions["milli_dragan_robustness"]["holds"] is False
+    assert questions["milli_dragan_robustness"]["by_measure"] == {m: False for m in MEASURES}
+
+
+def test_no_robot_effect_is_no_crossover(tmp_path: Path) -> None:
+    """Robots that do equally well under both humans answer no to both questions."""
+    results = analyse_teaching(synthetic_rows(0.0, 0.0), synthetic_pipeline(tmp_path))
+    questions = questions_of(results)
+    assert questions["milli_dragan_crossover"]["holds"] is False
+    assert questions["milli_dragan_robustness"]["holds"] is False
+
+
+def test_the_synthetic_verdicts_do_not_depend_on_row_order(tmp_path: Path) -> None:
+    """``analyse_teaching`` is a function of the rows, not of the order they come in."""
+    rows = synthetic_rows(-0.3, 0.6, subjects=6, seed=3)
+    pipeline = synthetic_pipeline(tmp_path)
+    forward = analyse_teaching(rows, pipeline)
+    backward = analyse_teaching(rows[::-1], pipeline)
+    assert json.dumps(forward, sort_keys=True) == json.dumps(backward, sort_keys=True)
