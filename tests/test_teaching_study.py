@@ -232,8 +232,9 @@ def test_a_valid_teaching_pipeline_parses_into_its_spec(tmp_path: Path) -> None:
         ),
     )
     pipeline = parse_pipeline(text, tmp_path / "teach.toml")
+    # 569 paths of 4 moves from the centre of the 5 x 5 grid (5^4 = 625 less those that leave it).
     assert pipeline.teaching == TeachingSpec(
-        hypotheses=12, includes_truth=False, alpha=2.5, demonstration="mode"
+        hypotheses=12, includes_truth=False, alpha=2.5, demonstration="mode", learning_paths=569
     )
     assert isinstance(pipeline.teaching.alpha, float)
     assert pipeline.lambda_sweep.subjects == 0 and pipeline.lambda_sweep.rationalities == ()
@@ -413,6 +414,7 @@ def test_analyze_writes_the_teaching_report(teaching_report: tuple[Path, str]) -
         "includes_truth": True,
         "alpha": 1.0,
         "demonstration": "draw",
+        "learning_paths": 569,
     }
     assert results["run_id"].startswith("smoke-")
     report = (out / "report.md").read_text(encoding="utf-8")

@@ -10,8 +10,14 @@ is the job of :mod:`cirl_study.logs`.
 - :mod:`~cirl_study.analysis.claims`: the paper's claims beside our measurements.
 - :mod:`~cirl_study.analysis.figures`: the figures, as deterministic PNG bytes.
 - :mod:`~cirl_study.analysis.report`: ``report.md``, ``results.json``, ``trials.csv``.
+- :mod:`~cirl_study.analysis.multiverse`, :mod:`~cirl_study.analysis.multiverse_report`: the
+  paper's claims in every universe of a multiverse, and across them.
+- :mod:`~cirl_study.analysis.teaching`, :mod:`~cirl_study.analysis.teaching_report`: a teaching
+  study's questions (pedagogic and literal humans, pragmatic and literal robots).
 
 The package itself imports nothing, so that importing one module (say the table) does
-not pay for the statistics libraries; the entry point is
-:func:`cirl_study.analysis.report.write_report`.
+not pay for the statistics libraries; the entry points are
+:func:`cirl_study.analysis.report.write_report`,
+:func:`cirl_study.analysis.multiverse_report.write_multiverse_report` and
+:func:`cirl_study.analysis.teaching_report.write_teaching_report`.
 """

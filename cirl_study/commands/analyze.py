@@ -67,7 +67,9 @@ def analyze(
     the figures (PNG and SVG). Reads only the run's MCAP logs, checking every CRC and that
     every file and record belongs to the run. A run missing planned trials, or holding a
     damaged file, is refused unless --partial; a foreign trial always is. Identical logs
-    give an identical report.
+    give an identical report. A multiverse gets its claims in every universe; a teaching study
+    its questions (Milli & Dragan's 2 x 2, the best response against the pedagogic human and
+    the regret-optimal demonstration), with report.md, results.json, trials.csv and a figure.
     """
     # The statistics and plotting libraries load only when an analysis is asked for.
     from cirl_study.analysis.multiverse_report import write_multiverse_report

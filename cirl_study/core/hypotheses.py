@@ -230,17 +230,26 @@ class HypothesisSpace:
         """``(B, H)`` :math:`\\log N_h`, by one pass over the classes per distinct space."""
         return np.array([self._log_normaliser(b, self.thetas[b]) for b in range(self.model.batch)])
 
-    def teaching_log_weights(self, b: int, theta: FloatArray) -> FloatArray:
-        """``(M,)`` :math:`\\log (n_m P_P(m \\mid \\theta))` of trial ``b``'s truth ``theta``.
+    def pedagogic_path_log_probability(self, b: int, theta: FloatArray) -> FloatArray:
+        """``(M,)`` :math:`\\log P_P(\\tau \\mid \\theta)` of each path of each class, for trial
+        ``b``'s truth ``theta``: :math:`\\alpha \\log P_L(\\theta \\mid m) - \\log N_\\theta`.
 
         The demonstrator's learner weighs her true reward among the space's hypotheses; when
         the space leaves the truth out she adds it, so she teaches over :math:`\\{\\theta\\}
-        \\cup \\Theta`. These log weights sum (as weights) to 1.
+        \\cup \\Theta`. Classes with equal feature counts get equal values, bit for bit.
         """
         space = self.thetas[b] if self.includes_truth else np.vstack([theta, self.thetas[b]])
-        log_normaliser, weights = self.pass_over_classes(b, space, 0)
+        log_normaliser, per_path = self.pass_over_classes(b, space, 0)
         self._normalisers.setdefault(self._key(b, space), log_normaliser)
-        return weights
+        return per_path
+
+    def teaching_log_weights(self, b: int, theta: FloatArray) -> FloatArray:
+        """``(M,)`` :math:`\\log (n_m P_P(m \\mid \\theta))`: the probability that the
+        pedagogic demonstrator with trial ``b``'s truth ``theta`` shows a path of class ``m``
+        (:meth:`pedagogic_path_log_probability` times the class's paths). They sum (as
+        weights) to 1."""
+        log_multiplicity = np.log(self.classes.multiplicity.astype(np.float64))
+        return log_multiplicity + self.pedagogic_path_log_probability(b, theta)
 
     def _log_normaliser(self, b: int, space: FloatArray) -> FloatArray:
         """:math:`\\log N_h` over ``space`` for trial ``b``: computed once per distinct trial
@@ -259,7 +268,8 @@ class HypothesisSpace:
         self, b: int, space: FloatArray, truth: int | None
     ) -> tuple[FloatArray, FloatArray]:
         """:math:`\\log N_h` ``(H,)`` over ``space`` ``(H, K)`` for trial ``b``, and, when
-        ``truth`` is an index of ``space``, the classes' teaching log weights ``(M,)``."""
+        ``truth`` is an index of ``space``, each class's path log-probability ``(M,)`` of the
+        pedagogic demonstrator with that reward (:meth:`pedagogic_path_log_probability`)."""
         model = self.model.take(np.array([b]))
         log_partition = set_log_partition(model, space[None])[0]
         # einsum's own loops, not BLAS: the same sums in the same order on every CPU.
@@ -300,7 +310,7 @@ def _pedagogic_pass(
     cells, log_multiplicity, rewards, log_partition, alpha, truth
 ):  # pragma: no cover
     """One pass over the classes ``m``: :math:`\\log N_h` and, for ``truth >= 0``,
-    :math:`\\log n_m + \\alpha \\log P_L(\\theta_{truth} \\mid m) - \\log N_{truth}`.
+    :math:`\\alpha \\log P_L(\\theta_{truth} \\mid m) - \\log N_{truth}`.
 
     ``rewards[s, h]`` is :math:`\\lambda \\theta_h^\\top \\phi(s)`, so a class's log-likelihood
     is the sum over its cells less :math:`\\log Z(\\theta_h)`. Each term
@@ -337,7 +347,7 @@ def _pedagogic_pass(
             for h in range(count):
                 total[h] += multiplicity * np.exp(alpha * (score[h] - log_evidence))
         if truth >= 0:
-            truth_log[m] = log_multiplicity[m] + alpha * (score[truth] - log_evidence)
+            truth_log[m] = alpha * (score[truth] - log_evidence)
     log_normaliser = np.log(total)
     for h in range(count):
         if not total[h] > SUM_FLOOR:

@@ -58,21 +58,23 @@ def pedagogic_paths(game: Apprenticeship, theta: FloatArray, seeds: IntArray) ->
     A draw picks a visit class ``m`` with probability :math:`n_m P_P(m \\mid \\theta)` by
     inverting the cumulative weights at one uniform, then one of the class's :math:`n_m`
     paths at a second (both from the trial's :func:`cirl_study.core.humans.human_generator`).
-    The most likely path is the first path, in move order, of the class with the largest
-    :math:`P_L(\\theta \\mid m)` (ties to the lowest class).
+    The most likely path is the first path, in move order, among those with the largest
+    :math:`P_L(\\theta \\mid \\tau)`.
     """
     space, settings = game.space(), game.settings()
     classes = space.classes
     log_multiplicity = np.log(classes.multiplicity.astype(np.float64))
+    first_path = classes.members[classes.offsets[:-1]]
     chosen = np.empty(len(theta), dtype=np.int64)
     within = np.zeros(len(theta))
     for b, seed in enumerate(seeds):
-        log_weights = space.teaching_log_weights(b, theta[b])
+        per_path = space.pedagogic_path_log_probability(b, theta[b])
         if settings.demonstration == "mode":
-            chosen[b] = int(np.argmax(log_weights - log_multiplicity))
+            tied = np.flatnonzero(per_path == per_path.max())
+            chosen[b] = tied[np.argmin(first_path[tied])]
             continue
         first, second = human_generator(seed).random(2)
-        cumulative = np.cumsum(np.exp(log_weights))
+        cumulative = np.cumsum(np.exp(per_path + log_multiplicity))
         chosen[b] = min(
             int(np.searchsorted(cumulative, first * cumulative[-1], side="right")),
             classes.size - 1,
@@ -92,7 +94,8 @@ def regret_optimal_paths(game: Apprenticeship, theta: FloatArray, seeds: IntArra
     candidates are the expert's path; the paper's best response
     (:func:`cirl_study.core.humans.best_response_paths`) at every trade-off of
     ``Teaching.search_etas``; with a hypothesis space, the :data:`PEDAGOGIC_CANDIDATES`
-    classes the pedagogic human finds most telling (largest :math:`P_L(\\theta \\mid m)`);
+    classes the pedagogic human finds most telling (largest :math:`P_L(\\theta \\mid m)`,
+    ties to the lower class);
     then up to :data:`SEARCH_ROUNDS` rounds of local moves from the best so far (each path
     that differs in one move, kept when it lowers the regret). Ties go to the earlier
     candidate. So the result's regret is never above the expert's or the best response's
@@ -113,9 +116,8 @@ def regret_optimal_paths(game: Apprenticeship, theta: FloatArray, seeds: IntArra
     candidates = [np.stack([paths[b] for paths in starts]) for b in range(batch)]
     if game.hypotheses is not None:
         space = game.hypotheses
-        log_multiplicity = np.log(space.classes.multiplicity.astype(np.float64))
         for b in range(batch):
-            telling = space.teaching_log_weights(b, theta[b]) - log_multiplicity
+            telling = space.pedagogic_path_log_probability(b, theta[b])
             top = np.argsort(-telling, kind="stable")[:PEDAGOGIC_CANDIDATES]
             shown = space.classes.representative(top).astype(np.int64)
             candidates[b] = np.concatenate([candidates[b], shown])

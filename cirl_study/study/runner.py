@@ -60,6 +60,12 @@ BATCH_MEMORY_BUDGET = 4 * 2**30
 machine this study is sized for runs two workers beside the parent with room to spare."""
 
 
+ENUMERATION_BYTES_PER_PATH = 200
+"""Peak bytes per learning path of enumerating a teaching study's visit classes
+(:class:`cirl_study.core.hypotheses.VisitClasses`): measured 160 at the paper's 1,910,313
+paths (305 MB above the interpreter)."""
+
+
 def batch_memory(pipeline: Pipeline) -> int:
     """Estimated peak bytes of playing one batch of :data:`MAX_BATCH` trials.
 
@@ -69,12 +75,16 @@ def batch_memory(pipeline: Pipeline) -> int:
     ``MAX_BATCH (T + 1) S (5 + K + K^2) 8`` bytes with ``T`` the longer horizon, ``S`` the
     cells and ``K`` the largest feature level. An upper bound: measured peaks of a batch of
     250 best-response trials at ``K = 10``, ``T = 9`` are 0.17 GB on 10 x 10 cells (bound
-    0.23) and 2.0 GB on 40 x 40 (bound 3.7).
+    0.23) and 2.0 GB on 40 x 40 (bound 3.7). A teaching study adds the enumeration of its
+    learning phase's paths (:data:`ENUMERATION_BYTES_PER_PATH` each).
     """
     game = pipeline.game
     steps = max(game.learning_steps, game.deployment_steps) + 1
     k = max(game.feature_levels)
-    return MAX_BATCH * steps * game.width * game.height * (5 + k + k * k) * 8
+    trials = MAX_BATCH * steps * game.width * game.height * (5 + k + k * k) * 8
+    if pipeline.teaching is None:
+        return trials
+    return trials + ENUMERATION_BYTES_PER_PATH * pipeline.teaching.learning_paths
 
 
 def check_resources(pipeline: Pipeline) -> None:

@@ -168,6 +168,8 @@ class TeachingSpec:
     includes_truth: bool
     alpha: float
     demonstration: str
+    learning_paths: int
+    """Paths of the learning phase, which a worker enumerates once (its memory estimate)."""
 
 
 @dataclass(frozen=True)
@@ -602,6 +604,7 @@ def _teaching(top: _Table, game: GameSpec, main: MainSpec) -> TeachingSpec | Non
         includes_truth=block.boolean("includes_truth"),
         alpha=block.number_in("alpha", ALPHA),
         demonstration=block.choice("demonstration", PEDAGOGIC_CHOICES),
+        learning_paths=paths,
     )
 
 
