@@ -148,7 +148,8 @@ def main() -> None:
             for i in range(n)
         ]
         seconds = median_seconds(lambda specs=specs: play_trials(specs), options.repeats)
-        print(f"  whole trial {human} + {robot:<22} {1e3 * seconds / n:9.1f} ms/trial")
+        label = f"whole trial, {human} + {robot}"
+        print(f"  {label:<36} {1e3 * seconds / n:9.1f} ms/trial")
 
 
 if __name__ == "__main__":

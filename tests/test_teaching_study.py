@@ -31,7 +31,7 @@ from cirl_study.errors import UserError
 from cirl_study.logs import validate_run
 from cirl_study.record import MAIN, MEASURES, Measures, TrialRecord, TrialRow, encode
 from cirl_study.study.engines import LocalEngine
-from cirl_study.study.runner import run_pipeline
+from cirl_study.study.runner import check_resources, run_pipeline
 from cirl_study.study.spec import Pipeline, TeachingSpec, parse_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
@@ -599,3 +599,21 @@ def test_the_synthetic_verdicts_do_not_depend_on_row_order(tmp_path: Path) -> No
     forward = analyse_teaching(rows, pipeline)
     backward = analyse_teaching(rows[::-1], pipeline)
     assert json.dumps(forward, sort_keys=True) == json.dumps(backward, sort_keys=True)
+
+
+def test_a_hypothesis_space_too_large_for_a_batch_is_refused_before_anything_runs(
+    tmp_path: Path,
+) -> None:
+    """The log-partitions repeat each trial's features once per hypothesis: 200,000 hypotheses
+    on the 5 x 5 grid at K = 10 would need about 93 GiB for one batch."""
+    text = smoke_text(
+        policies='["expert", "pedagogic"]',
+        robots='["map"]',
+        sweep=False,
+        extra=teaching_text(
+            hypotheses="200000", includes_truth="true", alpha="1.0", demonstration='"draw"'
+        ),
+    )
+    pipeline = parse_pipeline(text, tmp_path / "teach.toml")
+    with pytest.raises(UserError, match=r"one batch of trials would need about 93\.\d GiB"):
+        check_resources(pipeline)

@@ -1,5 +1,8 @@
 """The two-phase apprenticeship game of a batch of trials, as its players know it.
 
+The game of the paper's Definition 2 (:mod:`cirl_study.theory.apprenticeship` poses it
+exactly, for small games), here as the numerical models the gridworld study plays.
+
 One object carries what a human or a robot may read (docs/design.md §1-3): the MaxEnt model
 of the learning phase (its dynamics, the trials' features and the robot's :math:`\\lambda`),
 the model of the deployment phase (the regret-optimal human plans for it), and, in a

@@ -141,24 +141,15 @@ def _demonstrations(
 
 def _estimates(
     game: Apprenticeship, specs: Sequence[TrialSpec], demos: np.ndarray, seeds: np.ndarray
-) -> list[Estimate]:
-    """Every trial's estimate by its robot, one call per robot; as a list with one
-    single-trial :class:`Estimate` per trial (in order)."""
-    estimates: list[Estimate | None] = [None] * len(specs)
+) -> list[tuple[Estimate, int]]:
+    """Every trial's estimate by its robot, one call per robot: for each trial, in order, its
+    robot's :class:`Estimate` of the batch it watched and the trial's row in it."""
+    fitted: list[tuple[Estimate, int] | None] = [None] * len(specs)
     for robot, rows in _by(specs, "robot").items():
         found = ROBOTS[robot].estimate(game.take(rows), demos[rows], seeds[rows])
         for index, row in enumerate(rows):
-            estimates[row] = Estimate(
-                theta_hat=found.theta_hat[index],
-                log_likelihood=found.log_likelihood[index],
-                iterations=found.iterations[index],
-                converged=found.converged[index],
-                theta_hat_se=None if found.theta_hat_se is None else found.theta_hat_se[index],
-                effective_sample_size=None
-                if found.effective_sample_size is None
-                else found.effective_sample_size[index],
-            )
-    return estimates  # type: ignore[return-value]
+            fitted[row] = (found, index)
+    return fitted  # type: ignore[return-value]
 
 
 def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
@@ -183,8 +174,8 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     game = Apprenticeship(learning, deployment, _hypotheses(specs, learning, theta), first.teaching)
     seeds = np.array([spec.seed for spec in specs], dtype=np.int64)
     demos = _demonstrations(game, specs, theta, seeds)
-    estimates = _estimates(game, specs, demos, seeds)
-    theta_hat = np.array([estimate.theta_hat for estimate in estimates])
+    fitted = _estimates(game, specs, demos, seeds)
+    theta_hat = np.array([estimate.theta_hat[row] for estimate, row in fitted])
     measures = {
         "regret": regret(deployment, theta, theta_hat),
         "kl": trajectory_kl(deployment, theta, theta_hat),
@@ -202,17 +193,7 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
                 states=_cells(grid, demos[b]), actions=tuple(path_actions(grid, demos[b]))
             ),
             measures=Measures(**{name: float(values[b]) for name, values in measures.items()}),
-            theta_hat_se=None
-            if estimates[b].theta_hat_se is None
-            else tuple(float(v) for v in estimates[b].theta_hat_se),
-            effective_sample_size=None
-            if estimates[b].effective_sample_size is None
-            else float(estimates[b].effective_sample_size),
-            irl=FitDiagnostics(
-                log_likelihood=float(estimates[b].log_likelihood),
-                iterations=int(estimates[b].iterations),
-                converged=bool(estimates[b].converged),
-            ),
+            **_fit_fields(*fitted[b]),
             deployment=Deployment(
                 starts=tuple(grid.coords(path[b, 0]) for path in rollouts),
                 paths=tuple(_cells(grid, path[b]) for path in rollouts),
@@ -220,6 +201,23 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
         )
         for b, spec in enumerate(specs)
     ]
+
+
+def _fit_fields(estimate: Estimate, row: int) -> dict[str, object]:
+    """The record's fields of the robot's fit of trial ``row`` of ``estimate``."""
+    return {
+        "theta_hat_se": None
+        if estimate.theta_hat_se is None
+        else tuple(float(v) for v in estimate.theta_hat_se[row]),
+        "effective_sample_size": None
+        if estimate.effective_sample_size is None
+        else float(estimate.effective_sample_size[row]),
+        "irl": FitDiagnostics(
+            log_likelihood=float(estimate.log_likelihood[row]),
+            iterations=int(estimate.iterations[row]),
+            converged=bool(estimate.converged[row]),
+        ),
+    }
 
 
 def _hypotheses(

@@ -76,15 +76,20 @@ def batch_memory(pipeline: Pipeline) -> int:
     cells and ``K`` the largest feature level. An upper bound: measured peaks of a batch of
     250 best-response trials at ``K = 10``, ``T = 9`` are 0.17 GB on 10 x 10 cells (bound
     0.23) and 2.0 GB on 40 x 40 (bound 3.7). A teaching study adds the enumeration of its
-    learning phase's paths (:data:`ENUMERATION_BYTES_PER_PATH` each).
+    learning phase's paths (:data:`ENUMERATION_BYTES_PER_PATH` each) and, for the
+    hypotheses' log-partitions, each trial's features once per hypothesis
+    (``MAX_BATCH H S K 8`` bytes).
     """
     game = pipeline.game
     steps = max(game.learning_steps, game.deployment_steps) + 1
     k = max(game.feature_levels)
     trials = MAX_BATCH * steps * game.width * game.height * (5 + k + k * k) * 8
-    if pipeline.teaching is None:
+    teaching = pipeline.teaching
+    if teaching is None:
         return trials
-    return trials + ENUMERATION_BYTES_PER_PATH * pipeline.teaching.learning_paths
+    # The hypotheses' log-partitions repeat each trial's features once per hypothesis.
+    repeated = MAX_BATCH * teaching.hypotheses * game.width * game.height * k * 8
+    return trials + repeated + ENUMERATION_BYTES_PER_PATH * teaching.learning_paths
 
 
 def check_resources(pipeline: Pipeline) -> None:
