@@ -7,7 +7,8 @@ import numpy as np
 import path_enumeration as bf
 import pytest
 
-from cirl_study.core.players import HUMANS, Human, register_human
+from cirl_study.core.estimate import Estimate
+from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot, register_human, register_robot
 from cirl_study.core.trial import check_playable, play_trials
 from cirl_study.record import (
     MAP,
@@ -380,3 +381,42 @@ def test_a_registered_human_is_checked_like_the_paper_s(toy_humans):
         check_playable(_spec(STAY_PUT, theta))  # eta is None for a policy that needs it
     with pytest.raises(ValueError):
         register_human(LAST_PATH, Human(_last_path, takes_eta=False))
+
+
+def test_each_demonstration_is_played_once_for_every_robot_that_watches_it(toy_humans):
+    # Three robots watch two demonstrations (seeds 7 and 8) of the same policy: the human is
+    # asked once, for the two distinct ones, and every robot's record holds its demonstration.
+    theta = (0.4, -0.7, 0.1)
+    shown = [
+        msgspec.structs.replace(
+            _spec(STAY_PUT, theta, trial_id=f"stay-{seed}-{robot}"),
+            eta=float(seed),
+            seed=seed,
+            robot=robot,
+        )
+        for seed in (7, 8)
+        for robot in ("map", "prior_mean-test", "map-again-test")
+    ]
+    prior_mean = Robot(
+        lambda game, demos, seeds: Estimate(
+            theta_hat=np.zeros((len(demos), game.learning.features.shape[2])),
+            log_likelihood=np.zeros(len(demos)),
+            iterations=np.zeros(len(demos), dtype=np.int64),
+            converged=np.ones(len(demos), dtype=bool),
+        )
+    )
+    register_robot("prior_mean-test", prior_mean)
+    register_robot("map-again-test", ROBOTS["map"])
+    try:
+        records = play_trials(shown)
+    finally:
+        del ROBOTS["prior_mean-test"], ROBOTS["map-again-test"]
+    assert len(toy_humans) == 1
+    np.testing.assert_array_equal(toy_humans[0], [7.0, 8.0])  # one row per demonstration
+    for record, spec in zip(records, shown, strict=True):
+        assert record.trial_id == spec.trial_id and record.robot == spec.robot
+        assert record.demonstration.states == (record.start,) * (record.learning_steps + 1)
+    by_robot = {r.robot: r for r in records if r.seed == 7}
+    assert by_robot["prior_mean-test"].theta_hat == (0.0, 0.0, 0.0)
+    assert by_robot["map"].theta_hat == by_robot["map-again-test"].theta_hat
+    assert by_robot["map"].theta_hat != (0.0, 0.0, 0.0)

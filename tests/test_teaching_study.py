@@ -174,8 +174,8 @@ REFUSALS: list[tuple[str, Callable[[], str], str]] = [
         lambda: smoke_text(
             policies='["expert", "pedagogic"]', sweep=False, extra=teaching_text(alpha='"1.0"')
         ),
-        "teaching.alpha must be a number in [0.001, 1000] (from all but literal to all but the "
-        'most telling path), got "1.0"',
+        "teaching.alpha must be a number in [0.001, 1000] (from a choice all but uniform to all "
+        'but the mode), got "1.0"',
     ),
     (
         "an unknown demonstration",

@@ -566,7 +566,9 @@ def _has_sweep(top: _Table) -> bool:
 PEDAGOGIC_CHOICES = ("draw", "mode")
 """How the pedagogic human picks her path from her distribution."""
 
-ALPHA = Limits(1e-3, 1e3, "from all but literal to all but the most telling path")
+PEDAGOGIC_ALPHA = Limits(1e-3, 1e3, "from a choice all but uniform to all but the mode")
+"""The pedagogic exponent alpha: at 1e-3 the pedagogic human's choice is all but uniform over
+the paths, at 1e3 all but certain to be the most telling path (``demonstration = "mode"``)."""
 
 
 def _teaching(top: _Table, game: GameSpec, main: MainSpec) -> TeachingSpec | None:
@@ -602,7 +604,7 @@ def _teaching(top: _Table, game: GameSpec, main: MainSpec) -> TeachingSpec | Non
     return TeachingSpec(
         hypotheses=block.integer("hypotheses", 2, "an integer of at least 2"),
         includes_truth=block.boolean("includes_truth"),
-        alpha=block.number_in("alpha", ALPHA),
+        alpha=block.number_in("alpha", PEDAGOGIC_ALPHA),
         demonstration=block.choice("demonstration", PEDAGOGIC_CHOICES),
         learning_paths=paths,
     )
