@@ -50,8 +50,11 @@ that needs more is refused before its first trial."""
 SUM_FLOOR = 1e-280
 """Smallest pedagogic normaliser summed directly; below it the sum is redone in log space."""
 
+
 BOX = (-1.0, 1.0)
-"""Support of the uniform prior each hypothesis is drawn from, per coordinate."""
+"""Support of the uniform prior each hypothesis is drawn from, per coordinate (the box of the
+MAP robot, :data:`cirl_study.core.robot.BOX`, which cannot be imported here: the robots'
+game imports this module)."""
 
 
 def path_count(phase: Phase) -> int:
