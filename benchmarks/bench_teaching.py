@@ -1,17 +1,19 @@
-"""Time the teaching players at the paper's size and say where the time goes.
+"""Time the teaching players of ``pipelines/teaching.toml`` and say where the time goes.
 
 Usage::
 
-    python benchmarks/bench_teaching.py [--trials 8] [--repeats 3] [--hypotheses 64] [--k 10]
+    python benchmarks/bench_teaching.py [--draws 8] [--repeats 3] [--k 10]
 
-Plays ``--trials`` trials per pair of human and robot (10x10 grid, start [5, 5], 9 + 9 steps,
-sigma and lambda from ``pipelines/paper.toml``, ``--hypotheses`` reward hypotheses with the
-truth among them) in one process on one core, ``--repeats`` times, and prints the median wall
-time per trial of each whole trial (:func:`cirl_study.core.trial.play_trials`) and of the
-stages the teaching players add: the one-off enumeration of the learning phase's visit
-classes, the hypotheses' log-partitions, one pass over the classes (the pedagogic normaliser
-and the human's teaching weights) and one MAP fit (the regret-optimal search makes many).
-The first (compiling, enumerating) call is not timed; the enumeration is timed on its own.
+Takes the first ``--draws`` reward draws at ``--k`` features of the teaching pipeline's main
+block, exactly as it plans them (10x10 grid, start [5, 5], 9 + 9 steps, 64 hypotheses with the
+truth, alpha = 10; the best response at eta = 1), and plays them in one process on one core,
+``--repeats`` times. It prints the median wall time per trial of each human and robot pair
+(:func:`cirl_study.core.trial.play_trials`), of all the pipeline's trials of a draw played
+together (each demonstration once for every robot, each normaliser once for every human), and
+of the stages the teaching players add: the hypotheses' log-partitions, one pass over the
+visit classes (the pedagogic normaliser and the human's teaching weights) and one MAP fit (the
+regret-optimal search makes many). The one-off enumeration of the visit classes is timed on
+its own; every other first (compiling) call is not timed.
 """
 
 from __future__ import annotations
@@ -19,43 +21,21 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 
-from cirl_study.core.gridworld import Gridworld, rbf_features
+from cirl_study.core.gridworld import feature_matrix, gridworld
 from cirl_study.core.hypotheses import HypothesisSpace, VisitClasses, draw_hypotheses
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.robot import map_estimate
 from cirl_study.core.trial import play_trials
-from cirl_study.record import (
-    BEST_RESPONSE,
-    EXPERT,
-    LITERAL,
-    LITERAL_ROBOT,
-    MAP,
-    PEDAGOGIC,
-    PRAGMATIC,
-    REGRET_OPTIMAL,
-    Grid,
-    RBFFeatures,
-    Teaching,
-    TrialSpec,
-)
+from cirl_study.record import MAIN
+from cirl_study.study.plan import study_trials
+from cirl_study.study.spec import load_pipeline
 
-PAPER = Path(__file__).resolve().parents[1] / "pipelines" / "paper.toml"
-PAIRS = [
-    (EXPERT, MAP),
-    (BEST_RESPONSE, MAP),
-    (LITERAL, LITERAL_ROBOT),
-    (PEDAGOGIC, LITERAL_ROBOT),
-    (EXPERT, PRAGMATIC),
-    (PEDAGOGIC, PRAGMATIC),
-    (REGRET_OPTIMAL, MAP),
-]
-"""Human and robot pairs timed: each teaching player once, and the pedagogic pair."""
+TEACHING = Path(__file__).resolve().parents[1] / "pipelines" / "teaching.toml"
 
 
 def median_seconds(run: Callable[[], object], repeats: int) -> float:
@@ -71,18 +51,31 @@ def median_seconds(run: Callable[[], object], repeats: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--trials", type=int, default=8)
+    parser.add_argument("--draws", type=int, default=8)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--hypotheses", type=int, default=64)
     parser.add_argument("--k", type=int, default=10)
     options = parser.parse_args()
-    pipeline = tomllib.loads(PAPER.read_text())
-    game, rationality = pipeline["game"], pipeline["main"]["rationality"]
-    etas = tuple(pipeline["eta_cv"]["etas"])
-    grid = Gridworld(game["width"], game["height"])
-    phase = Phase(grid.successors, grid.index(*game["start"]), game["learning_steps"])
-    n, k = options.trials, options.k
+    pipeline = load_pipeline(TEACHING)
+    teaching = pipeline.teaching
+    assert teaching is not None
+    etas = {
+        (None, policy, k): 1.0
+        for policy in pipeline.policies_with_eta
+        for k in pipeline.game.feature_levels
+    }
+    planned = [
+        t for t in study_trials(pipeline, etas) if t.block == MAIN and t.num_features == options.k
+    ]
+    subjects = sorted({t.subject for t in planned})[: options.draws]
+    trials = [t for t in planned if t.subject in subjects]
+    first = [next(t for t in trials if t.subject == s) for s in subjects]
 
+    grid = gridworld(first[0])
+    phase = Phase(
+        grid.demonstrator_moves(first[0].demonstrator_stays),
+        grid.index(*first[0].start),
+        first[0].learning_steps,
+    )
     begin = time.perf_counter()
     classes = VisitClasses.of(phase)
     enumeration = time.perf_counter() - begin
@@ -91,13 +84,14 @@ def main() -> None:
         f"{classes.multiplicity.sum():,} paths in {classes.size:,} classes"
     )
 
-    rng = np.random.default_rng(k)
-    centers = rng.uniform(0, [game["width"] - 1, game["height"] - 1], size=(n, k, 2))
-    theta = rng.uniform(-1, 1, size=(n, k))
-    features = rbf_features(grid, centers, game["sigma"])
-    model = MaxEnt(phase, features, rationality)
-    thetas = draw_hypotheses(theta, np.arange(n), options.hypotheses, includes_truth=True)
-    space = HypothesisSpace(model, thetas, True, 1.0)
+    n = len(first)
+    theta = np.array([t.theta for t in first])
+    model = MaxEnt(phase, np.stack([feature_matrix(t) for t in first]), first[0].rationality)
+    seeds = np.array([t.teaching.hypothesis_seed for t in first])  # type: ignore[union-attr]
+    thetas = draw_hypotheses(
+        theta, seeds, teaching.hypotheses, includes_truth=teaching.includes_truth
+    )
+    space = HypothesisSpace(model, thetas, teaching.includes_truth, teaching.alpha)
     demos = np.array([classes.paths[0]] * n, dtype=np.int64)
 
     def one_pass() -> None:
@@ -106,50 +100,26 @@ def main() -> None:
 
     stages = {
         "log-partitions of the hypotheses": lambda: (
-            HypothesisSpace(model, thetas, True, 1.0).log_partition
+            HypothesisSpace(model, thetas, teaching.includes_truth, teaching.alpha).log_partition
         ),
         "one pass over the classes": one_pass,
         "one MAP fit": lambda: map_estimate(model, demos),
     }
-    print(f"K = {k}, H = {options.hypotheses}, {n} trials, median of {options.repeats}:")
+    print(
+        f"K = {options.k}, H = {teaching.hypotheses}, alpha = {teaching.alpha:g}, {n} reward "
+        f"draws, median of {options.repeats}, ms per trial:"
+    )
     for name, run in stages.items():
-        print(f"  {name:<36} {1e3 * median_seconds(run, options.repeats) / n:9.1f} ms/trial")
-
-    for human, robot in PAIRS:
-        specs = [
-            TrialSpec(
-                trial_id=f"{human}-{robot}-{i}",
-                run_id="bench",
-                block="main",
-                subject=f"s{i}",
-                policy=human,
-                num_features=k,
-                rationality=rationality,
-                eta=1.0 if human == BEST_RESPONSE else None,
-                seed=i,
-                grid=Grid(width=game["width"], height=game["height"]),
-                start=tuple(game["start"]),
-                learning_steps=game["learning_steps"],
-                deployment_steps=game["deployment_steps"],
-                features=RBFFeatures(
-                    centers=tuple(map(tuple, centers[i].tolist())), sigma=game["sigma"]
-                ),
-                theta=tuple(theta[i].tolist()),
-                robot=robot,
-                teaching=Teaching(
-                    hypotheses=options.hypotheses,
-                    includes_truth=True,
-                    hypothesis_seed=i,
-                    alpha=1.0,
-                    demonstration="draw",
-                    search_etas=etas,
-                ),
-            )
-            for i in range(n)
-        ]
+        print(f"  {name:<40} {1e3 * median_seconds(run, options.repeats) / n:9.1f}")
+    for pair in dict.fromkeys((t.policy, t.robot) for t in trials):
+        specs = [t for t in trials if (t.policy, t.robot) == pair]
         seconds = median_seconds(lambda specs=specs: play_trials(specs), options.repeats)
-        label = f"whole trial, {human} + {robot}"
-        print(f"  {label:<36} {1e3 * seconds / n:9.1f} ms/trial")
+        label = f"whole trial, {pair[0]} + {pair[1]}"
+        print(f"  {label:<40} {1e3 * seconds / len(specs):9.1f}")
+    seconds = median_seconds(lambda: play_trials(trials), options.repeats)
+    per_draw = len(trials) // n
+    label = f"all {per_draw} trials of a draw together"
+    print(f"  {label:<40} {1e3 * seconds / len(trials):9.1f} (x {per_draw} per draw)")
 
 
 if __name__ == "__main__":

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import shutil
 from collections import defaultdict
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -617,3 +618,24 @@ def test_a_hypothesis_space_too_large_for_a_batch_is_refused_before_anything_run
     pipeline = parse_pipeline(text, tmp_path / "teach.toml")
     with pytest.raises(UserError, match=r"one batch of trials would need about 93\.\d GiB"):
         check_resources(pipeline)
+
+
+@pytest.mark.parametrize("partial", [False, True])
+def test_an_incomplete_teaching_run_is_refused_whole_even_with_partial(
+    teaching_runs: TeachingRuns, tmp_path: Path, partial: bool
+) -> None:
+    """A teaching run missing one file: one line, exit 2, the resume command, no report; and no
+    advice to use ``--partial``, which a teaching study does not take."""
+    run = tmp_path / "run"
+    shutil.copytree(teaching_runs.one_worker, run)
+    next(iter(sorted(run.glob("main-*.mcap")))).unlink()
+    out = tmp_path / "report"
+    options = ["--partial"] if partial else []
+    result = CliRunner().invoke(app, ["analyze", str(run), "--out", str(out), *options])
+    assert result.exit_code == 2
+    message = result.output.strip()
+    assert len(message.splitlines()) == 1 and message.startswith("error: ")
+    assert "--partial" not in message and "cirl-study run" in message
+    if partial:
+        assert "a teaching study is analysed only whole" in message
+    assert not out.exists()

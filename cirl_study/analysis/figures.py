@@ -18,7 +18,7 @@ plus :data:`STYLE`, at a fixed size and :data:`DPI`, and saved as PNG without th
 from __future__ import annotations
 
 import io
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -32,6 +32,7 @@ from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 from numpy.typing import NDArray
 
+from cirl_study.analysis.markdown import svg_name
 from cirl_study.core.gridworld import feature_matrix
 from cirl_study.record import BEST_RESPONSE, MEASURES, PAPER_POLICIES, TrialRecord
 
@@ -80,6 +81,15 @@ def render(figure: Figure) -> Rendered:
     canvas.print_png(png, metadata={"Software": None})
     figure.savefig(svg, format="svg", metadata={"Date": None, "Creator": None})
     return Rendered(png.getvalue(), svg.getvalue())
+
+
+def figure_files(rendered: Mapping[str, Rendered]) -> dict[str, bytes]:
+    """The files of figures rendered under their PNG names: each PNG and its SVG twin."""
+    files = {}
+    for name, figure in rendered.items():
+        files[name] = figure.png
+        files[svg_name(name)] = figure.svg
+    return files
 
 
 def _new_figure(width: float, height: float) -> Figure:

@@ -44,6 +44,21 @@ def table(header: Sequence[str], rows: Sequence[Sequence[str]], numeric: Sequenc
     return "\n".join([line(header), line(align), *(line(row) for row in rows)])
 
 
+def svg_name(png_name: str) -> str:
+    """The file name of a figure's SVG twin, beside its PNG ``png_name``."""
+    return png_name.removesuffix(".png") + ".svg"
+
+
+def image(alt: str, png_name: str) -> str:
+    """A figure embedded by its PNG, with a link to its SVG twin."""
+    return f"![{alt}]({png_name}) ([SVG]({svg_name(png_name)}))"
+
+
+def document(sections: Sequence[Sequence[str]]) -> str:
+    """A report's text: its non-empty sections (each a list of lines), a blank line apart."""
+    return "\n\n".join("\n".join(section) for section in sections if section) + "\n"
+
+
 def anchor(heading: str) -> str:
     """The anchor GitHub gives a heading: lower case, punctuation dropped, spaces as ``-``."""
     return re.sub(r"[^a-z0-9 _-]", "", heading.strip().lower()).replace(" ", "-")

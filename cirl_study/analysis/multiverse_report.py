@@ -19,7 +19,7 @@ import pandas as pd
 
 from cirl_study.analysis import figures
 from cirl_study.analysis.claims import MEASURE_NAMES
-from cirl_study.analysis.markdown import interval, number, p_value, table
+from cirl_study.analysis.markdown import document, interval, number, p_value, table
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
 from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.results import Results, plain
@@ -314,7 +314,7 @@ def render_markdown(results: Results) -> str:
         _regression(results),
         _universes(results),
     ]
-    return "\n\n".join("\n".join(section) for section in sections if section) + "\n"
+    return document(sections)
 
 
 def render_figures(results: Results) -> dict[str, bytes]:
@@ -325,18 +325,17 @@ def render_figures(results: Results) -> dict[str, bytes]:
         [{axis: level_label(u["settings"][axis]) for axis in varied} for u in results["universes"]],
         index=[u["id"] for u in results["universes"]],
     )
-    files = {}
-    for measure in MEASURES:
-        rendered = figures.specification_curve(
-            effects[effects["measure"] == measure],
-            choices,
-            measure,
-            results["base_universe"],
-        )
-        name = FIGURE_NAMES[measure]
-        files[name] = rendered.png
-        files[name.removesuffix(".png") + ".svg"] = rendered.svg
-    return files
+    return figures.figure_files(
+        {
+            FIGURE_NAMES[measure]: figures.specification_curve(
+                effects[effects["measure"] == measure],
+                choices,
+                measure,
+                results["base_universe"],
+            )
+            for measure in MEASURES
+        }
+    )
 
 
 def write_multiverse_report(

@@ -17,7 +17,16 @@ import pandas as pd
 
 from cirl_study.analysis import figures
 from cirl_study.analysis.claims import MEASURE_NAMES, SIGNIFICANCE, evaluate_claims
-from cirl_study.analysis.markdown import anchor, interval, number, p_value, table
+from cirl_study.analysis.markdown import (
+    anchor,
+    document,
+    image,
+    interval,
+    number,
+    p_value,
+    svg_name,
+    table,
+)
 from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.results import Results, analyse, plain
 from cirl_study.analysis.table import check_design, trial_table
@@ -75,17 +84,13 @@ def _link(key: str) -> str:
     return f"[{key}]({key})"
 
 
-def _image(alt: str, name: str) -> str:
-    """A figure embedded by its PNG, with a link to its SVG twin."""
-    return f"![{alt}]({name}) ([SVG]({_svg_name(name)}))"
-
-
 def _heading(level: int, key: str) -> str:
     return f"{'#' * level} {HEADINGS[key]}"
 
 
-def _formatted(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> list[list[str]]:
-    """The cells of ``rows``: a measure by its short name, a p-value, a text, or a number."""
+def formatted(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> list[list[str]]:
+    """The cells of ``rows``: a measure by its short name, a p-value, a text, or a number (every
+    report's tables; a column is a field of the rows or a function of a row)."""
 
     def cell(row: Mapping[str, Any], column: Column) -> str:
         if callable(column):
@@ -145,7 +150,7 @@ def _cells(results: Results) -> list[str]:
         "",
         table(header, rows, [False, True, False, True, True, True]),
         "",
-        _image("Figure 2, left: the three measures by policy and number of features", name),
+        image("Figure 2, left: the three measures by policy and number of features", name),
     ]
 
 
@@ -155,7 +160,7 @@ def _anova_table(rows: Sequence[Mapping[str, Any]]) -> str:
     def degrees(row: Mapping[str, Any]) -> str:
         return f"{row['df1']}, {row['df2']}"
 
-    cells = _formatted(rows, ["measure", "effect", degrees, "F", "p", "np2", "ges"])
+    cells = formatted(rows, ["measure", "effect", degrees, "F", "p", "np2", "ges"])
     header = ["measure", "effect", "df", "F", "p", "partial η²", "generalised η²"]
     return table(header, cells, [False, False, True, True, True, True, True])
 
@@ -188,7 +193,7 @@ def _simple_effects(results: Results) -> list[str]:
             f"{number(row['d_z'])} {interval(row['boot_d_z_low'], row['boot_d_z_high'], 3)}"
         ),
     ]
-    rows = _formatted(results["simple_effects"], columns)
+    rows = formatted(results["simple_effects"], columns)
     header = [
         "measure",
         "features",
@@ -219,7 +224,7 @@ def _tukey(results: Results) -> list[str]:
         return lambda row: f"{POLICY_NAMES[row[f'{side}_policy']]}, {row[f'{side}_num_features']}"
 
     columns = ["measure", cell("a"), cell("b"), "diff", "se", "T", "p_tukey", "hedges"]
-    rows = _formatted(results["tukey_hsd"], columns)
+    rows = formatted(results["tukey_hsd"], columns)
     header = ["measure", "cell A", "cell B", "mean A − mean B", "SE", "T", "p (Tukey)", "Hedges g"]
     return [
         _heading(3, "tukey_hsd"),
@@ -238,9 +243,7 @@ def _tukey(results: Results) -> list[str]:
 
 
 def _wilcoxon(results: Results) -> list[str]:
-    rows = _formatted(
-        results["wilcoxon"], ["measure", "num_features", "n", "W", "p", "rbc", "cles"]
-    )
+    rows = formatted(results["wilcoxon"], ["measure", "num_features", "n", "W", "p", "rbc", "cles"])
     header = ["measure", "features", "n", "W", "p", "rank-biserial r", "CLES"]
     return [
         _heading(3, "wilcoxon"),
@@ -315,7 +318,7 @@ def _lambda_sweep(results: Results) -> list[str]:
         "",
         _certification(results),
         "",
-        _image("Figure 2, right: regret against lambda", name),
+        image("Figure 2, right: regret against lambda", name),
     ]
 
 
@@ -406,7 +409,7 @@ def _eta_cv(results: Results) -> list[str]:
         "",
         _grid_table(means, "eta", "η", columns),
         "",
-        _image("eta cross-validation", name),
+        image("eta cross-validation", name),
     ]
 
 
@@ -416,7 +419,7 @@ def _figure1(results: Results) -> list[str]:
     return [
         _heading(2, "figure1"),
         "",
-        _image("Figure 1: true reward and both demonstrations over their MAP rewards", name),
+        image("Figure 1: true reward and both demonstrations over their MAP rewards", name),
         "",
         f"Reward draw `{chosen['subject']}` ({chosen['num_features']} features), chosen as "
         f"{chosen['rule']}: regret {number(chosen['regret_expert'])} after the expert's "
@@ -516,7 +519,7 @@ def _robots(results: Results) -> list[str]:
         "",
         table(
             paired_header,
-            _formatted(robots["main"], paired_columns),
+            formatted(robots["main"], paired_columns),
             [False, True, False, *[True] * 8],
         ),
     ]
@@ -541,11 +544,11 @@ def _robots(results: Results) -> list[str]:
         "",
         table(
             ["λ", *paired_header[1:8], "p (Holm)"],
-            _formatted(regret, sweep_columns),
+            formatted(regret, sweep_columns),
             [True, True, False, *[True] * 6],
         ),
         "",
-        _image("Regret difference of the two robots against lambda", name),
+        image("Regret difference of the two robots against lambda", name),
     ]
 
 
@@ -628,7 +631,7 @@ def render_markdown(results: Results) -> str:
         _robots(results),
         _rules(results),
     ]
-    return "\n\n".join("\n".join(section) for section in sections if section) + "\n"
+    return document(sections)
 
 
 def _figure1_records(
@@ -679,15 +682,7 @@ def render_figures(
         pngs[FIGURES["robots"][0]] = figures.robot_difference_curve(
             pd.DataFrame(robots["lambda_sweep"]), robots["reference"], robots["other"]
         )
-    files = {}
-    for name, rendered in pngs.items():
-        files[name] = rendered.png
-        files[_svg_name(name)] = rendered.svg
-    return files
-
-
-def _svg_name(png_name: str) -> str:
-    return png_name.removesuffix(".png") + ".svg"
+    return figures.figure_files(pngs)
 
 
 def write_report(
@@ -744,7 +739,7 @@ def write_report(
         results["theory"] = plain(theory)
     progress("figures")
     pngs = render_figures(trials, records_of, results)
-    names = [n for png_name, _ in FIGURES.values() for n in (png_name, _svg_name(png_name))]
+    names = [n for png_name, _ in FIGURES.values() for n in (png_name, svg_name(png_name))]
     write_report_directory(
         out_dir,
         markdown=render_markdown(results),

@@ -17,9 +17,9 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.analysis import figures
-from cirl_study.analysis.claims import MEASURE_NAMES
-from cirl_study.analysis.markdown import interval, number, p_value, table
+from cirl_study.analysis.markdown import document, image, interval, number, table
 from cirl_study.analysis.output import write_report_directory
+from cirl_study.analysis.report import formatted
 from cirl_study.analysis.results import Results
 from cirl_study.analysis.table import trial_table
 from cirl_study.analysis.teaching import ALPHA, analyse_teaching
@@ -100,59 +100,37 @@ def _cells(results: Results) -> list[str]:
         "",
         table(
             ["measure", "K", "human", "robot", "n", "mean", "95% CI (t)"],
-            [
-                [
-                    MEASURE_NAMES[r["measure"]],
-                    str(r["num_features"]),
-                    r["policy"],
-                    r["robot"],
-                    str(r["n"]),
-                    number(r["mean"]),
-                    interval(r["ci95_low"], r["ci95_high"]),
-                ]
-                for r in results["cells"]
-            ],
+            formatted(
+                results["cells"],
+                ["measure", "num_features", "policy", "robot", "n", "mean", _interval],
+            ),
             [False, True, False, False, True, True, True],
         ),
         "",
-        f"![Every measure by human, robot and number of features]({FIGURE}) "
-        f"([SVG]({FIGURE.removesuffix('.png')}.svg))",
+        image("Every measure by human, robot and number of features", FIGURE),
     ]
 
 
+def _interval(row: Mapping[str, Any]) -> str:
+    return interval(row["ci95_low"], row["ci95_high"])
+
+
 def _paired_table(rows: Sequence[Mapping[str, Any]], group: str, label: str) -> str:
+    """Paired differences of ``label`` against its baseline per ``group`` and feature level."""
     return table(
         [
-            "measure",
-            group,
-            "K",
-            label,
-            "n",
-            "mean difference",
-            "95% CI",
-            "t",
-            "p",
-            "p (Holm)",
-            "d_z",
+            "measure", group, "K", label, "n", "mean difference", "95% CI", "t", "p",
+            "p (Holm)", "d_z",
         ],
-        [
+        formatted(
+            rows,
             [
-                MEASURE_NAMES[r["measure"]],
-                str(r[group]),
-                str(r["num_features"]),
-                str(r["level"]),
-                str(r["n"]),
-                number(r["mean_diff"]),
-                interval(r["ci95_low"], r["ci95_high"]),
-                number(r["t"]),
-                p_value(r["p"]),
-                p_value(r["p_holm"]),
-                number(r["d_z"]),
-            ]
-            for r in rows
-        ],
+                "measure", group, "num_features", "level", "n", "mean_diff", _interval, "t",
+                "p", "p_holm", "d_z",
+            ],
+        ),
         [False, False, True, False, True, True, True, True, True, True, True],
-    )
+    )  # fmt: skip
 
 
 def _against_expert(results: Results) -> list[str]:
@@ -172,17 +150,10 @@ def _milli_dragan(results: Results) -> list[str]:
         return []
     anova = table(
         ["measure", "effect", "df", "F", "p", "partial η²"],
-        [
-            [
-                MEASURE_NAMES[r["measure"]],
-                r["effect"],
-                f"{r['df1']}, {r['df2']}",
-                number(r["F"]),
-                p_value(r["p"]),
-                number(r["np2"]),
-            ]
-            for r in square["anova"]
-        ],
+        formatted(
+            square["anova"],
+            ["measure", "effect", lambda r: f"{r['df1']}, {r['df2']}", "F", "p", "np2"],
+        ),
         [False, False, True, True, True, True],
     )
     pooled = [
@@ -234,21 +205,14 @@ def _regret_optimal(results: Results) -> list[str]:
         table(
             ["K", "human", "n", "mean regret", "regret-optimal", "gap", "95% CI", "p",
              "smallest gap", "as good as the best found"],
-            [
+            formatted(
+                optimal["gaps"],
                 [
-                    str(g["num_features"]),
-                    g["policy"],
-                    str(g["n"]),
-                    number(g["mean_policy"]),
-                    number(g["mean_regret_optimal"]),
-                    number(g["mean_gap"]),
-                    interval(g["ci95_low"], g["ci95_high"]),
-                    p_value(g["p"]),
-                    number(g["smallest_gap"]),
-                    f"{100 * g['share_optimal']:.1f}%",
-                ]
-                for g in optimal["gaps"]
-            ],
+                    "num_features", "policy", "n", "mean_policy", "mean_regret_optimal",
+                    "mean_gap", _interval, "p", "smallest_gap",
+                    lambda g: f"{100 * g['share_optimal']:.1f}%",
+                ],
+            ),
             [True, False, True, True, True, True, True, True, True, True],
         ),
     ]  # fmt: skip
@@ -283,7 +247,7 @@ def render_markdown(results: Results) -> str:
         _eta(results),
         ["Every number at full precision is in `results.json`; every trial in `trials.csv`."],
     ]
-    return "\n\n".join("\n".join(section) for section in sections if section) + "\n"
+    return document(sections)
 
 
 def write_teaching_report(
@@ -319,7 +283,7 @@ def write_teaching_report(
         markdown=render_markdown(results),
         results=results,
         tables={"trials.csv": trial_table(trials)},
-        figures={FIGURE: rendered.png, FIGURE.removesuffix(".png") + ".svg": rendered.svg},
+        figures=figures.figure_files({FIGURE: rendered}),
         provenance=provenance,
     )
     return results

@@ -6,9 +6,12 @@ import datetime
 import json
 import sys
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
+
+if TYPE_CHECKING:
+    from cirl_study.study.spec import Pipeline
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``analyze`` command, merged into :data:`cirl_study.cli.app`."""
@@ -95,17 +98,16 @@ def analyze(
     pipeline = run_pipeline_of(contents.identity)
     audit = audit_run(pipeline, contents.rows)
     faults = audit.faults(resume_command(contents.identity, run))
+    only_whole = _analysed_only_whole(pipeline)
     if audit.foreign or (faults and not partial):
-        whole = audit.foreign or pipeline.multiverse is not None
-        advice = "" if whole else ", or analyze it with --partial"
+        advice = "" if audit.foreign or only_whole else ", or analyze it with --partial"
         raise UserError(f"{run}: not a complete run: {faults[0]}{advice}")
     trials, left_out = contents.rows, []
     partial_run = None
     complete = audit.complete and not contents.damaged
-    if pipeline.multiverse is not None and not complete:
+    if only_whole and not complete:
         raise UserError(
-            f"{run}: a multiverse is analysed only whole (its universes share the reward "
-            f"draws); resume it with `{resume_command(contents.identity, run)}`"
+            f"{run}: {only_whole}; resume it with `{resume_command(contents.identity, run)}`"
         )
     if partial and not complete:
         trials, left_out = complete_main_subjects(trials)
@@ -148,11 +150,6 @@ def analyze(
         )
         return
     if pipeline.teaching is not None:
-        if not complete:
-            raise UserError(
-                f"{run}: a teaching study is analysed only whole; resume it with "
-                f"`{resume_command(contents.identity, run)}`"
-            )
         teaching = write_teaching_report(
             trials,
             target,
@@ -189,6 +186,18 @@ def analyze(
         f"{reproduced} reproduced, {len(claims) - reproduced - untested} not reproduced, "
         f"{untested} not tested"
     )
+
+
+def _analysed_only_whole(pipeline: Pipeline) -> str | None:
+    """Why a run of ``pipeline`` has no partial report, or ``None`` when it may have one."""
+    if pipeline.multiverse is not None:
+        return "a multiverse is analysed only whole (its universes share the reward draws)"
+    if pipeline.teaching is not None:
+        return (
+            "a teaching study is analysed only whole (it compares every human with every "
+            "robot on each reward draw)"
+        )
+    return None
 
 
 def _refuse_another_runs_report(target: Path, run_id: str) -> None:
