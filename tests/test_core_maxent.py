@@ -6,6 +6,7 @@ demonstration and the first two moments of the feature counts; every one is comp
 the same quantity summed over every enumerated path.
 """
 
+import mpmath
 import numpy as np
 import path_enumeration as bf
 import pytest
@@ -297,3 +298,50 @@ def test_moments_without_covariance_keep_the_mean():
     np.testing.assert_array_equal(mean_only.mean, full.mean)
     np.testing.assert_array_equal(mean_only.log_partition, full.log_partition)
     np.testing.assert_array_equal(mean_only.covariance, 0.0)
+
+
+@pytest.mark.parametrize("rationality", [10.0, 100.0, 1000.0])
+@pytest.mark.parametrize("seed", range(4))
+def test_off_demonstration_covariance_keeps_its_relative_accuracy(seed, rationality):
+    # Where the mass outside the demonstration's class sits almost all on one path (large
+    # lambda), its covariance is tiny beside the squared counts. Against a 50-digit sum path by
+    # path, every entry is accurate relative to the variances, down to a floor set by the
+    # rounding of the mean in double precision (eps |E_q Delta|)^2, not by the counts' size.
+    width, height, start, horizon = 4, 3, 5, 4
+    rng, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=seed)
+    demo = paths[rng.integers(len(paths))]
+    theta = rng.uniform(-1, 1, size=(1, 3))
+    model = _model(features, width, height, start, horizon, rationality)
+    off = model.off_demonstration(theta, model.demonstration_classes(demo[None]))
+    same = np.array([sorted(p[1:]) == sorted(demo[1:]) for p in paths.tolist()])
+    delta = counts[~same] - bf.feature_counts(demo[None], features)[0]
+    with mpmath.workdps(50):
+        scores = [
+            rationality * mpmath.fsum(mpmath.mpf(d) * t for d, t in zip(row, theta[0], strict=True))
+            for row in delta
+        ]
+        top = max(scores)
+        weights = [mpmath.exp(s - top) for s in scores]
+        total = mpmath.fsum(weights)
+        q = [w / total for w in weights]
+        mean = [
+            mpmath.fsum(qi * mpmath.mpf(row[i]) for qi, row in zip(q, delta, strict=True))
+            for i in range(3)
+        ]
+        covariance = np.array(
+            [
+                [
+                    float(
+                        mpmath.fsum(
+                            qi * (mpmath.mpf(row[i]) - mean[i]) * (mpmath.mpf(row[j]) - mean[j])
+                            for qi, row in zip(q, delta, strict=True)
+                        )
+                    )
+                    for j in range(3)
+                ]
+                for i in range(3)
+            ]
+        )
+    scale = np.sqrt(np.outer(np.diag(covariance), np.diag(covariance)))
+    floor = (8 * np.finfo(float).eps * np.abs(np.array(mean, dtype=float)).max()) ** 2
+    np.testing.assert_array_less(np.abs(off.covariance[0] - covariance), 1e-9 * scale + floor)

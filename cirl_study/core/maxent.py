@@ -50,7 +50,6 @@ from cirl_study.core.planning import (
     FloatArray,
     IntArray,
     backward_future_counts,
-    backward_future_covariance,
     forward_visitation,
     reachable_cells,
     soft_backup,
@@ -141,14 +140,14 @@ class DemonstrationClass:
 
     def take(self, rows: IntArray) -> DemonstrationClass:
         """The classes of the trials ``rows`` only (an index array), in that order."""
-        rows = np.asarray(rows)
+        rows = np.asarray(rows, dtype=np.int64)
         starts, ends = self.offsets[rows], self.offsets[rows + 1]
-        picked = np.concatenate(
-            [np.arange(a, b) for a, b in zip(starts, ends, strict=True)] or [np.arange(0)]
-        ).astype(np.int64)
+        offsets = np.concatenate([[0], np.cumsum(ends - starts)]).astype(np.int64)
+        # Exit j of the result is exit j - offsets[r] of row r's range, r the row it falls in.
+        picked = np.arange(offsets[-1]) + np.repeat(starts - offsets[:-1], ends - starts)
         return DemonstrationClass(
             members=self.members[rows],
-            offsets=np.concatenate([[0], np.cumsum(ends - starts)]).astype(np.int64),
+            offsets=offsets,
             step=self.step[picked],
             cell=self.cell[picked],
             shift=self.shift[picked],
@@ -248,33 +247,37 @@ class MaxEnt:
     def demonstration_classes(self, demos: IntArray) -> DemonstrationClass:
         """The count class of each trial's demonstration path ``demos[b]`` ``(B, T + 1)``.
 
-        Cells whose feature vectors are equal (bit for bit) are interchangeable in a path's
-        counts; the class of a demonstration is every path from :math:`s_0` through the same
-        multiset of feature vectors, enumerated depth-first over those cells only.
+        Cells whose feature vectors are equal are interchangeable in a path's counts; the
+        class of a demonstration is every path from :math:`s_0` through the same multiset of
+        feature vectors. Its paths are enumerated depth-first in lexicographic order of their
+        cells, and the exits listed prefix by prefix in that order, each prefix's in action
+        order (:func:`_class_exits`).
 
         Raises:
             ValueError: a class holds more than :data:`MAX_CLASS_PATHS` paths.
         """
         phase = self.phase
+        demos = np.ascontiguousarray(demos, dtype=np.int64)
         members, offsets, steps, cells, shifts = [], [0], [], [], []
-        for b, demo in enumerate(np.asarray(demos)):
-            features = self.features[b]
-            _, kind = np.unique(features, axis=0, return_inverse=True)
-            paths = _class_paths(phase.successors, phase.start_cell, demo, kind.ravel())
+        for b in range(len(demos)):
+            paths = _class_paths(phase.successors, phase.start_cell, demos[b], self.features[b])
+            if len(paths) > MAX_CLASS_PATHS:
+                raise ValueError(
+                    f"the demonstration's count class holds more than {MAX_CLASS_PATHS} paths"
+                )
+            step, cell, shift = _class_exits(phase.successors, paths, demos[b], self.features[b])
             members.append(len(paths))
-            demo_counts = features[demo[1:]].sum(axis=0)
-            for step, prefix, cell in _exits(phase.successors, paths):
-                steps.append(step)
-                cells.append(cell)
-                shifts.append(features[[*prefix[1:], cell]].sum(axis=0) - demo_counts)
-            offsets.append(len(steps))
+            steps.append(step)
+            cells.append(cell)
+            shifts.append(shift)
+            offsets.append(offsets[-1] + len(step))
         k = self.features.shape[2]
         return DemonstrationClass(
             members=np.asarray(members, dtype=np.int64),
             offsets=np.asarray(offsets, dtype=np.int64),
-            step=np.asarray(steps, dtype=np.int64),
-            cell=np.asarray(cells, dtype=np.int64),
-            shift=np.asarray(shifts, dtype=np.float64).reshape(-1, k),
+            step=np.concatenate(steps or [np.zeros(0, np.int64)]),
+            cell=np.concatenate(cells or [np.zeros(0, np.int64)]),
+            shift=np.concatenate(shifts or [np.zeros((0, k))]).reshape(-1, k),
         )
 
     def off_demonstration(
@@ -293,10 +296,23 @@ class MaxEnt:
         :math:`q_e = w_e / R`, :math:`\\mu_e = A_e + F_t(s')`,
         :math:`E_q[\\Delta] = \\sum_e q_e \\mu_e` and
         :math:`\\mathrm{Cov}_q[\\Delta] = \\sum_e q_e [C_t(s') + (\\mu_e - E_q\\Delta)(\\mu_e -
-        E_q\\Delta)^\\top]` (:func:`~cirl_study.core.planning.backward_future_counts`,
-        :func:`~cirl_study.core.planning.backward_future_covariance`). Every term is a sum of
-        non-negative weights in log space: nothing cancels when the demonstration's own class
-        holds all but :math:`10^{-300}` of the mass, which is where
+        E_q\\Delta)^\\top]` (:func:`~cirl_study.core.planning.backward_future_counts`), where
+        :math:`C_t(s')`, the covariance of the counts still to come, is never formed: the
+        mixture :math:`\\sum_e q_e C_t(s')` is the sum of the squared martingale increments
+        of the conditional mean :math:`M_u = \\phi(s_1..s_u) + F_u(s_u)`,
+
+        .. math::
+
+            \\sum_e q_e C_{t_e}(s'_e) = \\sum_{u, s} D_u(s) \\sum_a \\pi_u(a \\mid s)\\,
+            \\epsilon\\epsilon^\\top, \\qquad
+            \\epsilon = \\phi(s') + F_{u+1}(s') - F_u(s),
+
+        with :math:`D_u(s)` the mass of the paths through the exits that are in ``s`` at step
+        ``u``, carried forward from the exits in one pass: ``O(T S A K^2)`` like the backward
+        recursion for every :math:`C_t(s)`, without its ``(T, S, K, K)`` table. Every term is
+        a sum of non-negative weights (the mass in log space) or of positive semi-definite
+        matrices: nothing cancels when the demonstration's own class holds all but
+        :math:`10^{-300}` of the mass, which is where
         :math:`\\lambda(\\phi_{demo} - E_\\theta[\\phi])` is lost to rounding.
         """
         phase = self.phase
@@ -398,51 +414,137 @@ def _trajectory_moments(
     return log_z, mean, covariance
 
 
-def _class_paths(
-    successors: IntArray, start: int, demo: IntArray, kind: IntArray
-) -> list[tuple[int, ...]]:
-    """Every path from ``start`` whose cells ``s_1..s_T`` have the multiset of kinds of ``demo``."""
-    remaining: dict[int, int] = {}
-    for cell in demo[1:]:
-        remaining[int(kind[cell])] = remaining.get(int(kind[cell]), 0) + 1
-    horizon = len(demo) - 1
-    paths: list[tuple[int, ...]] = []
-    stack = [(int(start),)]
-    counts: list[dict[int, int]] = [remaining]
-    while stack:
-        prefix, left = stack.pop(), counts.pop()
-        if len(prefix) == horizon + 1:
-            paths.append(prefix)
-            if len(paths) > MAX_CLASS_PATHS:
-                raise ValueError(
-                    f"the demonstration's count class holds more than {MAX_CLASS_PATHS} paths"
-                )
-            continue
-        for nxt in successors[prefix[-1]]:
-            if nxt < 0 or left.get(int(kind[nxt]), 0) == 0:
+@njit(cache=True)
+def _class_paths(successors, start, demo, phi):  # pragma: no cover - compiled
+    """``(m, T + 1)`` every path from ``start`` whose cells ``s_1..s_T`` carry the multiset of
+    feature vectors of ``demo``'s, in lexicographic order; stops after ``MAX_CLASS_PATHS + 1``.
+
+    Cells are of one kind when their feature rows are equal; a kind is the first such cell.
+    """
+    cells, actions = successors.shape
+    k = phi.shape[1]
+    horizon = demo.shape[0] - 1
+    kind = np.empty(cells, dtype=np.int64)
+    for s in range(cells):
+        kind[s] = s
+        for r in range(s):
+            if kind[r] != r:
                 continue
-            after = dict(left)
-            after[int(kind[nxt])] -= 1
-            stack.append((*prefix, int(nxt)))
-            counts.append(after)
-    return paths
+            same = True
+            for i in range(k):
+                if phi[r, i] != phi[s, i]:
+                    same = False
+                    break
+            if same:
+                kind[s] = r
+                break
+    left = np.zeros(cells, dtype=np.int64)  # moves still to make onto each kind
+    for t in range(1, horizon + 1):
+        left[kind[demo[t]]] += 1
+    found = np.empty((4, horizon + 1), dtype=np.int64)
+    path = np.empty(horizon + 1, dtype=np.int64)
+    path[0] = start
+    if horizon == 0:
+        found[0] = path
+        return found[:1]
+    options = np.empty((horizon, actions), dtype=np.int64)
+    count = np.zeros(horizon, dtype=np.int64)
+    position = np.zeros(horizon, dtype=np.int64)
+    members = 0
+    depth = 0  # choosing path[depth + 1]
+    fresh = True
+    while depth >= 0:
+        if fresh:  # the moves from path[depth] onto a kind still to visit, by cell index
+            listed = 0
+            for a in range(actions):
+                nxt = successors[path[depth], a]
+                if nxt < 0 or left[kind[nxt]] == 0:
+                    continue
+                at = listed
+                while at > 0 and options[depth, at - 1] > nxt:
+                    options[depth, at] = options[depth, at - 1]
+                    at -= 1
+                options[depth, at] = nxt
+                listed += 1
+            count[depth], position[depth], fresh = listed, 0, False
+        if position[depth] == count[depth]:
+            depth -= 1
+            if depth >= 0:
+                left[kind[path[depth + 1]]] += 1
+            continue
+        nxt = options[depth, position[depth]]
+        position[depth] += 1
+        path[depth + 1] = nxt
+        if depth + 1 == horizon:
+            if members == found.shape[0]:
+                grown = np.empty((2 * members, horizon + 1), dtype=np.int64)
+                grown[:members] = found
+                found = grown
+            found[members] = path
+            members += 1
+            if members > MAX_CLASS_PATHS:
+                break
+            continue
+        left[kind[nxt]] -= 1
+        depth += 1
+        fresh = True
+    return found[:members]
 
 
-def _exits(
-    successors: IntArray, paths: list[tuple[int, ...]]
-) -> list[tuple[int, tuple[int, ...], int]]:
-    """``(t, prefix, s')``: every move from a class-path prefix ``(s_0..s_{t-1})`` to a cell
-    ``s'`` at step ``t`` that no class path makes, in a deterministic order."""
-    children: dict[tuple[int, ...], set[int]] = {}
-    for path in paths:
-        for t in range(1, len(path)):
-            children.setdefault(path[:t], set()).add(path[t])
-    exits = []
-    for prefix in sorted(children):
-        for nxt in successors[prefix[-1]]:
-            if nxt >= 0 and int(nxt) not in children[prefix]:
-                exits.append((len(prefix), prefix, int(nxt)))
-    return exits
+@njit(cache=True)
+def _class_exits(successors, paths, demo, phi):  # pragma: no cover - compiled
+    """``(step, cell, shift)`` of every exit of the class ``paths`` (lexicographic, as from
+    :func:`_class_paths`): each prefix ``(s_0..s_{t-1})`` of a class path, in lexicographic
+    order, and each move from it, in action order, onto a cell ``s'`` that no class path
+    takes next; ``shift`` is :math:`\\phi(s_1..s_{t-1}, s') - \\phi(\\tau_{demo})`, summed
+    in path order."""
+    members, width = paths.shape
+    horizon = width - 1
+    actions = successors.shape[1]
+    k = phi.shape[1]
+    demo_counts = np.zeros(k)
+    for t in range(1, horizon + 1):
+        for i in range(k):
+            demo_counts[i] += phi[demo[t], i]
+    # common[j]: length of the prefix path j shares with path j - 1.
+    common = np.zeros(members, dtype=np.int64)
+    for j in range(1, members):
+        while common[j] <= horizon and paths[j, common[j]] == paths[j - 1, common[j]]:
+            common[j] += 1
+    capacity = members * horizon * actions
+    step = np.empty(capacity, dtype=np.int64)
+    cell = np.empty(capacity, dtype=np.int64)
+    shift = np.empty((capacity, k))
+    prefix = np.empty(k)
+    exits = 0
+    for j in range(members):
+        for length in range(common[j] + 1, horizon + 1):
+            # The class paths through this prefix are j..last - 1; their next cells, sorted.
+            last = j + 1
+            while last < members and common[last] >= length:
+                last += 1
+            prefix[:] = 0.0
+            for u in range(1, length):
+                for i in range(k):
+                    prefix[i] += phi[paths[j, u], i]
+            for a in range(actions):
+                nxt = successors[paths[j, length - 1], a]
+                if nxt < 0:
+                    continue
+                low, high = j, last  # binary search for nxt among paths[j:last, length]
+                while low < high:
+                    middle = (low + high) // 2
+                    if paths[middle, length] < nxt:
+                        low = middle + 1
+                    else:
+                        high = middle
+                if low < last and paths[low, length] == nxt:
+                    continue
+                step[exits], cell[exits] = length, nxt
+                for i in range(k):
+                    shift[exits, i] = (prefix[i] + phi[nxt, i]) - demo_counts[i]
+                exits += 1
+    return step[:exits], cell[:exits], shift[:exits]
 
 
 @njit(cache=True)
@@ -468,7 +570,8 @@ def _off_demonstration(
     log_policy = np.empty((horizon, cells, actions))
     policy = np.empty((horizon, cells, actions))
     future = np.empty((horizon + 1, cells, k))
-    future_cov = np.zeros((horizon + 1, cells, k, k))
+    reach = np.empty((horizon + 1, cells))
+    gap = np.empty(k)
     log_mass = np.full(batch, -np.inf)
     mean = np.zeros((batch, k))
     covariance = np.zeros((batch, k, k))
@@ -490,8 +593,6 @@ def _off_demonstration(
         soft_backup(scaled, successors, horizon, values, log_policy, policy, needed)
         if moments >= 1:
             backward_future_counts(policy, successors, phi, future, needed)
-        if moments >= 2:
-            backward_future_covariance(policy, successors, phi, future, future_cov, needed)
         top = -np.inf
         for e in range(first, last):
             top = max(top, exit_scaled[e] + values[step[e], cell[e]])
@@ -507,14 +608,70 @@ def _off_demonstration(
                 mean[b, i] += q * (shift[e, i] + future[step[e], cell[e], i])
         if moments < 2:
             continue
+        # Between the exits: sum_e q_e (mu_e - E_q Delta)(mu_e - E_q Delta)^T.
+        reach[:, :] = 0.0
         for e in range(first, last):
             q = np.exp(exit_scaled[e] + values[step[e], cell[e]] - log_mass[b])
             if q == 0.0:
                 continue
             t, c = step[e], cell[e]
+            reach[t, c] += q
             for i in range(k):
-                gi = shift[e, i] + future[t, c, i] - mean[b, i]
-                for j in range(k):
-                    gj = shift[e, j] + future[t, c, j] - mean[b, j]
-                    covariance[b, i, j] += q * (future_cov[t, c, i, j] + gi * gj)
+                gap[i] = shift[e, i] + future[t, c, i] - mean[b, i]
+            for i in range(k):
+                for j in range(i, k):
+                    covariance[b, i, j] += q * (gap[i] * gap[j])
+        # Within them: sum_e q_e C_{t_e}(s_e), by the martingale increments forward from the
+        # exits, sum_t sum_s D_t(s) sum_a pi_t(a|s) e e^T (see _within_exits).
+        _within_exits(policy, successors, phi, future, reach, covariance[b])
+        for i in range(k):
+            for j in range(i):
+                covariance[b, i, j] = covariance[b, j, i]
     return log_mass, mean, covariance
+
+
+@njit(cache=True)
+def _within_exits(policy, successors, phi, future, reach, upper):  # pragma: no cover - compiled
+    # reach[t] holds the exits' weight entering at step t; it becomes D_t, the mass of the
+    # paths through the exits that are in cell s at step t. Adds to ``upper`` the martingale
+    # increments' second moments sum_{t, s} D_t(s) sum_a pi_t(a|s) e e^T,
+    # e = phi(s') + F_{t+1}(s') - F_t(s), four moves at a time: the K x K sum is read and
+    # written once per four rank-one terms, which halves the time of one at a time.
+    horizon, cells, actions = policy.shape
+    k = phi.shape[1]
+    gaps = np.empty((4, k))
+    scaled = np.empty((4, k))
+    held = 0
+    for t in range(horizon):
+        for s in range(cells):
+            mass = reach[t, s]
+            if mass == 0.0:
+                continue
+            for a in range(actions):
+                nxt = successors[s, a]
+                if nxt < 0:
+                    continue
+                p = policy[t, s, a]
+                if p == 0.0:
+                    continue
+                weight = mass * p
+                reach[t + 1, nxt] += weight
+                for i in range(k):
+                    gaps[held, i] = phi[nxt, i] + future[t + 1, nxt, i] - future[t, s, i]
+                    scaled[held, i] = weight * gaps[held, i]
+                held += 1
+                if held < 4:
+                    continue
+                g0, g1, g2, g3 = gaps[0], gaps[1], gaps[2], gaps[3]
+                for i in range(k):
+                    c0, c1, c2, c3 = scaled[0, i], scaled[1, i], scaled[2, i], scaled[3, i]
+                    row = upper[i]
+                    for j in range(k):
+                        row[j] += (c0 * g0[j] + c1 * g1[j]) + (c2 * g2[j] + c3 * g3[j])
+                held = 0
+    for h in range(held):
+        for i in range(k):
+            c = scaled[h, i]
+            row = upper[i]
+            for j in range(k):
+                row[j] += c * gaps[h, j]

@@ -25,15 +25,10 @@ value at ``s``. Each takes the MaxEnt model of the deployment phase
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from cirl_study.core.maxent import MaxEnt, Phase
-from cirl_study.core.planning import (
-    FloatArray,
-    evaluate_policy,
-    optimal_plan,
-    soft_value_iteration,
-    successor_gather,
-)
+from cirl_study.core.planning import FloatArray, evaluate_policy, optimal_plan, soft_backup
 
 
 def regret(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
@@ -51,22 +46,50 @@ def regret(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> Floa
 
 def trajectory_kl(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
     """The KL between MaxEnt trajectory distributions over the deployment's starts, ``(B,)``."""
-    successors, horizon = deployment.phase.successors, deployment.phase.horizon
-    rationality = deployment.rationality
-    true = soft_value_iteration(deployment.cell_rewards(theta), successors, horizon, rationality)
-    estimate = soft_value_iteration(
-        deployment.cell_rewards(theta_hat), successors, horizon, rationality
+    phase, rationality = deployment.phase, deployment.rationality
+    divergence = _divergence_from_every_cell(
+        rationality * deployment.cell_rewards(theta),
+        rationality * deployment.cell_rewards(theta_hat),
+        phase.successors,
+        phase.horizon,
     )
-    gather, available = successor_gather(successors)
-    log_ratio = np.zeros_like(true.log_policy)  # unavailable moves (log 0 - log 0) add nothing
-    np.subtract(true.log_policy, estimate.log_policy, out=log_ratio, where=available)
-    batch, cells = theta.shape[0], successors.shape[0]
-    divergence = np.zeros((batch, cells))
-    for t in range(horizon - 1, -1, -1):
-        # Each per-step KL is >= 0; clipping removes only rounding below zero.
-        step = np.maximum((true.policy[t] * log_ratio[t]).sum(axis=-1), 0.0)
-        divergence = step + (true.policy[t] * divergence[:, gather]).sum(axis=-1)
-    return over_starts(divergence, deployment.phase)
+    return over_starts(divergence, phase)
+
+
+@njit(cache=True)
+def _divergence_from_every_cell(scaled, scaled_hat, successors, horizon):  # pragma: no cover
+    # D_t(s) = max(sum_a pi_t(a|s) [log pi_t(a|s) - log pi_hat_t(a|s)], 0)
+    #          + sum_a pi_t(a|s) D_{t+1}(s'), one trial at a time in scratch arrays (the
+    # clipping removes only rounding below zero from a per-step KL, which is >= 0).
+    batch, cells = scaled.shape
+    actions = successors.shape[1]
+    everywhere = np.ones((horizon + 1, cells), dtype=np.bool_)
+    values, values_hat = np.empty((horizon + 1, cells)), np.empty((horizon + 1, cells))
+    shape = (horizon, cells, actions)
+    log_policy, log_policy_hat = np.empty(shape), np.empty(shape)
+    policy, policy_hat = np.empty(shape), np.empty(shape)
+    later, now = np.zeros(cells), np.zeros(cells)
+    divergence = np.empty((batch, cells))
+    for b in range(batch):
+        soft_backup(scaled[b], successors, horizon, values, log_policy, policy, everywhere)
+        soft_backup(
+            scaled_hat[b], successors, horizon, values_hat, log_policy_hat, policy_hat, everywhere
+        )
+        later[:] = 0.0
+        for t in range(horizon - 1, -1, -1):
+            for s in range(cells):
+                step, ahead = 0.0, 0.0
+                for a in range(actions):
+                    nxt = successors[s, a]
+                    if nxt < 0:
+                        continue
+                    p = policy[t, s, a]
+                    step += p * (log_policy[t, s, a] - log_policy_hat[t, s, a])
+                    ahead += p * later[nxt]
+                now[s] = max(step, 0.0) + ahead
+            later[:] = now
+        divergence[b] = later
+    return divergence
 
 
 def over_starts(values: FloatArray, phase: Phase) -> FloatArray:

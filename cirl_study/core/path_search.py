@@ -47,6 +47,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from cirl_study.core.maxent import Phase
 from cirl_study.core.planning import FloatArray, IntArray
@@ -75,8 +76,7 @@ class NearestPaths:
 class _Problem:
     rotated_features: FloatArray  # (B, S, bases, K): W_j phi(s)
     rotated_target: FloatArray  # (B, bases, K): W_j g
-    low: FloatArray  # (B, T + 1, S, bases, K): min of W_j f over r-step suffixes from s
-    high: FloatArray  # (B, T + 1, S, bases, K): max of W_j f over r-step suffixes from s
+    needed: NDArray[np.bool_]  # (T + 1, S): cells a prefix with r steps left can end in
 
 
 def _orthonormal_basis(first_axis: FloatArray) -> FloatArray:
@@ -102,48 +102,46 @@ def _principal_axes(features: FloatArray) -> FloatArray:
 
 
 @njit(cache=True)
-def suffix_extremes(cell_values, successors, horizon, needed):  # pragma: no cover - compiled
+def suffix_extremes(cell_values, successors, horizon, needed, low, high):  # pragma: no cover
     """Min and max of :math:`\\sum_{u=1}^{r} v(s_u)` over ``r``-step paths from each cell.
 
     Args:
-        cell_values: ``(B, S, M)`` per-cell vectors ``v(s)``; every coordinate is
-            optimised separately.
+        cell_values: ``(S, M)`` per-cell vectors ``v(s)``; every coordinate is optimised
+            separately.
         successors: ``(S, A)`` successor table.
         horizon: largest ``r``.
         needed: ``(horizon + 1, S)`` mask of the ``(r, s)`` entries to compute; the
             successors of a needed ``(r, s)`` must be needed at ``r - 1`` (entries that are
-            not needed are left undefined).
-
-    Returns:
-        ``low, high``, each ``(B, horizon + 1, S, M)``; index ``r`` holds the extremes
-        over ``r``-step suffixes (``r = 0`` gives zeros):
-        ``low[r, s] = min over available s -> s' of v(s') + low[r - 1, s']``.
+            not needed are left as they were).
+        low, high: ``(horizon + 1, S, M)`` outputs; index ``r`` holds the extremes over
+            ``r``-step suffixes, ``low[r, s] = min over available s -> s' of v(s') +
+            low[r - 1, s']``, and row 0 must hold zeros. One trial's arrays are a few hundred
+            kilobytes, reused trial after trial: a batch's would be fresh pages, and
+            first-touching them cost several times the programme itself.
     """
-    batch, cells, m = cell_values.shape
-    low = np.zeros((batch, horizon + 1, cells, m))
-    high = np.zeros((batch, horizon + 1, cells, m))
-    for b in range(batch):
-        values = cell_values[b]
-        for r in range(1, horizon + 1):
-            low_prev, high_prev = low[b, r - 1], high[b, r - 1]
-            low_now, high_now = low[b, r], high[b, r]
-            for s in range(cells):
-                if not needed[r, s]:
+    cells, m = cell_values.shape
+    for r in range(1, horizon + 1):
+        low_prev, high_prev = low[r - 1], high[r - 1]
+        low_now, high_now = low[r], high[r]
+        for s in range(cells):
+            if not needed[r, s]:
+                continue
+            first = True
+            for a in range(successors.shape[1]):
+                nxt = successors[s, a]
+                if nxt < 0:
                     continue
-                first = True
-                for a in range(successors.shape[1]):
-                    nxt = successors[s, a]
-                    if nxt < 0:
-                        continue
+                value, below, above = cell_values[nxt], low_prev[nxt], high_prev[nxt]
+                lowest, highest = low_now[s], high_now[s]
+                if first:
                     for i in range(m):
-                        value_low = values[nxt, i] + low_prev[nxt, i]
-                        value_high = values[nxt, i] + high_prev[nxt, i]
-                        if first or value_low < low_now[s, i]:
-                            low_now[s, i] = value_low
-                        if first or value_high > high_now[s, i]:
-                            high_now[s, i] = value_high
+                        lowest[i] = value[i] + below[i]
+                        highest[i] = value[i] + above[i]
                     first = False
-    return low, high
+                    continue
+                for i in range(m):  # branch-free, so the loop is vectorised
+                    lowest[i] = min(lowest[i], value[i] + below[i])
+                    highest[i] = max(highest[i], value[i] + above[i])
 
 
 def _prepare(
@@ -164,38 +162,28 @@ def _prepare(
     )
     rotated_target = np.matmul(flat, target[:, :, None]).reshape(batch, -1, k)
     # A prefix with r steps left ends in a cell reachable from the start in T - r steps.
-    needed = phase.reachable[::-1].copy()
-    low, high = suffix_extremes(
-        rotated_features.reshape(batch, features.shape[1], -1),
-        phase.successors,
-        phase.horizon,
-        needed,
-    )
-    shape = (batch, phase.horizon + 1, features.shape[1], -1, k)
-    return _Problem(rotated_features, rotated_target, low.reshape(shape), high.reshape(shape))
+    return _Problem(rotated_features, rotated_target, phase.reachable[::-1].copy())
 
 
 @njit(cache=True)
-def _bound(counts, target, low, high, b, remaining, cell, limit):  # pragma: no cover
+def _bound(counts, target, low, high, remaining, cell, limit):  # pragma: no cover
     """max over bases j of sum_k dist(w_j.(g - c), [low_j, high_j])^2 for one prefix.
 
-    ``counts`` are the prefix's rotated counts ``(J, K)``; ``low[b, remaining, cell]`` and
-    ``high[b, remaining, cell]`` the suffix extremes from its last cell. Returns early,
+    ``counts`` are the prefix's rotated counts ``(J, K)``; ``low[remaining, cell]`` and
+    ``high[remaining, cell]`` the suffix extremes from its last cell. Returns early,
     with a valid bound above ``limit``, as soon as one basis exceeds ``limit``.
     """
     bases, k = counts.shape
+    lows, highs = low[remaining, cell], high[remaining, cell]
     best = 0.0
     for j in range(bases):
         total = 0.0
         for i in range(k):
+            # Branch-free (at most one of the two is positive): which side a coordinate
+            # falls on is unpredictable, and a mispredicted branch costs more than both.
             gap = target[j, i] - counts[j, i]
-            lo = low[b, remaining, cell, j, i]
-            if gap < lo:
-                total += (lo - gap) ** 2
-            else:
-                hi = high[b, remaining, cell, j, i]
-                if gap > hi:
-                    total += (gap - hi) ** 2
+            distance = max(lows[j, i] - gap, 0.0) + max(gap - highs[j, i], 0.0)
+            total += distance * distance
         if total > best:
             best = total
             if best > limit:
@@ -204,9 +192,12 @@ def _bound(counts, target, low, high, b, remaining, cell, limit):  # pragma: no 
 
 
 @njit(cache=True)
-def _search(successors, start, horizon, rotated_features, rotated_target, low, high, slack):
+def _search(successors, start, horizon, rotated_features, rotated_target, needed, slack):
     """Depth-first branch and bound, children visited in order of increasing bound."""
-    batch, _, bases, k = rotated_features.shape
+    batch, cells_count, bases, k = rotated_features.shape
+    low = np.zeros((horizon + 1, cells_count, bases, k))
+    high = np.zeros((horizon + 1, cells_count, bases, k))
+    flat = (horizon + 1, cells_count, bases * k)
     actions = successors.shape[1]
     best_actions = np.zeros((batch, horizon), dtype=np.int64)
     best_values = np.empty(batch)
@@ -221,6 +212,14 @@ def _search(successors, start, horizon, rotated_features, rotated_target, low, h
     child = np.empty((bases, k))
     for b in range(batch):
         feats, target = rotated_features[b], rotated_target[b]
+        suffix_extremes(
+            feats.reshape((cells_count, bases * k)),
+            successors,
+            horizon,
+            needed,
+            low.reshape(flat),
+            high.reshape(flat),
+        )
         best = np.inf
         cells[0] = start
         depth = 0
@@ -247,7 +246,7 @@ def _search(successors, start, horizon, rotated_features, rotated_target, low, h
                             best_actions[b, :] = path
                         continue
                     limit = best * (1 + slack) + slack
-                    bound = _bound(child, target, low, high, b, remaining, nxt, limit)
+                    bound = _bound(child, target, low, high, remaining, nxt, limit)
                     if bound > limit:
                         continue
                     pos = m  # insertion sort by bound; ties keep action order
@@ -310,8 +309,7 @@ def nearest_paths(
             phase.horizon,
             problem.rotated_features,
             problem.rotated_target,
-            problem.low,
-            problem.high,
+            problem.needed,
             PRUNE_SLACK,
         )
     )

@@ -283,17 +283,33 @@ def optimal_plan(cell_rewards: FloatArray, successors: IntArray, horizon: int) -
     :math:`V^*_T = 0`, :math:`V^*_t(s) = \\max_a r(s') + V^*_{t+1}(s')`; ties go to the
     lowest action index, so the policy is a deterministic function of the rewards.
     """
-    gather, available = successor_gather(successors)
-    rewards = np.asarray(cell_rewards, dtype=np.float64)
+    values, actions = _hard_value_iteration(
+        np.ascontiguousarray(cell_rewards, dtype=np.float64),
+        np.ascontiguousarray(successors, dtype=np.int64),
+        horizon,
+    )
+    return HardPlan(values=values, actions=actions)
+
+
+@njit(cache=True)
+def _hard_value_iteration(rewards, successors, horizon):  # pragma: no cover - compiled
     batch, cells = rewards.shape
     values = np.zeros((horizon + 1, batch, cells))
     actions = np.empty((horizon, batch, cells), dtype=np.int64)
     for t in range(horizon - 1, -1, -1):
-        q = (rewards + values[t + 1])[:, gather]
-        q[:, ~available] = -np.inf
-        actions[t] = q.argmax(axis=-1)
-        values[t] = np.take_along_axis(q, actions[t][..., None], axis=-1)[..., 0]
-    return HardPlan(values=values, actions=actions)
+        for b in range(batch):
+            for s in range(cells):
+                best, chosen = -np.inf, 0
+                for a in range(successors.shape[1]):
+                    nxt = successors[s, a]
+                    if nxt < 0:
+                        continue
+                    q = rewards[b, nxt] + values[t + 1, b, nxt]
+                    if q > best:
+                        best, chosen = q, a
+                values[t, b, s] = best
+                actions[t, b, s] = chosen
+    return values, actions
 
 
 def evaluate_policy(
@@ -307,15 +323,22 @@ def evaluate_policy(
     Returns:
         ``(T + 1, B, S)`` values.
     """
-    rewards = np.asarray(cell_rewards, dtype=np.float64)
-    horizon, batch, cells = actions.shape
+    cells = successors.shape[0]
     chosen = successors[np.arange(cells), actions]  # (T, B, S)
     if (chosen < 0).any():
         raise ValueError("policy takes an unavailable action")
+    return _policy_values(np.ascontiguousarray(cell_rewards, dtype=np.float64), chosen)
+
+
+@njit(cache=True)
+def _policy_values(rewards, chosen):  # pragma: no cover - compiled
+    horizon, batch, cells = chosen.shape
     values = np.zeros((horizon + 1, batch, cells))
-    rows = np.arange(batch)[:, None]
     for t in range(horizon - 1, -1, -1):
-        values[t] = (rewards + values[t + 1])[rows, chosen[t]]
+        for b in range(batch):
+            for s in range(cells):
+                nxt = chosen[t, b, s]
+                values[t, b, s] = rewards[b, nxt] + values[t + 1, b, nxt]
     return values
 
 
@@ -340,42 +363,3 @@ def follow_policy(successors: IntArray, start: IntArray, policy: IntArray) -> In
     for t in range(horizon):
         states[:, t + 1] = successors[states[:, t], policy[t, rows, states[:, t]]]
     return states
-
-
-@njit(cache=True)
-def backward_future_covariance(policy, successors, features, future, covariance, needed):
-    """:math:`C_t(s) = \\mathrm{Cov}[\\sum_{u > t} \\phi(s_u) \\mid s_t = s]` for one trial.
-
-    By the law of total covariance, with :math:`X_t = \\phi(s_{t+1}) + X_{t+1}`,
-    :math:`C_t(s) = \\sum_a \\pi_t(a \\mid s)\\,[C_{t+1}(s') + e\\,e^\\top]`,
-    :math:`e = \\phi(s') + F_{t+1}(s') - F_t(s)`: a sum of positive semi-definite terms, so no
-    second moment minus squared mean is ever formed (no cancellation where the variance is
-    small). ``future`` holds :math:`F` (:func:`backward_future_counts`); fills ``covariance
-    (T+1, S, K, K)`` where ``needed`` is true.
-    """  # pragma: no cover - compiled
-    horizon, cells, actions = policy.shape
-    k = features.shape[1]
-    covariance[horizon, :, :, :] = 0.0
-    gap = np.empty(k)
-    for t in range(horizon - 1, -1, -1):
-        for s in range(cells):
-            if not needed[t, s]:
-                continue
-            covariance[t, s, :, :] = 0.0
-            for a in range(actions):
-                nxt = successors[s, a]
-                if nxt < 0:
-                    continue
-                p = policy[t, s, a]
-                if p == 0.0:
-                    continue
-                for i in range(k):
-                    gap[i] = features[nxt, i] + future[t + 1, nxt, i] - future[t, s, i]
-                for i in range(k):  # the upper triangle; mirrored below
-                    for j in range(i, k):
-                        covariance[t, s, i, j] += p * (
-                            covariance[t + 1, nxt, i, j] + gap[i] * gap[j]
-                        )
-            for i in range(k):
-                for j in range(i):
-                    covariance[t, s, i, j] = covariance[t, s, j, i]
