@@ -79,6 +79,8 @@ def render(figure: Figure) -> Rendered:
     canvas = FigureCanvasAgg(figure)
     png, svg = io.BytesIO(), io.BytesIO()
     canvas.print_png(png, metadata={"Software": None})
+    # The PNG's draw placed every axes; the SVG keeps that layout rather than solve it again.
+    figure.set_layout_engine("none")
     figure.savefig(svg, format="svg", metadata={"Date": None, "Creator": None})
     return Rendered(png.getvalue(), svg.getvalue())
 

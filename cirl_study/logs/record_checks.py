@@ -148,6 +148,8 @@ def _path_faults(
     grid: Gridworld,
 ) -> Iterator[str]:
     """Faults of ``path`` as a walk of ``steps`` available moves from ``start``."""
+    if len(path) == steps + 1 and tuple(path[0]) == tuple(start) and _walks(path, grid):
+        return
     if len(path) != steps + 1:
         yield f"{name} has {len(path)} cells, expected {steps} steps + 1"
     if tuple(path[0]) != tuple(start):
@@ -160,3 +162,18 @@ def _path_faults(
         if action_between(path[t - 1], path[t]) is None:
             yield f"{name} jumps from {list(path[t - 1])} to {list(path[t])} at step {t}"
             return
+
+
+def _walks(path: Sequence[Sequence[int]], grid: Gridworld) -> bool:
+    """Whether every cell of a non-empty ``path`` is on ``grid`` and each step moves at most
+    one cell along one axis: a sound path's check in one pass (the reader's most frequent)."""
+    width, height = grid.width, grid.height
+    cells = iter(path)
+    last_x, last_y = next(cells)
+    if not (0 <= last_x < width and 0 <= last_y < height):
+        return False
+    for x, y in cells:
+        if not (0 <= x < width and 0 <= y < height) or abs(x - last_x) + abs(y - last_y) > 1:
+            return False
+        last_x, last_y = x, y
+    return True
