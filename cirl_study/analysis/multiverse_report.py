@@ -325,13 +325,16 @@ def render_figures(results: Results) -> dict[str, bytes]:
         [{axis: level_label(u["settings"][axis]) for axis in varied} for u in results["universes"]],
         index=[u["id"] for u in results["universes"]],
     )
-    return figures.figure_files(
+    return figures.draw_all(
         {
-            FIGURE_NAMES[measure]: figures.specification_curve(
-                effects[effects["measure"] == measure],
-                choices,
-                measure,
-                results["base_universe"],
+            FIGURE_NAMES[measure]: (
+                figures.specification_curve,
+                (
+                    effects[effects["measure"] == measure],
+                    choices,
+                    measure,
+                    results["base_universe"],
+                ),
             )
             for measure in MEASURES
         }

@@ -661,28 +661,29 @@ def render_figures(
     """
     chosen = results["figure1"]
     pair = _figure1_records(trials, records_of, chosen["subject"], chosen["robot"])
-    pngs: dict[str, figures.Rendered] = {
-        FIGURES["figure1"][0]: figures.reward_maps(
-            pair[EXPERT],
-            pair[BEST_RESPONSE],
-            f"Reward draw {chosen['subject']} ({chosen['num_features']} features)",
-        ),
-        FIGURES["figure2_measures"][0]: figures.measure_bars(pd.DataFrame(results["cells"])),
+    title = f"Reward draw {chosen['subject']} ({chosen['num_features']} features)"
+    drawings: dict[str, figures.Drawing] = {
+        FIGURES["figure1"][0]: (figures.reward_maps, (pair[EXPERT], pair[BEST_RESPONSE], title)),
+        FIGURES["figure2_measures"][0]: (figures.measure_bars, (pd.DataFrame(results["cells"]),)),
     }
     if results["lambda_sweep"]:
         sweep = pd.DataFrame(results["lambda_sweep"])
-        pngs[FIGURES["figure2_lambda"][0]] = figures.lambda_curve(sweep)
+        drawings[FIGURES["figure2_lambda"][0]] = (figures.lambda_curve, (sweep,))
     if results["eta_cv"]["means"]:
-        pngs[FIGURES["eta_cv_curve"][0]] = figures.eta_curve(
-            pd.DataFrame(results["eta_cv"]["means"]),
-            pd.DataFrame(results["eta_cv"]["uncertainty"]),
+        drawings[FIGURES["eta_cv_curve"][0]] = (
+            figures.eta_curve,
+            (
+                pd.DataFrame(results["eta_cv"]["means"]),
+                pd.DataFrame(results["eta_cv"]["uncertainty"]),
+            ),
         )
     robots = results["robots"]
     if robots is not None and robots["lambda_sweep"]:
-        pngs[FIGURES["robots"][0]] = figures.robot_difference_curve(
-            pd.DataFrame(robots["lambda_sweep"]), robots["reference"], robots["other"]
+        drawings[FIGURES["robots"][0]] = (
+            figures.robot_difference_curve,
+            (pd.DataFrame(robots["lambda_sweep"]), robots["reference"], robots["other"]),
         )
-    return figures.figure_files(pngs)
+    return figures.draw_all(drawings)
 
 
 def write_report(

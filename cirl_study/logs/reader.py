@@ -1,4 +1,4 @@
-"""Reading a run directory: the trials every analysis starts from, one file at a time.
+"""Reading a run directory: the trials every analysis starts from, file by file.
 
 Only complete files (``*.mcap``) are read; temporary files of an interrupted run are
 ignored with a warning. An intact file is read through its summary index with every CRC
@@ -46,6 +46,7 @@ from cirl_study.logs.scan import (
     section_crcs_hold,
 )
 from cirl_study.record import TrialRecord, TrialRow
+from cirl_study.workers import map_in_workers
 
 
 @dataclass(frozen=True)
@@ -164,6 +165,41 @@ def _states_identity(provenance: dict[str, str]) -> bool:
     return True
 
 
+@dataclass(frozen=True)
+class _FileReading:
+    """What :func:`read_run` keeps of one file, read in a worker (:func:`_reading`): its
+    faults, its run identity (or why it has none), its trial ids, provenance and rows."""
+
+    path: Path
+    damage: list[str]
+    content_faults: list[str]
+    salvage_warning: str
+    identity: RunIdentity | UserError
+    trial_ids: list[str]
+    provenance: dict[str, str] | None
+    rows: list[TrialRow]
+
+
+def _reading(path: Path) -> _FileReading:
+    """One file of :func:`read_run`, its records reduced to rows."""
+    contents = _read_file(path)
+    sound = not contents.content_faults
+    try:
+        identity: RunIdentity | UserError = _file_identity(contents)
+    except UserError as error:
+        identity = error
+    return _FileReading(
+        path=path,
+        damage=contents.damage,
+        content_faults=contents.content_faults,
+        salvage_warning=_salvage_warning(contents) if contents.damage and sound else "",
+        identity=identity,
+        trial_ids=_trial_ids(contents),
+        provenance=contents.provenance,
+        rows=[TrialRow.of(record) for record in contents.records] if sound else [],
+    )
+
+
 def _read_file(path: Path, *, decode_trials: bool = True) -> _IntactFile | FileContents:
     """Fast read of an intact file through its summary, else the record-by-record scan."""
     intact = _intact_summary(path, decode_trials=decode_trials)
@@ -173,9 +209,11 @@ def _read_file(path: Path, *, decode_trials: bool = True) -> _IntactFile | FileC
 def read_run(run_dir: str | Path, *, salvage: bool = False) -> RunContents:
     """Read every complete log file of ``run_dir`` into rows (see the module docstring).
 
-    Files are read one at a time and each record is kept only as its row, so memory grows
-    with the run's trial count by a row (a few hundred bytes), not a record (~15 KB), per
-    trial; :func:`read_trials` fetches whole records by id.
+    Files are read on every core, each whole in one worker process
+    (:func:`~cirl_study.workers.map_in_workers`), and each record comes back only as its
+    row, so memory grows with the run's trial count by a row (a few hundred bytes), not a
+    record (~15 KB), per trial; :func:`read_trials` fetches whole records by id. Files are
+    judged in their order, so the first fault found is the one reading in order would find.
 
     Args:
         run_dir: the run directory.
@@ -187,28 +225,30 @@ def read_run(run_dir: str | Path, *, salvage: bool = False) -> RunContents:
     identities: dict[RunIdentity, Path] = {}
     first_file: dict[str, Path] = {}
     provenance, damaged, warnings = [], [], []
-    for path in _complete_files(run_dir):
-        contents = _read_file(path)
-        if contents.content_faults:
-            damage = f"damaged ({contents.damage[0]}) and " if contents.damage else ""
+    for reading in map_in_workers(_reading, _complete_files(run_dir)):
+        path = reading.path
+        if reading.content_faults:
+            damage = f"damaged ({reading.damage[0]}) and " if reading.damage else ""
             raise UserError(
-                f"{contents.path}: {damage}unusable ({contents.content_faults[0]}); "
+                f"{path}: {damage}unusable ({reading.content_faults[0]}); "
                 f"`cirl-study validate {run_dir}` lists every fault"
             )
-        if contents.damage and not salvage:
+        if reading.damage and not salvage:
             raise UserError(
-                f"{contents.path}: damaged ({contents.damage[0]}); move it out of {run_dir} "
+                f"{path}: damaged ({reading.damage[0]}); move it out of {run_dir} "
                 "and run the pipeline again to replay its trials, or analyze with --partial "
                 "to keep what its intact chunks hold"
             )
-        if contents.damage:
-            warnings.append(_salvage_warning(contents))
+        if reading.damage:
+            warnings.append(reading.salvage_warning)
             damaged.append(path)
-        identities.setdefault(_file_identity(contents), path)
+        if isinstance(reading.identity, UserError):
+            raise reading.identity
+        identities.setdefault(reading.identity, path)
         _same_identity(run_dir, identities)
-        _refuse_duplicates(first_file, path, _trial_ids(contents))
-        provenance.append(contents.provenance)
-        rows += [TrialRow.of(record) for record in contents.records]
+        _refuse_duplicates(first_file, path, reading.trial_ids)
+        provenance.append(reading.provenance)
+        rows += reading.rows
     unfinished = temp_files(run_dir)
     if unfinished:
         warnings.append(

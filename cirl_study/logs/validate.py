@@ -20,6 +20,7 @@ from cirl_study.logs.format import log_files, temp_files
 from cirl_study.logs.reader import check_run_directory
 from cirl_study.logs.run_checks import run_faults
 from cirl_study.record import TrialRow
+from cirl_study.workers import map_in_workers
 
 #: Faults shown on a verdict line before the rest are only counted.
 SHOWN_FAULTS = 3
@@ -83,11 +84,9 @@ def validate_run(run_dir: str | Path) -> RunVerdict:
     run_dir = Path(run_dir)
     check_run_directory(run_dir)
     verdicts, files = [], []
-    for path in log_files(run_dir):
-        contents = read_file_contents(path)
-        verdicts.append(FileVerdict(path, len(contents.records), tuple(contents.faults)))
-        rows = [TrialRow.of(record) for record in contents.records]
-        files.append((path, rows, contents.provenance))
+    for verdict, rows, provenance in map_in_workers(_checked, log_files(run_dir)):
+        verdicts.append(verdict)
+        files.append((verdict.path, rows, provenance))
     faults = run_faults(files) if verdicts else ["no complete log files (*.mcap)"]
     unfinished = temp_files(run_dir)
     if unfinished:
@@ -96,6 +95,17 @@ def validate_run(run_dir: str | Path) -> RunVerdict:
             f"(e.g. {unfinished[0].name}); run the pipeline again to complete the run"
         )
     return RunVerdict(run_dir, tuple(verdicts), tuple(faults), tuple(files))
+
+
+def _checked(path: Path) -> tuple[FileVerdict, list[TrialRow], dict[str, str] | None]:
+    """One file's verdict, the rows of its readable records and its provenance."""
+    contents = read_file_contents(path)
+    rows = [TrialRow.of(record) for record in contents.records]
+    return (
+        FileVerdict(path, len(contents.records), tuple(contents.faults)),
+        rows,
+        contents.provenance,
+    )
 
 
 def _summary(faults: tuple[str, ...]) -> str:

@@ -1,0 +1,46 @@
+"""Independent pieces of work on every core: each item is handled whole in one worker process.
+
+Used where the items do not depend on each other and what comes back is small beside the
+work: reading a run's log files (each file's records are decompressed, decoded and checked,
+and only their rows or a verdict come back) and drawing a report's figures (only the PNG and
+SVG bytes come back).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import os
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from typing import TypeVar
+
+Item = TypeVar("Item")
+Result = TypeVar("Result")
+
+
+def cores() -> int:
+    """The number of cores this process may run on."""
+    if hasattr(os, "sched_getaffinity"):
+        return len(os.sched_getaffinity(0))
+    return os.cpu_count() or 1
+
+
+def map_in_workers(work: Callable[[Item], Result], items: Sequence[Item]) -> Iterator[Result]:
+    """``work(item)`` for each of ``items``, in their order, on every core.
+
+    ``work`` must be a module-level function (it is sent to the workers by name). The workers
+    are forked, so every module the caller imported is already there. Results come back in
+    the order of ``items``, and an exception raised by ``work`` is raised here at its item:
+    working in parallel reports what working in order would (later items may have been done,
+    and are dropped). With one item, one core, or no ``fork`` on the platform the items are
+    handled in this process.
+    """
+    workers = min(cores(), len(items))
+    if workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
+        yield from map(work, items)
+        return
+    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))
+    try:
+        yield from pool.map(work, items)
+    finally:  # after a failure, or when the caller stops early: start nothing more
+        pool.shutdown(wait=True, cancel_futures=True)

@@ -1,0 +1,53 @@
+"""Work shared among worker processes (:mod:`cirl_study.workers`) comes back as in order."""
+
+import os
+
+import pytest
+
+from cirl_study import workers
+from cirl_study.errors import UserError
+
+
+def _square_and_pid(item: int) -> tuple[int, int]:
+    return item * item, os.getpid()
+
+
+def _refuse_odd(item: int) -> int:
+    if item % 2:
+        raise UserError(f"item {item} is odd")
+    return item
+
+
+def test_results_come_back_in_order_from_other_processes(monkeypatch):
+    monkeypatch.setattr(workers, "cores", lambda: 2)
+    results = list(workers.map_in_workers(_square_and_pid, list(range(40))))
+    assert [square for square, _ in results] == [i * i for i in range(40)]
+    assert os.getpid() not in {pid for _, pid in results}
+
+
+def test_one_core_works_in_this_process(monkeypatch):
+    monkeypatch.setattr(workers, "cores", lambda: 1)
+    results = list(workers.map_in_workers(_square_and_pid, [1, 2, 3]))
+    assert results == [(1, os.getpid()), (4, os.getpid()), (9, os.getpid())]
+
+
+@pytest.mark.parametrize("cores", [1, 2])
+def test_the_first_failure_in_order_is_raised_after_the_results_before_it(monkeypatch, cores):
+    monkeypatch.setattr(workers, "cores", lambda: cores)
+    done = []
+    with pytest.raises(UserError, match="item 3 is odd"):
+        for result in workers.map_in_workers(_refuse_odd, [0, 2, 4, 3, 6, 5, 8]):
+            done.append(result)
+    assert done == [0, 2, 4]
+
+
+def test_a_run_reads_and_validates_the_same_on_two_cores_as_on_one(smoke_run, monkeypatch):
+    from cirl_study.logs import read_run
+    from cirl_study.logs.validate import validate_run
+
+    monkeypatch.setattr(workers, "cores", lambda: 1)
+    alone, verdict_alone = read_run(smoke_run), validate_run(smoke_run)
+    monkeypatch.setattr(workers, "cores", lambda: 2)
+    shared, verdict_shared = read_run(smoke_run), validate_run(smoke_run)
+    assert shared == alone
+    assert verdict_shared == verdict_alone
