@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import multiprocessing
 import os
+import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import TypeVar
@@ -32,11 +33,13 @@ def map_in_workers(work: Callable[[Item], Result], items: Sequence[Item]) -> Ite
     are forked, so every module the caller imported is already there. Results come back in
     the order of ``items``, and an exception raised by ``work`` is raised here at its item:
     working in parallel reports what working in order would (later items may have been done,
-    and are dropped). With one item, one core, or no ``fork`` on the platform the items are
-    handled in this process.
+    and are dropped). With one item, one core, no ``fork`` on the platform, or other threads
+    running in this process (a fork copies the locks they may hold, e.g. a Dask client's) the
+    items are handled in this process.
     """
     workers = min(cores(), len(items))
-    if workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
+    forkable = "fork" in multiprocessing.get_all_start_methods() and threading.active_count() == 1
+    if workers < 2 or not forkable:
         yield from map(work, items)
         return
     pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))

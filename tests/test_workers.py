@@ -51,3 +51,18 @@ def test_a_run_reads_and_validates_the_same_on_two_cores_as_on_one(smoke_run, mo
     shared, verdict_shared = read_run(smoke_run), validate_run(smoke_run)
     assert shared == alone
     assert verdict_shared == verdict_alone
+
+
+def test_with_another_thread_running_work_stays_in_this_process(monkeypatch):
+    import threading
+
+    monkeypatch.setattr(workers, "cores", lambda: 2)
+    release = threading.Event()
+    other = threading.Thread(target=release.wait)
+    other.start()
+    try:
+        results = list(workers.map_in_workers(_square_and_pid, [1, 2]))
+    finally:
+        release.set()
+        other.join()
+    assert results == [(1, os.getpid()), (4, os.getpid())]

@@ -33,8 +33,9 @@ path is ever cut.
 
 The search is depth-first (compiled with numba), visiting the children of each
 prefix in order of increasing bound, so the first complete path is a greedy dive
-and the incumbent improves as early as possible; memory is ``O(T K)`` per trial
-whatever the horizon.
+and the incumbent improves as early as possible. The search itself holds ``O(T K)``
+numbers; the suffix extremes of the bound hold ``2 (T + 1) S J K`` (``J = 3`` bases), one
+trial's at a time in a table reused trial after trial.
 
 Worst case: when no bound ever prunes, every one of the (at most ``5^T``) paths is
 visited: time ``O(5^T K)``. At the paper's size (10x10 grid, 9 steps from the
@@ -139,7 +140,7 @@ def suffix_extremes(cell_values, successors, horizon, needed, low, high):  # pra
                         highest[i] = value[i] + above[i]
                     first = False
                     continue
-                for i in range(m):  # branch-free, so the loop is vectorised
+                for i in range(m):  # min and max: no branch on the values
                     lowest[i] = min(lowest[i], value[i] + below[i])
                     highest[i] = max(highest[i], value[i] + above[i])
 

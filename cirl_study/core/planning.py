@@ -57,12 +57,6 @@ class HardPlan:
     actions: IntArray
 
 
-def successor_gather(successors: IntArray) -> tuple[IntArray, NDArray[np.bool_]]:
-    """Successor indices safe for fancy indexing, and the mask of available moves."""
-    available = successors >= 0
-    return np.where(available, successors, 0), available
-
-
 @njit(cache=True)
 def reachable_cells(successors, start, horizon):  # pragma: no cover - compiled
     """``(T + 1, S)`` mask: ``[t, s]`` is true iff ``s`` can be reached in exactly ``t`` steps."""
