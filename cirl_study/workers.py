@@ -26,6 +26,11 @@ def cores() -> int:
     return os.cpu_count() or 1
 
 
+def forkable() -> bool:
+    """Whether workers can be forked safely: the platform forks and no other thread runs."""
+    return "fork" in multiprocessing.get_all_start_methods() and threading.active_count() == 1
+
+
 def map_in_workers(work: Callable[[Item], Result], items: Sequence[Item]) -> Iterator[Result]:
     """``work(item)`` for each of ``items``, in their order, on every core.
 
@@ -38,8 +43,7 @@ def map_in_workers(work: Callable[[Item], Result], items: Sequence[Item]) -> Ite
     items are handled in this process.
     """
     workers = min(cores(), len(items))
-    forkable = "fork" in multiprocessing.get_all_start_methods() and threading.active_count() == 1
-    if workers < 2 or not forkable:
+    if workers < 2 or not forkable():
         yield from map(work, items)
         return
     pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))

@@ -19,6 +19,8 @@ def _refuse_odd(item: int) -> int:
 
 
 def test_results_come_back_in_order_from_other_processes(monkeypatch):
+    # Whatever threads other tests left running: this work takes no lock a fork could copy.
+    monkeypatch.setattr(workers, "forkable", lambda: True)
     monkeypatch.setattr(workers, "cores", lambda: 2)
     results = list(workers.map_in_workers(_square_and_pid, list(range(40))))
     assert [square for square, _ in results] == [i * i for i in range(40)]
@@ -33,6 +35,7 @@ def test_one_core_works_in_this_process(monkeypatch):
 
 @pytest.mark.parametrize("cores", [1, 2])
 def test_the_first_failure_in_order_is_raised_after_the_results_before_it(monkeypatch, cores):
+    monkeypatch.setattr(workers, "forkable", lambda: True)
     monkeypatch.setattr(workers, "cores", lambda: cores)
     done = []
     with pytest.raises(UserError, match="item 3 is odd"):
@@ -47,6 +50,7 @@ def test_a_run_reads_and_validates_the_same_on_two_cores_as_on_one(smoke_run, mo
 
     monkeypatch.setattr(workers, "cores", lambda: 1)
     alone, verdict_alone = read_run(smoke_run), validate_run(smoke_run)
+    monkeypatch.setattr(workers, "forkable", lambda: True)
     monkeypatch.setattr(workers, "cores", lambda: 2)
     shared, verdict_shared = read_run(smoke_run), validate_run(smoke_run)
     assert shared == alone
