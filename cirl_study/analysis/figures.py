@@ -91,7 +91,7 @@ Drawing = tuple[Callable[..., Rendered], tuple[Any, ...]]
 
 
 def draw_all(drawings: Mapping[str, Drawing]) -> dict[str, bytes]:
-    """The files (:func:`figure_files`) of every figure of ``drawings``, drawn on every core.
+    """The files (:func:`_figure_files`) of every figure of ``drawings``, drawn on every core.
 
     A figure is drawn whole in one worker process (:func:`~cirl_study.workers.map_in_workers`),
     so a report's figures take about as long as its slowest, not their sum, on enough cores;
@@ -99,7 +99,7 @@ def draw_all(drawings: Mapping[str, Drawing]) -> dict[str, bytes]:
     """
     names = list(drawings)
     rendered = map_in_workers(_draw, [drawings[name] for name in names])
-    return figure_files(dict(zip(names, rendered, strict=True)))
+    return _figure_files(dict(zip(names, rendered, strict=True)))
 
 
 def _draw(drawing: Drawing) -> Rendered:
@@ -107,7 +107,7 @@ def _draw(drawing: Drawing) -> Rendered:
     return function(*arguments)
 
 
-def figure_files(rendered: Mapping[str, Rendered]) -> dict[str, bytes]:
+def _figure_files(rendered: Mapping[str, Rendered]) -> dict[str, bytes]:
     """The files of figures rendered under their PNG names: each PNG and its SVG twin."""
     files = {}
     for name, figure in rendered.items():

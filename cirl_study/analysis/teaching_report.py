@@ -275,15 +275,16 @@ def write_teaching_report(
     results = analyse_teaching(trials, pipeline)
     results["run_id"] = run_id
     progress("figures")
-    rendered = figures.teaching_bars(
-        pd.DataFrame(results["cells"]), results["design"]["humans"], results["design"]["robots"]
+    cells, design = pd.DataFrame(results["cells"]), results["design"]
+    drawn = figures.draw_all(
+        {FIGURE: (figures.teaching_bars, (cells, design["humans"], design["robots"]))}
     )
     write_report_directory(
         out_dir,
         markdown=render_markdown(results),
         results=results,
         tables={"trials.csv": trial_table(trials)},
-        figures=figures.figure_files({FIGURE: rendered}),
+        figures=drawn,
         provenance=provenance,
     )
     return results
