@@ -8,12 +8,12 @@ Writes a pipeline of the paper's shape on a 3 x 3 grid with 2-step phases (so it
 cheap to play, while every record is a real, fully checked one) whose ``main`` block holds
 about ``--trials`` trials, plays it with ``cirl-study run`` and analyses it with
 ``cirl-study analyze``, each in its own process exactly as a user would type them. Prints
-the wall time and the peak resident memory (``ru_maxrss``) of each, and the analysis's
-memory per trial above that of an analysis of a run of ~1,000 trials of the same pipeline
-shape (the fixed cost of the libraries). Target: the analysis of 1,000,000 trials within
-2 GB.
+the wall time and the peak memory of each (the command and its workers together, sampled
+from Linux's ``/proc``: see :func:`measured`), and the analysis's memory per trial above that
+of an analysis of a run of ~1,000 trials of the same pipeline shape (the fixed cost of the
+libraries). Target: the analysis of 1,000,000 trials within 2 GB.
 
-``analyze`` reads the files one at a time and keeps each record only as its
+``analyze`` reads the files in worker processes and keeps each record only as its
 :class:`~cirl_study.record.TrialRow`; the statistics are linear in ``n`` in time and memory
 (the bootstrap and the Wilcoxon effect sizes included), and Figure 1's two records are read
 back by id.
@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import resource
 import subprocess
 import sys
 import tempfile
@@ -64,41 +63,66 @@ rationalities = [1.0]
 """
 
 LIMIT_BYTES = 2 * 1024**3
-"""The target: peak resident memory of the analysis of 1,000,000 trials."""
+"""The target: peak memory of the analysis of 1,000,000 trials."""
 
 
-def peak_children_bytes() -> int:
-    """The largest peak resident set of any finished child process (Linux: KiB units)."""
-    return resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024
+SAMPLE_SECONDS = 0.1
+"""How often the memory of a command's processes is sampled."""
+
+
+def _descendants(pid: int) -> list[int]:
+    """``pid`` and every process it started, still running (Linux ``/proc``)."""
+    found, queue = [], [pid]
+    while queue:
+        current = queue.pop()
+        found.append(current)
+        for task in Path(f"/proc/{current}/task").glob("*/children"):
+            try:
+                queue += [int(child) for child in task.read_text().split()]
+            except OSError:  # the task ended meanwhile
+                continue
+    return found
+
+
+def _proportional_bytes(pid: int) -> int:
+    """``pid``'s proportional set size: its private pages, and its share of shared ones."""
+    try:
+        text = Path(f"/proc/{pid}/smaps_rollup").read_text()
+    except OSError:  # it ended meanwhile
+        return 0
+    match = re.search(r"^Pss:\s+(\d+) kB", text, re.MULTILINE)
+    return int(match.group(1)) * 1024 if match else 0
 
 
 def measured(arguments: list[str]) -> tuple[float, int, str]:
-    """Wall seconds, peak resident bytes and output of one ``cirl-study`` command.
+    """Wall seconds, peak memory in bytes and output of one ``cirl-study`` command.
 
-    ``ru_maxrss`` of the children is the maximum over all of them, so each command runs from
-    a fresh intermediate process that reports its own child's peak.
+    The memory is that of the command and every worker it starts together: their
+    proportional set sizes summed (a page the workers share with it counts once), sampled
+    every :data:`SAMPLE_SECONDS`; the largest resident set of any one of them would miss
+    what forked workers copy.
     """
-    probe = (
-        "import resource, subprocess, sys; "
-        "done = subprocess.run([sys.executable, '-m', 'cirl_study', *sys.argv[1:]]); "
-        "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * 1024); "
-        "sys.exit(done.returncode)"
-    )
     began = time.perf_counter()
-    done = subprocess.run(
-        [sys.executable, "-c", probe, *arguments], capture_output=True, text=True, check=False
-    )
-    if done.returncode != 0:
-        sys.exit(f"cirl-study {' '.join(arguments)} failed:\n{done.stderr}")
-    *output, peak = done.stdout.strip().splitlines()
-    return time.perf_counter() - began, int(peak), "\n".join(output)
+    with tempfile.TemporaryFile("w+") as output, tempfile.TemporaryFile("w+") as errors:
+        command = [sys.executable, "-m", "cirl_study", *arguments]
+        process = subprocess.Popen(command, stdout=output, stderr=errors, text=True)
+        peak = 0
+        while process.poll() is None:
+            peak = max(peak, sum(map(_proportional_bytes, _descendants(process.pid))))
+            time.sleep(SAMPLE_SECONDS)
+        seconds = time.perf_counter() - began
+        output.seek(0)
+        errors.seek(0)
+        if process.returncode != 0:
+            sys.exit(f"cirl-study {' '.join(arguments)} failed:\n{errors.read()}")
+        return seconds, peak, output.read()
 
 
 def run_and_analyse(directory: Path, trials: int) -> tuple[int, float, float, int]:
     """Play and analyse a pipeline of about ``trials`` main-block trials in ``directory``.
 
     Returns the trials logged, the run's and the analysis's wall seconds and the analysis's
-    peak resident bytes.
+    peak memory in bytes (see :func:`measured`).
     """
     subjects = max(2, trials // 4)  # 2 feature levels x 2 policies
     pipeline = directory / f"stream-{trials}.toml"
@@ -126,7 +150,7 @@ def main() -> None:
     per_trial = (peak - fixed) / logged
     print(f"trials: {logged:,}")
     print(f"run: {run_seconds:.1f} s")
-    print(f"analyze: {analyse_seconds:.1f} s, peak RSS {peak / 1024**3:.2f} GiB")
+    print(f"analyze: {analyse_seconds:.1f} s, peak memory {peak / 1024**3:.2f} GiB")
     print(f"analyze of ~1,000 trials (the libraries' fixed cost): {fixed / 1024**2:.0f} MiB")
     print(f"memory per trial above it: {per_trial:.0f} bytes")
     if args.trials >= 1_000_000:

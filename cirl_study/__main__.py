@@ -1,5 +1,5 @@
 """``python -m cirl_study``: the ``cirl-study`` command line."""
 
-from cirl_study.cli import app
+from cirl_study.cli import console_script
 
-app(prog_name="cirl-study")
+console_script()

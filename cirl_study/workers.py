@@ -8,12 +8,13 @@ SVG bytes come back).
 
 from __future__ import annotations
 
+import contextlib
 import multiprocessing
 import os
 import threading
 from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
-from typing import TypeVar
+from typing import Any, TypeVar
 
 Item = TypeVar("Item")
 Result = TypeVar("Result")
@@ -40,14 +41,46 @@ def map_in_workers(work: Callable[[Item], Result], items: Sequence[Item]) -> Ite
     working in parallel reports what working in order would (later items may have been done,
     and are dropped). With one item, one core, no ``fork`` on the platform, or other threads
     running in this process (a fork copies the locks they may hold, e.g. a Dask client's) the
-    items are handled in this process.
+    items are handled in this process. :func:`started` does the same while this process
+    goes on with work of its own.
+    """
+    with started(work, items) as results:
+        yield from results
+
+
+@contextlib.contextmanager
+def started(work: Callable[[Item], Result], items: Sequence[Item]) -> Iterator[Iterator[Result]]:
+    """:func:`map_in_workers` begun: the workers have every item on entry, and this process
+    is free for its own work until it takes the results, in order, from the iterator given.
+
+    ``with started(read_file, paths) as readings: import_statistics(); rows = list(readings)``
+    imports while the files are read. Leaving the block early stops the workers: an item not
+    begun is never begun. When the items are handled in this process (see
+    :func:`map_in_workers`), each is handled as its result is taken.
     """
     workers = min(cores(), len(items))
     if workers < 2 or not forkable():
-        yield from map(work, items)
+        yield map(work, items)
         return
     pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))
     try:
-        yield from pool.map(work, items)
+        yield pool.map(work, items)
     finally:  # after a failure, or when the caller stops early: start nothing more
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+Call = tuple[Callable[..., Any], tuple[Any, ...]]
+"""A call to make in a worker: a module-level function and its positional arguments."""
+
+
+def call_in_workers(calls: Sequence[Call]) -> list[Any]:
+    """``function(*arguments)`` of each of ``calls``, in order, on every core
+    (:func:`map_in_workers`): unlike pieces of work, e.g. a report's tests beside its figures.
+    Give the longest first: the calls are handed out in order, each to the first free worker.
+    """
+    return list(map_in_workers(_call, calls))
+
+
+def _call(call: Call) -> Any:
+    function, arguments = call
+    return function(*arguments)

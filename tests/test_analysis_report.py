@@ -201,3 +201,20 @@ def test_an_incomplete_design_writes_nothing(records, tmp_path):
     with pytest.raises(UserError, match="k10-s002"):
         write_report(rows(unpaired), tmp_path / "out", "paper", records_of=records_of(unpaired))
     assert not (tmp_path / "out").exists()
+
+
+def test_the_reports_results_are_analyses_whether_its_tests_run_in_a_worker_or_here(
+    records, tmp_path, monkeypatch
+):
+    from cirl_study import workers
+    from cirl_study.analysis.results import RESULT_KEYS, analyse
+
+    here = analyse(rows(records), "paper")
+    for cores, name in ((1, "here"), (2, "workers")):
+        monkeypatch.setattr(workers, "forkable", lambda: True)
+        monkeypatch.setattr(workers, "cores", lambda cores=cores: cores)
+        results = write_report(
+            rows(records), tmp_path / name, "paper", records_of=records_of(records)
+        )
+        assert list(results)[: len(RESULT_KEYS)] == list(RESULT_KEYS)
+        assert {key: results[key] for key in RESULT_KEYS} == here, name

@@ -37,3 +37,18 @@ def test_help_renders_at_80_columns(command: list[str]) -> None:
         for line, following in zip(body, body[1:], strict=False):
             if following.strip() and not line.rstrip().endswith((":", ".")):
                 assert len(line) > 50, f"{line!r} then {following!r}"
+
+
+@pytest.mark.parametrize(
+    ("arguments", "exit_code", "output"),
+    [(["--version"], 0, "cirl-study "), (["analyze", "no/such/run"], 2, "error: ")],
+)
+def test_the_console_script_exits_with_the_commands_code(arguments, exit_code, output, tmp_path):
+    import subprocess
+    import sys
+
+    command = [sys.executable, "-m", "cirl_study", *arguments]
+    done = subprocess.run(command, capture_output=True, text=True, cwd=tmp_path, check=False)
+    assert done.returncode == exit_code
+    assert (done.stdout + done.stderr).startswith(output)
+    assert "Traceback" not in done.stderr

@@ -16,6 +16,7 @@ from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.plan import (
     draw_subject,
     eta_cv_trials,
+    study_trial_ids,
     study_trials,
     trial_counts,
     trial_id,
@@ -42,6 +43,15 @@ def test_ids_are_unique_and_counts_match(smoke: Pipeline) -> None:
     assert len({t.seed for t in trials}) == len(trials)
     by_block = {b: sum(t.block == b for t in trials) for b in trial_counts(smoke)}
     assert by_block == trial_counts(smoke)
+
+
+@pytest.mark.parametrize("name", ["smoke", "robots", "multiverse-small", "teaching-small"])
+def test_the_audits_ids_are_the_plans(name: str) -> None:
+    pipeline = load_pipeline(SMOKE.parent / f"{name}.toml")
+    cv = {(t.universe, t.policy, t.num_features) for t in eta_cv_trials(pipeline)}
+    etas = {key: 0.1 * (position + 1) for position, key in enumerate(sorted(cv, key=str))}
+    trials = study_trials(pipeline, etas)
+    assert study_trial_ids(pipeline, etas) == [(t.block, t.trial_id) for t in trials]
 
 
 def test_subjects_unique_across_levels_and_cv_disjoint_from_test(smoke: Pipeline) -> None:

@@ -1,6 +1,8 @@
 """Work shared among worker processes (:mod:`cirl_study.workers`) comes back as in order."""
 
 import os
+import time
+from pathlib import Path
 
 import pytest
 
@@ -70,3 +72,42 @@ def test_with_another_thread_running_work_stays_in_this_process(monkeypatch):
         release.set()
         other.join()
     assert results == [(1, os.getpid()), (4, os.getpid())]
+
+
+def _mark_and_square(item: tuple[str, int]) -> int:
+    directory, value = item
+    (Path(directory) / f"{value}.began").touch()
+    return value * value
+
+
+def test_started_work_runs_while_this_process_does_its_own(monkeypatch, tmp_path):
+    monkeypatch.setattr(workers, "forkable", lambda: True)
+    monkeypatch.setattr(workers, "cores", lambda: 2)
+    items = [(str(tmp_path), value) for value in range(6)]
+    with workers.started(_mark_and_square, items) as results:
+        # No result taken yet: the workers have begun on their own.
+        deadline = time.monotonic() + 60
+        while len(list(tmp_path.glob("*.began"))) < len(items) and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert len(list(tmp_path.glob("*.began"))) == len(items)
+        assert list(results) == [value * value for value in range(6)]
+
+
+def test_calls_of_different_functions_come_back_in_order(monkeypatch):
+    monkeypatch.setattr(workers, "forkable", lambda: True)
+    monkeypatch.setattr(workers, "cores", lambda: 2)
+    calls = [(_square_and_pid, (3,)), (divmod, (17, 5)), (_refuse_odd, (4,)), (max, (2, 9, 4))]
+    results = workers.call_in_workers(calls)
+    assert results[0][0] == 9 and results[0][1] != os.getpid()
+    assert results[1:] == [(3, 2), 4, 9]
+
+
+def test_reading_a_run_does_the_callers_own_work_once_meanwhile(smoke_run, monkeypatch):
+    from cirl_study.logs import read_run
+
+    monkeypatch.setattr(workers, "forkable", lambda: True)
+    monkeypatch.setattr(workers, "cores", lambda: 2)
+    calls = []
+    contents = read_run(smoke_run, meanwhile=lambda: calls.append(len(calls)))
+    assert calls == [0]
+    assert contents.rows

@@ -37,6 +37,7 @@ from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.record import ETA_CV, EXPERT, MAIN, MEASURES, TrialRow
 from cirl_study.study.multiverse import base_universe, cv_universe, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe, shortest_number
+from cirl_study.workers import map_in_workers
 
 PAPER_CLAIMS: tuple[str, ...] = (
     "policy_effect",
@@ -93,30 +94,15 @@ def analyse_multiverse(
             (:func:`~cirl_study.analysis.table.check_design`).
     """
     base = base_universe(pipeline)
-    per_universe = []
     chosen = universe_trials(trials, pipeline)
-    for position, (universe, rows_of_universe) in enumerate(chosen.items(), start=1):
-        progress(f"universe {position} of {len(chosen)}: {universe.id}")
-        check_design(rows_of_universe)
-        results = analyse(rows_of_universe, pipeline.name)
-        claims = {
-            claim["id"]: claim for claim in evaluate_claims(results) if claim["id"] in PAPER_CLAIMS
-        }
-        per_universe.append(
-            {
-                "id": universe.id,
-                "base": universe == base,
-                "settings": settings(universe),
-                "claims": {
-                    key: {k: claim[k] for k in ("tested", "reproduced", "values")}
-                    for key, claim in claims.items()
-                },
-                "eta": results["eta_cv"]["chosen"],
-                "anova": results["anova"],
-                "cells": results["cells"],
-                "cronbach_alpha": results["cronbach_alpha"],
-            }
-        )
+    work = [
+        (universe, rows_of_universe, pipeline.name, universe == base)
+        for universe, rows_of_universe in chosen.items()
+    ]
+    per_universe = []
+    for position, summary in enumerate(map_in_workers(_universe_summary, work), start=1):
+        progress(f"universe {position} of {len(chosen)} analysed: {summary['id']}")
+        per_universe.append(summary)
     progress("across universes")
     levels = _axes(pipeline)
     table = trial_table(trials)
@@ -135,6 +121,34 @@ def analyse_multiverse(
         "claims": _claim_shares(per_universe, levels),
         "regression": {m: _regression(effects, m, levels, pipeline) for m in MEASURES},
         "joint_test": {m: _joint_test(main, m) for m in MEASURES},
+    }
+
+
+def _universe_summary(work: tuple[Universe, list[TrialRow], str, bool]) -> dict[str, Any]:
+    """One universe's entry of ``universes`` (see the module docstring), from its rows; the
+    universes are analysed on every core (:func:`~cirl_study.workers.map_in_workers`).
+
+    Raises:
+        UserError: its rows do not hold a design the paper analysis can use.
+    """
+    universe, rows_of_universe, pipeline_name, base = work
+    check_design(rows_of_universe)
+    results = analyse(rows_of_universe, pipeline_name)
+    claims = {
+        claim["id"]: claim for claim in evaluate_claims(results) if claim["id"] in PAPER_CLAIMS
+    }
+    return {
+        "id": universe.id,
+        "base": base,
+        "settings": settings(universe),
+        "claims": {
+            key: {k: claim[k] for k in ("tested", "reproduced", "values")}
+            for key, claim in claims.items()
+        },
+        "eta": results["eta_cv"]["chosen"],
+        "anova": results["anova"],
+        "cells": results["cells"],
+        "cronbach_alpha": results["cronbach_alpha"],
     }
 
 

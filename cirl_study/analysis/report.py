@@ -28,7 +28,14 @@ from cirl_study.analysis.markdown import (
     table,
 )
 from cirl_study.analysis.output import write_report_directory
-from cirl_study.analysis.results import Results, analyse, plain
+from cirl_study.analysis.results import (
+    Results,
+    combined,
+    estimates,
+    plain,
+    reference_main_block,
+    tests,
+)
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.record import (
     BEST_RESPONSE,
@@ -39,6 +46,7 @@ from cirl_study.record import (
     TrialRecord,
     TrialRow,
 )
+from cirl_study.workers import Call, call_in_workers
 
 HEADINGS = {
     "claims": "Claims",
@@ -650,40 +658,42 @@ def _figure1_records(
     return {policy: found[policy] for policy in PAPER_POLICIES}
 
 
-def render_figures(
+def _drawings(
     trials: Sequence[TrialRow],
     records_of: Callable[[set[str]], Sequence[TrialRecord]],
-    results: Results,
-) -> dict[str, bytes]:
-    """The PNG and SVG bytes of every figure the results support, by file name.
-
-    Figure 1 draws two whole records, fetched by trial id with ``records_of``.
-    """
-    chosen = results["figure1"]
+    estimated: Results,
+) -> dict[str, Call]:
+    """The drawing of every figure the estimates (:func:`~cirl_study.analysis.results.estimates`)
+    support, by PNG name. Figure 1 draws two whole records, fetched by trial id with
+    ``records_of``."""
+    chosen = estimated["figure1"]
     pair = _figure1_records(trials, records_of, chosen["subject"], chosen["robot"])
     title = f"Reward draw {chosen['subject']} ({chosen['num_features']} features)"
-    drawings: dict[str, figures.Drawing] = {
+    drawings: dict[str, Call] = {
         FIGURES["figure1"][0]: (figures.reward_maps, (pair[EXPERT], pair[BEST_RESPONSE], title)),
-        FIGURES["figure2_measures"][0]: (figures.measure_bars, (pd.DataFrame(results["cells"]),)),
+        FIGURES["figure2_measures"][0]: (
+            figures.measure_bars,
+            (pd.DataFrame(estimated["cells"]),),
+        ),
     }
-    if results["lambda_sweep"]:
-        sweep = pd.DataFrame(results["lambda_sweep"])
+    if estimated["lambda_sweep"]:
+        sweep = pd.DataFrame(estimated["lambda_sweep"])
         drawings[FIGURES["figure2_lambda"][0]] = (figures.lambda_curve, (sweep,))
-    if results["eta_cv"]["means"]:
+    if estimated["eta_cv"]["means"]:
         drawings[FIGURES["eta_cv_curve"][0]] = (
             figures.eta_curve,
             (
-                pd.DataFrame(results["eta_cv"]["means"]),
-                pd.DataFrame(results["eta_cv"]["uncertainty"]),
+                pd.DataFrame(estimated["eta_cv"]["means"]),
+                pd.DataFrame(estimated["eta_cv"]["uncertainty"]),
             ),
         )
-    robots = results["robots"]
+    robots = estimated["robots"]
     if robots is not None and robots["lambda_sweep"]:
         drawings[FIGURES["robots"][0]] = (
             figures.robot_difference_curve,
             (pd.DataFrame(robots["lambda_sweep"]), robots["reference"], robots["other"]),
         )
-    return figures.draw_all(drawings)
+    return drawings
 
 
 def write_report(
@@ -731,21 +741,27 @@ def write_report(
             :func:`~cirl_study.analysis.table.check_design`).
     """
     check_design(trials)
-    progress("statistics")
-    results = analyse(trials, pipeline_name)
+    progress("statistics and figures")
+    table = trial_table(trials)
+    estimated = estimates(trials, table, pipeline_name)
+    drawings = _drawings(trials, records_of, estimated)
+    # The tests take longest: they go first, and the figures fill the other workers.
+    tested, *rendered = call_in_workers(
+        [(tests, (reference_main_block(table),)), *drawings.values()]
+    )
+    results = combined(estimated, tested)
     results["run_id"] = run_id
     results["partial"] = None if partial is None else plain(partial)
     results["claims"] = evaluate_claims(results, theory)
     if theory is not None:
         results["theory"] = plain(theory)
-    progress("figures")
-    pngs = render_figures(trials, records_of, results)
+    pngs = figures.figure_files(dict(zip(drawings, rendered, strict=True)))
     names = [n for png_name, _ in FIGURES.values() for n in (png_name, svg_name(png_name))]
     write_report_directory(
         out_dir,
         markdown=render_markdown(results),
         results=results,
-        tables={"trials.csv": trial_table(trials)},
+        tables={"trials.csv": table},
         figures={name: pngs.get(name) for name in names},
         provenance=provenance,
     )

@@ -4,7 +4,9 @@
 they belong to, takes the cross-validated eta from the function the run chose it with
 (:func:`cirl_study.study.eta_cv.choose_etas`), and returns plain Python data (dicts,
 lists, ints, floats at full precision, ``None`` for an undefined number), which
-``results.json`` stores as is and the claims and the report read from.
+``results.json`` stores as is and the claims and the report read from. Its halves,
+:func:`estimates` (everything the figures draw) and :func:`tests`, depend only on the trials,
+so the report computes the tests in a worker while the figures are drawn.
 """
 
 from __future__ import annotations
@@ -227,8 +229,28 @@ def robot_comparison(table: pd.DataFrame, reference: str) -> dict[str, Any]:
     }
 
 
+RESULT_KEYS: tuple[str, ...] = (
+    "pipeline",
+    "trials",
+    "design",
+    "anova",
+    "simple_effects",
+    "tukey_hsd",
+    "wilcoxon",
+    "cells",
+    "cronbach_alpha",
+    "lambda_sweep",
+    "certified",
+    "eta_cv",
+    "figure1",
+    "robots",
+)
+"""The keys of :func:`analyse`'s results, in the order ``results.json`` lists them."""
+
+
 def analyse(trials: Sequence[TrialRow], pipeline_name: str) -> Results:
-    """Run every analysis of docs/design.md §5 on checked trials.
+    """Run every analysis of docs/design.md §5 on checked trials: :func:`estimates` and
+    :func:`tests`, in this process.
 
     Args:
         trials: the trials' rows (:class:`~cirl_study.record.TrialRow`), already accepted by
@@ -236,22 +258,57 @@ def analyse(trials: Sequence[TrialRow], pipeline_name: str) -> Results:
         pipeline_name: the pipeline's name, recorded in the results.
 
     Returns:
-        Plain data with the keys ``pipeline, trials, design, anova, simple_effects,
-        tukey_hsd, wilcoxon, cells, cronbach_alpha, lambda_sweep, certified, eta_cv,
-        figure1, robots``. Every statistic but ``robots`` and ``certified`` is computed on
-        the trials of the reference robot (:func:`cirl_study.core.robot.reference_robot`:
-        the paper's, ``map``, when the run has it), so the paper's analysis of a run with
-        two robots is that of its reference robot alone. ``robots`` is the comparison of
-        the two (:func:`robot_comparison`), ``None`` for a run with one robot.
-        ``lambda_sweep`` is an empty list and ``eta_cv`` has empty ``means`` and ``chosen``
-        when the run has no trials in that block (see :func:`eta_cv`).
+        Plain data with the keys of :data:`RESULT_KEYS`. Every statistic but ``robots`` and
+        ``certified`` is computed on the trials of the reference robot
+        (:func:`cirl_study.core.robot.reference_robot`: the paper's, ``map``, when the run has
+        it), so the paper's analysis of a run with two robots is that of its reference robot
+        alone. ``robots`` is the comparison of the two (:func:`robot_comparison`), ``None``
+        for a run with one robot. ``lambda_sweep`` is an empty list and ``eta_cv`` has empty
+        ``means`` and ``chosen`` when the run has no trials in that block (see
+        :func:`eta_cv`).
     """
     everything = trial_table(trials)
+    estimated = estimates(trials, everything, pipeline_name)
+    return combined(estimated, tests(reference_main_block(everything)))
+
+
+def reference_main_block(everything: pd.DataFrame) -> pd.DataFrame:
+    """The ``main`` block's trials of the reference robot: the table the paper's tests read."""
+    main = everything[everything["block"] == MAIN]
+    return main[main["robot"] == reference_robot(sorted(set(main["robot"])))]
+
+
+def estimates(trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline_name: str) -> Results:
+    """What the trials measured, with confidence intervals: everything the figures draw.
+
+    The keys ``pipeline, trials, design, cells, lambda_sweep, certified, eta_cv, figure1,
+    robots`` of :func:`analyse`, from the rows and their table ``everything``
+    (:func:`~cirl_study.analysis.table.trial_table`).
+    """
     robots = sorted(set(everything.loc[everything["block"] == MAIN, "robot"]))
     reference = reference_robot(robots)
     table = everything[everything["robot"] == reference]
     main = table[table["block"] == MAIN]
     sweep = table[table["block"] == LAMBDA_SWEEP]
+    return {
+        "pipeline": pipeline_name,
+        "trials": _trial_counts(everything),
+        "design": {**_design(main), "robots": robots, "reference_robot": reference},
+        "cells": rows(
+            _concat([statistics.group_means(main, m, ["num_features", "policy"]) for m in MEASURES])
+        ),
+        "lambda_sweep": rows(statistics.lambda_sweep(sweep, MEASURES)) if not sweep.empty else [],
+        "certified": _certified(everything),
+        "eta_cv": eta_cv(trials, table),
+        "figure1": {**figure1_subject(main), "robot": reference},
+        "robots": robot_comparison(everything, reference) if len(robots) > 1 else None,
+    }
+
+
+def tests(main: pd.DataFrame) -> Results:
+    """The paper's tests on the ``main`` block of the reference robot
+    (:func:`reference_main_block`): the keys ``anova, simple_effects, tukey_hsd, wilcoxon,
+    cronbach_alpha`` of :func:`analyse`."""
     alpha = statistics.cronbach_alpha(main[list(MEASURES)].reset_index(drop=True))
     alpha["items"] = list(MEASURES)
     alpha["rows"] = (
@@ -259,20 +316,15 @@ def analyse(trials: Sequence[TrialRow], pipeline_name: str) -> Results:
         "every feature level), the three measures on their own scales"
     )
     return {
-        "pipeline": pipeline_name,
-        "trials": _trial_counts(everything),
-        "design": {**_design(main), "robots": robots, "reference_robot": reference},
         "anova": rows(_concat([statistics.mixed_anova(main, m) for m in MEASURES])),
         "simple_effects": rows(_concat([statistics.simple_effects(main, m) for m in MEASURES])),
         "tukey_hsd": rows(_concat([statistics.tukey_hsd(main, m) for m in MEASURES])),
         "wilcoxon": rows(_concat([statistics.wilcoxon(main, m) for m in MEASURES])),
-        "cells": rows(
-            _concat([statistics.group_means(main, m, ["num_features", "policy"]) for m in MEASURES])
-        ),
         "cronbach_alpha": plain(alpha),
-        "lambda_sweep": rows(statistics.lambda_sweep(sweep, MEASURES)) if not sweep.empty else [],
-        "certified": _certified(everything),
-        "eta_cv": eta_cv(trials, table),
-        "figure1": {**figure1_subject(main), "robot": reference},
-        "robots": robot_comparison(everything, reference) if len(robots) > 1 else None,
     }
+
+
+def combined(estimated: Results, tested: Results) -> Results:
+    """:func:`estimates` and :func:`tests` as :func:`analyse` returns them."""
+    both = {**estimated, **tested}
+    return {key: both[key] for key in RESULT_KEYS}

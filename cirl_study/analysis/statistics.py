@@ -6,7 +6,7 @@ and returns a tidy :class:`pandas.DataFrame` (or a dict) at full precision. Nota
 belongs to exactly one feature level ``g(s)``; ``d_s = y_{s,br} - y_{s,expert}`` is its
 paired difference (negative: the best response did better, since every measure is a loss).
 
-The tests are computed by pingouin, scipy and statsmodels; this module only chooses
+The tests are computed by pingouin and scipy; this module only chooses
 them, feeds them and names their outputs. The bootstrap uses a fixed seed, so every
 number here is a deterministic function of the table.
 """
@@ -22,7 +22,6 @@ import numpy as np
 import pandas as pd
 import pingouin as pg
 from scipy import special, stats
-from statsmodels.stats.multitest import multipletests
 
 from cirl_study.analysis.studentized_range import studentized_range_sf
 from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_POLICIES
@@ -370,7 +369,7 @@ def simple_effects(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     References:
         Holm (1979), Scandinavian Journal of Statistics 6(2):65-70.
         Lakens (2013), Frontiers in Psychology 4:863 (``d_z``).
-        ``scipy.stats.ttest_rel``, ``statsmodels.stats.multitest.multipletests``.
+        ``scipy.stats.ttest_rel``, ``pingouin.multicomp``.
 
     Returns:
         One row per feature level: ``measure, num_features, n, mean_expert,
@@ -404,8 +403,14 @@ def simple_effects(main: pd.DataFrame, measure: str) -> pd.DataFrame:
 
 
 def holm(p_values: np.ndarray) -> np.ndarray:
-    """Holm's step-down adjustment of a family of p-values (Holm 1979)."""
-    return multipletests(p_values, method="holm")[1]
+    """Holm's step-down adjustment of a family of p-values (Holm 1979).
+
+    ``p~_(i) = min(1, max_{j <= i} (n - j + 1) p_(j))`` over the ``n`` finite p-values in
+    increasing order; a NaN stays NaN and does not count in ``n``. By ``pingouin.multicomp``:
+    statsmodels' ``multipletests`` computes the same numbers but runs a full garbage
+    collection on every call, 0.1 s beside a read run's rows.
+    """
+    return pg.multicomp(p_values, method="holm")[1]
 
 
 def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import datetime
+import importlib
 import json
 import sys
 from pathlib import Path
@@ -74,17 +75,13 @@ def analyze(
     its questions (Milli & Dragan's 2 x 2, the best response against the pedagogic human and
     the regret-optimal demonstration), with report.md, results.json, trials.csv and a figure.
     """
-    # The statistics and plotting libraries load only when an analysis is asked for.
-    from cirl_study.analysis.multiverse_report import write_multiverse_report
-    from cirl_study.analysis.report import write_report
+    # The statistics and plotting libraries load only when an analysis is asked for, while
+    # the workers read the logs; each kind of report loads its own module after.
     from cirl_study.analysis.table import complete_main_subjects
-    from cirl_study.analysis.teaching_report import write_teaching_report
-    from cirl_study.analysis.theory_claims import office_supplies_claims
     from cirl_study.errors import UserError
     from cirl_study.logs import read_run, read_trials
     from cirl_study.logs.provenance import machine_provenance
     from cirl_study.study.audit import audit_run, resume_command, run_pipeline_of
-    from cirl_study.theory import office_supplies_results
 
     def stage(name: str) -> None:
         """Say at a terminal which stage is under way (each can take seconds)."""
@@ -92,7 +89,7 @@ def analyze(
             typer.echo(f"{name} ...", err=True)
 
     stage(f"reading the logs of {run}")
-    contents = read_run(run, salvage=partial)
+    contents = read_run(run, salvage=partial, meanwhile=_load_analysis_libraries)
     for warning in contents.warnings:
         typer.echo(f"warning: {warning}", err=True)
     pipeline = run_pipeline_of(contents.identity)
@@ -132,6 +129,8 @@ def analyze(
         },
     }
     if pipeline.multiverse is not None:
+        from cirl_study.analysis.multiverse_report import write_multiverse_report
+
         multiverse = write_multiverse_report(
             trials,
             target,
@@ -150,6 +149,8 @@ def analyze(
         )
         return
     if pipeline.teaching is not None:
+        from cirl_study.analysis.teaching_report import write_teaching_report
+
         teaching = write_teaching_report(
             trials,
             target,
@@ -165,6 +166,10 @@ def analyze(
             f"{len(teaching['questions'])} questions, {held} of {answered} tested claims hold"
         )
         return
+    from cirl_study.analysis.report import write_report
+    from cirl_study.analysis.theory_claims import office_supplies_claims
+    from cirl_study.theory import office_supplies_results
+
     theory = office_supplies_claims(office_supplies_results())
     results = write_report(
         trials,
@@ -186,6 +191,13 @@ def analyze(
         f"{reproduced} reproduced, {len(claims) - reproduced - untested} not reproduced, "
         f"{untested} not tested"
     )
+
+
+def _load_analysis_libraries() -> None:
+    """Import the statistics and figures of every report (pingouin, scipy, matplotlib: about
+    1.5 s), to be done while the logs are read."""
+    for module in ("cirl_study.analysis.statistics", "cirl_study.analysis.figures"):
+        importlib.import_module(module)
 
 
 def _analysed_only_whole(pipeline: Pipeline) -> str | None:

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import io
 import struct
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -46,7 +47,7 @@ from cirl_study.logs.scan import (
     section_crcs_hold,
 )
 from cirl_study.record import TrialRecord, TrialRow
-from cirl_study.workers import map_in_workers
+from cirl_study.workers import started
 
 
 @dataclass(frozen=True)
@@ -206,11 +207,13 @@ def _read_file(path: Path, *, decode_trials: bool = True) -> _IntactFile | FileC
     return intact if intact is not None else _readable(read_file_contents(path))
 
 
-def read_run(run_dir: str | Path, *, salvage: bool = False) -> RunContents:
+def read_run(
+    run_dir: str | Path, *, salvage: bool = False, meanwhile: Callable[[], object] = lambda: None
+) -> RunContents:
     """Read every complete log file of ``run_dir`` into rows (see the module docstring).
 
     Files are read on every core, each whole in one worker process
-    (:func:`~cirl_study.workers.map_in_workers`), and each record comes back only as its
+    (:func:`~cirl_study.workers.started`), and each record comes back only as its
     row, so memory grows with the run's trial count by a row (a few hundred bytes), not a
     record (~15 KB), per trial; :func:`read_trials` fetches whole records by id. Files are
     judged in their order, so the first fault found is the one reading in order would find.
@@ -219,36 +222,40 @@ def read_run(run_dir: str | Path, *, salvage: bool = False) -> RunContents:
         run_dir: the run directory.
         salvage: keep the intact chunks of a damaged file (with a warning) instead of
             refusing it.
+        meanwhile: called once the files are handed to the workers, e.g. to import what the
+            analysis needs while they are read.
     """
     run_dir = Path(run_dir)
     rows: list[TrialRow] = []
     identities: dict[RunIdentity, Path] = {}
     first_file: dict[str, Path] = {}
     provenance, damaged, warnings = [], [], []
-    for reading in map_in_workers(_reading, _complete_files(run_dir)):
-        path = reading.path
-        if reading.content_faults:
-            damage = f"damaged ({reading.damage[0]}) and " if reading.damage else ""
-            raise UserError(
-                f"{path}: {damage}unusable ({reading.content_faults[0]}); "
-                f"`cirl-study validate {run_dir}` lists every fault"
-            )
-        if reading.damage and not salvage:
-            raise UserError(
-                f"{path}: damaged ({reading.damage[0]}); move it out of {run_dir} "
-                "and run the pipeline again to replay its trials, or analyze with --partial "
-                "to keep what its intact chunks hold"
-            )
-        if reading.damage:
-            warnings.append(reading.salvage_warning)
-            damaged.append(path)
-        if isinstance(reading.identity, UserError):
-            raise reading.identity
-        identities.setdefault(reading.identity, path)
-        _same_identity(run_dir, identities)
-        _refuse_duplicates(first_file, path, reading.trial_ids)
-        provenance.append(reading.provenance)
-        rows += reading.rows
+    with started(_reading, _complete_files(run_dir)) as readings:
+        meanwhile()
+        for reading in readings:
+            path = reading.path
+            if reading.content_faults:
+                damage = f"damaged ({reading.damage[0]}) and " if reading.damage else ""
+                raise UserError(
+                    f"{path}: {damage}unusable ({reading.content_faults[0]}); "
+                    f"`cirl-study validate {run_dir}` lists every fault"
+                )
+            if reading.damage and not salvage:
+                raise UserError(
+                    f"{path}: damaged ({reading.damage[0]}); move it out of {run_dir} "
+                    "and run the pipeline again to replay its trials, or analyze with --partial "
+                    "to keep what its intact chunks hold"
+                )
+            if reading.damage:
+                warnings.append(reading.salvage_warning)
+                damaged.append(path)
+            if isinstance(reading.identity, UserError):
+                raise reading.identity
+            identities.setdefault(reading.identity, path)
+            _same_identity(run_dir, identities)
+            _refuse_duplicates(first_file, path, reading.trial_ids)
+            provenance.append(reading.provenance)
+            rows += reading.rows
     unfinished = temp_files(run_dir)
     if unfinished:
         warnings.append(

@@ -22,7 +22,7 @@ from cirl_study.errors import UserError
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
-from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
+from cirl_study.study.plan import eta_cv_trials, study_trial_ids, trial_counts
 from cirl_study.study.spec import Pipeline, parse_pipeline
 
 EXAMPLES = 3
@@ -116,9 +116,9 @@ def audit_run(pipeline: Pipeline, rows: Sequence[TrialRow]) -> RunAudit:
     study_blocks = [block for block in counts if block != ETA_CV]
     if len(cv_logged) == len(cv_plan):
         etas = {key: choice.eta for key, choice in choose_etas(cv_logged).items()}
-        plan = study_trials(pipeline, etas)
-        planned = {trial.trial_id for trial in plan} | cv_ids
-        found = Counter(trial.block for trial in plan if trial.trial_id in logged)
+        plan = study_trial_ids(pipeline, etas)
+        planned = {trial_id for _, trial_id in plan} | cv_ids
+        found = Counter(block for block, trial_id in plan if trial_id in logged)
         blocks += [BlockAudit(block, counts[block], found[block]) for block in study_blocks]
         foreign = sorted(set(logged) - planned)
     else:

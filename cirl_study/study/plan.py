@@ -38,8 +38,9 @@ from __future__ import annotations
 
 import hashlib
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from typing import TypeVar
 
 import numpy as np
 
@@ -164,9 +165,7 @@ def _trial(
     shown = demonstration_id(block, subject.id, policy, rationality, eta)
     game = pipeline.game
     return TrialSpec(
-        trial_id=in_universe(
-            trial_id(block, subject.id, policy, rationality, eta, robot), pipeline.universe
-        ),
+        trial_id=_block_and_id(pipeline, block, subject, policy, rationality, eta, robot)[1],
         run_id=pipeline.run_id,
         block=block,
         subject=subject.id,
@@ -186,6 +185,21 @@ def _trial(
         deployment_start=game.deployment_start,
         universe=None if pipeline.universe is None else pipeline.universe.id,
         teaching=_teaching(pipeline, subject),
+    )
+
+
+def _block_and_id(
+    pipeline: Pipeline,
+    block: str,
+    subject: Subject,
+    policy: str,
+    rationality: float,
+    eta: float | None,
+    robot: str,
+) -> tuple[str, str]:
+    """The block and id of the trial :func:`_trial` builds from the same arguments."""
+    return block, in_universe(
+        trial_id(block, subject.id, policy, rationality, eta, robot), pipeline.universe
     )
 
 
@@ -240,21 +254,49 @@ def study_trials(
     the id of the cross-validation universe, ``None`` in a single study); the sweep plays the
     first ``lambda_sweep.subjects`` draws of the main block.
     """
+    return _study_plan(pipeline, etas, _trial)
+
+
+def study_trial_ids(
+    pipeline: Pipeline, etas: Mapping[tuple[str | None, str, int], float]
+) -> list[tuple[str, str]]:
+    """The block and id of every trial of :func:`study_trials`, in its order, without building
+    the trials: a run's audit needs no more, and drawing every trial's seed is most of the
+    cost of planning."""
+    return _study_plan(pipeline, etas, _block_and_id)
+
+
+Planned = TypeVar("Planned")
+
+
+def _study_plan(
+    pipeline: Pipeline,
+    etas: Mapping[tuple[str | None, str, int], float],
+    planned: Callable[[Pipeline, str, Subject, str, float, float | None, str], Planned],
+) -> list[Planned]:
+    """:func:`study_trials`, each trial given by ``planned`` (:func:`_trial` or
+    :func:`_block_and_id`) from its pipeline, block, subject, policy, lambda, eta and robot."""
     if pipeline.multiverse is None:
-        return _study_trials(pipeline, None, etas)
+        return _single_study_plan(pipeline, None, etas, planned)
     return [
         trial
         for universe in universes(pipeline)
-        for trial in _study_trials(
-            universe_pipeline(pipeline, universe), cv_universe(pipeline, universe).id, etas
+        for trial in _single_study_plan(
+            universe_pipeline(pipeline, universe),
+            cv_universe(pipeline, universe).id,
+            etas,
+            planned,
         )
     ]
 
 
-def _study_trials(
-    pipeline: Pipeline, cv: str | None, etas: Mapping[tuple[str | None, str, int], float]
-) -> list[TrialSpec]:
-    """:func:`study_trials` of a single study, with the etas of cross-validation ``cv``."""
+def _single_study_plan(
+    pipeline: Pipeline,
+    cv: str | None,
+    etas: Mapping[tuple[str | None, str, int], float],
+    planned: Callable[[Pipeline, str, Subject, str, float, float | None, str], Planned],
+) -> list[Planned]:
+    """:func:`_study_plan` of a single study, with the etas of cross-validation ``cv``."""
     main, sweep = pipeline.main, pipeline.lambda_sweep
     levels = pipeline.game.feature_levels
     subjects = {k: _subjects(pipeline, TEST_GROUP, k, main.subjects) for k in levels}
@@ -263,14 +305,14 @@ def _study_trials(
         return etas[cv, policy, k] if policy in pipeline.policies_with_eta else None
 
     main_block = [
-        _trial(pipeline, MAIN, subject, policy, main.rationality, eta_of(policy, k), robot)
+        planned(pipeline, MAIN, subject, policy, main.rationality, eta_of(policy, k), robot)
         for k in levels
         for subject in subjects[k]
         for policy in main.policies
         for robot in main.robots
     ]
     sweep_block = [
-        _trial(pipeline, LAMBDA_SWEEP, subject, policy, rationality, eta_of(policy, k), robot)
+        planned(pipeline, LAMBDA_SWEEP, subject, policy, rationality, eta_of(policy, k), robot)
         for k in levels
         for rationality in sweep.rationalities
         for subject in subjects[k][: sweep.subjects]
