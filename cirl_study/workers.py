@@ -73,14 +73,8 @@ Call = tuple[Callable[..., Any], tuple[Any, ...]]
 """A call to make in a worker: a module-level function and its positional arguments."""
 
 
-def call_in_workers(calls: Sequence[Call]) -> list[Any]:
-    """``function(*arguments)`` of each of ``calls``, in order, on every core
-    (:func:`map_in_workers`): unlike pieces of work, e.g. a report's tests beside its figures.
-    Give the longest first: the calls are handed out in order, each to the first free worker.
-    """
-    return list(map_in_workers(_call, calls))
-
-
-def _call(call: Call) -> Any:
-    function, arguments = call
+def call(made: Call) -> Any:
+    """``function(*arguments)`` of a :data:`Call`: the work of :func:`started` (or
+    :func:`map_in_workers`) when the items are calls of different functions."""
+    function, arguments = made
     return function(*arguments)

@@ -203,7 +203,7 @@ def test_an_incomplete_design_writes_nothing(records, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
-def test_the_reports_results_are_analyses_whether_its_tests_run_in_a_worker_or_here(
+def test_the_reports_results_are_analyses_whether_its_figures_are_drawn_in_workers_or_here(
     records, tmp_path, monkeypatch
 ):
     from cirl_study import workers

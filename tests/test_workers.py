@@ -97,7 +97,7 @@ def test_calls_of_different_functions_come_back_in_order(monkeypatch):
     monkeypatch.setattr(workers, "forkable", lambda: True)
     monkeypatch.setattr(workers, "cores", lambda: 2)
     calls = [(_square_and_pid, (3,)), (divmod, (17, 5)), (_refuse_odd, (4,)), (max, (2, 9, 4))]
-    results = workers.call_in_workers(calls)
+    results = list(workers.map_in_workers(workers.call, calls))
     assert results[0][0] == 9 and results[0][1] != os.getpid()
     assert results[1:] == [(3, 2), 4, 9]
 

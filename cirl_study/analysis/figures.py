@@ -17,8 +17,9 @@ plus :data:`STYLE`, at a fixed size and :data:`DPI`, and saved as PNG without th
 
 from __future__ import annotations
 
+import contextlib
 import io
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -35,7 +36,7 @@ from numpy.typing import NDArray
 from cirl_study.analysis.markdown import svg_name
 from cirl_study.core.gridworld import feature_matrix
 from cirl_study.record import BEST_RESPONSE, MEASURES, PAPER_POLICIES, TrialRecord
-from cirl_study.workers import Call, call_in_workers
+from cirl_study.workers import Call, call, started
 
 DPI = 120
 """Resolution of every figure, in dots per inch."""
@@ -88,14 +89,22 @@ def render(figure: Figure) -> Rendered:
 
 def draw_all(drawings: Mapping[str, Call]) -> dict[str, bytes]:
     """The files (:func:`figure_files`) of every figure of ``drawings`` (a drawing function of
-    this module and its arguments, by PNG name), drawn on every core.
+    this module and its arguments, by PNG name), drawn on every core."""
+    with drawing(drawings) as files:
+        return files()
 
-    A figure is drawn whole in one worker process (:func:`~cirl_study.workers.call_in_workers`),
-    so a report's figures take about as long as its slowest, not their sum, on enough cores;
-    each is the same, byte for byte, wherever it is drawn.
+
+@contextlib.contextmanager
+def drawing(drawings: Mapping[str, Call]) -> Iterator[Callable[[], dict[str, bytes]]]:
+    """:func:`draw_all` begun: the figures are drawn in worker processes while this one goes
+    on with its own work, until it calls the function given, which returns the files.
+
+    A figure is drawn whole in one worker (:func:`~cirl_study.workers.started`), so a report's
+    figures take about as long as its slowest, not their sum, on enough cores; each is the
+    same, byte for byte, wherever it is drawn.
     """
-    rendered = call_in_workers(list(drawings.values()))
-    return figure_files(dict(zip(drawings, rendered, strict=True)))
+    with started(call, list(drawings.values())) as rendered:
+        yield lambda: figure_files(dict(zip(drawings, rendered, strict=True)))
 
 
 def figure_files(rendered: Mapping[str, Rendered]) -> dict[str, bytes]:

@@ -46,7 +46,7 @@ from cirl_study.record import (
     TrialRecord,
     TrialRow,
 )
-from cirl_study.workers import Call, call_in_workers
+from cirl_study.workers import Call
 
 HEADINGS = {
     "claims": "Claims",
@@ -744,18 +744,15 @@ def write_report(
     progress("statistics and figures")
     table = trial_table(trials)
     estimated = estimates(trials, table, pipeline_name)
-    drawings = _drawings(trials, records_of, estimated)
-    # The tests take longest: they go first, and the figures fill the other workers.
-    tested, *rendered = call_in_workers(
-        [(tests, (reference_main_block(table),)), *drawings.values()]
-    )
-    results = combined(estimated, tested)
+    # The figures need only the estimates: they are drawn in workers while the tests run here.
+    with figures.drawing(_drawings(trials, records_of, estimated)) as drawn:
+        results = combined(estimated, tests(reference_main_block(table)))
+        pngs = drawn()
     results["run_id"] = run_id
     results["partial"] = None if partial is None else plain(partial)
     results["claims"] = evaluate_claims(results, theory)
     if theory is not None:
         results["theory"] = plain(theory)
-    pngs = figures.figure_files(dict(zip(drawings, rendered, strict=True)))
     names = [n for png_name, _ in FIGURES.values() for n in (png_name, svg_name(png_name))]
     write_report_directory(
         out_dir,

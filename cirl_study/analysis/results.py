@@ -6,7 +6,7 @@ they belong to, takes the cross-validated eta from the function the run chose it
 lists, ints, floats at full precision, ``None`` for an undefined number), which
 ``results.json`` stores as is and the claims and the report read from. Its halves,
 :func:`estimates` (everything the figures draw) and :func:`tests`, depend only on the trials,
-so the report computes the tests in a worker while the figures are drawn.
+so the report draws its figures in worker processes while it computes the tests.
 """
 
 from __future__ import annotations
