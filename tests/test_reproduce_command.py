@@ -1,5 +1,6 @@
 """``cirl-study reproduce``: run then analyze, resumable, byte-identical reports."""
 
+import re
 from pathlib import Path
 
 from typer.testing import CliRunner
@@ -35,6 +36,8 @@ def test_reproduce_runs_then_reports_and_a_second_call_changes_nothing(tmp_path:
         f"{report}: equals the report it replaced, number by number"
     )
     assert _report_bytes(report) == written
+    timing = re.compile(r"^run [\d.]+ s, analysis [\d.]+ s \([\d.]+ x the run\)$", re.MULTILINE)
+    assert timing.search(first.output) and timing.search(second.output)
 
 
 def test_reproduce_refuses_an_unknown_pipeline_in_one_line(tmp_path: Path) -> None:

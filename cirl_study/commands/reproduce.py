@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import shutil
 import tempfile
+import time
 from pathlib import Path
 from typing import Annotated
 
@@ -52,7 +53,7 @@ def reproduce(
 
     With the defaults this regenerates reports/paper/ from nothing (run again, it resumes)
     and says whether the new report equals the one it replaced, number by number
-    (cirl-study compare).
+    (cirl-study compare), and how long the run and the analysis took.
     """
     from cirl_study.analysis.compare import compare_reports
     from cirl_study.study.runner import default_out_dir
@@ -61,13 +62,20 @@ def reproduce(
     spec = load_pipeline(resolve_pipeline(pipeline))
     run_directory = out or default_out_dir(spec)
     target = report or REPORTS_DIRECTORY / spec.name
+    began = time.perf_counter()
     run(pipeline, run_directory, workers, engine, scheduler)
+    played = time.perf_counter() - began
     with tempfile.TemporaryDirectory(prefix="cirl-study-previous-") as scratch:
         previous = Path(scratch) / "report"
         had_report = (target / "results.json").is_file() and (target / "trials.csv").is_file()
         if had_report:
             shutil.copytree(target, previous)
+        began = time.perf_counter()
         analyze(run_directory, target, force=True)
+        analysed = time.perf_counter() - began
+        typer.echo(
+            f"run {played:.1f} s, analysis {analysed:.1f} s ({analysed / played:.2f} x the run)"
+        )
         if not had_report:
             typer.echo(f"{target}: a new report (there was none to compare with)")
             return
