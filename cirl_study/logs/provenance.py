@@ -153,17 +153,18 @@ def _cpu_model() -> str:
 
 
 def _blas() -> str:
-    """numpy's BLAS (and OpenMP) libraries: ``api version architecture threads`` each."""
+    """The BLAS (and OpenMP) libraries loaded (numpy's, and scipy's once it is imported):
+    ``api version architecture threads`` each, sorted, whatever the order they loaded in."""
     import numpy  # noqa: F401  (loads the BLAS library threadpoolctl is to describe)
     from threadpoolctl import threadpool_info
 
-    libraries = [
+    libraries = sorted(
         " ".join(
             str(info.get(key, "?"))
             for key in ("internal_api", "version", "architecture", "num_threads")
         )
         for info in threadpool_info()
-    ]
+    )
     steering = [
         f"{name}={os.environ[name]}"
         for name in ("OPENBLAS_CORETYPE", "OPENBLAS_L2_SIZE", "OPENBLAS_NUM_THREADS")
