@@ -88,7 +88,7 @@ def render(figure: Figure) -> Rendered:
 
 
 def draw_all(drawings: Mapping[str, Call]) -> dict[str, bytes]:
-    """The files (:func:`figure_files`) of every figure of ``drawings`` (a drawing function of
+    """The files (:func:`_figure_files`) of every figure of ``drawings`` (a drawing function of
     this module and its arguments, by PNG name), drawn on every core."""
     with drawing(drawings) as files:
         return files()
@@ -104,10 +104,10 @@ def drawing(drawings: Mapping[str, Call]) -> Iterator[Callable[[], dict[str, byt
     same, byte for byte, wherever it is drawn.
     """
     with started(call, list(drawings.values())) as rendered:
-        yield lambda: figure_files(dict(zip(drawings, rendered, strict=True)))
+        yield lambda: _figure_files(dict(zip(drawings, rendered, strict=True)))
 
 
-def figure_files(rendered: Mapping[str, Rendered]) -> dict[str, bytes]:
+def _figure_files(rendered: Mapping[str, Rendered]) -> dict[str, bytes]:
     """The files of figures rendered under their PNG names: each PNG and its SVG twin."""
     files = {}
     for name, figure in rendered.items():

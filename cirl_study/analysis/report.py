@@ -742,11 +742,11 @@ def write_report(
     """
     check_design(trials)
     progress("statistics and figures")
-    table = trial_table(trials)
-    estimated = estimates(trials, table, pipeline_name)
+    everything = trial_table(trials)
+    estimated = estimates(trials, everything, pipeline_name)
     # The figures need only the estimates: they are drawn in workers while the tests run here.
     with figures.drawing(_drawings(trials, records_of, estimated)) as drawn:
-        results = combined(estimated, tests(reference_main_block(table)))
+        results = combined(estimated, tests(reference_main_block(everything)))
         pngs = drawn()
     results["run_id"] = run_id
     results["partial"] = None if partial is None else plain(partial)
@@ -758,7 +758,7 @@ def write_report(
         out_dir,
         markdown=render_markdown(results),
         results=results,
-        tables={"trials.csv": table},
+        tables={"trials.csv": everything},
         figures={name: pngs.get(name) for name in names},
         provenance=provenance,
     )
