@@ -288,7 +288,7 @@ def estimates(trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline_nam
     robots = sorted(set(everything.loc[everything["block"] == MAIN, "robot"]))
     reference = reference_robot(robots)
     table = everything[everything["robot"] == reference]
-    main = table[table["block"] == MAIN]
+    main = reference_main_block(everything)
     sweep = table[table["block"] == LAMBDA_SWEEP]
     return {
         "pipeline": pipeline_name,
