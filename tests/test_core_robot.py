@@ -4,6 +4,8 @@ The ``map`` robot's estimate must be the MAP of the MaxEnt log-likelihood on the
 :math:`[-1, 1]^K`; the model itself is tested in ``test_core_maxent``.
 """
 
+import itertools
+
 import map_reference
 import numpy as np
 import path_enumeration as bf
@@ -13,9 +15,10 @@ from hypothesis import strategies as st
 
 from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.estimate import Estimate
+from cirl_study.core.humans import expert_paths
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.players import ROBOTS, register_robot
-from cirl_study.core.robot import map_estimate
+from cirl_study.core.robot import _certified, _Objective, box_step, map_estimate
 from cirl_study.record import MAP
 
 KKT_TOL = 1e-6 + 1e-9  # feature-count units, |dL/dtheta_k| / lambda: the fit's 1e-6 + rounding
@@ -288,3 +291,97 @@ def test_fit_equals_the_high_precision_map(name, case):
     )
     assert fit.converged[0], name
     np.testing.assert_allclose(fit.theta_hat[0], case["theta_hat"], rtol=0, atol=1e-6)
+
+
+def _box_step_by_faces(curvature, gradient, theta, ridge):
+    """The maximiser of ``g.d - d'(H + ridge I)d/2`` over ``theta + d`` in the box, and the
+    model's value there, by trying every face (each coordinate at -1, free or at +1: 3^K)."""
+    k = len(gradient)
+    matrix = curvature + ridge * np.eye(k)
+    best, best_value = None, -np.inf
+    for face in itertools.product((-1, 0, 1), repeat=k):
+        face = np.array(face)
+        d = np.where(face != 0, face - theta, 0.0)
+        free = face == 0
+        if free.any():
+            block = matrix[np.ix_(free, free)]
+            if np.linalg.matrix_rank(block) < free.sum():
+                continue  # its maxima lie on a smaller face
+            rhs = gradient[free] - matrix[np.ix_(free, ~free)] @ d[~free]
+            d[free] = np.linalg.solve(block, rhs)
+            if np.any(np.abs(theta + d) > 1 + 1e-12):
+                continue
+        value = gradient @ d - d @ matrix @ d / 2
+        if value > best_value:
+            best, best_value = d, value
+    return best, best_value
+
+
+@given(
+    k=st.integers(1, 4),
+    rank=st.integers(0, 4),
+    ridge=st.sampled_from([0.0, 1e-8, 1e-2, 1.0]),
+    seed=st.integers(0, 2**32 - 1),
+)
+@settings(max_examples=300, deadline=None)
+def test_box_step_maximises_the_model_over_the_box(k, rank, ridge, seed):
+    rng = np.random.default_rng(seed)
+    rank = min(rank, k) if ridge > 0 else k  # without a ridge the model must be strictly concave
+    factor = rng.normal(size=(k, rank)) * rng.choice([1e-3, 1.0, 1e3], size=rank)
+    curvature = factor @ factor.T
+    gradient = rng.normal(size=k) * rng.choice([1e-3, 1.0, 1e3])
+    theta = np.where(rng.random(k) < 0.4, rng.choice([-1.0, 1.0], size=k), rng.uniform(-1, 1, k))
+    step = box_step(curvature[None], gradient[None], theta[None], np.array([ridge]))[0]
+    assert np.all(np.abs(theta + step) <= 1.0)
+    matrix = curvature + ridge * np.eye(k)
+    value = gradient @ step - step @ matrix @ step / 2
+    expected, best = _box_step_by_faces(curvature, gradient, theta, ridge)
+    scale = np.abs(gradient).sum() * 2 + np.abs(matrix).sum() * 4
+    assert value >= best - 1e-10 * scale
+    # KKT of the model: r = g - M d vanishes on the free coordinates and points out of the box
+    # (or is zero) on the bound ones.
+    r = gradient - matrix @ step
+    upper, lower = theta + step >= 1.0, theta + step <= -1.0
+    assert np.all(np.abs(r[~upper & ~lower]) <= 1e-9 * scale)
+    assert np.all(r[upper] >= -1e-9 * scale) and np.all(r[lower] <= 1e-9 * scale)
+    if np.linalg.eigvalsh(matrix)[0] > 1e-6 * np.abs(matrix).max(initial=1e-300):
+        np.testing.assert_allclose(step, expected, atol=1e-7)  # strictly concave: unique
+
+
+def test_a_box_step_on_a_singular_free_block_is_nan():
+    # The undamped step (no ridge) where the free block is singular: the data do not say.
+    step = box_step(np.zeros((1, 2, 2)), np.zeros((1, 2)), np.zeros((1, 2)), np.zeros(1))
+    assert np.isnan(step).all()
+
+
+def test_converged_is_the_certificate_at_the_returned_point_and_the_likelihood_is_its_own():
+    # Paper-size fits at lambda = 1000 (K = 10), some of which stop with no ascent left at the
+    # objective's rounding, and fits cut short at three iterations: whatever stopped a fit,
+    # ``converged`` is the certificate at the point returned and ``log_likelihood`` its own.
+    width = height = 10
+    start, horizon = bf.cell(10, 5, 5), 9
+    rng = np.random.default_rng(110)
+    rows = 24
+    centres = rng.uniform(0, 9, size=(rows, 10, 2))
+    theta = rng.uniform(-1, 1, size=(rows, 10))
+    features = np.stack([bf.rbf_features(width, height, c, 1.0) for c in centres])
+    phase = Phase(bf.move_table(width, height), start, horizon)
+    for rationality, cap in ((1e3, 200), (1.0, 3)):
+        model = MaxEnt(phase, features, rationality)
+        demos = expert_paths(model, theta)
+        fit = map_estimate(model, demos, max_iterations=cap)
+        classes = model.demonstration_classes(demos)
+        objective = _Objective.at(model, classes, fit.theta_hat)
+        np.testing.assert_array_equal(
+            fit.converged, _certified(fit.theta_hat, objective, tolerance=1e-6)
+        )
+        # L = -log(m + R) at theta_hat (log Z itself loses L to cancellation at large lambda).
+        off = model.off_demonstration(fit.theta_hat, classes, moments=0)
+        own = -np.logaddexp(np.log(classes.members), off.log_mass)
+        np.testing.assert_allclose(fit.log_likelihood, own, rtol=1e-12)
+        if rationality == 1.0:
+            counts = model.path_counts(demos)
+            np.testing.assert_allclose(own, model.log_likelihood(fit.theta_hat, counts), rtol=1e-9)
+        assert (fit.iterations <= cap).all()
+        if cap == 3:
+            assert not fit.converged.all()  # the cap bit
