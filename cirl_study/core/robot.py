@@ -306,7 +306,7 @@ def _line_search_step(
         at_full_step.gradient,
     )
     # An objective that no longer rises above its own rounding: the data cannot place the
-    # estimate any closer (it stays uncertified).
+    # estimate any closer, and the fit stops where it is (certified only if it passes there).
     resolution = RESOLUTION * np.maximum(1.0, np.abs(objective.value))
     stalls[rows] = np.where(
         accepted & (reached - objective.value <= resolution), stalls[rows] + 1, 0
