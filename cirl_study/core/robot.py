@@ -63,6 +63,15 @@ DAMPING_FACTOR = 10.0
 one it cuts short (10 and 10 took 6.7 iterations at lambda = 1 and 31 at lambda = 1000 on
 300 paper-size fits; 100 up and 10 down, 6.7 and 40)."""
 
+PROBE_RATIO = 0.01
+"""Least ratio of the objective's slope at the full step to its slope at the start, both
+towards twice the step, at which the line search probes twice the step. A quadratic along
+the ray is higher there only above 1/3, but along the exponentially flat valleys of large
+lambda the objective is closer to an exponential, which rises all the way: on 300
+paper-size fits (K = 10), 0.01 left 3.8 of the 6.4 probes a fit at lambda = 1 with the same
+iterations, and about as many iterations at lambda = 10 to 1000 (31.3 against 31.0 at 1000),
+where 1/3 took up to 15% more."""
+
 MAX_STALLS = 8
 """Steps in a row that leave the objective unchanged at its rounding before a fit gives up."""
 
@@ -473,11 +482,12 @@ def _armijo_search(
     large), the full step is accepted instead when the slope along it, from the gradient
     ``gradient_at_full_step``, has not turned more steeply down than it rose: by concavity
     the step then did not overshoot the maximum along the arc. Where the full step is
-    accepted and moved at least ``min_extrapolated``, :math:`\\alpha = 2, 4, \\dots` is
-    tried while the objective keeps rising with the same sufficient increase: along a valley
-    whose curvature decays exponentially (large lambda, where the MAP lies on the box's
-    boundary far down the valley) Newton's steps stay short, and doubling reaches the
-    boundary in a few steps.
+    accepted, moved at least ``min_extrapolated`` and still rises towards :math:`\\theta(2)`
+    by at least :data:`PROBE_RATIO` of the slope it started with, :math:`\\alpha = 2, 4,
+    \\dots` is tried while the objective keeps rising with the same sufficient increase:
+    along a valley whose curvature decays exponentially (large lambda, where the MAP lies on
+    the box's boundary far down the valley) Newton's steps stay short, and doubling reaches
+    the boundary in a few steps.
 
     Returns the new points (the old ones where no step was accepted), the objective there,
     which trials accepted a step, which accepted the full step, and which went further.
@@ -515,7 +525,15 @@ def _armijo_search(
             break
         alpha *= 0.5
     longer = np.zeros(len(theta), dtype=bool)
-    growing = np.flatnonzero(full & (np.abs(result - theta).max(axis=1) >= min_extrapolated))
+    # Probe theta(2) only where the objective still rises at theta(1) towards it (else, by
+    # concavity, no point of that straight segment is higher), and by more than a sliver of
+    # the slope it started with (a Newton step near the optimum lands on the maximum along
+    # the ray: a probe beyond it fails).
+    beyond = np.clip(theta + 2.0 * direction, low, high) - np.clip(theta + direction, low, high)
+    slope_there = (gradient_at_full_step * beyond).sum(axis=1)
+    rising = (slope_there > 0) & (slope_there > PROBE_RATIO * (gradient * beyond).sum(axis=1))
+    moved_enough = np.abs(result - theta).max(axis=1) >= min_extrapolated
+    growing = np.flatnonzero(full & moved_enough & rising)
     alpha = 2.0
     while growing.size and alpha <= 2.0**max_halvings:
         candidate, moved, predicted = increase(growing, alpha)
