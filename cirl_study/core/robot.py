@@ -20,18 +20,18 @@ that stopped on it stopped wherever rounding left it, differently on every CPU.
 
 The box-constrained problem is solved for a whole batch at once by Newton's method on the
 box: each step maximises the objective's quadratic model exactly over the box
-(:func:`box_step`, a compiled active-set method warm-started on the coordinates already on
-a bound), so the step lands on the face of the box the model prefers (a projected Newton
-step with an epsilon-active set, Bertsekas 1982, meets the bounds one at a time: on 1,000
+(:func:`box_step`, a compiled active-set method warm-started on the coordinates already on a
+bound), so the step lands on the face of the box the model prefers. A projected Newton step
+with an epsilon-active set (Bertsekas 1982) meets the bounds one at a time: on 1,000
 paper-size fits at K = 10 it took 8.5 iterations at lambda = 1 against 6.7, and about 60%
-more at lambda from 100 to 10^4, where it also certified fewer estimates, 92-98% against
-95-99.8%); an Armijo backtracking search
-follows it (and doubles along the projection arc where Newton's steps stay short in
-exponentially flat valleys), and a Levenberg-Marquardt ridge keeps it robust where the
-covariance is nearly singular. It stops on the estimate, not on the gradient: once the
-undamped step is within the tolerance, that step is taken and the result certified by the
-same step at the new point (``converged``). Every linear solve is compiled, so no BLAS or
-LAPACK kernel enters the estimate: it is the same on every CPU.
+more at lambda from 100 to 10^4, where it also certified fewer estimates (92-98% against
+95-99.8%). An Armijo backtracking search follows the step (and doubles along the projection
+arc where Newton's steps stay short in exponentially flat valleys), and a
+Levenberg-Marquardt ridge keeps it robust where the covariance is nearly singular. It stops
+on the estimate, not on the gradient: once the undamped step is within the tolerance, that
+step is taken and the result certified by the same step at the new point (``converged``).
+Every linear solve is compiled, so no BLAS or LAPACK kernel enters the estimate: it is the
+same on every CPU.
 """
 
 from __future__ import annotations
