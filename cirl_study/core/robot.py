@@ -194,9 +194,7 @@ def box_step(curvature, gradient, theta, ridge):  # pragma: no cover - compiled
                 for i in range(k):
                     if side[i] == 0:
                         continue
-                    r = g[i] - rho * d[i]
-                    for j in range(k):
-                        r -= h[i, j] * d[j]
+                    r = _model_slope(h, g, d, rho, i)
                     if -side[i] * r > most:
                         worst, most = i, -side[i] * r
                 if worst < 0:
@@ -215,10 +213,7 @@ def box_step(curvature, gradient, theta, ridge):  # pragma: no cover - compiled
                 continue
             for p in range(n):
                 i = free[p]
-                r = g[i] - rho * d[i]
-                for j in range(k):
-                    r -= h[i, j] * d[j]
-                newton[p] = r
+                newton[p] = _model_slope(h, g, d, rho, i)
                 for q in range(n):
                     block[p, q] = h[i, free[q]]
                 block[p, p] += rho
@@ -243,6 +238,15 @@ def box_step(curvature, gradient, theta, ridge):  # pragma: no cover - compiled
         if not solved:
             d[:] = np.nan
     return result
+
+
+@njit(cache=True)
+def _model_slope(h, g, d, rho, i):  # pragma: no cover - compiled
+    """:math:`r_i = (g - (H + \\rho I) d)_i`, the model's slope in coordinate ``i`` at ``d``."""
+    r = g[i] - rho * d[i]
+    for j in range(len(d)):
+        r -= h[i, j] * d[j]
+    return r
 
 
 @njit(cache=True)
