@@ -2,8 +2,9 @@
 
 Four independent checks of :func:`studentized_range_sf`: an mpmath evaluation of the usual
 ``1 - CDF`` form at enough digits, the closed form for two groups, SciPy where SciPy is
-accurate, and monotonicity. Then :func:`statistics.tukey_hsd` uses it, and the ANOVA's
-``p < 1e-300`` is checked to be genuine.
+accurate, and monotonicity. Its fixed outer rule is checked against adaptive quadrature, the
+path it falls back to. Then :func:`statistics.tukey_hsd` uses it, and the ANOVA's ``p <
+1e-300`` is checked to be genuine.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import bisect
 import functools
 import math
+from types import SimpleNamespace
 
 import mpmath as mp
 import numpy as np
@@ -20,9 +22,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mpmath.calculus.quadrature import GaussLegendre
-from scipy import stats
+from scipy import integrate, stats
 
-from cirl_study.analysis import statistics
+from cirl_study.analysis import statistics, studentized_range
 from cirl_study.analysis.studentized_range import studentized_range_sf
 
 TINY = np.finfo(np.float64).tiny
@@ -183,6 +185,63 @@ def test_edge_cases_and_arguments():
     for k, df in [(1, 10), (2.5, 10), (4, 0), (4, -3), (4, math.nan)]:
         with pytest.raises(ValueError):
             studentized_range_sf(3.0, k, df)
+
+
+DEEP_Q = {0.5: 1e300, 1: 1e300, 2: 2e150, 10: 5e30, 1996: 63.0, 1e8: 52.5}
+"""Per ``df``, a ``q`` whose tail is about ``1e-300`` (``1e-150`` for ``df = 0.5``: no
+double ``q`` reaches further)."""
+
+FIXED_RULE_CASES = [
+    (q, k, df) for k in (2, 4, 100) for df, deep in DEEP_Q.items() for q in (0.3, 3.0, 12.0, deep)
+]
+"""Tiny to huge ``df``, ``k`` up to 100, ``q`` from the bulk to the deep tail. For ``k = 100,
+df <= 2`` the outer rule's first step is off by up to ``5e-4``: its check must halve it."""
+
+
+def _adaptive_sf(monkeypatch: pytest.MonkeyPatch, q: float, k: int, df: float) -> float:
+    """The tail with the outer integral left to ``scipy.integrate.quad`` from the start."""
+    with monkeypatch.context() as patch:
+        patch.setattr(studentized_range, "_OUTER_MAX_NODES", 0)
+        return studentized_range_sf(q, k, df)
+
+
+@pytest.mark.parametrize(("q", "k", "df"), FIXED_RULE_CASES)
+def test_the_fixed_outer_rule_matches_adaptive_quadrature(monkeypatch, q, k, df):
+    def no_quad(*args, **kwargs):
+        raise AssertionError("the fixed outer rule fell back to quad")
+
+    with monkeypatch.context() as patch:
+        patch.setattr(studentized_range, "integrate", SimpleNamespace(quad=no_quad))
+        fixed = studentized_range_sf(q, k, df)
+    assert fixed > TINY
+    assert fixed == pytest.approx(_adaptive_sf(monkeypatch, q, k, df), rel=1e-12, abs=0)
+
+
+def test_the_adaptive_path_warns_when_quad_is_unsure(monkeypatch):
+    # Two subintervals leave quad's error estimate far above 1e-9 on this skewed integrand.
+    def coarse_quad(*args, **kwargs):
+        return integrate.quad(*args, **{**kwargs, "limit": 2})
+
+    monkeypatch.setattr(studentized_range, "_OUTER_MAX_NODES", 0)
+    monkeypatch.setattr(studentized_range, "integrate", SimpleNamespace(quad=coarse_quad))
+    with pytest.warns(RuntimeWarning, match="relative error up to"):
+        studentized_range_sf(3.0, 100, 1.0)
+
+
+def test_the_report_calls_take_few_outer_nodes(monkeypatch):
+    # k = 4, df = 1996: 64 outer nodes per call (3 for Newton's method, 61 for the rule);
+    # adaptive quadrature takes about 270.
+    nodes = []
+
+    def counted(w, k):
+        nodes.append(np.size(w))
+        return log_range_sf(w, k)
+
+    log_range_sf = studentized_range._log_range_sf
+    monkeypatch.setattr(studentized_range, "_log_range_sf", counted)
+    for q in np.geomspace(0.5, 40, 18):
+        studentized_range_sf(q, 4, 1996)
+    assert sum(nodes) <= 18 * 100
 
 
 def _tukey_frame() -> pd.DataFrame:
