@@ -71,7 +71,10 @@ Cell = tuple[Coordinate, Coordinate]
 Path = Annotated[tuple[Cell, ...], msgspec.Meta(min_length=1)]
 """The cells ``(s_0, ..., s_T)`` of a path."""
 
-_STRUCT = {"frozen": True, "kw_only": True}
+_STRUCT = {"frozen": True, "kw_only": True, "gc": False}
+"""Every record type is immutable, built by keyword, and untracked by the cyclic garbage
+collector: a record is a tree of Structs, tuples and numbers, which cannot form a cycle, and
+a run's rows would otherwise be traversed by every full collection."""
 
 
 class Grid(msgspec.Struct, **_STRUCT):

@@ -13,7 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_logs_helpers import make_record
 
-from cirl_study.logs import decode_trial
+from cirl_study.logs import decode_trial, record_checks
+from cirl_study.logs.record_checks import decode_trials
 from cirl_study.logs.schemas import CHANNELS
 from cirl_study.record import TRIAL_SCHEMA, TrialRecord, encode
 
@@ -253,3 +254,66 @@ def test_the_documented_example_record_is_valid() -> None:
     example = json.loads(text.split("```json\n", 1)[1].split("```", 1)[0])
     assert list(example)[: len(REQUIRED)] == REQUIRED
     assert faults_of(example) == []
+
+
+def _cell(width: int, height: int) -> st.SearchStrategy[list[int]]:
+    """A cell on a ``width x height`` grid or just off it."""
+    return st.lists(st.integers(-1, max(width, height)), min_size=2, max_size=2)
+
+
+@settings(max_examples=400, deadline=None)
+@given(data=st.data(), policy=st.sampled_from(["expert", "best_response"]))
+def test_the_one_pass_check_agrees_with_the_named_faults(data: st.DataObject, policy: str) -> None:
+    """``_sound`` (the reader's one pass) accepts a decoded record exactly when the checks that
+    name each fault find none, whatever cells, moves, steps or players the record holds."""
+    record = plain_record(data.draw(st.integers(0, 50)), policy, rollouts=2)
+    width, height = record["grid"]["width"], record["grid"]["height"]
+    demonstration, deployment = record["demonstration"], record["deployment"]
+    for _ in range(data.draw(st.integers(0, 3))):
+        change = data.draw(
+            st.sampled_from(["cell", "action", "start", "steps", "player", "stays", "rollout"])
+        )
+        if change == "cell":
+            path = data.draw(st.sampled_from([demonstration["states"], *deployment["paths"]]))
+            path[data.draw(st.integers(0, len(path) - 1))] = data.draw(_cell(width, height))
+        elif change == "action":
+            actions = demonstration["actions"]
+            actions[data.draw(st.integers(0, len(actions) - 1))] = data.draw(
+                st.sampled_from(["stay", "N", "S", "E", "W"])
+            )
+        elif change == "start":
+            record["start"] = data.draw(_cell(width, height))
+        elif change == "steps":
+            key = data.draw(st.sampled_from(["learning_steps", "deployment_steps"]))
+            record[key] = data.draw(st.integers(1, 6))
+        elif change == "player":
+            record["policy"] = data.draw(st.sampled_from(["expert", "best_response", "oracle"]))
+            record["robot"] = data.draw(st.sampled_from(["map", "posterior_mean", "pragmatic"]))
+            record["eta"] = data.draw(st.sampled_from([None, 0.5]))
+        elif change == "stays":
+            record["demonstrator_stays"] = data.draw(st.booleans())
+            record["deployment_start"] = data.draw(st.sampled_from(["uniform", "demonstration"]))
+        else:
+            deployment["starts"][0] = data.draw(_cell(width, height))
+    try:
+        decoded = msgspec.json.decode(json.dumps(record).encode(), type=TrialRecord)
+    except msgspec.ValidationError:
+        return  # a coordinate below zero: a type fault, found before any consistency check
+    assert record_checks._sound(decoded) == (list(record_checks._inconsistencies(decoded)) == [])
+
+
+def test_reward_l2_is_checked_record_by_record_in_a_batch() -> None:
+    """Records of several grids and feature counts are checked together, and each fault
+    stays with its own record."""
+    records = [
+        plain_record(subject, policy, num_features=k, width=width)
+        for subject, (policy, k, width) in enumerate(
+            [("expert", 3, 5), ("best_response", 10, 5), ("expert", 3, 6), ("expert", 1, 5)]
+        )
+    ]
+    records[1]["measures"]["reward_l2"] += 1e-6
+    records[2]["theta"].append(0.5)
+    batch = decode_trials(json.dumps(record).encode() for record in records)
+    assert [faults for _, faults in batch] == [faults_of(record) for record in records]
+    assert [len(faults) for _, faults in batch] == [0, 1, 1, 0]
+    assert batch[1][1][0].startswith("measures.reward_l2 is")

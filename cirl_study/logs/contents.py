@@ -4,7 +4,7 @@ Built on :func:`~cirl_study.logs.scan.scan_file` (storage damage: CRCs, truncati
 Content checks: the ``provenance`` metadata record; the schema name and encodings of every
 channel; each ``/cirl/trial`` payload decodes into a
 :class:`~cirl_study.record.TrialRecord`, is its canonical JSON and is consistent
-(:func:`~cirl_study.logs.record_checks.decode_trial`); no trial id twice;
+(:func:`~cirl_study.logs.record_checks.decode_trials`); no trial id twice;
 in an undamaged file, trial log times follow the documented layout, the replay topics hold
 as many messages as the records imply, and the ``trial_index`` metadata record lists the
 file's trials in order.
@@ -33,7 +33,7 @@ from cirl_study.logs.format import (
     trial_duration_ns,
 )
 from cirl_study.logs.provenance import RunIdentity
-from cirl_study.logs.record_checks import decode_trial, payload_trial_id
+from cirl_study.logs.record_checks import decode_trials, payload_trial_id
 from cirl_study.logs.scan import FileScan, scan_file
 from cirl_study.record import TrialRecord, encode
 
@@ -76,8 +76,10 @@ def read_file_contents(path: Path) -> FileContents:
     faults.extend(_channel_faults(contents.scan))
     trial_messages = contents.scan.topic_messages(TRIAL_TOPIC)
     seen: set[str] = set()
-    for index, message in enumerate(trial_messages):
-        record, problems = decode_trial(message.data)
+    decoded = decode_trials(message.data for message in trial_messages)
+    for index, (message, (record, problems)) in enumerate(
+        zip(trial_messages, decoded, strict=True)
+    ):
         # An undecodable payload may still name its trial.
         trial_id = payload_trial_id(message.data) if record is None else record.trial_id
         label = f"trial message {index}" if trial_id is None else f"trial {trial_id}"

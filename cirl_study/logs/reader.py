@@ -39,7 +39,7 @@ from cirl_study.logs.format import (
     temp_files,
 )
 from cirl_study.logs.provenance import RunIdentity
-from cirl_study.logs.record_checks import decode_trial
+from cirl_study.logs.record_checks import decode_trials
 from cirl_study.logs.scan import (
     MESSAGE_HEADER,
     RECORD_PREFIX,
@@ -80,15 +80,15 @@ class _IntactFile:
         return []
 
 
-def _intact_summary(path: Path, *, decode_trials: bool) -> _IntactFile | None:
+def _intact_summary(path: Path, *, with_records: bool) -> _IntactFile | None:
     """The file through its summary, or ``None`` if it does not read cleanly.
 
     Every CRC that covers what is read holds (:func:`~cirl_study.logs.scan.section_crcs_hold`:
     the data section, chunks included, and the summary); there is one ``provenance`` record
     stating a run identity and a ``trial_index`` listing as many distinct trials as the summary
-    counts. With ``decode_trials`` every chunk holding a trial is also decompressed with its
+    counts. With ``with_records`` every chunk holding a trial is also decompressed with its
     own CRC checked, and every record must be complete and consistent
-    (:func:`~cirl_study.logs.record_checks.decode_trial`) and listed by the index in order.
+    (:func:`~cirl_study.logs.record_checks.decode_trials`) and listed by the index in order.
     """
     try:
         data = path.read_bytes()
@@ -99,11 +99,7 @@ def _intact_summary(path: Path, *, decode_trials: bool) -> _IntactFile | None:
         if summary is None or summary.statistics is None:
             return None
         metadata = list(reader.iter_metadata())
-        decoded = (
-            [decode_trial(payload) for payload in _trial_payloads(data, summary)]
-            if decode_trials
-            else []
-        )
+        decoded = decode_trials(_trial_payloads(data, summary)) if with_records else []
     except Exception:  # any damage: the record-by-record scan will say what and salvage
         return None
     provenance = [m for m in metadata if m.name == PROVENANCE_METADATA_NAME]
@@ -116,7 +112,7 @@ def _intact_summary(path: Path, *, decode_trials: bool) -> _IntactFile | None:
         and _states_identity(provenance[0].metadata)
         and index is not None
         and len(index) == len(set(index)) == announced
-        and (not decode_trials or [r.trial_id for r in records] == index)
+        and (not with_records or [r.trial_id for r in records] == index)
     )
     if not sound:
         return None
@@ -201,9 +197,9 @@ def _reading(path: Path) -> _FileReading:
     )
 
 
-def _read_file(path: Path, *, decode_trials: bool = True) -> _IntactFile | FileContents:
+def _read_file(path: Path, *, with_records: bool = True) -> _IntactFile | FileContents:
     """Fast read of an intact file through its summary, else the record-by-record scan."""
-    intact = _intact_summary(path, decode_trials=decode_trials)
+    intact = _intact_summary(path, with_records=with_records)
     return intact if intact is not None else _readable(read_file_contents(path))
 
 
@@ -316,7 +312,7 @@ def _indexed_files(run_dir: Path, identity: RunIdentity) -> list[_IntactFile | F
         return []
     files = []
     for path in _complete_files(run_dir, require_any=False):
-        contents = _read_file(path, decode_trials=False)
+        contents = _read_file(path, with_records=False)
         if contents.faults:
             raise UserError(
                 f"{path} is damaged ({contents.faults[0]}); move it out of {run_dir} "
