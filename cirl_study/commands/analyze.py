@@ -75,21 +75,25 @@ def analyze(
     its questions (Milli & Dragan's 2 x 2, the best response against the pedagogic human and
     the regret-optimal demonstration), with report.md, results.json, trials.csv and a figure.
     """
-    # The statistics and plotting libraries load only when an analysis is asked for, while
-    # the workers read the logs; each kind of report loads its own module after.
-    from cirl_study.analysis.table import complete_main_subjects
-    from cirl_study.errors import UserError
-    from cirl_study.logs import read_run, read_trials
-    from cirl_study.logs.provenance import machine_provenance
-    from cirl_study.study.audit import audit_run, resume_command, run_pipeline_of
 
     def stage(name: str) -> None:
         """Say at a terminal which stage is under way (each can take seconds)."""
         if sys.stderr.isatty():
             typer.echo(f"{name} ...", err=True)
 
+    # Only the reader loads before the workers start reading the logs; the rest (pandas, the
+    # statistics and plotting libraries) loads meanwhile, and each kind of report loads its
+    # own module after.
+    from cirl_study.logs import read_run, read_trials
+
     stage(f"reading the logs of {run}")
     contents = read_run(run, salvage=partial, meanwhile=_load_analysis_libraries)
+
+    from cirl_study.analysis.table import complete_main_subjects
+    from cirl_study.errors import UserError
+    from cirl_study.logs.provenance import machine_provenance
+    from cirl_study.study.audit import audit_run, resume_command, run_pipeline_of
+
     for warning in contents.warnings:
         typer.echo(f"warning: {warning}", err=True)
     pipeline = run_pipeline_of(contents.identity)
@@ -194,9 +198,14 @@ def analyze(
 
 
 def _load_analysis_libraries() -> None:
-    """Import the statistics and figures of every report (pingouin, scipy, matplotlib: about
-    1.5 s), to be done while the logs are read."""
-    for module in ("cirl_study.analysis.statistics", "cirl_study.analysis.figures"):
+    """Import what every report needs after the reading (pandas, pingouin, scipy, matplotlib
+    and the run's audit: about 1.5 s), to be done while the logs are read."""
+    for module in (
+        "cirl_study.analysis.statistics",
+        "cirl_study.analysis.figures",
+        "cirl_study.analysis.table",
+        "cirl_study.study.audit",
+    ):
         importlib.import_module(module)
 
 

@@ -8,8 +8,6 @@ from typing import Annotated
 
 import typer
 
-from cirl_study.logs import validate_run
-
 app = typer.Typer(rich_markup_mode=None)
 """The ``validate`` command, merged into :data:`cirl_study.cli.app`."""
 
@@ -35,6 +33,7 @@ def validate(
 
     Exit code 0 when everything is sound, 1 on any fault, 2 when RUN is not a directory.
     """
+    from cirl_study.logs import validate_run
     from cirl_study.study.audit import plan_faults
 
     verdict = validate_run(run)

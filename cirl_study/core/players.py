@@ -4,25 +4,19 @@ A human policy is a :class:`Human`; a robot is an
 :data:`~cirl_study.core.estimate.Estimator`. Both read the batch's game
 (:class:`~cirl_study.core.apprenticeship.Apprenticeship`). Adding one is one function in its
 own module and one :func:`register_human` or :func:`register_robot` line here.
+
+Each registered player imports its module when it first plays: reading, checking and
+analysing logs need only the players' names and what they imply for a record
+(:attr:`Human.takes_eta`, ``teaches``), and so never load the numerical core (numba and
+scipy, about 0.3 s of every such command's start).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from cirl_study.core.apprenticeship import Apprenticeship
-from cirl_study.core.estimate import Estimator
-from cirl_study.core.humans import best_response_paths, expert_paths, literal_paths
-from cirl_study.core.planning import FloatArray, IntArray
-from cirl_study.core.posterior import posterior_mean_estimate
-from cirl_study.core.robot import map_estimate
-from cirl_study.core.teaching import (
-    literal_estimate,
-    pedagogic_paths,
-    pragmatic_estimate,
-    regret_optimal_paths,
-)
 from cirl_study.record import (
     BEST_RESPONSE,
     EXPERT,
@@ -34,6 +28,11 @@ from cirl_study.record import (
     PRAGMATIC,
     REGRET_OPTIMAL,
 )
+
+if TYPE_CHECKING:
+    from cirl_study.core.apprenticeship import Apprenticeship
+    from cirl_study.core.estimate import Estimate, Estimator
+    from cirl_study.core.planning import FloatArray, IntArray
 
 
 @dataclass(frozen=True)
@@ -93,45 +92,71 @@ def reference_robot(robots: Iterable[str]) -> str:
     return next(name for name in ROBOTS if name in present)
 
 
-register_human(
-    EXPERT,
-    Human(lambda game, theta, _eta, _seeds: expert_paths(game.learning, theta), takes_eta=False),
-)
-register_human(
-    BEST_RESPONSE,
-    Human(
-        lambda game, theta, eta, _seeds: best_response_paths(game.learning, theta, eta),
-        takes_eta=True,
-    ),
-)
-register_human(
-    LITERAL,
-    Human(
-        lambda game, theta, _eta, seeds: literal_paths(game.learning, theta, seeds),
-        takes_eta=False,
-    ),
-)
-register_human(
-    PEDAGOGIC,
-    Human(
-        lambda game, theta, _eta, seeds: pedagogic_paths(game, theta, seeds),
-        takes_eta=False,
-        teaches=True,
-    ),
-)
-register_human(
-    REGRET_OPTIMAL,
-    Human(
-        lambda game, theta, _eta, seeds: regret_optimal_paths(game, theta, seeds),
-        takes_eta=False,
-        teaches=True,
-    ),
-)
+def _expert(game: Apprenticeship, theta: FloatArray, _eta: object, _seeds: IntArray) -> IntArray:
+    from cirl_study.core.humans import expert_paths
 
-register_robot(MAP, Robot(lambda game, demos, _seeds: map_estimate(game.learning, demos)))
-register_robot(
-    POSTERIOR_MEAN,
-    Robot(lambda game, demos, seeds: posterior_mean_estimate(game.learning, demos, seeds)),
-)
-register_robot(LITERAL_ROBOT, Robot(literal_estimate, teaches=True))
-register_robot(PRAGMATIC, Robot(pragmatic_estimate, teaches=True))
+    return expert_paths(game.learning, theta)
+
+
+def _best_response(
+    game: Apprenticeship, theta: FloatArray, eta: FloatArray | None, _seeds: IntArray
+) -> IntArray:
+    from cirl_study.core.humans import best_response_paths
+
+    return best_response_paths(game.learning, theta, eta)
+
+
+def _literal(game: Apprenticeship, theta: FloatArray, _eta: object, seeds: IntArray) -> IntArray:
+    from cirl_study.core.humans import literal_paths
+
+    return literal_paths(game.learning, theta, seeds)
+
+
+def _pedagogic(game: Apprenticeship, theta: FloatArray, _eta: object, seeds: IntArray) -> IntArray:
+    from cirl_study.core.teaching import pedagogic_paths
+
+    return pedagogic_paths(game, theta, seeds)
+
+
+def _regret_optimal(
+    game: Apprenticeship, theta: FloatArray, _eta: object, seeds: IntArray
+) -> IntArray:
+    from cirl_study.core.teaching import regret_optimal_paths
+
+    return regret_optimal_paths(game, theta, seeds)
+
+
+def _map(game: Apprenticeship, demos: IntArray, _seeds: IntArray) -> Estimate:
+    from cirl_study.core.robot import map_estimate
+
+    return map_estimate(game.learning, demos)
+
+
+def _posterior_mean(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estimate:
+    from cirl_study.core.posterior import posterior_mean_estimate
+
+    return posterior_mean_estimate(game.learning, demos, seeds)
+
+
+def _literal_robot(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estimate:
+    from cirl_study.core.teaching import literal_estimate
+
+    return literal_estimate(game, demos, seeds)
+
+
+def _pragmatic(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estimate:
+    from cirl_study.core.teaching import pragmatic_estimate
+
+    return pragmatic_estimate(game, demos, seeds)
+
+
+register_human(EXPERT, Human(_expert, takes_eta=False))
+register_human(BEST_RESPONSE, Human(_best_response, takes_eta=True))
+register_human(LITERAL, Human(_literal, takes_eta=False))
+register_human(PEDAGOGIC, Human(_pedagogic, takes_eta=False, teaches=True))
+register_human(REGRET_OPTIMAL, Human(_regret_optimal, takes_eta=False, teaches=True))
+
+register_robot(MAP, Robot(_map))
+register_robot(POSTERIOR_MEAN, Robot(_posterior_mean))
+register_robot(LITERAL_ROBOT, Robot(_literal_robot, teaches=True))
+register_robot(PRAGMATIC, Robot(_pragmatic, teaches=True))

@@ -89,7 +89,7 @@ _NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
 CENTRE_PLACEMENTS: tuple[str, ...] = ("per_draw", "shared", "lattice")
-"""Where the ``K`` RBF centres lie (:func:`cirl_study.study.plan.draw_subject`): drawn uniformly
+"""Where the ``K`` RBF centres lie (:func:`cirl_study.study.plan.draw_reward`): drawn uniformly
 with each reward draw (the paper's reading), drawn once per feature level and shared by every
 reward draw, or on a regular lattice."""
 
@@ -573,9 +573,6 @@ the paths, at 1e3 all but certain to be the most telling path (``demonstration =
 
 def _teaching(top: _Table, game: GameSpec, main: MainSpec) -> TeachingSpec | None:
     """The ``[teaching]`` table: required exactly when a human or robot of ``main`` teaches."""
-    from cirl_study.core.gridworld import Gridworld
-    from cirl_study.core.hypotheses import MAX_PATHS, path_count
-    from cirl_study.core.maxent import Phase
     from cirl_study.core.players import HUMANS, ROBOTS
 
     teaching = [p for p in main.policies if HUMANS[p].teaches]
@@ -584,6 +581,11 @@ def _teaching(top: _Table, game: GameSpec, main: MainSpec) -> TeachingSpec | Non
         if teaching:
             top.fail("teaching", f"is missing ({', '.join(teaching)} need a hypothesis space)")
         return None
+    # The numerical core (numba) loads only for a pipeline with a hypothesis space.
+    from cirl_study.core.gridworld import Gridworld
+    from cirl_study.core.hypotheses import MAX_PATHS, path_count
+    from cirl_study.core.maxent import Phase
+
     if "multiverse" in top.data:
         top.fail("teaching", "must not be given with [multiverse]")
     if "lambda_sweep" in top.data:
