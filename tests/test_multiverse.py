@@ -37,10 +37,11 @@ from cirl_study.record import MAIN, encode
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.multiverse import cv_universe, universe_pipeline
 from cirl_study.study.plan import (
-    draw_subject,
+    draw_reward,
     eta_cv_trials,
     lattice_centres,
     study_trials,
+    subject_id,
     trial_counts,
 )
 from cirl_study.study.runner import run_pipeline
@@ -211,16 +212,16 @@ def test_centres_shared_by_every_draw_or_on_a_lattice_keep_each_draws_theta():
         universe_pipeline(pipeline, replace(pipeline.multiverse.base, centres=c))
         for c in ("per_draw", "shared", "lattice")
     )
-    subjects = {
-        name: [draw_subject(p, "main", 3, i) for i in range(1, 5)]
+    rewards = {
+        name: [draw_reward(p, subject_id("main", 3, i), 3) for i in range(1, 5)]
         for name, p in (("per_draw", per_draw), ("shared", shared), ("lattice", lattice))
     }
     for i in range(4):
-        assert len({subjects[name][i].theta for name in subjects}) == 1
-    assert len({s.features.centers for s in subjects["per_draw"]}) == 4
-    assert len({s.features.centers for s in subjects["shared"]}) == 1
-    assert subjects["shared"][0].features.centers != subjects["per_draw"][0].features.centers
-    (centres,) = {s.features.centers for s in subjects["lattice"]}
+        assert len({rewards[name][i][1] for name in rewards}) == 1
+    assert len({features.centers for features, _ in rewards["per_draw"]}) == 4
+    assert len({features.centers for features, _ in rewards["shared"]}) == 1
+    assert rewards["shared"][0][0].centers != rewards["per_draw"][0][0].centers
+    (centres,) = {features.centers for features, _ in rewards["lattice"]}
     assert np.allclose(centres, [(2 / 3, 2), (2, 2), (10 / 3, 2)])  # 5 x 5 grid, 1 x 3 lattice
 
 

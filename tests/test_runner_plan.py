@@ -14,10 +14,12 @@ import pytest
 from cirl_study.record import Demonstration, Measures, TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.plan import (
-    draw_subject,
+    draw_reward,
+    eta_cv_trial_ids,
     eta_cv_trials,
     study_trial_ids,
     study_trials,
+    subject_id,
     trial_counts,
     trial_id,
     trial_seed,
@@ -48,7 +50,9 @@ def test_ids_are_unique_and_counts_match(smoke: Pipeline) -> None:
 @pytest.mark.parametrize("name", ["smoke", "robots", "multiverse-small", "teaching-small"])
 def test_the_audits_ids_are_the_plans(name: str) -> None:
     pipeline = load_pipeline(SMOKE.parent / f"{name}.toml")
-    cv = {(t.universe, t.policy, t.num_features) for t in eta_cv_trials(pipeline)}
+    cv_trials = eta_cv_trials(pipeline)
+    assert eta_cv_trial_ids(pipeline) == [t.trial_id for t in cv_trials]
+    cv = {(t.universe, t.policy, t.num_features) for t in cv_trials}
     etas = {key: 0.1 * (position + 1) for position, key in enumerate(sorted(cv, key=str))}
     trials = study_trials(pipeline, etas)
     assert study_trial_ids(pipeline, etas) == [(t.block, t.trial_id) for t in trials]
@@ -148,12 +152,14 @@ def test_more_subjects_keep_the_first_draws(smoke: Pipeline) -> None:
     bigger = replace(smoke, main=replace(smoke.main, subjects=9))
     small, large = by_id(study_trials(smoke, ETAS)), by_id(study_trials(bigger, ETAS))
     assert small.items() <= large.items()
-    assert draw_subject(bigger, "main", 3, 2) == draw_subject(smoke, "main", 3, 2)
+    second = subject_id("main", 3, 2)
+    assert draw_reward(bigger, second, 3) == draw_reward(smoke, second, 3)
 
 
 def test_another_root_seed_draws_anew(smoke: Pipeline) -> None:
     other = replace(smoke, seed=smoke.seed + 1)
-    assert draw_subject(other, "main", 3, 1).theta != draw_subject(smoke, "main", 3, 1).theta
+    first = subject_id("main", 3, 1)
+    assert draw_reward(other, first, 3)[1] != draw_reward(smoke, first, 3)[1]
 
 
 def played(spec: TrialSpec, regret: float) -> TrialRecord:

@@ -27,7 +27,7 @@ from cirl_study.analysis.markdown import (
     svg_name,
     table,
 )
-from cirl_study.analysis.output import write_report_directory
+from cirl_study.analysis.output import csv_text, write_report_directory
 from cirl_study.analysis.results import (
     Results,
     combined,
@@ -744,21 +744,24 @@ def write_report(
     progress("statistics and figures")
     everything = trial_table(trials)
     estimated = estimates(trials, everything, pipeline_name)
-    # The figures need only the estimates: they are drawn in workers while the tests run here.
+    # The figures need only the estimates: they are drawn in workers while the tests, the
+    # claims and the text of every other file are computed here.
     with figures.drawing(_drawings(trials, records_of, estimated)) as drawn:
         results = combined(estimated, tests(reference_main_block(everything)))
+        results["run_id"] = run_id
+        results["partial"] = None if partial is None else plain(partial)
+        results["claims"] = evaluate_claims(results, theory)
+        if theory is not None:
+            results["theory"] = plain(theory)
+        markdown = render_markdown(results)
+        tables = {"trials.csv": csv_text(everything)}
         pngs = drawn()
-    results["run_id"] = run_id
-    results["partial"] = None if partial is None else plain(partial)
-    results["claims"] = evaluate_claims(results, theory)
-    if theory is not None:
-        results["theory"] = plain(theory)
     names = [n for png_name, _ in FIGURES.values() for n in (png_name, svg_name(png_name))]
     write_report_directory(
         out_dir,
-        markdown=render_markdown(results),
+        markdown=markdown,
         results=results,
-        tables={"trials.csv": everything},
+        tables=tables,
         figures={name: pngs.get(name) for name in names},
         provenance=provenance,
     )

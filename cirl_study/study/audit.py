@@ -2,7 +2,7 @@
 
 Every log file carries the run's pipeline file (:class:`~cirl_study.logs.provenance.RunIdentity`),
 so the logs alone say what the run must hold. :func:`audit_run` parses that pipeline, plans
-block ``eta_cv`` (:func:`~cirl_study.study.plan.eta_cv_trials`), chooses eta from the logged
+block ``eta_cv`` (:func:`~cirl_study.study.plan.eta_cv_trial_ids`), chooses eta from the logged
 cross-validation records exactly as the run did (:func:`~cirl_study.study.eta_cv.choose_etas`),
 plans blocks ``main`` and ``lambda_sweep`` with it, and compares trial ids: a planned trial
 that is not logged is *missing*, a logged trial that is not planned is *foreign*. Until every
@@ -22,7 +22,7 @@ from cirl_study.errors import UserError
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
-from cirl_study.study.plan import eta_cv_trials, study_trial_ids, trial_counts
+from cirl_study.study.plan import eta_cv_trial_ids, study_trial_ids, trial_counts
 from cirl_study.study.spec import Pipeline, parse_pipeline
 
 EXAMPLES = 3
@@ -108,13 +108,12 @@ def run_pipeline_of(identity: RunIdentity) -> Pipeline:
 def audit_run(pipeline: Pipeline, rows: Sequence[TrialRow]) -> RunAudit:
     """Compare the logged trials (their ``rows``) with the trials ``pipeline`` plans."""
     logged = {row.trial_id: row for row in rows}
-    cv_plan = eta_cv_trials(pipeline)
-    cv_ids = {trial.trial_id for trial in cv_plan}
+    cv_ids = set(eta_cv_trial_ids(pipeline))
     cv_logged = [logged[trial_id] for trial_id in cv_ids if trial_id in logged]
-    blocks = [BlockAudit(ETA_CV, len(cv_plan), len(cv_logged))]
+    blocks = [BlockAudit(ETA_CV, len(cv_ids), len(cv_logged))]
     counts = trial_counts(pipeline)
     study_blocks = [block for block in counts if block != ETA_CV]
-    if len(cv_logged) == len(cv_plan):
+    if len(cv_logged) == len(cv_ids):
         etas = {key: choice.eta for key, choice in choose_etas(cv_logged).items()}
         plan = study_trial_ids(pipeline, etas)
         planned = {trial_id for _, trial_id in plan} | cv_ids
@@ -132,7 +131,7 @@ def audit_run(pipeline: Pipeline, rows: Sequence[TrialRow]) -> RunAudit:
             for trial_id, row in logged.items()
             if (row.block == ETA_CV and trial_id not in cv_ids) or row.block not in counts
         )
-    return RunAudit(tuple(blocks), tuple(foreign), len(cv_logged) == len(cv_plan))
+    return RunAudit(tuple(blocks), tuple(foreign), len(cv_logged) == len(cv_ids))
 
 
 def plan_faults(

@@ -40,6 +40,7 @@ import hashlib
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
+from functools import cached_property
 from typing import TypeVar
 
 import numpy as np
@@ -94,22 +95,48 @@ def trial_seed(root_seed: int, demonstration: str) -> int:
     return int(stream.generate_state(1, np.uint64)[0] >> 11)
 
 
-@dataclass(frozen=True)
+Planned = TypeVar("Planned")
+"""What a plan gives of each trial: its :class:`TrialSpec`, or its block and id."""
+
+
+@dataclass(frozen=True, eq=False)
 class Subject:
-    """One reward draw: its RBF features and ``theta``."""
+    """Reward draw ``index`` (1-based) of ``group`` at ``num_features`` features of a pipeline.
 
-    id: str
+    Its RBF features and ``theta`` are drawn when first asked for (:func:`draw_reward`): a
+    plan of trial ids needs only the subject's :attr:`id`.
+    """
+
+    pipeline: Pipeline
+    group: str
     num_features: int
-    features: RBFFeatures
-    theta: tuple[float, ...]
+    index: int
+
+    @property
+    def id(self) -> str:
+        return subject_id(self.group, self.num_features, self.index)
+
+    @cached_property
+    def reward(self) -> tuple[RBFFeatures, tuple[float, ...]]:
+        """The draw's features and ``theta`` (:func:`draw_reward`)."""
+        return draw_reward(self.pipeline, self.id, self.num_features)
+
+    @property
+    def features(self) -> RBFFeatures:
+        return self.reward[0]
+
+    @property
+    def theta(self) -> tuple[float, ...]:
+        return self.reward[1]
 
 
-def draw_subject(pipeline: Pipeline, group: str, num_features: int, index: int) -> Subject:
-    """Draw subject ``index`` of ``group``: centres ``c_k`` then ``theta``, from its own stream;
-    the centres are replaced by the shared or lattice ones when ``game.centres`` says so."""
-    ident = subject_id(group, num_features, index)
+def draw_reward(
+    pipeline: Pipeline, subject: str, num_features: int
+) -> tuple[RBFFeatures, tuple[float, ...]]:
+    """Draw the reward of ``subject``: centres ``c_k`` then ``theta``, from its own stream; the
+    centres are replaced by the shared or lattice ones when ``game.centres`` says so."""
     game = pipeline.game
-    rng = np.random.default_rng(random_stream(pipeline.seed, f"subject:{ident}"))
+    rng = np.random.default_rng(random_stream(pipeline.seed, f"subject:{subject}"))
     centers = _uniform_centres(rng, game, num_features)
     theta = rng.uniform(-1.0, 1.0, size=num_features)
     if game.centres == "shared":
@@ -120,7 +147,7 @@ def draw_subject(pipeline: Pipeline, group: str, num_features: int, index: int) 
     features = RBFFeatures(
         centers=tuple((float(x), float(y)) for x, y in centers), sigma=game.sigma
     )
-    return Subject(ident, num_features, features, tuple(float(t) for t in theta))
+    return features, tuple(float(t) for t in theta)
 
 
 def _uniform_centres(rng: np.random.Generator, game: GameSpec, count: int) -> np.ndarray:
@@ -150,7 +177,7 @@ def lattice_centres(width: int, height: int, count: int) -> np.ndarray:
 
 
 def _subjects(pipeline: Pipeline, group: str, num_features: int, count: int) -> list[Subject]:
-    return [draw_subject(pipeline, group, num_features, i) for i in range(1, count + 1)]
+    return [Subject(pipeline, group, num_features, i) for i in range(1, count + 1)]
 
 
 def _trial(
@@ -223,11 +250,24 @@ def eta_cv_trials(pipeline: Pipeline) -> list[TrialSpec]:
     """Block ``eta_cv``: each policy with a trade-off at every eta of the grid, on ``cv`` draws,
     watched by the reference robot; in a multiverse, that of every cross-validation universe
     (:func:`~cirl_study.study.multiverse.cv_universe`)."""
+    return _eta_cv_plan(pipeline, _trial)
+
+
+def eta_cv_trial_ids(pipeline: Pipeline) -> list[str]:
+    """The id of every trial of :func:`eta_cv_trials`, in its order, without building them."""
+    return [trial_id for _, trial_id in _eta_cv_plan(pipeline, _block_and_id)]
+
+
+def _eta_cv_plan(
+    pipeline: Pipeline,
+    planned: Callable[[Pipeline, str, Subject, str, float, float | None, str], Planned],
+) -> list[Planned]:
+    """:func:`eta_cv_trials`, each trial given by ``planned`` (see :func:`_study_plan`)."""
     if pipeline.multiverse is not None:
         return [
             trial
             for universe in _cv_universes(pipeline)
-            for trial in eta_cv_trials(universe_pipeline(pipeline, universe))
+            for trial in _eta_cv_plan(universe_pipeline(pipeline, universe), planned)
         ]
     cv = pipeline.eta_cv
     robot = pipeline.main.reference_robot
@@ -235,7 +275,7 @@ def eta_cv_trials(pipeline: Pipeline) -> list[TrialSpec]:
     for k in pipeline.game.feature_levels:
         subjects = _subjects(pipeline, CV_GROUP, k, cv.subjects)
         trials += [
-            _trial(pipeline, ETA_CV, subject, policy, cv.rationality, eta, robot)
+            planned(pipeline, ETA_CV, subject, policy, cv.rationality, eta, robot)
             for policy in pipeline.policies_with_eta
             for eta in cv.etas
             for subject in subjects
@@ -264,9 +304,6 @@ def study_trial_ids(
     the trials: a run's audit needs no more, and drawing every trial's seed is most of the
     cost of planning."""
     return _study_plan(pipeline, etas, _block_and_id)
-
-
-Planned = TypeVar("Planned")
 
 
 def _study_plan(
@@ -301,8 +338,10 @@ def _single_study_plan(
     levels = pipeline.game.feature_levels
     subjects = {k: _subjects(pipeline, TEST_GROUP, k, main.subjects) for k in levels}
 
+    with_eta = pipeline.policies_with_eta
+
     def eta_of(policy: str, k: int) -> float | None:
-        return etas[cv, policy, k] if policy in pipeline.policies_with_eta else None
+        return etas[cv, policy, k] if policy in with_eta else None
 
     main_block = [
         planned(pipeline, MAIN, subject, policy, main.rationality, eta_of(policy, k), robot)
