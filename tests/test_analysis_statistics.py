@@ -184,6 +184,28 @@ def test_tukey_hsd_matches_r_tukeyhsd_on_the_penguins():
     )
 
 
+def test_tukey_hsd_is_pingouins_but_for_the_p_values():
+    penguins = pg.read_dataset("penguins").dropna(subset=["sex"])
+    data = pd.DataFrame(
+        {
+            "num_features": penguins["species"].map({"Adelie": 1, "Chinstrap": 2, "Gentoo": 3}),
+            "policy": penguins["sex"].map({"female": "best_response", "male": "expert"}),
+            "mass": penguins["body_mass_g"],
+        }
+    )
+    data.loc[data.index[::40], "mass"] = np.nan  # dropped, as pingouin drops them
+    ours = statistics.tukey_hsd(data, "mass")
+    theirs = pg.pairwise_tukey(data=data, dv="mass", between=["num_features", "policy"])
+    assert list(zip(ours["a_num_features"], ours["a_policy"], strict=True)) == list(theirs["A"])
+    assert list(zip(ours["b_num_features"], ours["b_policy"], strict=True)) == list(theirs["B"])
+    for column, theirs_column in [("mean_a", "mean_A"), ("mean_b", "mean_B"), ("diff", "diff"),
+                                  ("se", "se"), ("T", "T"), ("hedges", "hedges")]:  # fmt: skip
+        np.testing.assert_allclose(ours[column], theirs[theirs_column], rtol=1e-13)
+    # Where SciPy's 1 - CDF still has digits, the two p-values agree.
+    shown = theirs["p_tukey"] > 1e-6
+    np.testing.assert_allclose(ours["p_tukey"][shown], theirs["p_tukey"][shown], rtol=1e-6)
+
+
 def test_wilcoxon_tests_the_paired_differences_per_level(main):
     frame = statistics.wilcoxon(main, "kl").set_index("num_features")
     for level in (3, 10):

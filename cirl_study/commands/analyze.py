@@ -84,7 +84,7 @@ def analyze(
     # Only the reader loads before the workers start reading the logs; the rest (pandas, the
     # statistics and plotting libraries) loads meanwhile, and each kind of report loads its
     # own module after.
-    from cirl_study.logs import read_run, read_trials
+    from cirl_study.logs import read_run
 
     stage(f"reading the logs of {run}")
     contents = read_run(run, salvage=partial, meanwhile=_load_analysis_libraries)
@@ -179,7 +179,7 @@ def analyze(
         trials,
         target,
         contents.identity.pipeline_name,
-        records_of=lambda wanted: read_trials(run, contents.identity, wanted),
+        records_of=lambda wanted: contents.records(run, wanted),
         run_id=contents.identity.run_id,
         theory=theory,
         provenance=provenance,
@@ -198,8 +198,9 @@ def analyze(
 
 
 def _load_analysis_libraries() -> None:
-    """Import what every report needs after the reading (pandas, pingouin, scipy, matplotlib
-    and the run's audit: about 1.5 s), to be done while the logs are read."""
+    """Import what every report needs after the reading (pandas, scipy, matplotlib and the
+    run's audit: about 1 s), to be done while the logs are read. pingouin loads with the
+    first test, while the figures are drawn (:mod:`cirl_study.analysis.statistics`)."""
     for module in (
         "cirl_study.analysis.statistics",
         "cirl_study.analysis.figures",
