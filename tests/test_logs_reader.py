@@ -9,7 +9,7 @@ import pytest
 from test_logs_helpers import make_record, make_study, provenance_for
 
 from cirl_study.errors import UserError
-from cirl_study.logs import RunIdentity, TrialLogWriter, logged_trials, read_run
+from cirl_study.logs import RunIdentity, TrialLogWriter, logged_trials, read_run, read_trials
 from cirl_study.logs.scan import scan_file
 from cirl_study.record import TrialRecord, TrialRow
 
@@ -45,6 +45,28 @@ def test_the_rows_of_every_file_sorted_by_trial_id(run: Path) -> None:
     assert contents.identity == IDENTITY and contents.identity.pipeline_name == "smoke"
     assert contents.warnings == [] and contents.damaged == []
     assert logged_trials(run, IDENTITY) == {r.trial_id for r in study}
+
+
+def test_whole_records_are_fetched_from_the_files_that_log_them(run: Path) -> None:
+    study = make_study(subjects=2)
+    write(run / "b.mcap", study[:5])
+    write(run / "a.mcap", study[5:])
+    contents = read_run(run)
+    assert contents.files == [
+        (run / "a.mcap", [r.trial_id for r in study[5:]]),
+        (run / "b.mcap", [r.trial_id for r in study[:5]]),
+    ]
+    wanted = {study[1].trial_id, study[7].trial_id}
+    fetched = contents.records(run, wanted)
+    assert sorted(fetched, key=lambda r: r.trial_id) == sorted(
+        [study[1], study[7]], key=lambda r: r.trial_id
+    )
+    assert fetched == read_trials(run, IDENTITY, wanted)
+    other = {**PROVENANCE, **provenance_for(name="paper")}
+    (run / "b.mcap").unlink()
+    write(run / "b.mcap", study[:5], other)  # replaced since it was read
+    with pytest.raises(UserError, match="b.mcap: now holds the logs of another run"):
+        contents.records(run, wanted)
 
 
 def test_temporary_files_are_ignored(run: Path) -> None:

@@ -20,14 +20,15 @@ from __future__ import annotations
 
 import io
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+import numpy as np
 from mcap.data_stream import ReadDataStream
 from mcap.opcode import Opcode
 from mcap.reader import make_reader
-from mcap.records import Chunk, MessageIndex
+from mcap.records import Chunk
 from mcap.summary import Summary
 
 from cirl_study.errors import UserError
@@ -53,14 +54,21 @@ from cirl_study.workers import started
 @dataclass(frozen=True)
 class RunContents:
     """The trials of a run as rows (:class:`~cirl_study.record.TrialRow`, sorted by
-    ``trial_id``), each file's provenance, the run's identity, the damaged files salvaged and
-    the warnings raised while reading."""
+    ``trial_id``), each file's provenance, the run's identity, the damaged files salvaged,
+    the warnings raised while reading, and each file with the ids of the trials it logs
+    (``files``, in the order read)."""
 
     rows: list[TrialRow]
     provenance: list[dict[str, str]]
     identity: RunIdentity
     damaged: list[Path]
     warnings: list[str]
+    files: list[tuple[Path, list[str]]]
+
+    def records(self, run_dir: Path, wanted: set[str]) -> list[TrialRecord]:
+        """The whole records of the ``wanted`` trials, decoding only the files that log one
+        (:func:`read_trials` without reading every file's index again)."""
+        return _records_of(run_dir, self.identity, self.files, wanted)
 
 
 @dataclass
@@ -141,17 +149,30 @@ def _trial_payloads(data: bytes, summary: Summary) -> list[bytes]:
         start = index.chunk_start_offset + RECORD_PREFIX
         chunk = Chunk.read(ReadDataStream(io.BytesIO(data[start : start + index.chunk_length])))
         raw = decompressed_chunk(chunk)
-        position = index.message_index_offsets[channel] + RECORD_PREFIX
-        message_index = MessageIndex.read(ReadDataStream(io.BytesIO(data[position:])))
-        if message_index.channel_id != channel:
-            raise ValueError("message index of another channel")
-        for offset in sorted(offset for _, offset in message_index.records):
+        for offset in _message_offsets(data, index.message_index_offsets[channel], channel):
             opcode, length, channel_id = struct.unpack_from("<BQH", raw, offset)
             if opcode != Opcode.MESSAGE or channel_id != channel:
                 raise ValueError(f"no trial message at offset {offset}")
             body = offset + RECORD_PREFIX
             payloads.append(raw[body + MESSAGE_HEADER : body + length])
     return payloads
+
+
+def _message_offsets(data: bytes, position: int, channel: int) -> list[int]:
+    """The offsets in its chunk of every message a ``MessageIndex`` record lists, sorted.
+
+    The record at ``position`` is opcode, length, ``channel_id`` (u16), ``records_length``
+    (u32) and ``(log_time, offset)`` pairs of u64 (MCAP specification); read with numpy
+    rather than the mcap package's reader, which takes each pair in Python.
+    """
+    opcode, length, channel_id, records_length = struct.unpack_from("<BQHI", data, position)
+    if opcode != Opcode.MESSAGE_INDEX or channel_id != channel:
+        raise ValueError("no message index of the trial channel there")
+    if records_length % 16 or records_length + 6 != length:
+        raise ValueError("a message index of the wrong length")
+    start = position + RECORD_PREFIX + 6
+    pairs = np.frombuffer(data, dtype="<u8", count=records_length // 8, offset=start)
+    return sorted(pairs[1::2].tolist())
 
 
 def _states_identity(provenance: dict[str, str]) -> bool:
@@ -226,6 +247,7 @@ def read_run(
     identities: dict[RunIdentity, Path] = {}
     first_file: dict[str, Path] = {}
     provenance, damaged, warnings = [], [], []
+    files: list[tuple[Path, list[str]]] = []
     with started(_reading, _complete_files(run_dir)) as readings:
         meanwhile()
         for reading in readings:
@@ -251,6 +273,7 @@ def read_run(
             _same_identity(run_dir, identities)
             _refuse_duplicates(first_file, path, reading.trial_ids)
             provenance.append(reading.provenance)
+            files.append((path, reading.trial_ids))
             rows += reading.rows
     unfinished = temp_files(run_dir)
     if unfinished:
@@ -264,6 +287,7 @@ def read_run(
         identity=_same_identity(run_dir, identities),
         damaged=damaged,
         warnings=warnings,
+        files=files,
     )
 
 
@@ -290,14 +314,30 @@ def read_trials(run_dir: str | Path, identity: RunIdentity, wanted: set[str]) ->
     run_dir = Path(run_dir)
     files = _indexed_files(run_dir, identity)
     _distinct_trial_ids(files)
+    return _records_of(run_dir, identity, [(f.path, _trial_ids(f)) for f in files], wanted)
+
+
+def _records_of(
+    run_dir: Path,
+    identity: RunIdentity,
+    files: Iterable[tuple[Path, Sequence[str]]],
+    wanted: set[str],
+) -> list[TrialRecord]:
+    """The records of the ``wanted`` trials of ``files`` (each with the ids it logs), each
+    file that logs one decoded with :func:`read_run`'s checks and found of ``identity``'s run.
+    """
     records = []
-    for indexed in files:
-        if not wanted.intersection(_trial_ids(indexed)):
+    for path, trial_ids in files:
+        if not wanted.intersection(trial_ids):
             continue
-        contents = _read_file(indexed.path)
+        contents = _read_file(path)
         if contents.faults:
-            raise UserError(f"{indexed.path}: unusable ({contents.faults[0]})")
-        _one_identity(run_dir, [contents])
+            raise UserError(f"{path}: unusable ({contents.faults[0]})")
+        found = _one_identity(run_dir, [contents])
+        if found != identity:
+            raise UserError(
+                f"{path}: now holds the logs of another run ({_difference(found, identity)})"
+            )
         records += [record for record in contents.records if record.trial_id in wanted]
     return records
 
