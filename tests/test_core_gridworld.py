@@ -13,6 +13,8 @@ from cirl_study.core.gridworld import (
     action_between,
     path_actions,
     path_states,
+    paths_actions,
+    paths_cells,
     rbf_features,
 )
 
@@ -150,6 +152,24 @@ def test_every_path_round_trips_through_its_actions(width, height, start, horizo
         assert [action_between(a, b) for a, b in zip(cells[:-1], cells[1:], strict=True)] == actions
         seen.add(tuple(actions))
     assert len(seen) == len(paths) == bf.count_paths(width, height, start, horizon)
+
+
+@pytest.mark.parametrize(
+    "width, height, start, horizon", [(3, 3, 4, 4), (4, 2, 0, 4), (1, 3, 1, 3)]
+)
+def test_a_batch_of_paths_gives_each_paths_cells_and_actions(width, height, start, horizon):
+    grid = Gridworld(width, height)
+    paths = np.array(bf.enumerate_paths(width, height, start, horizon), dtype=np.int64)
+    cells, actions = paths_cells(grid, paths), paths_actions(grid, paths)
+    for states, path_cells, path_moves in zip(paths, cells, actions, strict=True):
+        assert path_cells == tuple(bf.xy(width, s) for s in states)
+        assert path_moves == tuple(
+            action_between(a, b) for a, b in zip(path_cells[:-1], path_cells[1:], strict=True)
+        )
+    if width >= 3:  # the second path jumps two cells
+        jump = np.array([[0, 0], [grid.index(0, 0), grid.index(2, 0)]], dtype=np.int64)
+        with pytest.raises(ValueError, match="cells 0 and 2 are not one move apart"):
+            paths_actions(grid, jump)
 
 
 def test_unavailable_moves_are_refused_not_turned_into_stay():

@@ -148,10 +148,26 @@ def path_states(grid: Gridworld, start: int, actions: Sequence[str]) -> list[int
 
 def path_actions(grid: Gridworld, states: Sequence[int]) -> list[str]:
     """The unique action sequence that moves along ``states``."""
-    actions = []
-    for here, there in zip(states[:-1], states[1:], strict=True):
-        matches = np.flatnonzero(grid.successors[here] == there)
-        if matches.size == 0:
-            raise ValueError(f"cells {here} and {there} are not one move apart")
-        actions.append(ACTIONS[int(matches[0])])
-    return actions
+    return list(paths_actions(grid, np.asarray([states], dtype=np.int64))[0])
+
+
+def paths_actions(grid: Gridworld, paths: NDArray[np.int64]) -> list[tuple[str, ...]]:
+    """The action sequence of each path of ``paths``, ``(B, T + 1)`` cell indices: at step
+    ``t`` the first action ``a`` (in :data:`ACTIONS` order) with ``successors[s_t, a] =
+    s_{t+1}``.
+
+    Raises:
+        ValueError: two consecutive cells of a path are not one move apart.
+    """
+    moves = grid.successors[paths[:, :-1]] == paths[:, 1:, None]  # (B, T, actions)
+    possible = moves.any(axis=2)
+    if not possible.all():
+        b, t = np.argwhere(~possible)[0]
+        raise ValueError(f"cells {paths[b, t]} and {paths[b, t + 1]} are not one move apart")
+    return [tuple(ACTIONS[a] for a in row) for row in moves.argmax(axis=2).tolist()]
+
+
+def paths_cells(grid: Gridworld, paths: NDArray[np.int64]) -> list[tuple[tuple[int, int], ...]]:
+    """The ``[x, y]`` cells of each path of ``paths``, ``(B, T + 1)`` cell indices."""
+    ys, xs = np.divmod(paths, grid.width)
+    return [tuple(zip(x, y, strict=True)) for x, y in zip(xs.tolist(), ys.tolist(), strict=True)]

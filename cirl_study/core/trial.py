@@ -33,9 +33,10 @@ from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.estimate import Estimate
 from cirl_study.core.gridworld import (
     Gridworld,
-    feature_matrix,
     gridworld,
-    path_actions,
+    paths_actions,
+    paths_cells,
+    rbf_features,
 )
 from cirl_study.core.hypotheses import HypothesisSpace, draw_hypotheses
 from cirl_study.core.maxent import MaxEnt, Phase
@@ -158,7 +159,8 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     first = specs[0]
     grid = gridworld(first)
     theta = np.array([spec.theta for spec in specs], dtype=np.float64)
-    features = np.stack([feature_matrix(spec) for spec in specs])
+    centers = np.array([spec.features.centers for spec in specs], dtype=np.float64)
+    features = rbf_features(grid, centers, first.features.sigma)
     start = grid.index(*first.start)
     learning = MaxEnt(
         Phase(grid.demonstrator_moves(first.demonstrator_stays), start, first.learning_steps),
@@ -184,19 +186,21 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     robot_plan = optimal_plan(
         deployment.cell_rewards(theta_hat), grid.successors, first.deployment_steps
     )
-    rollouts = _deployment_rollouts(grid, specs, deployment_start, robot_plan.actions)
+    rollouts = [
+        paths_cells(grid, path)
+        for path in _deployment_rollouts(grid, specs, deployment_start, robot_plan.actions)
+    ]
+    shown, actions = paths_cells(grid, demos), paths_actions(grid, demos)
     return [
         TrialRecord(
             **{name: getattr(spec, name) for name in TrialSpec.__struct_fields__},
             theta_hat=tuple(float(v) for v in theta_hat[b]),
-            demonstration=Demonstration(
-                states=_cells(grid, demos[b]), actions=tuple(path_actions(grid, demos[b]))
-            ),
+            demonstration=Demonstration(states=shown[b], actions=actions[b]),
             measures=Measures(**{name: float(values[b]) for name, values in measures.items()}),
             **_fit_fields(*fitted[b]),
             deployment=Deployment(
-                starts=tuple(grid.coords(path[b, 0]) for path in rollouts),
-                paths=tuple(_cells(grid, path[b]) for path in rollouts),
+                starts=tuple(path[b][0] for path in rollouts),
+                paths=tuple(path[b] for path in rollouts),
             ),
         )
         for b, spec in enumerate(specs)
@@ -232,10 +236,6 @@ def _hypotheses(
         theta, seeds, teaching.hypotheses, includes_truth=teaching.includes_truth
     )
     return HypothesisSpace(learning, thetas, teaching.includes_truth, teaching.alpha)
-
-
-def _cells(grid: Gridworld, path: np.ndarray) -> tuple[tuple[int, int], ...]:
-    return tuple(grid.coords(s) for s in path)
 
 
 def _deployment_rollouts(
