@@ -621,7 +621,7 @@ def specification_curve(
         figure = _new_figure(max(6.0, 0.12 * len(ordered) + 3.0), 3.2 + 0.22 * len(rows))
         labels = [f"{axis} = {level}" for axis, level in rows]
         margins = Margins(
-            left=max(0.8, 0.2 + max(map(_text_width, labels), default=0.0)),
+            left=max(0.8, 0.3 + max(map(_text_width, labels), default=0.0)),
             top=0.45,
             bottom=0.4,
             down=0.15,

@@ -10,7 +10,7 @@ The tests are computed by pingouin and scipy; this module only chooses
 them, feeds them and names their outputs. The bootstrap uses a fixed seed, so every
 number here is a deterministic function of the table.
 
-pingouin is imported by the first test that uses it (:func:`_pingouin`), not with this
+pingouin is imported by the first test that uses it (:func:`load_pingouin`), not with this
 module: it loads matplotlib's pyplot, seaborn and xarray (about 0.4 s), and the report's
 estimates and figures need none of it, so a report draws its figures meanwhile.
 """
@@ -41,8 +41,9 @@ BOOTSTRAP_SEED = 2016
 """Seed of the generator of every bootstrap (each interval starts afresh from it)."""
 
 
-def _pingouin() -> ModuleType:
-    """The pingouin module, imported on first use (see the module docstring)."""
+def load_pingouin() -> ModuleType:
+    """The pingouin module, imported on first use (see the module docstring); a caller that
+    forks workers to run tests calls it first, so that they do not each import it again."""
     import pingouin
 
     return pingouin
@@ -82,8 +83,8 @@ def mixed_anova(main: pd.DataFrame, measure: str) -> pd.DataFrame:
         subject="subject",
         correction=False,
     )
-    partial = _pingouin().mixed_anova(**arguments, effsize="np2")
-    generalised = _pingouin().mixed_anova(**arguments, effsize="ng2")
+    partial = load_pingouin().mixed_anova(**arguments, effsize="np2")
+    generalised = load_pingouin().mixed_anova(**arguments, effsize="ng2")
     names = {"policy": "policy", "num_features": "num_features", "Interaction": EFFECTS[2]}
     frame = pd.DataFrame(
         {
@@ -448,7 +449,7 @@ def holm(p_values: np.ndarray) -> np.ndarray:
     statsmodels' ``multipletests`` computes the same numbers but runs a full garbage
     collection on every call, 0.1 s beside a read run's rows.
     """
-    return _pingouin().multicomp(p_values, method="holm")[1]
+    return load_pingouin().multicomp(p_values, method="holm")[1]
 
 
 def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
@@ -516,7 +517,9 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
                 for value in t
             ],
             "hedges": [
-                _pingouin().compute_effsize(groups[labels[a]], groups[labels[b]], eftype="hedges")
+                load_pingouin().compute_effsize(
+                    groups[labels[a]], groups[labels[b]], eftype="hedges"
+                )
                 for a, b in zip(first, second, strict=True)
             ],
         }
@@ -628,9 +631,9 @@ def cronbach_alpha(items: pd.DataFrame) -> dict[str, float | int | list[float]]:
         ``raw, standardized, ci95, ci95_standardized, n_rows, n_items``.
     """
     n, k = items.shape
-    raw = float(_pingouin().cronbach_alpha(data=items)[0])
+    raw = float(load_pingouin().cronbach_alpha(data=items)[0])
     standardised_items = (items - items.mean()) / items.std()
-    standardised = float(_pingouin().cronbach_alpha(data=standardised_items)[0])
+    standardised = float(load_pingouin().cronbach_alpha(data=standardised_items)[0])
     return {
         "raw": raw,
         "standardized": standardised,
