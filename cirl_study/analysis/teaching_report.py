@@ -18,7 +18,7 @@ import pandas as pd
 
 from cirl_study.analysis import figures
 from cirl_study.analysis.markdown import document, image, interval, number, table
-from cirl_study.analysis.output import csv_text, write_report_directory
+from cirl_study.analysis.output import csv_file, write_report_directory
 from cirl_study.analysis.report import formatted
 from cirl_study.analysis.results import Results
 from cirl_study.analysis.table import trial_table
@@ -283,8 +283,7 @@ def write_teaching_report(
         out_dir,
         markdown=render_markdown(results),
         results=results,
-        tables={"trials.csv": csv_text(trial_table(trials))},
-        figures=drawn,
+        files={"trials.csv": csv_file(trial_table(trials)), **drawn},
         provenance=provenance,
     )
     return results
