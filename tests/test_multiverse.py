@@ -356,6 +356,23 @@ def test_the_multiverse_report(tmp_path: Path, multiverse_run: Path):
     assert [cv_universe(pipeline, u) for u in robots] == [pipeline.multiverse.base]
 
 
+def test_reproduce_compares_a_multiverse_report_with_the_one_it_replaces(
+    tmp_path: Path, multiverse_run: Path
+):
+    run, report = tmp_path / "run", tmp_path / "report"
+    shutil.copytree(multiverse_run, run)
+    arguments = ["reproduce", str(multiverse_run.parent / "mv.toml"), "--out", str(run)]
+    arguments += ["--report", str(report), "--workers", "1"]
+    first = CliRunner().invoke(app, arguments)
+    assert first.exit_code == 0, first.output
+    assert first.output.rstrip().endswith("a new report (there was none to compare with)")
+    second = CliRunner().invoke(app, arguments)
+    assert second.exit_code == 0, second.output
+    assert second.output.rstrip().endswith(
+        f"{report}: equals the report it replaced, number by number"
+    )
+
+
 # ---- the joint test --------------------------------------------------------------------------
 
 

@@ -21,7 +21,7 @@ from cirl_study.analysis import figures
 from cirl_study.analysis.claims import MEASURE_NAMES
 from cirl_study.analysis.markdown import document, interval, number, p_value, table
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
-from cirl_study.analysis.output import csv_file, write_report_directory
+from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.results import Results, plain
 from cirl_study.record import MEASURES, TrialRow
 from cirl_study.study.spec import AXES, Pipeline
@@ -370,7 +370,8 @@ def write_multiverse_report(
         out_dir,
         markdown=render_markdown(results),
         results=results,
-        files={"universes.csv": csv_file(universe_table(results)), **render_figures(results)},
+        tables={"universes.csv": universe_table(results)},
+        figures=render_figures(results),
         provenance=provenance,
     )
     return results

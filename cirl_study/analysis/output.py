@@ -17,22 +17,18 @@ import pandas as pd
 from cirl_study.errors import UserError
 
 
-def csv_file(frame: pd.DataFrame) -> bytes:
-    """``frame`` as the CSV file a report directory holds: no index, ``\n`` line ends, UTF-8."""
-    return frame.to_csv(index=False, lineterminator="\n").encode("utf-8")
-
-
 def write_report_directory(
     out_dir: Path | str,
     *,
     markdown: str,
     results: Mapping[str, Any],
-    files: Mapping[str, bytes | None],
+    tables: Mapping[str, pd.DataFrame],
+    figures: Mapping[str, bytes | None],
     provenance: Mapping[str, Any] | None,
 ) -> None:
-    """Write ``report.md``, ``results.json``, the other ``files`` (the figures and the CSV
-    tables, :func:`csv_file`, by file name; ``None`` removes a stale copy of a figure the run
-    has no data for) and ``provenance.json`` (if given) into ``out_dir``, created if needed.
+    """Write ``report.md``, ``results.json``, the ``tables`` (CSV, by file name), the
+    ``figures`` (by file name; ``None`` removes a stale copy of a figure the run has no data
+    for) and ``provenance.json`` (if given) into ``out_dir``, created if needed.
 
     Raises:
         UserError: the directory or a file cannot be written (one line, the OS's reason).
@@ -43,10 +39,12 @@ def write_report_directory(
         (out / "report.md").write_text(markdown, encoding="utf-8", newline="\n")
         text = json.dumps(results, indent=2, ensure_ascii=False, allow_nan=False)
         (out / "results.json").write_text(text + "\n", encoding="utf-8", newline="\n")
+        for name, frame in tables.items():
+            frame.to_csv(out / name, index=False, lineterminator="\n")
         if provenance is not None:
             text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
             (out / "provenance.json").write_text(text + "\n", encoding="utf-8", newline="\n")
-        for name, data in files.items():
+        for name, data in figures.items():
             if data is None:
                 (out / name).unlink(missing_ok=True)
             else:

@@ -27,7 +27,7 @@ from cirl_study.analysis.markdown import (
     svg_name,
     table,
 )
-from cirl_study.analysis.output import csv_file, write_report_directory
+from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.results import (
     Results,
     combined,
@@ -744,13 +744,11 @@ def write_report(
     progress("statistics and figures")
     everything = trial_table(trials)
     estimated = estimates(trials, everything, pipeline_name)
-    # The figures and trials.csv need only the estimates and the table: they are made in
-    # workers while the tests, the claims and the markdown are computed here.
-    made_in_workers = {
-        **_drawings(trials, records_of, estimated),
-        "trials.csv": (csv_file, (everything,)),
-    }
-    with figures.drawing(made_in_workers) as drawn:
+    # The figures need only the estimates: they are drawn in workers while the tests, the
+    # claims and the markdown are computed here. trials.csv is written from the table as it
+    # is, row by row, at the end (a copy for a worker, or its whole text, would cost a run of a
+    # million trials about a gigabyte).
+    with figures.drawing(_drawings(trials, records_of, estimated)) as drawn:
         results = combined(estimated, tests(reference_main_block(everything)))
         results["run_id"] = run_id
         results["partial"] = None if partial is None else plain(partial)
@@ -758,13 +756,14 @@ def write_report(
         if theory is not None:
             results["theory"] = plain(theory)
         markdown = render_markdown(results)
-        files = drawn()
+        pngs = drawn()
     names = [n for png_name, _ in FIGURES.values() for n in (png_name, svg_name(png_name))]
     write_report_directory(
         out_dir,
         markdown=markdown,
         results=results,
-        files={"trials.csv": files["trials.csv"], **{name: files.get(name) for name in names}},
+        tables={"trials.csv": everything},
+        figures={name: pngs.get(name) for name in names},
         provenance=provenance,
     )
     return results

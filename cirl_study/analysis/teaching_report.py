@@ -18,7 +18,7 @@ import pandas as pd
 
 from cirl_study.analysis import figures
 from cirl_study.analysis.markdown import document, image, interval, number, table
-from cirl_study.analysis.output import csv_file, write_report_directory
+from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.report import formatted
 from cirl_study.analysis.results import Results
 from cirl_study.analysis.table import trial_table
@@ -283,7 +283,8 @@ def write_teaching_report(
         out_dir,
         markdown=render_markdown(results),
         results=results,
-        files={"trials.csv": csv_file(trial_table(trials)), **drawn},
+        tables={"trials.csv": trial_table(trials)},
+        figures=drawn,
         provenance=provenance,
     )
     return results

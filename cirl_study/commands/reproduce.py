@@ -67,7 +67,7 @@ def reproduce(
     played = time.perf_counter() - began
     with tempfile.TemporaryDirectory(prefix="cirl-study-previous-") as scratch:
         previous = Path(scratch) / "report"
-        had_report = (target / "results.json").is_file() and (target / "trials.csv").is_file()
+        had_report = (target / "results.json").is_file() and any(target.glob("*.csv"))
         if had_report:
             shutil.copytree(target, previous)
         began = time.perf_counter()

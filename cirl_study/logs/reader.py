@@ -273,7 +273,8 @@ def read_run(
             _same_identity(run_dir, identities)
             _refuse_duplicates(first_file, path, reading.trial_ids)
             provenance.append(reading.provenance)
-            files.append((path, reading.trial_ids))
+            # The rows' own ids: no second string per trial.
+            files.append((path, [row.trial_id for row in reading.rows]))
             rows += reading.rows
     unfinished = temp_files(run_dir)
     if unfinished:
