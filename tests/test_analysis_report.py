@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 from analysis_fixtures import records_of, rows, synthetic_records
 
-from cirl_study.analysis import statistics
+from cirl_study.analysis import report, statistics
 from cirl_study.analysis.markdown import anchor
 from cirl_study.analysis.report import write_report
 from cirl_study.analysis.table import trial_table
@@ -132,6 +132,16 @@ def test_trials_csv_is_the_trial_table(reports, records):
     assert list(written.columns) == list(table.columns)
     assert written["trial_id"].tolist() == table["trial_id"].tolist()
     assert written["reward_l2"].tolist() == table["reward_l2"].tolist()
+
+
+def test_trials_csv_is_the_same_from_a_worker_and_from_the_main_process(
+    reports, records, tmp_path, monkeypatch
+):
+    first, _ = reports
+    assert len(records) <= report.CSV_IN_WORKER_ROWS  # the fixture's was made in a worker
+    monkeypatch.setattr(report, "CSV_IN_WORKER_ROWS", 0)
+    write_report(rows(records), tmp_path, "paper", records_of=records_of(records))
+    assert (tmp_path / "trials.csv").read_bytes() == (first / "trials.csv").read_bytes()
 
 
 def test_every_claim_has_a_verdict_and_every_link_resolves(reports):

@@ -17,16 +17,22 @@ import pandas as pd
 from cirl_study.errors import UserError
 
 
+def csv_file(frame: pd.DataFrame) -> bytes:
+    """``frame`` as the CSV file :func:`write_report_directory` writes of it."""
+    return frame.to_csv(index=False, lineterminator="\n").encode("utf-8")
+
+
 def write_report_directory(
     out_dir: Path | str,
     *,
     markdown: str,
     results: Mapping[str, Any],
-    tables: Mapping[str, pd.DataFrame],
+    tables: Mapping[str, pd.DataFrame | bytes],
     figures: Mapping[str, bytes | None],
     provenance: Mapping[str, Any] | None,
 ) -> None:
-    """Write ``report.md``, ``results.json``, the ``tables`` (CSV, by file name), the
+    """Write ``report.md``, ``results.json``, the ``tables`` (CSV by file name: a frame, or
+    its file as :func:`csv_file` made it), the
     ``figures`` (by file name; ``None`` removes a stale copy of a figure the run has no data
     for) and ``provenance.json`` (if given) into ``out_dir``, created if needed.
 
@@ -39,8 +45,11 @@ def write_report_directory(
         (out / "report.md").write_text(markdown, encoding="utf-8", newline="\n")
         text = json.dumps(results, indent=2, ensure_ascii=False, allow_nan=False)
         (out / "results.json").write_text(text + "\n", encoding="utf-8", newline="\n")
-        for name, frame in tables.items():
-            frame.to_csv(out / name, index=False, lineterminator="\n")
+        for name, table in tables.items():
+            if isinstance(table, bytes):
+                (out / name).write_bytes(table)
+            else:
+                table.to_csv(out / name, index=False, lineterminator="\n")
         if provenance is not None:
             text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
             (out / "provenance.json").write_text(text + "\n", encoding="utf-8", newline="\n")
