@@ -11,7 +11,6 @@ from cirl_study.core.gridworld import (
     ACTIONS,
     Gridworld,
     action_between,
-    path_actions,
     path_states,
     paths_actions,
     paths_cells,
@@ -145,7 +144,8 @@ def test_every_path_round_trips_through_its_actions(width, height, start, horizo
     paths = bf.enumerate_paths(width, height, start, horizon)
     seen = set()
     for states in paths:
-        actions = path_actions(grid, states)
+        (moves,) = paths_actions(grid, np.array([states], dtype=np.int64))
+        actions = list(moves)
         assert len(actions) == horizon
         assert path_states(grid, start, actions) == list(states)
         cells = [bf.xy(width, s) for s in states]
@@ -179,7 +179,7 @@ def test_unavailable_moves_are_refused_not_turned_into_stay():
     with pytest.raises(ValueError):
         path_states(grid, grid.index(2, 2), ["E", "stay"])
     with pytest.raises(ValueError):
-        path_actions(grid, [grid.index(0, 0), grid.index(2, 0)])
+        paths_actions(grid, np.array([[grid.index(0, 0), grid.index(2, 0)]]))
 
 
 # ---- the reference itself -------------------------------------------------------------------

@@ -203,6 +203,10 @@ INCONSISTENT = {
         "eta is None for policy best_response",
     ),
     "theta too long": (_append_theta, "theta has 4 entries, num_features is 3"),
+    "theta_hat too short": (
+        lambda r: r["theta_hat"].pop(),
+        "theta_hat has 2 entries, num_features is 3",
+    ),
     "num_features off": (_set("num_features", 4), "theta has 3 entries, num_features is 4"),
     "start outside": (_set("start", [5, 1]), "start [5, 1] is outside the 5x4 grid"),
     "demonstration too short": (_shorten_demo, "demonstration.states has 4 cells"),

@@ -146,11 +146,6 @@ def path_states(grid: Gridworld, start: int, actions: Sequence[str]) -> list[int
     return states
 
 
-def path_actions(grid: Gridworld, states: Sequence[int]) -> list[str]:
-    """The unique action sequence that moves along ``states``."""
-    return list(paths_actions(grid, np.asarray([states], dtype=np.int64))[0])
-
-
 def paths_actions(grid: Gridworld, paths: NDArray[np.int64]) -> list[tuple[str, ...]]:
     """The action sequence of each path of ``paths``, ``(B, T + 1)`` cell indices: at step
     ``t`` the first action ``a`` (in :data:`ACTIONS` order) with ``successors[s_t, a] =

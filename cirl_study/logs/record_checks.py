@@ -92,8 +92,7 @@ def _sound(r: TrialRecord) -> bool:
         return False
     if (human.teaches or robot.teaches) and r.teaching is None:
         return False
-    k = r.num_features
-    if not len(r.theta) == len(r.theta_hat) == len(r.features.centers) == k:
+    if not _sized(r):
         return False
     moves = _moves(r.grid)
     actions = _walk(r.demonstration.states, r.start, r.learning_steps, moves)
@@ -178,6 +177,11 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
             yield f"measures.{name} is {value} < 0"
 
 
+def _sized(r: TrialRecord) -> bool:
+    """Whether ``theta``, ``theta_hat`` and the centres all have ``num_features`` entries."""
+    return len(r.theta) == len(r.theta_hat) == len(r.features.centers) == r.num_features
+
+
 def _lengths(r: TrialRecord) -> dict[str, int]:
     """The lengths that must all be ``num_features``, by field."""
     return {
@@ -193,7 +197,7 @@ def _reward_l2_faults(records: Sequence[TrialRecord]) -> Iterator[tuple[int, str
     grid and ``K`` are computed together."""
     together: dict[tuple[Grid, int], list[int]] = defaultdict(list)
     for index, r in enumerate(records):
-        if all(length == r.num_features for length in _lengths(r).values()):
+        if _sized(r):
             together[r.grid, r.num_features].append(index)
     for indices in together.values():
         chosen = [records[i] for i in indices]
