@@ -12,7 +12,9 @@ import random
 from pathlib import Path
 from typing import Any
 
-from cirl_study.logs import RunIdentity, read_run, read_trials, record_faults
+from cirl_study.logs.provenance import RunIdentity
+from cirl_study.logs.reader import read_run, read_trials
+from cirl_study.logs.record_checks import record_faults
 from cirl_study.record import TrialRecord, from_builtins
 
 

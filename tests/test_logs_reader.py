@@ -9,8 +9,10 @@ import pytest
 from test_logs_helpers import make_record, make_study, provenance_for
 
 from cirl_study.errors import UserError
-from cirl_study.logs import RunIdentity, TrialLogWriter, logged_trials, read_run, read_trials
+from cirl_study.logs.provenance import RunIdentity
+from cirl_study.logs.reader import logged_trials, read_run, read_trials
 from cirl_study.logs.scan import scan_file
+from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, TrialRow
 
 PROVENANCE = {**provenance_for(name="smoke"), "git_commit": "abc"}

@@ -13,8 +13,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_logs_helpers import make_record
 
-from cirl_study.logs import decode_trial, record_checks
-from cirl_study.logs.record_checks import decode_trials
+from cirl_study.logs import record_checks
+from cirl_study.logs.record_checks import decode_trial, decode_trials
 from cirl_study.logs.schemas import CHANNELS
 from cirl_study.record import TRIAL_SCHEMA, TrialRecord, encode
 

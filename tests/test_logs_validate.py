@@ -14,8 +14,9 @@ from typer.testing import CliRunner
 
 from cirl_study.cli import app
 from cirl_study.errors import UserError
-from cirl_study.logs import TrialLogWriter, validate_file, validate_run
 from cirl_study.logs.scan import scan_file
+from cirl_study.logs.validate import validate_file, validate_run
+from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord
 
 PROVENANCE = provenance_for()

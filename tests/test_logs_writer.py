@@ -13,7 +13,6 @@ import pytest
 from mcap.reader import make_reader
 from test_logs_helpers import brute_force_reward, make_record, make_study, provenance_for
 
-from cirl_study.logs import RunIdentity, TrialLogWriter, collect_provenance
 from cirl_study.logs.format import (
     DEMONSTRATION_TOPIC,
     DEPLOYMENT_TOPIC,
@@ -22,6 +21,8 @@ from cirl_study.logs.format import (
     TRIAL_TOPIC,
     TRUE_REWARD_TOPIC,
 )
+from cirl_study.logs.provenance import RunIdentity, collect_provenance
+from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, decode, encode
 
 PROVENANCE = provenance_for()

@@ -31,8 +31,9 @@ from cirl_study.core.gridworld import Gridworld, rbf_features
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.trial import play_trials
 from cirl_study.errors import UserError
-from cirl_study.logs import read_run, validate_run
 from cirl_study.logs.format import log_files
+from cirl_study.logs.reader import read_run
+from cirl_study.logs.validate import validate_run
 from cirl_study.record import MAIN, encode
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.multiverse import cv_universe, universe_pipeline

@@ -21,9 +21,10 @@ from typer.testing import CliRunner
 
 from cirl_study.cli import app
 from cirl_study.errors import UserError
-from cirl_study.logs import RunIdentity, logged_trials, read_run
 from cirl_study.logs.contents import read_file_contents
 from cirl_study.logs.format import log_files
+from cirl_study.logs.provenance import RunIdentity
+from cirl_study.logs.reader import logged_trials, read_run
 from cirl_study.logs.scan import scan_file
 from cirl_study.record import encode
 

@@ -10,8 +10,9 @@ from pathlib import Path
 
 import pytest
 
-from cirl_study.logs import read_run, validate_run
 from cirl_study.logs.lock import LOCK_NAME
+from cirl_study.logs.reader import read_run
+from cirl_study.logs.validate import validate_run
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 

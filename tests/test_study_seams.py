@@ -13,7 +13,7 @@ from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.estimate import Estimate
 from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot, register_human, register_robot
 from cirl_study.errors import UserError
-from cirl_study.logs import validate_run
+from cirl_study.logs.validate import validate_run
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.runner import run_pipeline
 from cirl_study.study.spec import load_pipeline, parse_pipeline

@@ -29,7 +29,7 @@ from cirl_study.core.gridworld import Gridworld
 from cirl_study.core.hypotheses import MAX_PATHS, path_count
 from cirl_study.core.maxent import Phase
 from cirl_study.errors import UserError
-from cirl_study.logs import validate_run
+from cirl_study.logs.validate import validate_run
 from cirl_study.record import MAIN, MEASURES, Measures, TrialRecord, TrialRow, encode
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.runner import check_resources, run_pipeline

@@ -47,7 +47,7 @@ def test_the_first_failure_in_order_is_raised_after_the_results_before_it(monkey
 
 
 def test_a_run_reads_and_validates_the_same_on_two_cores_as_on_one(smoke_run, monkeypatch):
-    from cirl_study.logs import read_run
+    from cirl_study.logs.reader import read_run
     from cirl_study.logs.validate import validate_run
 
     monkeypatch.setattr(workers, "cores", lambda: 1)
@@ -103,7 +103,7 @@ def test_calls_of_different_functions_come_back_in_order(monkeypatch):
 
 
 def test_reading_a_run_does_the_callers_own_work_once_meanwhile(smoke_run, monkeypatch):
-    from cirl_study.logs import read_run
+    from cirl_study.logs.reader import read_run
 
     monkeypatch.setattr(workers, "forkable", lambda: True)
     monkeypatch.setattr(workers, "cores", lambda: 2)

@@ -84,7 +84,7 @@ def analyze(
     # Only the reader loads before the workers start reading the logs; the rest (pandas, the
     # statistics and plotting libraries) loads meanwhile, and each kind of report loads its
     # own module after.
-    from cirl_study.logs import read_run
+    from cirl_study.logs.reader import read_run
 
     stage(f"reading the logs of {run}")
     contents = read_run(run, salvage=partial, meanwhile=_load_analysis_libraries)

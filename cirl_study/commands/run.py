@@ -2,25 +2,11 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from contextlib import contextmanager
 from enum import StrEnum
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
-from rich.progress import (
-    BarColumn,
-    MofNCompleteColumn,
-    Progress,
-    ProgressColumn,
-    Task,
-    TextColumn,
-    TimeElapsedColumn,
-    TimeRemainingColumn,
-)
-from rich.text import Text
 
 from cirl_study.errors import UserError
 from cirl_study.study.spec import load_pipeline, resolve_pipeline
@@ -29,7 +15,7 @@ app = typer.Typer(rich_markup_mode=None)
 """The ``run`` command, merged into :data:`cirl_study.cli.app`."""
 
 if TYPE_CHECKING:
-    from cirl_study.study.runner import ProgressHooks, RunResult
+    from cirl_study.study.runner import RunResult
 
 
 class EngineName(StrEnum):
@@ -37,53 +23,6 @@ class EngineName(StrEnum):
 
     local = "local"
     dask = "dask"
-
-
-class _RateColumn(ProgressColumn):
-    """Trials played per second since play began: the rate the run's summary reports."""
-
-    def render(self, task: Task) -> Text:
-        elapsed = task.finished_time if task.finished else task.elapsed
-        played = task.completed - task.fields["resumed"]
-        if not elapsed or played <= 0:
-            return Text("- trials/s")
-        return Text(f"{played / elapsed:.0f} trials/s")
-
-
-@contextmanager
-def _progress_bar() -> Iterator[ProgressHooks]:
-    """A progress bar on stderr, shown from the first ``start`` until the block ends."""
-    bar = Progress(
-        TextColumn("trials"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        _RateColumn(),
-        TimeElapsedColumn(),
-        TextColumn("elapsed,"),
-        TimeRemainingColumn(),
-        TextColumn("left"),
-        console=Console(stderr=True),
-    )
-    task: list[Any] = []
-
-    def start(total: int, done: int) -> None:
-        bar.start()
-        task.append(bar.add_task("trials", total=total, completed=done, resumed=done))
-
-    def advance(count: int) -> None:
-        bar.advance(task[0], count)
-
-    def note(text: str) -> None:
-        if bar.console.is_terminal:
-            bar.console.print(text, style="dim", highlight=False)
-
-    from cirl_study.study.runner import ProgressHooks
-
-    try:
-        yield ProgressHooks(start, advance, note)
-    finally:
-        if task:
-            bar.stop()
 
 
 def _summary(result: RunResult, engine: str) -> str:
@@ -186,7 +125,9 @@ def run(
     lowest mean regret, then plays the main study and the lambda sweep. Progress goes to
     stderr, a summary to stdout.
     """
-    # The engine and the runner import the numerical core: only when a run is asked for.
+    # The engine and the runner import the numerical core, and the bar rich: only when a
+    # run is asked for.
+    from cirl_study.commands.progress import progress_bar
     from cirl_study.study.engines import make_engine
     from cirl_study.study.runner import default_out_dir, run_pipeline
 
@@ -196,6 +137,6 @@ def run(
     if scheduler is not None and engine is not EngineName.dask:
         raise UserError("--scheduler needs --engine dask")
     chosen = make_engine(engine.value, workers, scheduler)
-    with _progress_bar() as hooks:
+    with progress_bar() as hooks:
         result = run_pipeline(spec, out or default_out_dir(spec), chosen, hooks)
     typer.echo(_summary(result, chosen.description))

@@ -33,7 +33,7 @@ def validate(
 
     Exit code 0 when everything is sound, 1 on any fault, 2 when RUN is not a directory.
     """
-    from cirl_study.logs import validate_run
+    from cirl_study.logs.validate import validate_run
     from cirl_study.study.audit import plan_faults
 
     verdict = validate_run(run)

@@ -17,7 +17,6 @@ import platform
 import subprocess
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 
 from cirl_study import __version__
@@ -125,6 +124,9 @@ def machine_provenance() -> dict[str, str]:
     the environment variables that steer OpenBLAS's kernel choice are named when set) and
     ``<package>_version`` for each of :data:`KEY_PACKAGES`.
     """
+    # Loaded here, not with the reader and every command that imports this module (20 ms).
+    from importlib.metadata import PackageNotFoundError, version
+
     provenance = {
         "cirl_study_version": __version__,
         **_git_state(Path(__file__).resolve().parent),

@@ -29,15 +29,11 @@ from pathlib import Path
 import msgspec
 
 from cirl_study.errors import UserError
-from cirl_study.logs import (
-    RunIdentity,
-    TrialLogWriter,
-    collect_provenance,
-    logged_trials,
-    read_trials,
-)
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
 from cirl_study.logs.lock import writer_lock
+from cirl_study.logs.provenance import RunIdentity, collect_provenance
+from cirl_study.logs.reader import logged_trials, read_trials
+from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.engines import Engine
 from cirl_study.study.eta_cv import EtaChoice, choose_etas
