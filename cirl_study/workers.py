@@ -3,10 +3,10 @@
 Used where the items do not depend on each other and what comes back is small beside the
 work: reading a run's log files (each file's records are decompressed, decoded and checked,
 and only their rows or a verdict come back), drawing a report's figures (only the PNG and
-SVG bytes come back, and a small run's trials.csv) and analysing a multiverse's universes
-(only their summaries come back). With :func:`started` the calling process goes on with its
-own work meanwhile: it loads pandas, scipy and matplotlib while the files are read, and
-computes the tests while the figures are drawn.
+SVG bytes come back) and analysing a multiverse's universes (only their summaries come
+back). With :func:`started` the calling process goes on with its own work meanwhile: it
+loads pandas, scipy and matplotlib while the files are read, and computes the tests and
+writes the trial table while the figures are drawn.
 """
 
 from __future__ import annotations

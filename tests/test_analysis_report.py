@@ -134,12 +134,12 @@ def test_trials_csv_is_the_trial_table(reports, records):
     assert written["reward_l2"].tolist() == table["reward_l2"].tolist()
 
 
-def test_trials_csv_is_the_same_from_a_worker_and_from_the_main_process(
+def test_trials_csv_is_the_same_made_in_memory_and_written_row_by_row(
     reports, records, tmp_path, monkeypatch
 ):
     first, _ = reports
-    assert len(records) <= report.CSV_IN_WORKER_ROWS  # the fixture's was made in a worker
-    monkeypatch.setattr(report, "CSV_IN_WORKER_ROWS", 0)
+    assert len(records) <= report.CSV_IN_MEMORY_ROWS  # the fixture's was made in memory
+    monkeypatch.setattr(report, "CSV_IN_MEMORY_ROWS", 0)
     write_report(rows(records), tmp_path, "paper", records_of=records_of(records))
     assert (tmp_path / "trials.csv").read_bytes() == (first / "trials.csv").read_bytes()
 

@@ -253,6 +253,31 @@ def test_the_bootstrap_batches_do_not_change_the_interval(monkeypatch):
     assert statistics.bootstrap_mean_d_z(d) == whole
 
 
+@settings(max_examples=25, deadline=None)
+@given(
+    n=st.integers(2, 300),
+    resamples=st.integers(1, 400),
+    block=st.integers(1, 5000),
+    seed=st.integers(0, 2**32 - 1),
+    kind=st.sampled_from(["spread", "ties", "constant"]),
+)
+def test_the_resamples_reduced_in_blocks_are_numpys_mean_and_d_z_to_the_bit(
+    n, resamples, block, seed, kind
+):
+    rng = np.random.default_rng(seed)
+    d = {
+        "spread": rng.normal(0.3, 2.0, n),
+        "ties": rng.integers(-2, 3, n).astype(float),
+        "constant": np.full(n, 0.7),
+    }[kind]
+    indices = rng.integers(0, n, (resamples, n))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(statistics, "BOOTSTRAP_BLOCK_ELEMENTS", block)
+        means, d_zs = statistics._resampled_mean_and_d_z(d, indices)
+    np.testing.assert_array_equal(means, np.mean(d[indices], axis=-1))
+    np.testing.assert_array_equal(d_zs, statistics._d_z(d[indices]))
+
+
 def test_a_constant_difference_has_no_bootstrap_interval():
     intervals = statistics.bootstrap_mean_d_z(np.ones(12))
     assert all(math.isnan(v) for pair in intervals.values() for v in pair)

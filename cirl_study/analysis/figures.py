@@ -93,8 +93,7 @@ def render(figure: Figure) -> Rendered:
 
 def draw_all(drawings: Mapping[str, Call]) -> dict[str, bytes]:
     """The files (:func:`_figure_files`) of every figure of ``drawings`` (a drawing function of
-    this module and its arguments, by PNG name), drawn on every core. A call may also make a
-    file of another kind (its bytes, by its name), e.g. a report's CSV table."""
+    this module and its arguments, by PNG name), drawn on every core."""
     with drawing(drawings) as files:
         return files()
 
@@ -112,16 +111,12 @@ def drawing(drawings: Mapping[str, Call]) -> Iterator[Callable[[], dict[str, byt
         yield lambda: _figure_files(dict(zip(drawings, rendered, strict=True)))
 
 
-def _figure_files(rendered: Mapping[str, Rendered | bytes]) -> dict[str, bytes]:
-    """The files of figures rendered under their PNG names, each PNG and its SVG twin, and of
-    any other file made beside them (its bytes, by its name)."""
+def _figure_files(rendered: Mapping[str, Rendered]) -> dict[str, bytes]:
+    """The files of figures rendered under their PNG names: each PNG and its SVG twin."""
     files = {}
-    for name, made in rendered.items():
-        if isinstance(made, Rendered):
-            files[name] = made.png
-            files[svg_name(name)] = made.svg
-        else:
-            files[name] = made
+    for name, figure in rendered.items():
+        files[name] = figure.png
+        files[svg_name(name)] = figure.svg
     return files
 
 

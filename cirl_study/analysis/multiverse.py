@@ -100,7 +100,6 @@ def analyse_multiverse(
         for universe, rows_of_universe in chosen.items()
     ]
     per_universe = []
-    statistics.load_pingouin()  # loaded once, before the universes' workers fork
     for position, summary in enumerate(map_in_workers(_universe_summary, work), start=1):
         progress(f"universe {position} of {len(chosen)} analysed: {summary['id']}")
         per_universe.append(summary)

@@ -696,11 +696,12 @@ def _drawings(
     return drawings
 
 
-CSV_IN_WORKER_ROWS = 200_000
-"""Up to this many trials, trials.csv is made in a worker beside the figures, off the main
-process's path (0.15 s of the paper run's analysis); its copy of the table and its text cost
-about a kilobyte a trial, so a larger run's table is written by the main process, row by row,
-at the end, which keeps the analysis of a million trials within 2 GB."""
+CSV_IN_MEMORY_ROWS = 200_000
+"""Up to this many trials, trials.csv is made here while the figures are drawn in workers,
+after the tests, whose end would otherwise leave this process waiting for the figures. Its
+text costs about 150 bytes a trial, so a larger run's table is written row by row at the
+end, which keeps the analysis of a million trials within 2 GB. (Made in a worker, it also
+cost a copy of the table sent there, and added to the figures' work, which ends last.)"""
 
 
 def write_report(
@@ -752,12 +753,8 @@ def write_report(
     everything = trial_table(trials)
     estimated = estimates(trials, everything, pipeline_name)
     # The figures need only the estimates: they are drawn in workers while the tests, the
-    # claims and the markdown are computed here; so is trials.csv, up to CSV_IN_WORKER_ROWS.
-    in_workers = _drawings(trials, records_of, estimated)
-    csv_in_worker = len(everything) <= CSV_IN_WORKER_ROWS
-    if csv_in_worker:
-        in_workers["trials.csv"] = (csv_file, (everything,))
-    with figures.drawing(in_workers) as drawn:
+    # claims, the markdown and, up to CSV_IN_MEMORY_ROWS, trials.csv are made here.
+    with figures.drawing(_drawings(trials, records_of, estimated)) as drawn:
         results = combined(estimated, tests(reference_main_block(everything)))
         results["run_id"] = run_id
         results["partial"] = None if partial is None else plain(partial)
@@ -765,13 +762,14 @@ def write_report(
         if theory is not None:
             results["theory"] = plain(theory)
         markdown = render_markdown(results)
+        table = csv_file(everything) if len(everything) <= CSV_IN_MEMORY_ROWS else everything
         made = drawn()
     names = [n for png_name, _ in FIGURES.values() for n in (png_name, svg_name(png_name))]
     write_report_directory(
         out_dir,
         markdown=markdown,
         results=results,
-        tables={"trials.csv": made["trials.csv"] if csv_in_worker else everything},
+        tables={"trials.csv": table},
         figures={name: made.get(name) for name in names},
         provenance=provenance,
     )
