@@ -107,7 +107,9 @@ class Measures(msgspec.Struct, **_STRUCT):
     reward_l2: Annotated[float, msgspec.Meta(ge=0.0)]
 
     def __post_init__(self) -> None:
-        if not all(math.isfinite(getattr(self, name)) for name in MEASURES):
+        if not (
+            math.isfinite(self.regret) and math.isfinite(self.kl) and math.isfinite(self.reward_l2)
+        ):
             raise ValueError("every measure must be a finite number")
 
 

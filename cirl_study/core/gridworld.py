@@ -121,8 +121,11 @@ def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[n
         raise ValueError(f"sigma must be positive, got {sigma}")
     centers = np.asarray(centers, dtype=np.float64)
     cells = grid.cell_coordinates()
-    squared = ((cells[..., :, None, :] - centers[..., None, :, :]) ** 2).sum(axis=-1)
-    return np.exp(-squared / (2.0 * sigma**2))
+    # ||s - c_k||^2 as dx^2 + dy^2 on (S, K) arrays: the same sum as a reduction over the
+    # coordinate axis, to the bit, without numpy's slow reduction over an axis of length 2.
+    dx = cells[:, 0, None] - centers[..., None, :, 0]
+    dy = cells[:, 1, None] - centers[..., None, :, 1]
+    return np.exp(-(dx * dx + dy * dy) / (2.0 * sigma**2))
 
 
 def gridworld(spec: TrialSpec) -> Gridworld:

@@ -121,7 +121,7 @@ def _walk(
     if steps < 1 or len(path) != steps + 1 or path[0] != start:
         return None
     try:
-        return tuple([moves[step] for step in zip(path, path[1:], strict=False)])
+        return tuple(map(moves.__getitem__, zip(path, path[1:], strict=False)))
     except (KeyError, TypeError):
         return None
 
