@@ -15,10 +15,11 @@ directory:
 4. ``cirl-study analyze DIR --out REPORT``.
 
 Per pipeline it prints the median of each stage and its ratio to the run's wall time
-measured in the same repeat (the median of the per-repeat ratios), and the run's wall time
-over its compute floor. The package's bytecode is compiled first, as Python caches it after
-a user's first command: where ``PYTHONDONTWRITEBYTECODE`` is set (some containers), every
-command would otherwise compile the package's modules again, about 0.4 s of a short stage.
+measured in the same repeat (the median of the per-repeat ratios, and their range), and the
+run's wall time over its compute floor. The package's bytecode is compiled first, as Python
+caches it after a user's first command: where ``PYTHONDONTWRITEBYTECODE`` is set (some
+containers), every command would otherwise compile the package's modules again, about 0.4 s
+of a short stage.
 Targets: analyze and validate <= 0.15 x run, a no-op resume <= 0.10 x run, run <= 1.2 x its
 compute floor.
 """
@@ -78,6 +79,14 @@ def one_repeat(pipeline: str, options: list[str]) -> dict[str, float]:
     }
 
 
+def _ratios(ratios: list[float]) -> str:
+    """The median of the per-repeat ratios, and their range when there are several."""
+    median = f"{statistics.median(ratios):.3f}"
+    if len(ratios) < 2:
+        return median
+    return f"{median} ({min(ratios):.3f}-{max(ratios):.3f})"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--pipelines", nargs="+", default=["smoke", "paper"], metavar="NAME")
@@ -99,11 +108,10 @@ def main() -> None:
             median = statistics.median(r[stage] for r in repeats)
             line = f"  {stage:<14} median {median:7.2f} s"
             if stage in ("no-op resume", "validate", "analyze"):
-                ratio = statistics.median(r[stage] / r["run"] for r in repeats)
-                line += f"   {ratio:.3f} x run"
+                line += f"   {_ratios([r[stage] / r['run'] for r in repeats])} x run"
             if stage == "run":
-                ratio = statistics.median(r["run"] / r["compute floor"] for r in repeats)
-                line += f"   {ratio:.3f} x compute floor"
+                ratios = [r["run"] / r["compute floor"] for r in repeats]
+                line += f"   {_ratios(ratios)} x compute floor"
             print(line)
 
 
