@@ -204,8 +204,10 @@ def _prepare_analysis() -> dict[str, Any]:
     (:func:`~cirl_study.logs.provenance.machine_provenance`).
 
     The libraries live as long as the process, so the garbage collector is paused while they
-    load and they are frozen out of it after (``gc.freeze``): it would otherwise walk their
-    few hundred thousand objects in every full collection, 0.2 s of this process's time.
+    load and they are frozen out of it after (``gc.freeze``, until workers fork: see
+    :func:`~cirl_study.workers.started`): its full collections would otherwise walk their few
+    hundred thousand objects while they load and while the rows arrive, 0.2 s of this
+    process's time.
     """
     gc.disable()
     try:
