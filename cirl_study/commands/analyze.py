@@ -88,9 +88,9 @@ def analyze(
     from cirl_study.logs.reader import read_run
 
     stage(f"reading the logs of {run}")
-    prepared: list[dict[str, Any]] = []
+    report_provenance: dict[str, Any] = {}
     contents = read_run(
-        run, salvage=partial, meanwhile=lambda: prepared.append(_prepare_analysis())
+        run, salvage=partial, meanwhile=lambda: report_provenance.update(_prepare_analysis())
     )
 
     from cirl_study.analysis.table import complete_main_subjects
@@ -130,7 +130,7 @@ def analyze(
             {json.dumps(p, sort_keys=True): p for p in contents.provenance}.values(),
             key=lambda p: json.dumps(p, sort_keys=True),
         ),
-        "report": prepared[0],
+        "report": report_provenance,
     }
     if pipeline.multiverse is not None:
         from cirl_study.analysis.multiverse_report import write_multiverse_report

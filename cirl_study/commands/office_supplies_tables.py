@@ -16,6 +16,8 @@ _PAIRS = {
 
 
 def values_table(results: dict[str, Any]) -> Table:
+    """The expected total reward of the expert, best-response and optimal pairs, exact and
+    in decimals."""
     table = Table(title="Expected total reward of each pair")
     for column in ("pair", "human", "robot"):
         table.add_column(column)
@@ -42,6 +44,8 @@ def _per_action_table(
 
 
 def rules_table(results: dict[str, Any]) -> Table:
+    """Each pair's human decision rule: the thetas at which H makes each action."""
+
     def thetas(key: str, action: str) -> str:
         pieces = results["pairs"][key]["human_rule"]
         return " U ".join(p["theta"] for p in pieces if p["action"] == action) or "-"
@@ -52,6 +56,8 @@ def rules_table(results: dict[str, Any]) -> Table:
 
 
 def robot_table(results: dict[str, Any]) -> Table:
+    """Each pair's robot policy: after each human action, R's mean theta and what R makes."""
+
     def response(key: str, action: str) -> str:
         return _robot_cell(results["pairs"][key]["robot_policy"][action])
 
@@ -71,6 +77,7 @@ def _robot_cell(response: dict[str, str]) -> str:
 
 
 def example_table(example: dict[str, Any]) -> Table:
+    """Section 3.3's example: R's expected reward of each action after H's observed one."""
     table = Table(
         title=f"Section 3.3: after H makes {example['observed']}",
         caption=f"R's belief is {example['belief']}; it acts as if theta = "
