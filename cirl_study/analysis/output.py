@@ -16,10 +16,13 @@ import pandas as pd
 
 from cirl_study.errors import UserError
 
+CSV_FORMAT: dict[str, Any] = {"index": False, "lineterminator": "\n"}
+"""How every table of a report is written as CSV (``DataFrame.to_csv``): no index, ``\\n``."""
+
 
 def csv_file(frame: pd.DataFrame) -> bytes:
     """``frame`` as the CSV file :func:`write_report_directory` writes of it."""
-    return frame.to_csv(index=False, lineterminator="\n").encode("utf-8")
+    return frame.to_csv(**CSV_FORMAT).encode("utf-8")
 
 
 def write_report_directory(
@@ -49,7 +52,7 @@ def write_report_directory(
             if isinstance(table, bytes):
                 (out / name).write_bytes(table)
             else:
-                table.to_csv(out / name, index=False, lineterminator="\n")
+                table.to_csv(out / name, **CSV_FORMAT)
         if provenance is not None:
             text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
             (out / "provenance.json").write_text(text + "\n", encoding="utf-8", newline="\n")
