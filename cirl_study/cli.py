@@ -8,7 +8,6 @@ message and a non-zero exit code, and Ctrl-C becomes ``interrupted`` and exit co
 
 from __future__ import annotations
 
-import gc
 from typing import Annotated, Any
 
 import typer
@@ -67,17 +66,3 @@ def main(
     ] = False,
 ) -> None:
     """Reproduce, question and extend Cooperative Inverse Reinforcement Learning."""
-
-
-def console_script() -> None:
-    """``cirl-study`` and ``python -m cirl_study``: the application, then a prompt exit.
-
-    At exit the interpreter's last garbage collections walk every object the command left:
-    the statistics and plotting libraries alone make that about 0.4 s. Freezing them first
-    (``gc.freeze``) leaves them out of those collections; nothing is collected later anyway.
-    Tests invoke :data:`app` itself, so they keep collecting.
-    """
-    try:
-        app(prog_name="cirl-study")
-    finally:
-        gc.freeze()

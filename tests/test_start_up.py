@@ -4,8 +4,13 @@ commands that use them load (``analyze`` starts reading after these imports alon
 
 from __future__ import annotations
 
+import json
+import os
 import subprocess
 import sys
+from pathlib import Path
+
+from cirl_study.__main__ import ONE_THREAD
 
 HEAVY = (
     "numba",
@@ -32,3 +37,34 @@ def test_the_command_line_and_the_reader_load_nothing_heavy() -> None:
         [sys.executable, "-c", script], capture_output=True, text=True, check=True
     )
     assert done.stdout.split() == []
+
+
+def test_the_command_lines_numerical_libraries_compute_on_one_thread() -> None:
+    """Both OpenBLAS libraries, numpy's (loaded with the command line) and scipy's (loaded
+    later by a command), run one thread under ``cirl-study``; a value the user set is kept."""
+    script = (
+        "import json, os, sys\n"
+        "sys.argv = ['cirl-study', '--version']\n"
+        "from cirl_study.__main__ import console_script\n"
+        "try:\n"
+        "    console_script()\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        "import scipy.linalg\n"
+        "from threadpoolctl import threadpool_info\n"
+        "blas = {i['filepath']: i['num_threads'] for i in threadpool_info()\n"
+        "        if i['user_api'] == 'blas'}\n"
+        "print(json.dumps([os.environ['MKL_NUM_THREADS'], blas]))\n"
+    )
+    unset = {name: value for name, value in os.environ.items() if name not in ONE_THREAD}
+    done = subprocess.run(
+        [sys.executable, "-c", script],
+        capture_output=True,
+        text=True,
+        check=True,
+        env={**unset, "MKL_NUM_THREADS": "3"},
+    )
+    mkl, blas = json.loads(done.stdout.splitlines()[-1])
+    assert mkl == "3"
+    assert {Path(path).parent.name for path in blas} >= {"numpy.libs", "scipy.libs"}
+    assert set(blas.values()) == {1}
