@@ -3,14 +3,16 @@
 Every command that computes much spreads its work over processes, one per core: ``run``'s
 pool plays the trials, and ``analyze`` reads the log files and draws the figures in forked
 workers while its main process computes the statistics. A BLAS library's own threads
-(numpy and scipy each load an OpenBLAS, which starts one thread per core) would then
+(numpy's and scipy's wheels each bring an OpenBLAS, which starts a thread per core) would then
 compete with those processes for the same cores, spinning while they wait for work. So
 before any numerical library loads, :data:`ONE_THREAD` is set in the environment, where each
 library reads it when it loads and every process the command starts inherits it; a value
 the user has set is kept. Dask's worker processes get the same three settings
 (distributed's ``nanny.pre-spawn-environ``). On a 2-core machine the paper run's ``analyze``
-then takes 0.3-0.4 s less CPU time (of 5-6.5 s); a trial's time does not change, its arrays
-being too small for OpenBLAS to split among threads, and neither do its results.
+then takes 0.3-0.5 s less CPU time (of 5-6.5 s); a trial's time does not change. Nor do the
+results depend on the machine's number of cores any more: OpenBLAS splits its longest sums
+among its threads, which moves the last bits of the posterior-mean robot's estimates (see
+:mod:`cirl_study.core.posterior`; the paper pipeline's results are the same bits either way).
 """
 
 from __future__ import annotations

@@ -8,7 +8,6 @@ import json
 import os
 import subprocess
 import sys
-from pathlib import Path
 
 from cirl_study.__main__ import ONE_THREAD
 
@@ -40,8 +39,9 @@ def test_the_command_line_and_the_reader_load_nothing_heavy() -> None:
 
 
 def test_the_command_lines_numerical_libraries_compute_on_one_thread() -> None:
-    """Both OpenBLAS libraries, numpy's (loaded with the command line) and scipy's (loaded
-    later by a command), run one thread under ``cirl-study``; a value the user set is kept."""
+    """Every BLAS library, numpy's (loaded with the command line) and those loaded later by a
+    command (scipy's, when its wheel brings its own), runs one thread under ``cirl-study``; a
+    value the user set is kept."""
     script = (
         "import json, os, sys\n"
         "sys.argv = ['cirl-study', '--version']\n"
@@ -66,5 +66,4 @@ def test_the_command_lines_numerical_libraries_compute_on_one_thread() -> None:
     )
     mkl, blas = json.loads(done.stdout.splitlines()[-1])
     assert mkl == "3"
-    assert {Path(path).parent.name for path in blas} >= {"numpy.libs", "scipy.libs"}
     assert set(blas.values()) == {1}
