@@ -138,17 +138,6 @@ def feature_matrix(spec: TrialSpec) -> NDArray[np.float64]:
     return rbf_features(gridworld(spec), spec.features.centers, spec.features.sigma)
 
 
-def path_states(grid: Gridworld, start: int, actions: Sequence[str]) -> list[int]:
-    """Cell indices ``(s_0, ..., s_T)`` visited by ``actions`` from ``start``."""
-    states = [int(start)]
-    for name in actions:
-        following = int(grid.successors[states[-1], ACTIONS.index(name)])
-        if following == UNAVAILABLE:
-            raise ValueError(f"action {name} leaves the grid at {list(grid.coords(states[-1]))}")
-        states.append(following)
-    return states
-
-
 def paths_actions(grid: Gridworld, paths: NDArray[np.int64]) -> list[tuple[str, ...]]:
     """The action sequence of each path of ``paths``, ``(B, T + 1)`` cell indices: at step
     ``t`` the first action ``a`` (in :data:`ACTIONS` order) with ``successors[s_t, a] =
