@@ -174,12 +174,6 @@ def test_a_batch_of_paths_gives_each_paths_cells_and_actions(width, height, star
             paths_actions(grid, jump)
 
 
-def test_unavailable_moves_are_refused_not_turned_into_stay():
-    grid = Gridworld(3, 3)
-    with pytest.raises(ValueError):
-        paths_actions(grid, np.array([[grid.index(0, 0), grid.index(2, 0)]]))
-
-
 # ---- the reference itself -------------------------------------------------------------------
 
 

@@ -1,6 +1,7 @@
-"""What the command line and the log reader load before the first log file is read: nothing
-of the numerical core, the analysis libraries, the log writer or rich, which only the
-commands that use them load (``analyze`` starts reading after these imports alone)."""
+"""How the command line starts: what it and the log reader load before the first log file is
+read (nothing of the numerical core, the analysis libraries, the log writer or rich, which
+only the commands that use them load: ``analyze`` starts reading after these imports alone),
+and the one thread each numerical library is given before it loads."""
 
 from __future__ import annotations
 
