@@ -131,10 +131,11 @@ regression use numpy's linear algebra, whose BLAS kernels differ by CPU and spli
 longest sums among the BLAS library's threads, so with another CPU or thread count the last
 bits can differ, and rarely a stopping decision with them, which moves the estimate by about
 its standard error. Going from two BLAS threads to one changed the last bits of 23 of the
-robots pipeline's 9,800 trials (all of this robot at :math:`\\lambda \\ge 10^2`) and one
-stopping decision, whose trial's KL divergence moved by 0.7%. The command line computes on
-one thread whatever the machine (:mod:`cirl_study.__main__`), so its results do not depend
-on the number of cores.
+robots pipeline's 9,800 trials (all of this robot at :math:`\\lambda \\ge 10^2`) and the
+path of one trial's rounds, a K = 10 trial at :math:`\\lambda = 10^3` that used up its
+``max_samples`` short of the target either way: its KL divergence moved by 0.7%. The
+command line computes on one thread whatever the machine (:mod:`cirl_study.__main__`), so
+its results do not depend on the number of cores.
 """
 
 from __future__ import annotations
