@@ -22,8 +22,9 @@ from hypothesis import strategies as st
 from scipy import stats
 from test_logs_helpers import run_records
 
+from cirl_study.analysis.anova import repeated_measures_anova
 from cirl_study.analysis.report import write_report
-from cirl_study.analysis.statistics import paired_differences, split_plot_anova
+from cirl_study.analysis.statistics import paired_differences
 from cirl_study.analysis.table import check_design
 from cirl_study.errors import UserError
 from cirl_study.logs.reader import read_run, read_trials
@@ -58,10 +59,15 @@ def split_plot_data(seed: int, subjects: int, levels: int = 2) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
+def anova_frame(data: pd.DataFrame, within: list[str]) -> pd.DataFrame:
+    rows = repeated_measures_anova(data, "y", within, "num_features")
+    return pd.DataFrame([msgspec.to_builtins(row) for row in rows]).set_index("effect")
+
+
 def test_one_within_factor_matches_pingouin() -> None:
     data = split_plot_data(1, 9)
     one = data.groupby(["subject", "num_features", "policy"], as_index=False)["y"].mean()
-    ours = split_plot_anova(one, "y", ("policy",), "num_features").set_index("effect")
+    ours = anova_frame(one, ["policy"])
     arguments = dict(data=one, dv="y", within="policy", between="num_features", subject="subject")
     partial = pg.mixed_anova(**arguments, effsize="np2").set_index("Source")
     general = pg.mixed_anova(**arguments, effsize="ng2").set_index("Source")
@@ -96,7 +102,7 @@ def contrast_f(data: pd.DataFrame, weights: dict[tuple[str, str], float]) -> tup
 @given(seed=st.integers(0, 2**32 - 1), subjects=st.integers(3, 12))
 def test_two_within_factors_match_the_contrast_tests(seed: int, subjects: int) -> None:
     data = split_plot_data(seed, subjects)
-    ours = split_plot_anova(data, "y", ("robot", "policy"), "num_features").set_index("effect")
+    ours = anova_frame(data, ["robot", "policy"])
     robot = {("pm", "expert"): 1, ("pm", "best"): 1, ("map", "expert"): -1, ("map", "best"): -1}
     policy = {("pm", "best"): 1, ("map", "best"): 1, ("pm", "expert"): -1, ("map", "expert"): -1}
     both = {("pm", "best"): 1, ("map", "expert"): 1, ("pm", "expert"): -1, ("map", "best"): -1}
@@ -113,17 +119,10 @@ def test_two_within_factors_match_the_contrast_tests(seed: int, subjects: int) -
     assert ours["SS"].sum() + error_ss == pytest.approx(total, rel=1e-9)
 
 
-def test_split_plot_anova_refuses_what_it_cannot_test() -> None:
+def test_the_anova_refuses_an_incomplete_subject() -> None:
     data = split_plot_data(3, 5)
-    with pytest.raises(ValueError, match="balanced, complete design"):
-        split_plot_anova(data.iloc[1:], "y", ("robot", "policy"), "num_features")
-    with pytest.raises(ValueError, match="balanced, complete design"):
-        split_plot_anova(
-            data[data["subject"] != "g0-s000"], "y", ("robot", "policy"), "num_features"
-        )
-    three = data.assign(robot=np.where(data.index % 8 < 2, "third", data["robot"]))
-    with pytest.raises(ValueError, match="exactly two levels: robot"):
-        split_plot_anova(three, "y", ("robot",), "num_features")
+    with pytest.raises(ValueError, match="exactly one observation in every within cell"):
+        repeated_measures_anova(data.iloc[1:], "y", ["robot", "policy"], "num_features")
 
 
 def test_paired_differences_are_paired_t_tests_with_holm() -> None:

@@ -3,8 +3,8 @@
 A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human, the
 ``literal`` or ``pragmatic`` robot) declares their hypothesis space in ``[teaching]``
 (:mod:`cirl_study.study.spec`); every trial carries it (:mod:`cirl_study.study.plan`); the run
-is analysed by :mod:`cirl_study.analysis.teaching` into the report of
-:mod:`cirl_study.analysis.teaching_report`.
+is analysed by :mod:`cirl_study.analysis.study` into the report of
+:mod:`cirl_study.analysis.study_report`.
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import pytest
 from test_logs_helpers import run_records
 from typer.testing import CliRunner
 
-from cirl_study.analysis.teaching import analyse_teaching
+from cirl_study.analysis.study import analyse_study
 from cirl_study.cli import app
 from cirl_study.core.gridworld import Gridworld
 from cirl_study.core.hypotheses import MAX_PATHS, path_count
@@ -374,8 +374,8 @@ REPORT_FILES = {
     "report.md",
     "results.json",
     "trials.csv",
-    "teaching_measures.png",
-    "teaching_measures.svg",
+    "cell_means.png",
+    "cell_means.svg",
 }
 
 
@@ -398,7 +398,7 @@ def teaching_report(
 def test_analyze_writes_the_teaching_report(teaching_report: tuple[Path, str]) -> None:
     """The teaching report's files, its questions and its design."""
     out, output = teaching_report
-    assert output.startswith(f"teaching report of 102 trials written to {out}: 5 questions")
+    assert output.startswith(f"study report of 102 trials written to {out}: 5 questions")
     assert {p.name for p in out.iterdir()} == REPORT_FILES | {"provenance.json"}
     assert all((out / name).stat().st_size > 0 for name in REPORT_FILES)
     results = json.loads((out / "results.json").read_text(encoding="utf-8"))
@@ -419,7 +419,7 @@ def test_analyze_writes_the_teaching_report(teaching_report: tuple[Path, str]) -
     }
     assert results["run_id"].startswith("smoke-")
     report = (out / "report.md").read_text(encoding="utf-8")
-    assert report.startswith("# Teaching study: `smoke`")
+    assert report.startswith("# Study: `smoke`")
     trials = (out / "trials.csv").read_text(encoding="utf-8").splitlines()
     assert len(trials) == 1 + 102
 
@@ -542,7 +542,7 @@ def test_a_crossover_whose_loss_exceeds_its_gain_is_crossover_and_robustness(
 ) -> None:
     """The pragmatic robot gains 0.3 with the pedagogic human and loses 0.6 with the literal
     one: Milli & Dragan's crossover and the literal robot's robustness both hold."""
-    results = analyse_teaching(synthetic_rows(-0.3, 0.6), synthetic_pipeline(tmp_path))
+    results = analyse_study(synthetic_rows(-0.3, 0.6), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
     assert set(questions) == {
         "paper_best_response",
@@ -567,7 +567,7 @@ def test_a_crossover_whose_loss_exceeds_its_gain_is_crossover_and_robustness(
 
 def test_a_pragmatic_robot_better_under_both_humans_is_no_crossover(tmp_path: Path) -> None:
     """The pragmatic robot is ahead with either human: neither crossover nor robustness."""
-    results = analyse_teaching(synthetic_rows(-0.3, -0.2), synthetic_pipeline(tmp_path))
+    results = analyse_study(synthetic_rows(-0.3, -0.2), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
     assert questions["milli_dragan_crossover"]["holds"] is False
     assert questions["milli_dragan_crossover"]["by_measure"] == {m: False for m in MEASURES}
@@ -578,7 +578,7 @@ def test_a_pragmatic_robot_better_under_both_humans_is_no_crossover(tmp_path: Pa
 def test_a_crossover_whose_gain_exceeds_its_loss_is_not_robustness(tmp_path: Path) -> None:
     """The pragmatic robot gains 0.6 with the pedagogic human and loses only 0.3 with the
     literal one: the crossover holds, but the literal robot is not the more robust choice."""
-    results = analyse_teaching(synthetic_rows(-0.6, 0.3), synthetic_pipeline(tmp_path))
+    results = analyse_study(synthetic_rows(-0.6, 0.3), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
     assert questions["milli_dragan_crossover"]["holds"] is True
     assert questions["milli_dragan_robustness"]["holds"] is False
@@ -587,18 +587,18 @@ def test_a_crossover_whose_gain_exceeds_its_loss_is_not_robustness(tmp_path: Pat
 
 def test_no_robot_effect_is_no_crossover(tmp_path: Path) -> None:
     """Robots that do equally well under both humans answer no to both questions."""
-    results = analyse_teaching(synthetic_rows(0.0, 0.0), synthetic_pipeline(tmp_path))
+    results = analyse_study(synthetic_rows(0.0, 0.0), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
     assert questions["milli_dragan_crossover"]["holds"] is False
     assert questions["milli_dragan_robustness"]["holds"] is False
 
 
 def test_the_synthetic_verdicts_do_not_depend_on_row_order(tmp_path: Path) -> None:
-    """``analyse_teaching`` is a function of the rows, not of the order they come in."""
+    """``analyse_study`` is a function of the rows, not of the order they come in."""
     rows = synthetic_rows(-0.3, 0.6, subjects=6, seed=3)
     pipeline = synthetic_pipeline(tmp_path)
-    forward = analyse_teaching(rows, pipeline)
-    backward = analyse_teaching(rows[::-1], pipeline)
+    forward = analyse_study(rows, pipeline)
+    backward = analyse_study(rows[::-1], pipeline)
     assert json.dumps(forward, sort_keys=True) == json.dumps(backward, sort_keys=True)
 
 
@@ -637,5 +637,5 @@ def test_an_incomplete_teaching_run_is_refused_whole_even_with_partial(
     assert len(message.splitlines()) == 1 and message.startswith("error: ")
     assert "--partial" not in message and "cirl-study run" in message
     if partial:
-        assert "a teaching study is analysed only whole" in message
+        assert "than the paper's is analysed only whole" in message
     assert not out.exists()

@@ -12,12 +12,15 @@ is the job of :mod:`cirl_study.logs`.
 - :mod:`~cirl_study.analysis.report`: ``report.md``, ``results.json``, ``trials.csv``.
 - :mod:`~cirl_study.analysis.multiverse`, :mod:`~cirl_study.analysis.multiverse_report`: the
   paper's claims in every universe of a multiverse, and across them.
-- :mod:`~cirl_study.analysis.teaching`, :mod:`~cirl_study.analysis.teaching_report`: a teaching
-  study's questions (pedagogic and literal humans, pragmatic and literal robots).
+- :mod:`~cirl_study.analysis.anova`: the repeated-measures ANOVA of any factorial design, with
+  its sphericity corrections; :mod:`~cirl_study.analysis.tails`: F and t tails in log space.
+- :mod:`~cirl_study.analysis.study`, :mod:`~cirl_study.analysis.study_report`: a study of
+  any humans x robots x feature levels other than the paper's own design, with its questions
+  (among them pedagogic and literal humans, pragmatic and literal robots).
 
 The package itself imports nothing, so that importing one module (say the table) does
 not pay for the statistics libraries; the entry points are
 :func:`cirl_study.analysis.report.write_report`,
 :func:`cirl_study.analysis.multiverse_report.write_multiverse_report` and
-:func:`cirl_study.analysis.teaching_report.write_teaching_report`.
+:func:`cirl_study.analysis.study_report.write_study_report`.
 """

@@ -12,7 +12,7 @@ plus :data:`STYLE`, at a fixed size and :data:`DPI`, and saved as PNG without th
 - :func:`eta_curve`: the cross-validation of the best response's eta.
 - :func:`robot_difference_curve`: a run with two robots, the paired regret difference of
   the other robot to the reference against lambda.
-- :func:`teaching_bars`: a teaching study's measures by human, robot and feature level.
+- :func:`cell_bars`: a study's measures by human, robot and feature level.
 """
 
 from __future__ import annotations
@@ -397,12 +397,18 @@ def measure_bars(cells: pd.DataFrame) -> Rendered:
 
 
 ROBOT_COLOURS = ("#4c72b0", "#dd8452", "#55a868", "#c44e52", "#8172b3")
-"""Colours of the robots of a teaching study, in the pipeline's order."""
+"""Colours of a study's robots, in the pipeline's order (up to five distinct)."""
 
 
-def teaching_bars(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str]) -> Rendered:
-    """Every measure's mean with its 95% CI by human (groups) and robot (bars), one row of
-    panels per feature level.
+WIDE_CELLS = 16
+"""Bars per panel (humans x robots) above which :func:`cell_bars` gives each measure a row of
+its own, so every panel spans the figure's width."""
+
+
+def cell_bars(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str]) -> Rendered:
+    """Every measure's mean with its 95% CI by human (groups) and robot (bars): a row of
+    panels per feature level, the measures across; or, with more than :data:`WIDE_CELLS`
+    bars a panel (up to 8 humans and 4 robots), a row per measure, the feature levels across.
 
     Args:
         cells: rows ``measure, num_features, policy, robot, mean, ci95_low, ci95_high``.
@@ -412,11 +418,14 @@ def teaching_bars(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[s
     levels = sorted(cells["num_features"].unique())
     positions = np.arange(len(humans), dtype=np.float64)
     width = 0.8 / len(robots)
+    panels = [[(level, measure) for measure in MEASURES] for level in levels]
+    if len(humans) * len(robots) > WIDE_CELLS:
+        panels = [[(level, measure) for level in levels] for measure in MEASURES]
     with matplotlib.style.context("default"), rc_context(STYLE):
-        figure = _new_figure(11.0, 2.9 * len(levels) + 0.6)
-        grid = _panels(figure, len(levels), len(MEASURES), Margins(bottom=0.95, down=0.9))
-        for row, level in zip(grid, levels, strict=True):
-            for panel, measure in zip(row, MEASURES, strict=True):
+        figure = _new_figure(11.0, 2.9 * len(panels) + 0.8)
+        grid = _panels(figure, len(panels), len(panels[0]), Margins(bottom=0.95, down=0.9))
+        for axes_row, panel_row in zip(grid, panels, strict=True):
+            for panel, (level, measure) in zip(axes_row, panel_row, strict=True):
                 for index, robot in enumerate(robots):
                     chosen = (
                         cells[
@@ -439,7 +448,13 @@ def teaching_bars(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[s
                         color=ROBOT_COLOURS[index % len(ROBOT_COLOURS)],
                         label=f"robot {robot}",
                     )
-                panel.set_xticks(positions, [h.replace("_", " ") for h in humans], rotation=20)
+                panel.set_xticks(
+                    positions,
+                    [h.replace("_", " ") for h in humans],
+                    rotation=30,
+                    ha="right",
+                    rotation_mode="anchor",
+                )
                 panel.set_title(f"{MEASURE_LABELS[measure]}, {level} features")
         _figure_legend(figure, grid[0][0], columns=len(robots))
         figure.suptitle("Lower is better: mean (95% CI) by human and robot")

@@ -29,6 +29,25 @@ def p_value(value: float | None) -> str:
     return "< 1e-300" if value == 0 else f"{value:.3g}"
 
 
+def p_from_log10(log10_p: float | None) -> str:
+    """A p-value from its common logarithm, three significant digits, at any size:
+    ``-545.52`` is ``3.02e-546``, where the double ``p`` itself is 0.
+
+    Examples:
+        >>> p_from_log10(-545.52), p_from_log10(-1.3010299956639813), p_from_log10(None)
+        ('3.02e-546', '0.05', '–')
+    """
+    if log10_p is None or math.isnan(log10_p):
+        return "–"
+    if log10_p > -300:
+        return f"{10.0**log10_p:.3g}"
+    exponent = math.floor(log10_p)
+    mantissa = 10.0 ** (log10_p - exponent)
+    if round(mantissa, 2) >= 10.0:
+        mantissa, exponent = mantissa / 10.0, exponent + 1
+    return f"{mantissa:.3g}e{exponent}"
+
+
 def interval(low: float | None, high: float | None, digits: int = 4) -> str:
     """A confidence interval as ``[low, high]``."""
     return f"[{number(low, digits)}, {number(high, digits)}]"

@@ -15,10 +15,12 @@ import math
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import msgspec
 import numpy as np
 import pandas as pd
 
 from cirl_study.analysis import statistics
+from cirl_study.analysis.anova import repeated_measures_anova
 from cirl_study.analysis.table import trial_table
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
@@ -184,7 +186,7 @@ def robot_comparison(table: pd.DataFrame, reference: str) -> dict[str, Any]:
 
     ``anova``: per measure, the 2 x 2 x K split-plot ANOVA of the ``main`` block with
     ``robot`` and ``policy`` within subjects and ``num_features`` between
-    (:func:`~cirl_study.analysis.statistics.split_plot_anova`). ``main``: per measure, the
+    (:func:`~cirl_study.analysis.anova.repeated_measures_anova`). ``main``: per measure, the
     paired difference ``other - reference`` within each feature level and policy, Holm over
     the measure's cells (:func:`~cirl_study.analysis.statistics.paired_differences`).
     ``lambda_sweep``: the same per rationality, feature level and policy of the sweep, Holm
@@ -198,14 +200,11 @@ def robot_comparison(table: pd.DataFrame, reference: str) -> dict[str, Any]:
     return {
         "reference": reference,
         "other": other,
-        "anova": rows(
-            _concat(
-                [
-                    statistics.split_plot_anova(main, m, ("robot", "policy"), "num_features")
-                    for m in MEASURES
-                ]
-            )
-        ),
+        "anova": [
+            msgspec.to_builtins(row)
+            for m in MEASURES
+            for row in repeated_measures_anova(main, m, ["robot", "policy"], "num_features")
+        ],
         "main": rows(
             _concat(
                 [

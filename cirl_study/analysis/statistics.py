@@ -16,15 +16,17 @@ from __future__ import annotations
 import functools
 import itertools
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
+import msgspec
 import numpy as np
 import pandas as pd
 import pingouin as pg
 from scipy import special, stats
 
 from cirl_study.analysis.studentized_range import studentized_range_sf
+from cirl_study.analysis.tails import t_tail
 from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_POLICIES
 
 CONFIDENCE = 0.95
@@ -92,131 +94,6 @@ def mixed_anova(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     return order.reset_index(drop=True)
 
 
-def split_plot_anova(
-    frame: pd.DataFrame, measure: str, within: tuple[str, ...], between: str
-) -> pd.DataFrame:
-    """Mixed (split-plot) ANOVA with several within-subjects factors and one between.
-
-    Subjects ``s`` are nested in the levels ``g`` of ``between`` (``n`` subjects each); every
-    subject is observed once in every cell of the crossed ``within`` factors. Write the data
-    as an array ``y[g, s, w_1, ..., w_m]`` and, for a set ``T`` of its axes, the interaction
-    residual ``e_T = sum_{U subset T} (-1)^{|T| - |U|} ybar_U`` (``ybar_U`` the mean over
-    every axis outside ``U``). Then ``SS_T = (N / prod_{t in T} L_t) sum e_T^2`` with ``N``
-    observations and ``L_t`` levels, ``df_T = prod (L_t - 1)``. Because subjects are nested,
-    every term that contains the subject axis pools with the same term plus ``g``: ``S/G``,
-    ``W x S/G``, ... Each effect ``E`` (any set of within factors, with or without ``g``)
-    is tested against the error term of its within part: ``F = MS_E / MS_{W(E) x S/G}``,
-    ``S/G`` for ``g`` alone.
-
-    Effect sizes: partial eta squared ``np2 = SS_E / (SS_E + SS_error)`` and generalised eta
-    squared ``ges = SS_E / (SS_E + sum of every error term's SS)`` (Olejnik & Algina 2003,
-    every factor manipulated). The p-values are uncorrected: sphericity holds trivially
-    because every within factor must have exactly two levels here, which is also what makes
-    each within test an exact F test.
-
-    References:
-        Maxwell, Delaney & Kelley (2018), *Designing Experiments and Analyzing Data*, ch. 14.
-        Kirk (2013), *Experimental Design*, ch. 12 (split-plot factorial designs).
-        Olejnik & Algina (2003), Psychological Methods 8(4):434-447.
-
-    Raises:
-        ValueError: the design is not balanced and complete (equal subjects per level of
-            ``between``, one observation per subject and within cell), or a within factor
-            does not have exactly two levels.
-
-    Returns:
-        One row per effect, between first, then within main effects and interactions in
-        the order of ``within``, each followed by its interaction with ``between``:
-        ``measure, effect, df1, df2, SS, MS, F, p, np2, ges``.
-
-    Examples:
-        >>> rng = np.random.default_rng(0)
-        >>> rows = [
-        ...     {"subject": f"{g}-{s}", "group": g, "a": a, "b": b, "y": rng.normal() + (a == 1)}
-        ...     for g in (0, 1) for s in range(6) for a in (0, 1) for b in (0, 1)
-        ... ]
-        >>> table = split_plot_anova(pd.DataFrame(rows), "y", ("a", "b"), "group")
-        >>> list(table["effect"])
-        ['group', 'a', 'a:group', 'b', 'b:group', 'a:b', 'a:b:group']
-    """
-    levels = [sorted(frame[factor].unique()) for factor in (between, *within)]
-    small = [f for f, values in zip(within, levels[1:], strict=True) if len(values) != 2]
-    if small:
-        raise ValueError(f"every within factor needs exactly two levels: {', '.join(small)}")
-    ordered = frame.sort_values([between, "subject", *within], kind="mergesort")
-    counts = ordered.groupby(between)["subject"].nunique()
-    subjects = int(counts.iloc[0])
-    cells = int(np.prod([len(values) for values in levels[1:]]))
-    shape = (len(levels[0]), subjects, *(len(values) for values in levels[1:]))
-    if (
-        (counts != subjects).any()
-        or len(ordered) != int(np.prod(shape))
-        or (ordered.groupby("subject").size() != cells).any()
-    ):
-        raise ValueError(
-            "the split-plot ANOVA needs a balanced, complete design: equal subjects per "
-            f"{between} level and one observation per subject and within cell"
-        )
-    y = ordered[measure].to_numpy(dtype=np.float64).reshape(shape)
-    sizes = y.shape
-    total = y.size
-
-    def sum_of_squares(axes: frozenset[int]) -> float:
-        residual = np.zeros(tuple(sizes[a] if a in axes else 1 for a in range(y.ndim)))
-        for r in range(len(axes) + 1):
-            for kept in itertools.combinations(sorted(axes), r):
-                others = tuple(a for a in range(y.ndim) if a not in kept)
-                sign = (-1) ** (len(axes) - r)
-                residual = residual + sign * y.mean(axis=others, keepdims=True)
-        cell_count = int(np.prod([sizes[a] for a in axes])) if axes else 1
-        return float(total / cell_count * np.sum(residual**2))
-
-    def degrees(axes: frozenset[int]) -> int:
-        return int(np.prod([sizes[a] - 1 for a in axes])) if axes else 1
-
-    def error(within_axes: frozenset[int]) -> tuple[float, int]:
-        """``W x S/G``: the subject term crossed with ``within_axes``, pooled with ``g``."""
-        plain, pooled = within_axes | {1}, within_axes | {0, 1}
-        return (
-            sum_of_squares(plain) + sum_of_squares(pooled),
-            degrees(plain) + degrees(pooled),
-        )
-
-    within_axes = range(2, y.ndim)
-    subsets = [
-        frozenset(c)
-        for r in range(len(within_axes) + 1)
-        for c in itertools.combinations(within_axes, r)
-    ]
-    errors = {subset: error(subset) for subset in subsets}
-    error_total = sum(ss for ss, _ in errors.values())
-    names = (between, *within)
-    rows = []
-    for subset in subsets:
-        for effect in (subset | {0},) if not subset else (subset, subset | {0}):
-            ss, df1 = sum_of_squares(effect), degrees(effect)
-            ss_error, df2 = errors[subset]
-            f_value = (ss / df1) / (ss_error / df2)
-            label = [names[a - 1] for a in sorted(effect - {0})] + (
-                [between] if 0 in effect else []
-            )
-            rows.append(
-                {
-                    "measure": measure,
-                    "effect": ":".join(label),
-                    "df1": df1,
-                    "df2": df2,
-                    "SS": ss,
-                    "MS": ss / df1,
-                    "F": f_value,
-                    "p": float(stats.f.sf(f_value, df1, df2)),
-                    "np2": ss / (ss + ss_error),
-                    "ges": ss / (ss + error_total),
-                }
-            )
-    return pd.DataFrame(rows)
-
-
 def paired_differences(
     frame: pd.DataFrame, measure: str, factor: str, baseline: str, by: list[str]
 ) -> pd.DataFrame:
@@ -256,6 +133,110 @@ def paired_differences(
             )
     result = pd.DataFrame(rows)
     result.insert(result.columns.get_loc("p") + 1, "p_holm", holm(result["p"].to_numpy()))
+    return result
+
+
+class PairedComparison(msgspec.Struct, frozen=True, kw_only=True):
+    """One paired comparison of two levels of a within factor in one cell of the others.
+
+    ``policy`` and ``robot`` name the cell (``None`` for the factor compared); the
+    difference is ``level_a - level_b``; ``p_holm`` is Holm's adjustment over the family
+    of :func:`pairwise_differences`, computed from ``log10_p`` (so it never underflows to 0
+    where ``p`` does not).
+    """
+
+    measure: str
+    factor: str
+    level_a: str
+    level_b: str
+    policy: str | None
+    robot: str | None
+    num_features: int
+    n: int
+    mean_a: float
+    mean_b: float
+    mean_diff: float
+    ci95_low: float
+    ci95_high: float
+    t: float
+    df: int
+    p: float
+    log10_p: float
+    p_holm: float
+    log10_p_holm: float
+    d_z: float
+
+
+def pairwise_differences(
+    frame: pd.DataFrame, measure: str, factor: str, levels: Sequence[str]
+) -> list[PairedComparison]:
+    """Paired t-tests of every pair of ``levels`` of the within factor ``factor``, within
+    each cell of the other factors (``policy``, ``robot`` and ``num_features``).
+
+    For the levels ``a`` before ``b`` in ``levels`` and subject ``s``: ``d_s = y_{s,a} -
+    y_{s,b}``; ``t = mean(d) / (sd(d) / sqrt(n))`` on ``n - 1`` degrees of freedom (R's
+    ``t.test(paired = TRUE)``), a t-based CI of ``mean(d)``, ``d_z = mean(d) / sd(d)``. One
+    Holm family: every row returned (one measure and factor), adjusted in log space
+    (:func:`holm_log10`).
+
+    References:
+        Holm (1979), Scandinavian Journal of Statistics 6(2):65-70.
+        Lakens (2013), Frontiers in Psychology 4:863 (``d_z``).
+        R: ``t.test``, ``p.adjust(method = "holm")`` (``tests/fixtures/factorial``).
+
+    Returns:
+        One row per cell and pair, cells sorted, pairs in the order of ``levels``.
+    """
+    cells = [c for c in ("policy", "robot", "num_features") if c != factor]
+    rows = []
+    for key, group in frame.groupby(cells, sort=True):
+        cell = dict(zip(cells, key, strict=True))
+        wide = group.pivot(index="subject", columns=factor, values=measure).sort_index()
+        present = [level for level in levels if level in wide.columns]
+        for a, b in itertools.combinations(present, 2):
+            both = wide[[a, b]].dropna()
+            first, second = both[a].to_numpy(), both[b].to_numpy()
+            test = _paired_t(first, second)
+            rows.append(
+                {
+                    "measure": measure,
+                    "factor": factor,
+                    "level_a": a,
+                    "level_b": b,
+                    "policy": cell.get("policy"),
+                    "robot": cell.get("robot"),
+                    "num_features": int(cell["num_features"]),
+                    "n": len(first),
+                    "mean_a": float(first.mean()),
+                    "mean_b": float(second.mean()),
+                    **test,
+                    "log10_p": t_tail(test["t"], test["df"])[1],
+                }
+            )
+    adjusted = holm_log10(np.array([row["log10_p"] for row in rows]))
+    return [
+        PairedComparison(**row, p_holm=float(10.0**q), log10_p_holm=float(q))
+        for row, q in zip(rows, adjusted, strict=True)
+    ]
+
+
+def holm_log10(log10_p: np.ndarray) -> np.ndarray:
+    """Holm's step-down adjustment (Holm 1979) of a family given by ``log10 p``:
+    ``log10 p~_(i) = min(0, max_{j <= i} (log10(n - j + 1) + log10 p_(j)))`` over the ``n``
+    finite values in increasing order; NaN stays NaN. The same numbers as :func:`holm`,
+    without underflow.
+
+    Examples:
+        >>> holm_log10(np.log10([0.01, 0.04, 0.03])).round(6).tolist()
+        [-1.522879, -1.221849, -1.221849]
+    """
+    values = np.asarray(log10_p, dtype=np.float64)
+    result = np.full(values.shape, np.nan)
+    finite = np.flatnonzero(~np.isnan(values))
+    order = finite[np.argsort(values[finite], kind="mergesort")]
+    count = len(order)
+    scaled = np.log10(count - np.arange(count)) + values[order]
+    result[order] = np.minimum(0.0, np.maximum.accumulate(scaled))
     return result
 
 

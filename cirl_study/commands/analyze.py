@@ -72,9 +72,12 @@ def analyze(
     the figures (PNG and SVG). Reads only the run's MCAP logs, checking every CRC and that
     every file and record belongs to the run. A run missing planned trials, or holding a
     damaged file, is refused unless --partial; a foreign trial always is. Identical logs
-    give an identical report. A multiverse gets its claims in every universe; a teaching study
-    its questions (Milli & Dragan's 2 x 2, the best response against the pedagogic human and
-    the regret-optimal demonstration), with report.md, results.json, trials.csv and a figure.
+    give an identical report. A multiverse gets its claims in every universe; a study of
+    other humans, robots or feature levels than the paper's (any number of each) its
+    repeated-measures ANOVA with sphericity corrections, every pairwise comparison and its
+    questions (Milli & Dragan's 2 x 2, the best response against the pedagogic human and the
+    regret-optimal demonstration, where it plays them), with report.md, results.json,
+    trials.csv and a figure.
     """
 
     def stage(name: str) -> None:
@@ -152,10 +155,10 @@ def analyze(
             f"universes written to {target}: universes reproducing each claim: {shares}"
         )
         return
-    if pipeline.teaching is not None:
-        from cirl_study.analysis.teaching_report import write_teaching_report
+    if not _paper_design(pipeline):
+        from cirl_study.analysis.study_report import write_study_report
 
-        teaching = write_teaching_report(
+        study = write_study_report(
             trials,
             target,
             pipeline,
@@ -163,11 +166,11 @@ def analyze(
             provenance=provenance,
             progress=stage,
         )
-        answered = sum(q["holds"] is not None for q in teaching["questions"])
-        held = sum(bool(q["holds"]) for q in teaching["questions"])
+        answered = sum(q["tested"] and q["holds"] is not None for q in study["questions"])
+        held = sum(bool(q["holds"]) for q in study["questions"])
         typer.echo(
-            f"teaching report of {len(trials)} trials written to {target}: "
-            f"{len(teaching['questions'])} questions, {held} of {answered} tested claims hold"
+            f"study report of {len(trials)} trials written to {target}: "
+            f"{len(study['questions'])} questions, {held} of {answered} tested claims hold"
         )
         return
     from cirl_study.analysis.report import write_report
@@ -229,14 +232,28 @@ def _prepare_analysis() -> dict[str, Any]:
     }
 
 
+def _paper_design(pipeline: Pipeline) -> bool:
+    """Whether the paper's report analyses ``pipeline``'s runs: its humans are exactly the
+    paper's (expert, best response), at two feature levels or more, with one robot or two (a
+    comparison with the reference). Every other design of humans x robots x feature levels
+    gets the study report (:mod:`cirl_study.analysis.study_report`)."""
+    from cirl_study.record import PAPER_POLICIES
+
+    return (
+        tuple(pipeline.main.policies) == PAPER_POLICIES
+        and len(pipeline.game.feature_levels) >= 2
+        and len(pipeline.main.robots) <= 2
+    )
+
+
 def _analysed_only_whole(pipeline: Pipeline) -> str | None:
     """Why a run of ``pipeline`` has no partial report, or ``None`` when it may have one."""
     if pipeline.multiverse is not None:
         return "a multiverse is analysed only whole (its universes share the reward draws)"
-    if pipeline.teaching is not None:
+    if not _paper_design(pipeline):
         return (
-            "a teaching study is analysed only whole (it compares every human with every "
-            "robot on each reward draw)"
+            "a study of other humans, robots or feature levels than the paper's is analysed "
+            "only whole (it compares every human with every robot on each reward draw)"
         )
     return None
 

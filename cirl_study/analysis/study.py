@@ -1,28 +1,35 @@
-"""Every number of a teaching study's report: humans who teach, robots who read them.
+"""Every number of a study's report: any humans x robots x feature levels, analysed alike.
 
-:func:`analyse_teaching` takes the rows of a run of a pipeline with ``[teaching]``
-(:mod:`cirl_study.core.teaching`): every human policy of ``main.policies`` watched by every
-robot of ``main.robots``, within subjects, at every feature level (between subjects). It
-returns plain JSON-ready data, all measures being losses (lower is better):
+:func:`analyse_study` takes the rows of a run whose ``main`` block plays every human policy
+of ``main.policies`` (within subjects) with every robot of ``main.robots`` (within subjects)
+at every feature level (between subjects), any number of each (at least two cells in all),
+and returns plain JSON-ready data, all measures being losses (lower is better):
 
 * ``cells``: each measure's mean with its t-based 95% CI per feature level, human and robot
   (:func:`cirl_study.analysis.statistics.group_means`);
-* ``against_expert``: per robot and feature level, each human against the expert, paired by
-  subject (:func:`cirl_study.analysis.statistics.paired_differences`; Holm over the family of
-  a measure);
-* ``milli_dragan``: the 2 x 2 of Milli & Dragan (2019), human {literal, pedagogic} x robot
-  {literal, pragmatic}: the split-plot ANOVA with both within subjects and the feature level
-  between (:func:`cirl_study.analysis.statistics.split_plot_anova`), and the simple effect of
-  the robot, ``pragmatic - literal``, under each human, pooled over the feature levels and
-  at each (paired t, Holm);
-* ``best_response_vs_pedagogic``: per robot and feature level, ``best_response -
-  pedagogic``, paired (Holm);
-* ``regret_optimal``: with the MAP robot, every human's regret gap to the regret-optimal
-  demonstration, ``regret(human) - regret(regret_optimal)``, per feature level (paired t,
-  its smallest value, and the share of subjects at which the human's demonstration is as good
-  as the best found);
+* ``anova``: per measure, the repeated-measures ANOVA with ``policy`` (and ``robot``, with
+  two robots or more) within subjects and ``num_features`` between (with two levels or
+  more): Mauchly's test and the Greenhouse-Geisser and Huynh-Feldt corrections for every
+  within effect on two degrees of freedom or more
+  (:func:`cirl_study.analysis.anova.repeated_measures_anova`);
+* ``pairwise``: per measure and within factor, every pair of its levels in every cell of the
+  other factors, paired by subject, Holm over the measure's and factor's rows
+  (:func:`cirl_study.analysis.statistics.pairwise_differences`);
+* ``against_baseline``: per robot and feature level, each human against the baseline, the
+  pipeline's first human (:func:`cirl_study.analysis.statistics.paired_differences`; Holm
+  over the family of a measure);
+* where the run has their cells, the teaching questions' numbers: ``milli_dragan``, the 2 x 2
+  of Milli & Dragan (2019), human {literal, pedagogic} x robot {literal, pragmatic}: its
+  split-plot ANOVA and the simple effect of the robot, ``pragmatic - literal``, under each
+  human, pooled over the feature levels and at each (paired t, Holm);
+  ``best_response_vs_pedagogic``: per robot and feature level, ``best_response -
+  pedagogic``, paired (Holm); ``regret_optimal``: with the MAP robot, every human's regret
+  gap to the regret-optimal demonstration, ``regret(human) - regret(regret_optimal)``, per
+  feature level (paired t, its smallest value, and the share of subjects at which the
+  human's demonstration is as good as the best found);
 * ``questions``: the questions the study answers, each with what we measured and a verdict
-  by a fixed rule (:data:`ALPHA` = .05 on Holm-adjusted p-values).
+  by a fixed rule (:data:`ALPHA` = .05 on Holm-adjusted p-values), or not tested when the
+  run lacks a question's cells.
 
 Milli & Dragan's result has two parts. The *crossover*: the pragmatic robot beats the literal
 one with a pedagogic human and loses to it with a literal human (both simple effects
@@ -37,10 +44,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Any
 
+import msgspec
 import numpy as np
 import pandas as pd
 
 from cirl_study.analysis import statistics
+from cirl_study.analysis.anova import repeated_measures_anova
 from cirl_study.analysis.claims import MEASURE_NAMES
 from cirl_study.analysis.results import eta_cv, plain, rows
 from cirl_study.analysis.table import trial_table
@@ -48,7 +57,9 @@ from cirl_study.errors import UserError
 from cirl_study.logs.run_checks import design_faults
 from cirl_study.record import (
     BEST_RESPONSE,
+    ETA_CV,
     EXPERT,
+    LAMBDA_SWEEP,
     LITERAL,
     LITERAL_ROBOT,
     MAIN,
@@ -70,35 +81,37 @@ MAP robot certifies its estimate to 1e-6, and two demonstrations with the same v
 give the same estimate bit for bit."""
 
 
-def check_teaching_design(rows_: Sequence[TrialRow]) -> None:
-    """Refuse trials whose design the teaching analysis cannot use (one line, every fault).
+def check_study_design(rows_: Sequence[TrialRow]) -> None:
+    """Refuse trials whose design the analysis cannot use (one line, every fault).
 
-    The run's design must be sound (:func:`cirl_study.logs.run_checks.design_faults`), with at
-    least two feature levels; the expert must be one of the humans (the baseline).
+    The run's design must be sound (:func:`cirl_study.logs.run_checks.design_faults`: among
+    others, a non-empty ``main`` block complete within subjects), with at least two cells of
+    humans x robots x feature levels.
     """
     faults = design_faults(rows_)
     main = [row for row in rows_ if row.block == MAIN]
-    if len({row.num_features for row in main}) < 2:
-        faults.append("the main block needs at least two feature levels")
-    if main and EXPERT not in {row.policy for row in main}:
-        faults.append("the main block must play the expert (every human is compared with her)")
+    cells = {(row.policy, row.robot, row.num_features) for row in main}
+    if main and len(cells) < 2:
+        faults.append("the main block has one cell (one human, one robot, one feature level)")
     if faults:
         raise UserError(f"the run's design cannot be analysed: {'; '.join(faults)}")
 
 
-def analyse_teaching(trials: Sequence[TrialRow], pipeline: Pipeline) -> dict[str, Any]:
-    """Every number of the teaching report (see the module docstring), JSON-ready."""
-    check_teaching_design(trials)
+def analyse_study(trials: Sequence[TrialRow], pipeline: Pipeline) -> dict[str, Any]:
+    """Every number of the study's report (see the module docstring), JSON-ready."""
+    check_study_design(trials)
     table = trial_table(trials)
     main = table[table["block"] == MAIN]
     humans = [p for p in pipeline.main.policies if p in set(main["policy"])]
     robots = [r for r in pipeline.main.robots if r in set(main["robot"])]
     levels = sorted(int(k) for k in main["num_features"].unique())
     teaching = pipeline.teaching
+    baseline = humans[0]
     results: dict[str, Any] = {
         "pipeline": pipeline.name,
         "design": {
             "humans": humans,
+            "baseline": baseline,
             "robots": robots,
             "feature_levels": levels,
             "subjects_per_level": {
@@ -109,14 +122,24 @@ def analyse_teaching(trials: Sequence[TrialRow], pipeline: Pipeline) -> dict[str
             "rationality": pipeline.main.rationality,
             "teaching": None if teaching is None else vars(teaching),
         },
-        "eta_cv": eta_cv(trials, table) if (table["block"] != MAIN).any() else None,
+        "eta_cv": eta_cv(trials, table) if (table["block"] == ETA_CV).any() else None,
         "cells": rows(
             pd.concat(
                 statistics.group_means(main, m, ["num_features", "policy", "robot"])
                 for m in MEASURES
             )
         ),
-        "against_expert": _paired(main, "policy", EXPERT, ["robot", "num_features"]),
+        "anova": _anova(main, [f for f, n in (("policy", humans), ("robot", robots)) if n[1:]]),
+        "pairwise": [
+            msgspec.to_builtins(row)
+            for m in MEASURES
+            for factor, order in (("policy", humans), ("robot", robots))
+            if len(order) > 1
+            for row in statistics.pairwise_differences(main, m, factor, order)
+        ],
+        "against_baseline": _paired(main, "policy", baseline, ["robot", "num_features"])
+        if len(humans) > 1
+        else [],
     }
     if {LITERAL, PEDAGOGIC} <= set(humans) and {LITERAL_ROBOT, PRAGMATIC} <= set(robots):
         results["milli_dragan"] = _milli_dragan(main)
@@ -127,8 +150,25 @@ def analyse_teaching(trials: Sequence[TrialRow], pipeline: Pipeline) -> dict[str
         )
     if REGRET_OPTIMAL in humans and MAP in robots:
         results["regret_optimal"] = _regret_optimal(main[main["robot"] == MAP])
+    sweep = table[table["block"] == LAMBDA_SWEEP]
+    if not sweep.empty:
+        by = ["rationality", "policy", "robot", "num_features"]
+        results["lambda_sweep"] = rows(
+            pd.concat(statistics.group_means(sweep, m, by) for m in MEASURES)
+        )
     results["questions"] = _questions(results)
     return plain(results)
+
+
+def _anova(frame: pd.DataFrame, within: list[str]) -> list[dict[str, Any]]:
+    """:func:`~cirl_study.analysis.anova.repeated_measures_anova` of every measure, with
+    ``num_features`` between subjects where the frame has two levels or more of it."""
+    between = "num_features" if frame["num_features"].nunique() > 1 else None
+    return [
+        msgspec.to_builtins(row)
+        for m in MEASURES
+        for row in repeated_measures_anova(frame, m, within, between)
+    ]
 
 
 def _paired(frame: pd.DataFrame, factor: str, baseline: str, by: list[str]) -> list[dict]:
@@ -146,12 +186,7 @@ def _milli_dragan(main: pd.DataFrame) -> dict[str, Any]:
     ]
     pooled = square.assign(pooled="all")
     return {
-        "anova": rows(
-            pd.concat(
-                statistics.split_plot_anova(square, m, ("policy", "robot"), "num_features")
-                for m in MEASURES
-            )
-        ),
+        "anova": _anova(square, ["policy", "robot"]),
         "robot_effect": _paired(pooled, "robot", LITERAL_ROBOT, ["policy", "pooled"]),
         "robot_effect_by_level": _paired(
             square, "robot", LITERAL_ROBOT, ["policy", "num_features"]
@@ -232,8 +267,8 @@ def _paper_question(results: dict[str, Any]) -> dict[str, Any]:
         _effect(r_rows, m, robot=robot, num_features=k, level=BEST_RESPONSE)
         for m in MEASURES
         for k in results["design"]["feature_levels"]
-        for r_rows in [results["against_expert"]]
-        if BEST_RESPONSE in results["design"]["humans"]
+        for r_rows in [results["against_baseline"]]
+        if results["design"]["baseline"] == EXPERT and BEST_RESPONSE in results["design"]["humans"]
     ]
     holds = bool(effects) and all(_signed(e, -1) for e in effects)
     return {

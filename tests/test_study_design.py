@@ -1,0 +1,147 @@
+"""A study of the user's own design: three humans (one registered here) x two robots x one
+feature level plays, validates and is analysed like any other, with the corrected ANOVA,
+every pairwise comparison and the figure."""
+
+from __future__ import annotations
+
+import json
+import struct
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+from scipy import stats
+from typer.testing import CliRunner
+
+from cirl_study.analysis import figures
+from cirl_study.cli import app
+from cirl_study.core.apprenticeship import Apprenticeship
+from cirl_study.core.players import HUMANS, Human, register_human
+from cirl_study.logs.validate import validate_run
+from cirl_study.record import MEASURES
+
+HUMAN_NAMES = '["expert", "best_response", "first_step"]'
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
+
+
+def first_step_expert(
+    game: Apprenticeship, theta: np.ndarray, eta: np.ndarray | None, seeds: np.ndarray
+) -> np.ndarray:
+    """The expert's path for its first step, then staying put: a human who half teaches."""
+    expert = HUMANS["expert"].demonstrate(game, theta, eta, seeds)
+    path = np.repeat(expert[:, 1:2], expert.shape[1], axis=1)
+    path[:, 0] = expert[:, 0]
+    return path
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str, dict]]:
+    """The run, analyze's output and the results of a 3 x 2 x 1 study."""
+    register_human("first_step", Human(first_step_expert, takes_eta=False))
+    try:
+        root = tmp_path_factory.mktemp("study")
+        text = SMOKE.read_text(encoding="utf-8")
+        for old, new in (
+            ('name = "smoke"', 'name = "three-humans"'),
+            ("feature_levels = [3, 10]", "feature_levels = [3]"),
+            ('policies = ["expert", "best_response"]', f"policies = {HUMAN_NAMES}"),
+            ('robots = ["map"]', 'robots = ["map", "posterior_mean"]'),
+            ("[main]\nsubjects = 4", "[main]\nsubjects = 8"),
+        ):  # fmt: skip
+            assert old in text
+            text = text.replace(old, new)
+        pipeline = root / "three-humans.toml"
+        pipeline.write_text(text, encoding="utf-8")
+        run = root / "run"
+        played = CliRunner().invoke(app, ["run", str(pipeline), "--out", str(run)])
+        assert played.exit_code == 0, played.output
+        out = root / "report"
+        analysed = CliRunner().invoke(app, ["analyze", str(run), "--out", str(out)])
+        assert analysed.exit_code == 0, analysed.output
+        results = json.loads((out / "results.json").read_text(encoding="utf-8"))
+        yield run, analysed.output, results
+    finally:
+        del HUMANS["first_step"]
+
+
+def test_the_study_plays_and_validates(study: tuple[Path, str, dict]) -> None:
+    run, _, results = study
+    assert validate_run(run).ok
+    assert results["design"]["humans"] == ["expert", "best_response", "first_step"]
+    assert results["design"]["robots"] == ["map", "posterior_mean"]
+    assert results["design"]["feature_levels"] == [3]
+
+
+def test_the_anova_has_both_within_factors_and_corrects_the_three_level_one(
+    study: tuple[Path, str, dict],
+) -> None:
+    _, _, results = study
+    for measure in MEASURES:
+        rows = {r["effect"]: r for r in results["anova"] if r["measure"] == measure}
+        assert set(rows) == {"policy", "robot", "policy:robot"}  # one level: no between factor
+        assert (rows["policy"]["df1"], rows["policy"]["df2"]) == (2, 14)
+        assert (rows["robot"]["df1"], rows["robot"]["df2"]) == (1, 7)
+        assert rows["robot"]["sphericity"] is None
+        sphericity = rows["policy"]["sphericity"]
+        assert 0.5 <= sphericity["gg_epsilon"] <= 1.0
+        row, epsilon = rows["policy"], sphericity["gg_epsilon"]
+        corrected = stats.f.sf(row["F"], epsilon * row["df1"], epsilon * row["df2"])
+        assert sphericity["gg"]["p"] == pytest.approx(corrected, rel=1e-12)
+        assert rows["policy"]["log10_p"] == pytest.approx(np.log10(rows["policy"]["p"]))
+
+
+def test_every_pair_is_compared_in_every_cell(study: tuple[Path, str, dict]) -> None:
+    _, _, results = study
+    pairs = results["pairwise"]
+    humans = [r for r in pairs if r["factor"] == "policy"]
+    robots = [r for r in pairs if r["factor"] == "robot"]
+    assert len(humans) == 3 * 3 * 2  # measures x pairs of humans x robots
+    assert len(robots) == 3 * 1 * 3  # measures x pairs of robots x humans
+    assert {(r["level_a"], r["level_b"]) for r in robots} == {("map", "posterior_mean")}
+    assert all(r["n"] == 8 and r["p_holm"] >= r["p"] for r in pairs)
+    baseline = results["against_baseline"]
+    assert {r["level"] for r in baseline} == {"best_response", "first_step"}
+
+
+def test_the_report_shows_the_design_and_the_figure(study: tuple[Path, str, dict]) -> None:
+    run, output, results = study
+    assert output.startswith("study report of ")
+    out = run.parent / "report"
+    assert (out / "cell_means.png").stat().st_size > 0 and (out / "cell_means.svg").is_file()
+    report = (out / "report.md").read_text(encoding="utf-8")
+    assert report.startswith("# Study: `three-humans`")
+    for heading in (
+        "## Repeated-measures ANOVA",
+        "## Pairwise comparisons",
+        "## The rationality sweep",
+    ):
+        assert heading in report
+    questions = {q["id"]: q for q in results["questions"]}
+    assert questions["paper_best_response"]["tested"]
+    assert {r["policy"] for r in results["lambda_sweep"]} == {
+        "expert",
+        "best_response",
+        "first_step",
+    }
+
+
+@pytest.mark.parametrize(("humans", "robots", "levels"), [(2, 1, 1), (5, 3, 2), (8, 4, 2)])
+def test_the_cell_figure_keeps_its_panels_readable(humans: int, robots: int, levels: int) -> None:
+    """From 2 to 8 humans and 1 to 4 robots every panel is at least 3 inches wide: past
+    WIDE_CELLS bars a panel the measures go down the figure instead of across."""
+    names = [f"human_{i}" for i in range(humans)]
+    robot_names = [f"robot_{i}" for i in range(robots)]
+    cells = pd.DataFrame(
+        {
+            "measure": m, "num_features": 3 + 7 * k, "policy": h, "robot": r,
+            "mean": 0.5, "ci95_low": 0.4, "ci95_high": 0.6,
+        }
+        for m in MEASURES for k in range(levels) for h in names for r in robot_names
+    )  # fmt: skip
+    png = figures.cell_bars(cells, names, robot_names).png
+    width, height = struct.unpack(">II", png[16:24])
+    columns = levels if humans * robots > figures.WIDE_CELLS else len(MEASURES)
+    assert width / figures.DPI / columns >= 3.0
+    assert height / figures.DPI >= 2.9 * (len(MEASURES) if columns == levels else levels)
