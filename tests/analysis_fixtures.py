@@ -9,13 +9,18 @@ as plain data and validated into a :class:`~cirl_study.record.TrialRecord`.
 
 from __future__ import annotations
 
+import json
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import numpy as np
 
 from cirl_study.core.gridworld import Gridworld, rbf_features
 from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord, TrialRow, from_builtins
+from cirl_study.study.spec import Pipeline, parse_pipeline
+
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
 WIDTH, HEIGHT, START, STEPS, SIGMA = 6, 5, (3, 2), 4, 1.5
 MOVES = {"N": (0, 1), "S": (0, -1), "E": (1, 0), "W": (-1, 0)}
@@ -176,3 +181,18 @@ def rows(records: list[TrialRecord]) -> list[TrialRow]:
 def records_of(records: list[TrialRecord]) -> Callable[[set[str]], list[TrialRecord]]:
     """``write_report``'s ``records_of`` over records held in memory."""
     return lambda wanted: [record for record in records if record.trial_id in wanted]
+
+
+def pipeline(
+    name: str = "paper",
+    policies: Sequence[str] = PAPER_POLICIES,
+    robots: Sequence[str] = ("map",),
+) -> Pipeline:
+    """The smoke pipeline named ``name``, playing ``policies`` with ``robots``: the order of
+    the humans and robots the analysis of synthetic records follows."""
+    text = SMOKE.read_text(encoding="utf-8").replace('name = "smoke"', f'name = "{name}"')
+    text = text.replace(
+        'policies = ["expert", "best_response"]', f"policies = {json.dumps(list(policies))}"
+    )
+    text = text.replace('robots = ["map"]', f"robots = {json.dumps(list(robots))}")
+    return parse_pipeline(text, Path(f"{name}.toml"))

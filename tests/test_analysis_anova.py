@@ -18,7 +18,7 @@ import pytest
 
 from cirl_study.analysis.anova import AnovaEffect, contrasts, repeated_measures_anova
 from cirl_study.analysis.statistics import holm, holm_log10, pairwise_differences
-from cirl_study.analysis.tails import f_tail, t_tail
+from cirl_study.analysis.tails import chi2_tail, f_tail, t_tail
 
 FIXTURES = Path(__file__).parent / "fixtures" / "factorial"
 
@@ -260,3 +260,24 @@ def test_holm_in_log_space_equals_holm_where_p_is_a_double() -> None:
     tiny = holm_log10(np.array([-600.0, -400.0, np.nan, -2.0]))
     assert tiny[0] == pytest.approx(-600 + np.log10(3))
     assert np.isnan(tiny[2]) and tiny[3] == pytest.approx(-2.0)
+
+
+@pytest.mark.parametrize(("statistic", "df"), [(3.84, 1), (500.0, 14), (5000.0, 14), (1e5, 10)])
+def test_the_chi2_tail_equals_mpmath(statistic: float, df: int) -> None:
+    with mpmath.workdps(60):
+        exact = float(
+            mpmath.log10(
+                mpmath.gammainc(mpmath.mpf(df) / 2, mpmath.mpf(statistic) / 2, regularized=True)
+            )
+        )
+    assert close(chi2_tail(statistic, df)[1], exact, 1e-13)
+
+
+def test_mauchly_is_undefined_with_fewer_error_degrees_of_freedom_than_contrasts() -> None:
+    """Four subjects, five levels: the SSCP matrix of the four contrasts has rank 3."""
+    rng = np.random.default_rng(1)
+    rows = [{"subject": s, "h": h, "y": rng.normal()} for s in range(4) for h in range(5)]
+    (effect,) = repeated_measures_anova(pd.DataFrame(rows), "y", ["h"])
+    sphericity = effect.sphericity
+    assert math.isnan(sphericity.mauchly_w) and math.isnan(sphericity.mauchly.p)
+    assert 1 / 4 <= sphericity.gg_epsilon <= 1 and math.isfinite(sphericity.gg.p)

@@ -11,7 +11,7 @@ import copy
 from collections.abc import Callable
 
 import pytest
-from analysis_fixtures import rows, synthetic_records
+from analysis_fixtures import pipeline, rows, synthetic_records
 
 from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.results import analyse
@@ -26,10 +26,21 @@ CLAIM_IDS = [
     "tukey_br_ahead",
     "lambda_intermediate",
 ]
+"""The paper's claims; :data:`~cirl_study.analysis.claims.CLAIMS` lists them first."""
+
+OTHER_IDS = [
+    "paper_best_response",
+    "milli_dragan_crossover",
+    "milli_dragan_robustness",
+    "best_response_vs_pedagogic",
+    "regret_optimal_gap",
+]
 
 
 def _anova(results: dict, measure: str, effect: str) -> dict:
-    return next(r for r in results["anova"] if r["measure"] == measure and r["effect"] == effect)
+    return next(
+        r for r in results["paper"]["anova"] if r["measure"] == measure and r["effect"] == effect
+    )
 
 
 def _cell(results: dict, measure: str, level: int, policy: str) -> dict:
@@ -41,36 +52,47 @@ def _cell(results: dict, measure: str, level: int, policy: str) -> dict:
 
 
 def _within_level_tukey(results: dict) -> list[dict]:
-    return [r for r in results["tukey_hsd"] if r["a_num_features"] == r["b_num_features"]]
+    return [r for r in results["paper"]["tukey_hsd"] if r["a_num_features"] == r["b_num_features"]]
 
 
 @pytest.fixture(scope="module")
 def holding() -> dict:
     """Results of a synthetic study, edited so that every paper claim holds."""
-    results = analyse(rows(synthetic_records(subjects_per_level=10)), "synthetic")
+    results = analyse(rows(synthetic_records(subjects_per_level=10)), pipeline("synthetic"))
     for measure in MEASURES:
         _anova(results, measure, "policy").update(F=1000.0, p=1e-12)
         _anova(results, measure, "policy:num_features").update(p=1e-3)
         for level, gap in ((3, 2.0), (10, 1.0)):
             best = _cell(results, measure, level, "best_response")["mean"]
             _cell(results, measure, level, "expert")["mean"] = best + gap
-    results["cronbach_alpha"]["ci95"] = [0.40, 0.50]
+    results["paper"]["cronbach_alpha"]["ci95"] = [0.40, 0.50]
     for row in _within_level_tukey(results):
         row["p_tukey"] = 1e-6
     return results
 
 
 def _verdicts(results: dict) -> dict[str, bool]:
-    return {claim["id"]: claim["reproduced"] for claim in evaluate_claims(results)}
+    """The paper's claims' verdicts."""
+    return {c["id"]: c["reproduced"] for c in evaluate_claims(results) if c["id"] in CLAIM_IDS}
 
 
 def test_every_paper_claim_has_a_row_and_holds_when_its_numbers_do(holding):
     claims = evaluate_claims(holding)
-    assert [claim["id"] for claim in claims] == CLAIM_IDS
-    for claim in claims:
+    assert [claim["id"] for claim in claims] == CLAIM_IDS + OTHER_IDS
+    for claim in claims[: len(CLAIM_IDS)]:
         assert claim["tested"] and claim["reproduced"]
         assert claim["claim"] and claim["rule"] and claim["measurement"] and claim["evidence"]
         assert claim["source"].startswith("paper, section 4.")
+
+
+def test_a_claim_whose_cells_the_run_lacks_is_not_tested(holding):
+    """The synthetic study plays the paper's humans and robot only: the teaching claims are
+    listed, not tested, and say what the run lacks."""
+    claims = {claim["id"]: claim for claim in evaluate_claims(holding)}
+    assert claims["paper_best_response"]["tested"]
+    for claim in OTHER_IDS[1:]:
+        assert not claims[claim]["tested"] and claims[claim]["reproduced"] is False
+        assert claims[claim]["measurement"].startswith("not tested: the run lacks the human")
 
 
 def _policy_p(results):
@@ -97,7 +119,7 @@ def _gap_larger_with_more_features(results):
 
 
 def _alpha_elsewhere(results):
-    results["cronbach_alpha"]["ci95"] = [0.48, 0.60]
+    results["paper"]["cronbach_alpha"]["ci95"] = [0.48, 0.60]
 
 
 def _tukey_not_significant(results):
@@ -152,9 +174,13 @@ def test_the_regret_interaction_does_not_decide_the_kl_l2_claim(holding):
 def test_the_lambda_claim_is_not_tested_without_a_sweep_of_three_lambdas(holding, lambdas):
     results = copy.deepcopy(holding)
     results["lambda_sweep"] = [r for r in results["lambda_sweep"] if r["rationality"] in lambdas]
-    claim = evaluate_claims(results)[-1]
+    results["design"]["sweep_rationalities"] = lambdas
+    claim = evaluate_claims(results)[len(CLAIM_IDS) - 1]
     assert claim["id"] == "lambda_intermediate"
     assert not claim["tested"] and not claim["reproduced"]
+    assert claim["measurement"] == (
+        "not tested: the run lacks a lambda sweep of at least 3 rationalities"
+    )
 
 
 def _theory_claim(**changes) -> dict:
@@ -177,6 +203,7 @@ def test_theory_claims_are_appended_after_the_papers(holding):
     claims = evaluate_claims(holding, theory)
     assert [claim["id"] for claim in claims] == [
         *CLAIM_IDS,
+        *OTHER_IDS,
         "office_supplies_instructive",
         "untested",
     ]

@@ -16,7 +16,7 @@ def test_analyze_writes_the_report_beside_the_run_by_default(tmp_path, smoke_run
     result = CliRunner().invoke(app, ["analyze", str(run)])
     assert result.exit_code == 0, result.output
     out = run / "report"
-    assert result.output.startswith(f"report of 82 trials written to {out}: 10 claims")
+    assert result.output.startswith(f"report of 82 trials written to {out}: 15 claims")
     results = json.loads((out / "results.json").read_text(encoding="utf-8"))
     assert results["pipeline"] == "smoke" and results["partial"] is None
     assert results["run_id"].startswith("smoke-")

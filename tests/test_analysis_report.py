@@ -9,10 +9,11 @@ from pathlib import Path
 
 import msgspec
 import pandas as pd
+import pingouin as pg
 import pytest
-from analysis_fixtures import records_of, rows, synthetic_records
+from analysis_fixtures import pipeline, records_of, rows, synthetic_records
 
-from cirl_study.analysis import report, statistics
+from cirl_study.analysis import report
 from cirl_study.analysis.markdown import anchor
 from cirl_study.analysis.report import write_report
 from cirl_study.analysis.table import trial_table
@@ -29,6 +30,7 @@ FILES = {
     *(f"{figure}.{kind}" for figure in FIGURES for kind in ("png", "svg")),
 }
 PROVENANCE = {"report": {"git_commit": "abc"}}
+PAPER = pipeline("paper")
 
 
 @pytest.fixture(scope="module")
@@ -41,13 +43,11 @@ def reports(records, tmp_path_factory) -> tuple[Path, Path]:
     """The same records written twice, the second time shuffled, to two directories."""
     first = tmp_path_factory.mktemp("first") / "paper"
     second = tmp_path_factory.mktemp("second") / "paper"
-    write_report(
-        rows(records), first, "paper", records_of=records_of(records), provenance=PROVENANCE
-    )
+    write_report(rows(records), first, PAPER, records_of=records_of(records), provenance=PROVENANCE)
     shuffled = records[:]
     random.Random(3).shuffle(shuffled)
     write_report(
-        rows(shuffled), second, "paper", records_of=records_of(shuffled), provenance=PROVENANCE
+        rows(shuffled), second, PAPER, records_of=records_of(shuffled), provenance=PROVENANCE
     )
     return first, second
 
@@ -69,19 +69,32 @@ def test_no_machine_paths_in_the_report(reports):
 def test_results_json_holds_every_section_at_full_precision(reports, records):
     first, _ = reports
     results = json.loads((first / "results.json").read_text(encoding="utf-8"))
-    assert {"anova", "cronbach_alpha", "cells", "lambda_sweep", "eta_cv", "claims"} <= set(results)
-    assert {"raw", "standardized", "ci95", "rows"} <= set(results["cronbach_alpha"])
-    assert "main block" in results["cronbach_alpha"]["rows"]
-    for row in results["anova"]:
-        assert {"measure", "effect", "df1", "df2", "F", "p", "np2", "ges"} <= set(row)
-    assert {(r["measure"], r["effect"]) for r in results["anova"]} == {
-        (m, e) for m in ("regret", "kl", "reward_l2") for e in statistics.EFFECTS
-    }
+    assert {"anova", "cells", "lambda_sweep", "eta_cv", "claims", "paper"} <= set(results)
+    paper = results["paper"]
+    assert {"raw", "standardized", "ci95", "rows"} <= set(paper["cronbach_alpha"])
+    assert "main block" in paper["cronbach_alpha"]["rows"]
+    effects = ("num_features", "policy", "policy:num_features")
+    for anova in (results["anova"], paper["anova"]):
+        for row in anova:
+            assert {"measure", "effect", "df1", "df2", "F", "p", "log10_p", "np2", "ges"} <= set(
+                row
+            )
+        assert {(r["measure"], r["effect"]) for r in anova} == {
+            (m, e) for m in ("regret", "kl", "reward_l2") for e in effects
+        }
     table = trial_table(rows(records))
-    expected = statistics.mixed_anova(table[table["block"] == "main"], "kl")
-    got = [r for r in results["anova"] if r["measure"] == "kl"]
-    assert [r["F"] for r in got] == expected["F"].tolist()  # exact: nothing rounded
-    assert all(isinstance(claim["reproduced"], bool) for claim in results["claims"])
+    main = table[table["block"] == "main"]
+    expected = pg.mixed_anova(
+        data=main, dv="kl", within="policy", between="num_features", subject="subject"
+    ).set_index("Source")
+    got = {r["effect"]: r for r in paper["anova"] if r["measure"] == "kl"}
+    for effect, source in zip(effects, ("num_features", "policy", "Interaction"), strict=True):
+        assert got[effect]["F"] == pytest.approx(expected.at[source, "F"], rel=1e-12)
+        assert got[effect]["p"] == pytest.approx(expected.at[source, "p_unc"], rel=1e-9)
+    assert results["anova"] == paper["anova"]  # the paper's design: one robot, its two humans
+    assert all(
+        isinstance(claim["reproduced"], bool) for claim in results["claims"] if claim["tested"]
+    )
     assert results["eta_cv"]["chosen"] and results["lambda_sweep"]
 
 
@@ -111,7 +124,7 @@ def test_a_main_block_played_with_another_eta_is_flagged(records, tmp_path):
         else r
         for r in records
     ]
-    results = write_report(rows(changed), tmp_path, "paper", records_of=records_of(changed))
+    results = write_report(rows(changed), tmp_path, PAPER, records_of=records_of(changed))
     assert results["eta_cv"]["main_block"] == [
         {"num_features": 3, "main_etas": [1.0], "chosen_eta": 1.0, "agree": True},
         {"num_features": 10, "main_etas": [10.0], "chosen_eta": 1.0, "agree": False},
@@ -140,7 +153,7 @@ def test_trials_csv_is_the_same_made_in_memory_and_written_row_by_row(
     first, _ = reports
     assert len(records) <= report.CSV_IN_MEMORY_ROWS  # the fixture's was made in memory
     monkeypatch.setattr(report, "CSV_IN_MEMORY_ROWS", 0)
-    write_report(rows(records), tmp_path, "paper", records_of=records_of(records))
+    write_report(rows(records), tmp_path, PAPER, records_of=records_of(records))
     assert (tmp_path / "trials.csv").read_bytes() == (first / "trials.csv").read_bytes()
 
 
@@ -150,7 +163,7 @@ def test_every_claim_has_a_verdict_and_every_link_resolves(reports):
     results = json.loads((first / "results.json").read_text(encoding="utf-8"))
     claims_table = text.split("## Claims")[1].split("\n## ")[0]
     verdict_rows = re.findall(r"(✅ reproduced|❌ not reproduced|➖ not tested)", claims_table)
-    assert len(verdict_rows) == len(results["claims"]) == 6
+    assert len(verdict_rows) == len(results["claims"]) == 11  # no theory claims given here
     anchors = {anchor(line.lstrip("#")) for line in text.splitlines() if line.startswith("#")}
     for target in re.findall(r"\]\(([^)]+)\)", text):
         if target.startswith("#"):
@@ -179,7 +192,7 @@ def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path
     results = write_report(
         rows(main_only),
         out,
-        "main-only",
+        pipeline("main-only"),
         records_of=records_of(main_only),
         theory=theory,
         provenance=PROVENANCE,
@@ -209,7 +222,7 @@ def test_an_incomplete_design_writes_nothing(records, tmp_path):
     unpaired = [r for r in records if not (r.block == "main" and r.subject == "k10-s002")]
     unpaired.append(next(r for r in records if r.block == "main" and r.subject == "k10-s002"))
     with pytest.raises(UserError, match="k10-s002"):
-        write_report(rows(unpaired), tmp_path / "out", "paper", records_of=records_of(unpaired))
+        write_report(rows(unpaired), tmp_path / "out", PAPER, records_of=records_of(unpaired))
     assert not (tmp_path / "out").exists()
 
 
@@ -219,12 +232,12 @@ def test_the_reports_results_are_analyses_whether_its_figures_are_drawn_in_worke
     from cirl_study import workers
     from cirl_study.analysis.results import RESULT_KEYS, analyse
 
-    here = analyse(rows(records), "paper")
+    here = analyse(rows(records), PAPER)
     for cores, name in ((1, "here"), (2, "workers")):
         monkeypatch.setattr(workers, "forkable", lambda: True)
         monkeypatch.setattr(workers, "cores", lambda cores=cores: cores)
         results = write_report(
-            rows(records), tmp_path / name, "paper", records_of=records_of(records)
+            rows(records), tmp_path / name, PAPER, records_of=records_of(records)
         )
         assert list(results)[: len(RESULT_KEYS)] == list(RESULT_KEYS)
         assert {key: results[key] for key in RESULT_KEYS} == here, name

@@ -26,9 +26,9 @@ from cirl_study.analysis.anova import repeated_measures_anova
 from cirl_study.analysis.report import write_report
 from cirl_study.analysis.statistics import paired_differences
 from cirl_study.analysis.table import check_design
-from cirl_study.errors import UserError
 from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.record import ETA_CV, MAIN, MAP, POSTERIOR_MEAN
+from cirl_study.study.audit import run_pipeline_of
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
 from cirl_study.study.runner import run_pipeline
@@ -209,7 +209,7 @@ def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
             write_report(
                 contents.rows,
                 tmp_path / name,
-                "smoke",
+                run_pipeline_of(contents.identity),
                 records_of=lambda wanted, run=run, contents=contents: read_trials(
                     run, contents.identity, wanted
                 ),
@@ -218,13 +218,15 @@ def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
     alone, both = reports
     two = read_run(two_robot_runs[1]).rows
     assert alone["robots"] is None and not (tmp_path / "one" / "robots_lambda.png").exists()
-    for key in ("anova", "simple_effects", "tukey_hsd", "cells", "cronbach_alpha", "lambda_sweep"):
-        assert both[key] == alone[key]
+    assert both["paper"] == alone["paper"]  # the paper's analysis: the reference robot's trials
+    assert alone["anova"] == alone["paper"]["anova"]
+    with_map = [row for row in both["cells"] if row["robot"] == MAP]
+    assert with_map == alone["cells"]
     robots = both["robots"]
-    assert (robots["reference"], robots["other"]) == (MAP, POSTERIOR_MEAN)
-    assert {row["effect"] for row in robots["anova"]} == {
-        "num_features", "robot", "robot:num_features", "policy", "policy:num_features",
-        "robot:policy", "robot:policy:num_features",
+    assert (robots["reference"], robots["others"]) == (MAP, [POSTERIOR_MEAN])
+    assert {row["effect"] for row in both["anova"]} == {
+        "num_features", "policy", "policy:num_features", "robot", "robot:num_features",
+        "policy:robot", "policy:robot:num_features",
     }  # fmt: skip
     regret = [r for r in robots["main"] if r["measure"] == "regret"]
     by_cell = {(r.subject, r.policy, r.robot): r.measures.regret for r in two if r.block == MAIN}
@@ -236,16 +238,17 @@ def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
         ]
         assert row["mean_diff"] == pytest.approx(np.mean(differences), rel=1e-12)
     text = (tmp_path / "two" / "report.md").read_text()
-    assert "## Robots" in text and "Mixed ANOVA: robot x policy x features" in text
+    assert "## Robots" in text and "### Repeated-measures ANOVA" in text
     assert (tmp_path / "two" / "robots_lambda.png").exists()
+    assert (tmp_path / "two" / "cell_means.png").exists()
+    assert not (tmp_path / "one" / "cell_means.png").exists()
 
 
-def test_more_than_two_robots_are_refused(two_robot_runs: tuple[Path, Path]) -> None:
+def test_three_robots_are_compared_with_the_reference(two_robot_runs: tuple[Path, Path]) -> None:
     records = read_run(two_robot_runs[1]).rows
     third = [
         msgspec.structs.replace(r, robot="third", trial_id=r.trial_id + "3")
         for r in records
         if r.block == MAIN and r.robot == MAP
     ]
-    with pytest.raises(UserError, match="has 3 robots .* compares at most two"):
-        check_design([*records, *third])
+    check_design([*records, *third])

@@ -25,7 +25,8 @@ from mpmath.calculus.quadrature import GaussLegendre
 from scipy import integrate, stats
 
 from cirl_study.analysis import statistics, studentized_range
-from cirl_study.analysis.studentized_range import studentized_range_sf
+from cirl_study.analysis.studentized_range import studentized_range_log10_sf, studentized_range_sf
+from cirl_study.analysis.tails import t_tail
 
 TINY = np.finfo(np.float64).tiny
 """The smallest normal double, below which the tail may be 0.0."""
@@ -290,3 +291,19 @@ def test_anova_p_below_1e300_is_genuine():
     assert p < mp.mpf("1e-300")
     assert p < TINY  # even below every normal double: SciPy's 0.0 is the right double
     assert stats.f.sf(3716.0, 1, 998) == 0.0
+
+
+@pytest.mark.parametrize(("q", "df"), [(10.0, 1996), (60.0, 1996), (80.0, 998), (120.0, 1996)])
+def test_the_log_tail_below_the_smallest_double_equals_the_closed_form_at_k_2(q, df):
+    """``P(Q_2 > q) = P(|T_df| > q / sqrt 2)``: the log tail stays exact down to 1e-664."""
+    exact = t_tail(q / math.sqrt(2), df)[1]
+    assert studentized_range_log10_sf(q, 2, df) == pytest.approx(exact, rel=1e-12)
+
+
+@pytest.mark.parametrize(("q", "df"), [(60.0, 1996), (120.0, 1996), (200.0, 500)])
+def test_the_log_tail_at_k_4_lies_between_its_bonferroni_bounds(q, df):
+    """Some pair's difference exceeds ``q``: at least the largest pair's tail, at most the
+    sum over the six pairs (``P_2`` the tail of one pair, ``k = 2``)."""
+    pair = t_tail(q / math.sqrt(2), df)[1]
+    assert pair <= studentized_range_log10_sf(q, 4, df) <= pair + math.log10(6) + 1e-12
+    assert (studentized_range_sf(q, 4, df) == 0.0) == (pair < -308)

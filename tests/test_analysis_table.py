@@ -128,19 +128,20 @@ def test_check_design_refuses_cross_validation_draws_reused_in_the_test_blocks(r
     _refused(reused, f"eta_cv subject\\(s\\) also used in the test blocks: {cv.subject}")
 
 
-def test_check_design_needs_two_feature_levels_and_the_papers_policies(records):
-    _refused(_without(records, lambda r: r.num_features == 10), "only num_features=3")
-    _refused(
-        _without(records, lambda r: r.block == "main" and r.policy == "expert"),
-        "the main block plays best_response; the analysis needs exactly expert, best_response",
-    )
+def test_check_design_takes_any_humans_and_levels_but_needs_two_cells(records):
+    """One feature level, one human or a human of the user's own: analysed like the paper's
+    design; a main block of one cell, or none, is refused."""
+    check_design(rows(_without(records, lambda r: r.num_features == 10)))
+    check_design(rows(_without(records, lambda r: r.block == "main" and r.policy == "expert")))
     renamed = [
         msgspec.structs.replace(r, policy="random")
         if r.block == "main" and r.policy == "expert"
         else r
         for r in records
     ]
-    _refused(renamed, "the main block plays best_response, random; the analysis needs")
+    check_design(rows(renamed))
+    one_cell = _without(records, lambda r: r.num_features == 10 or r.policy == "expert")
+    _refused(one_cell, r"the main block has one cell \(one human, one robot, one feature level\)")
     _refused(_without(records, lambda r: r.block == "main"), "no trials in the main block")
 
 

@@ -107,19 +107,21 @@ def test_every_pair_is_compared_in_every_cell(study: tuple[Path, str, dict]) -> 
 
 def test_the_report_shows_the_design_and_the_figure(study: tuple[Path, str, dict]) -> None:
     run, output, results = study
-    assert output.startswith("study report of ")
+    assert output.startswith("report of ")
     out = run.parent / "report"
     assert (out / "cell_means.png").stat().st_size > 0 and (out / "cell_means.svg").is_file()
     report = (out / "report.md").read_text(encoding="utf-8")
-    assert report.startswith("# Study: `three-humans`")
+    assert report.startswith("# Report: `three-humans`")
     for heading in (
         "## Repeated-measures ANOVA",
         "## Pairwise comparisons",
-        "## The rationality sweep",
+        "## Lambda sweep",
     ):
         assert heading in report
-    questions = {q["id"]: q for q in results["questions"]}
-    assert questions["paper_best_response"]["tested"]
+    claims = {claim["id"]: claim for claim in results["claims"]}
+    assert claims["paper_best_response"]["tested"] and claims["policy_effect"]["tested"]
+    assert not claims["interaction_kl_l2"]["tested"]  # one feature level
+    assert "at least 2 feature levels" in claims["interaction_kl_l2"]["measurement"]
     assert {r["policy"] for r in results["lambda_sweep"]} == {
         "expert",
         "best_response",

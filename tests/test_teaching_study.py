@@ -23,7 +23,8 @@ import pytest
 from test_logs_helpers import run_records
 from typer.testing import CliRunner
 
-from cirl_study.analysis.study import analyse_study
+from cirl_study.analysis.claims import evaluate_claims
+from cirl_study.analysis.results import analyse
 from cirl_study.cli import app
 from cirl_study.core.gridworld import Gridworld
 from cirl_study.core.hypotheses import MAX_PATHS, path_count
@@ -398,18 +399,19 @@ def teaching_report(
 def test_analyze_writes_the_teaching_report(teaching_report: tuple[Path, str]) -> None:
     """The teaching report's files, its questions and its design."""
     out, output = teaching_report
-    assert output.startswith(f"study report of 102 trials written to {out}: 5 questions")
-    assert {p.name for p in out.iterdir()} == REPORT_FILES | {"provenance.json"}
+    assert output.startswith(f"report of 102 trials written to {out}: 15 claims")
+    assert output.rstrip().endswith("2 questions answered")
+    assert REPORT_FILES | {"provenance.json"} <= {p.name for p in out.iterdir()}
     assert all((out / name).stat().st_size > 0 for name in REPORT_FILES)
     results = json.loads((out / "results.json").read_text(encoding="utf-8"))
-    assert {q["id"] for q in results["questions"]} == QUESTIONS
-    assert len(results["questions"]) == len(QUESTIONS)
-    assert all(q["tested"] for q in results["questions"])
+    claims = {claim["id"]: claim for claim in results["claims"]}
+    assert set(claims) >= QUESTIONS
+    assert all(claims[question]["tested"] for question in QUESTIONS)
     design = results["design"]
     assert design["humans"] == json.loads(POLICIES) and design["robots"] == json.loads(ROBOTS)
     assert design["feature_levels"] == [3, 10]
     assert design["subjects_per_level"] == {"3": 3, "10": 3}
-    assert design["trials"] == {"main": 90, "eta_cv": 12}
+    assert results["trials"] == {"total": 102, "main": 90, "eta_cv": 12}
     assert design["teaching"] == {
         "hypotheses": 8,
         "includes_truth": True,
@@ -419,7 +421,7 @@ def test_analyze_writes_the_teaching_report(teaching_report: tuple[Path, str]) -
     }
     assert results["run_id"].startswith("smoke-")
     report = (out / "report.md").read_text(encoding="utf-8")
-    assert report.startswith("# Study: `smoke`")
+    assert report.startswith("# Report: `smoke`")
     trials = (out / "trials.csv").read_text(encoding="utf-8").splitlines()
     assert len(trials) == 1 + 102
 
@@ -523,9 +525,15 @@ def synthetic_rows(
     return rows
 
 
+def analysed(rows: list[TrialRow], pipeline: Pipeline) -> dict[str, Any]:
+    """The results of ``rows`` with their claims judged, as the report has them."""
+    results = analyse(rows, pipeline)
+    return {**results, "claims": evaluate_claims(results)}
+
+
 def questions_of(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """The results' questions by id."""
-    return {q["id"]: q for q in results["questions"]}
+    """The results' teaching claims by id."""
+    return {claim["id"]: claim for claim in results["claims"] if claim["id"] in QUESTIONS}
 
 
 def robot_effects(results: dict[str, Any], measure: str) -> dict[str, float]:
@@ -542,63 +550,68 @@ def test_a_crossover_whose_loss_exceeds_its_gain_is_crossover_and_robustness(
 ) -> None:
     """The pragmatic robot gains 0.3 with the pedagogic human and loses 0.6 with the literal
     one: Milli & Dragan's crossover and the literal robot's robustness both hold."""
-    results = analyse_study(synthetic_rows(-0.3, 0.6), synthetic_pipeline(tmp_path))
+    results = analysed(synthetic_rows(-0.3, 0.6), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
-    assert set(questions) == {
-        "paper_best_response",
+    assert {q for q, claim in questions.items() if claim["tested"]} == {
         "milli_dragan_crossover",
         "milli_dragan_robustness",
     }
     crossover = questions["milli_dragan_crossover"]
     robustness = questions["milli_dragan_robustness"]
-    assert crossover["tested"] and crossover["holds"] is True
-    assert crossover["by_measure"] == {m: True for m in MEASURES}
-    assert robustness["tested"] and robustness["holds"] is True
-    assert robustness["by_measure"] == {m: True for m in MEASURES}
+    assert crossover["tested"] and crossover["reproduced"] is True
+    assert crossover["values"]["by_measure"] == {m: True for m in MEASURES}
+    assert robustness["tested"] and robustness["reproduced"] is True
+    assert robustness["values"]["by_measure"] == {m: True for m in MEASURES}
     for measure in MEASURES:
         effects = robot_effects(results, measure)
         assert math.isclose(effects["pedagogic"], -0.3, abs_tol=0.05), effects
         assert math.isclose(effects["literal"], 0.6, abs_tol=0.05), effects
     # no best response played: the paper's question is asked, not tested
     paper = questions["paper_best_response"]
-    assert paper["tested"] is False and paper["holds"] is False
-    assert "regret_optimal" not in results and "best_response_vs_pedagogic" not in results
+    assert paper["tested"] is False and paper["reproduced"] is False
+    assert results["regret_optimal"] is None and results["best_response_vs_pedagogic"] is None
 
 
 def test_a_pragmatic_robot_better_under_both_humans_is_no_crossover(tmp_path: Path) -> None:
     """The pragmatic robot is ahead with either human: neither crossover nor robustness."""
-    results = analyse_study(synthetic_rows(-0.3, -0.2), synthetic_pipeline(tmp_path))
+    results = analysed(synthetic_rows(-0.3, -0.2), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
-    assert questions["milli_dragan_crossover"]["holds"] is False
-    assert questions["milli_dragan_crossover"]["by_measure"] == {m: False for m in MEASURES}
-    assert questions["milli_dragan_robustness"]["holds"] is False
-    assert questions["milli_dragan_robustness"]["by_measure"] == {m: False for m in MEASURES}
+    assert questions["milli_dragan_crossover"]["reproduced"] is False
+    assert questions["milli_dragan_crossover"]["values"]["by_measure"] == {
+        m: False for m in MEASURES
+    }
+    assert questions["milli_dragan_robustness"]["reproduced"] is False
+    assert questions["milli_dragan_robustness"]["values"]["by_measure"] == {
+        m: False for m in MEASURES
+    }
 
 
 def test_a_crossover_whose_gain_exceeds_its_loss_is_not_robustness(tmp_path: Path) -> None:
     """The pragmatic robot gains 0.6 with the pedagogic human and loses only 0.3 with the
     literal one: the crossover holds, but the literal robot is not the more robust choice."""
-    results = analyse_study(synthetic_rows(-0.6, 0.3), synthetic_pipeline(tmp_path))
+    results = analysed(synthetic_rows(-0.6, 0.3), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
-    assert questions["milli_dragan_crossover"]["holds"] is True
-    assert questions["milli_dragan_robustness"]["holds"] is False
-    assert questions["milli_dragan_robustness"]["by_measure"] == {m: False for m in MEASURES}
+    assert questions["milli_dragan_crossover"]["reproduced"] is True
+    assert questions["milli_dragan_robustness"]["reproduced"] is False
+    assert questions["milli_dragan_robustness"]["values"]["by_measure"] == {
+        m: False for m in MEASURES
+    }
 
 
 def test_no_robot_effect_is_no_crossover(tmp_path: Path) -> None:
     """Robots that do equally well under both humans answer no to both questions."""
-    results = analyse_study(synthetic_rows(0.0, 0.0), synthetic_pipeline(tmp_path))
+    results = analysed(synthetic_rows(0.0, 0.0), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
-    assert questions["milli_dragan_crossover"]["holds"] is False
-    assert questions["milli_dragan_robustness"]["holds"] is False
+    assert questions["milli_dragan_crossover"]["reproduced"] is False
+    assert questions["milli_dragan_robustness"]["reproduced"] is False
 
 
 def test_the_synthetic_verdicts_do_not_depend_on_row_order(tmp_path: Path) -> None:
-    """``analyse_study`` is a function of the rows, not of the order they come in."""
+    """``analyse`` is a function of the rows, not of the order they come in."""
     rows = synthetic_rows(-0.3, 0.6, subjects=6, seed=3)
     pipeline = synthetic_pipeline(tmp_path)
-    forward = analyse_study(rows, pipeline)
-    backward = analyse_study(rows[::-1], pipeline)
+    forward = analysed(rows, pipeline)
+    backward = analysed(rows[::-1], pipeline)
     assert json.dumps(forward, sort_keys=True) == json.dumps(backward, sort_keys=True)
 
 
@@ -620,22 +633,25 @@ def test_a_hypothesis_space_too_large_for_a_batch_is_refused_before_anything_run
         check_resources(pipeline)
 
 
-@pytest.mark.parametrize("partial", [False, True])
-def test_an_incomplete_teaching_run_is_refused_whole_even_with_partial(
-    teaching_runs: TeachingRuns, tmp_path: Path, partial: bool
+def test_an_incomplete_teaching_run_is_refused_unless_partial(
+    teaching_runs: TeachingRuns, tmp_path: Path
 ) -> None:
-    """A teaching run missing one file: one line, exit 2, the resume command, no report; and no
-    advice to use ``--partial``, which a teaching study does not take."""
+    """A teaching run missing one file: one line, exit 2, the resume command and the advice
+    to use ``--partial``, no report; with ``--partial``, the report of the subjects that have
+    every cell, marked partial. A teaching study is analysed like any other."""
     run = tmp_path / "run"
     shutil.copytree(teaching_runs.one_worker, run)
     next(iter(sorted(run.glob("main-*.mcap")))).unlink()
     out = tmp_path / "report"
-    options = ["--partial"] if partial else []
-    result = CliRunner().invoke(app, ["analyze", str(run), "--out", str(out), *options])
-    assert result.exit_code == 2
-    message = result.output.strip()
+    refused = CliRunner().invoke(app, ["analyze", str(run), "--out", str(out)])
+    assert refused.exit_code == 2
+    message = refused.output.strip()
     assert len(message.splitlines()) == 1 and message.startswith("error: ")
-    assert "--partial" not in message and "cirl-study run" in message
-    if partial:
-        assert "than the paper's is analysed only whole" in message
+    assert "--partial" in message and "cirl-study run" in message
     assert not out.exists()
+    partial = CliRunner().invoke(app, ["analyze", str(run), "--out", str(out), "--partial"])
+    assert partial.exit_code == 0, partial.output
+    assert partial.output.startswith("partial report of ")
+    results = json.loads((out / "results.json").read_text(encoding="utf-8"))
+    assert results["partial"]["main_subjects_left_out"] >= 1
+    assert (out / "report.md").read_text(encoding="utf-8").startswith("**PARTIAL RUN:")

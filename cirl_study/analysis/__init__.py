@@ -2,25 +2,30 @@
 
 Everything here works on the typed trial records of docs/design.md §7
 (:class:`cirl_study.record.TrialRecord`, one per trial). Reading them from the MCAP logs
-is the job of :mod:`cirl_study.logs`.
+is the job of :mod:`cirl_study.logs`. One analysis serves every study, whatever its humans,
+robots and feature levels; a multiverse is analysed universe by universe with it.
 
 - :mod:`~cirl_study.analysis.table`: the tidy one-row-per-trial table and the design check.
-- :mod:`~cirl_study.analysis.statistics`: one function per statistical test.
-- :mod:`~cirl_study.analysis.results`: every number of the report, as JSON-ready data.
-- :mod:`~cirl_study.analysis.claims`: the paper's claims beside our measurements.
+- :mod:`~cirl_study.analysis.cells`: a design's factors, and the cells a section or a claim
+  needs.
+- :mod:`~cirl_study.analysis.statistics`: one function per statistical test;
+  :mod:`~cirl_study.analysis.anova`: the repeated-measures ANOVA of any factorial design,
+  with its sphericity corrections; :mod:`~cirl_study.analysis.tails` and
+  :mod:`~cirl_study.analysis.studentized_range`: p-values in log space.
+- :mod:`~cirl_study.analysis.measure_rows`: each test of every measure, as JSON-ready rows.
+- :mod:`~cirl_study.analysis.results`: every number of a study's report;
+  :mod:`~cirl_study.analysis.teaching`: its teaching sections.
+- :mod:`~cirl_study.analysis.claims`: the published claims as data, judged on the results.
 - :mod:`~cirl_study.analysis.figures`: the figures, as deterministic PNG bytes.
-- :mod:`~cirl_study.analysis.report`: ``report.md``, ``results.json``, ``trials.csv``.
+- :mod:`~cirl_study.analysis.report`: ``report.md``, ``results.json``, ``trials.csv``, with
+  its sections in :mod:`~cirl_study.analysis.study_report`,
+  :mod:`~cirl_study.analysis.paper_report` and :mod:`~cirl_study.analysis.teaching_report`
+  (their headings: :mod:`~cirl_study.analysis.sections`).
 - :mod:`~cirl_study.analysis.multiverse`, :mod:`~cirl_study.analysis.multiverse_report`: the
   paper's claims in every universe of a multiverse, and across them.
-- :mod:`~cirl_study.analysis.anova`: the repeated-measures ANOVA of any factorial design, with
-  its sphericity corrections; :mod:`~cirl_study.analysis.tails`: F and t tails in log space.
-- :mod:`~cirl_study.analysis.study`, :mod:`~cirl_study.analysis.study_report`: a study of
-  any humans x robots x feature levels other than the paper's own design, with its questions
-  (among them pedagogic and literal humans, pragmatic and literal robots).
 
 The package itself imports nothing, so that importing one module (say the table) does
 not pay for the statistics libraries; the entry points are
-:func:`cirl_study.analysis.report.write_report`,
-:func:`cirl_study.analysis.multiverse_report.write_multiverse_report` and
-:func:`cirl_study.analysis.study_report.write_study_report`.
+:func:`cirl_study.analysis.report.write_report` and
+:func:`cirl_study.analysis.multiverse_report.write_multiverse_report`.
 """

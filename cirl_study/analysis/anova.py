@@ -37,7 +37,8 @@ freedom (R's ``mauchly.test``, ``car::Anova``):
   ``C = 4`` they differ by 0.2%);
 * Greenhouse-Geisser ``epsilon = tr(E_T)^2 / (d tr(E_T^2))``, in ``[1 / d, 1]``;
 * Huynh-Feldt ``epsilon = ((n + 1) d eps_GG - 2) / (d (n - d eps_GG))``, reported as
-  computed (it may exceed 1) and capped at 1 for its p-value;
+  computed (it may exceed 1; infinite where ``n <= d eps_GG``, the estimator's pole) and
+  capped at 1 for its p-value;
 * a corrected p tests ``F`` on ``epsilon d_T`` and ``epsilon df_error`` degrees of freedom;
   the effect's interaction with the between factor takes the same epsilons.
 
@@ -63,9 +64,8 @@ import msgspec
 import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
-from scipy import stats
 
-from cirl_study.analysis.tails import f_tail
+from cirl_study.analysis.tails import chi2_tail, f_tail
 
 _RESULT = {"frozen": True, "kw_only": True}
 
@@ -271,11 +271,19 @@ def _stratum(
 def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> Sphericity:
     """Mauchly's test and both epsilons of one error SSCP matrix on ``n`` degrees of freedom,
     in a design of ``cells`` within cells (the p-values of the corrections are filled in by
-    :func:`_effect_row`)."""
+    :func:`_effect_row`). With fewer error degrees of freedom than contrasts (``n < d``) the
+    SSCP matrix is singular and Mauchly's test undefined: its ``W`` and p are NaN."""
     d = sscp.shape[0]
     trace = float(np.trace(sscp))
+    gg = trace**2 / (d * float(np.sum(sscp * sscp)))
+    hf = ((n + 1) * d * gg - 2) / (d * (n - d * gg)) if n > d * gg else math.inf
+    nan = Probability(p=math.nan, log10_p=math.nan)
     sign, log_det = np.linalg.slogdet(sscp)
-    log_w = float(log_det) - d * math.log(trace / d) if sign > 0 else -math.inf
+    if n < d or sign <= 0:
+        return Sphericity(
+            mauchly_w=math.nan, mauchly=nan, gg_epsilon=gg, hf_epsilon=hf, gg=nan, hf=nan
+        )
+    log_w = float(log_det) - d * math.log(trace / d)
     rho = 1 - (2 * d * d + d + 2) / (6 * d * n)
     w2 = (
         (d + 2)
@@ -286,16 +294,11 @@ def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> Sphericity:
     )
     statistic = -n * rho * log_w
     f = d * (d + 1) / 2 - 1
-    p1, p2 = stats.chi2.sf(statistic, f), stats.chi2.sf(statistic, f + 4)
-    mauchly_p = float(p1 + w2 * (p2 - p1))
-    gg = trace**2 / (d * float(np.sum(sscp * sscp)))
-    hf = ((n + 1) * d * gg - 2) / (d * (n - d * gg))
-    nan = Probability(p=math.nan, log10_p=math.nan)
+    (p1, log10_p1), (p2, log10_p2) = chi2_tail(statistic, f), chi2_tail(statistic, f + 4)
+    log10_p = log10_p1 + math.log10((1 - w2) + w2 * 10 ** (log10_p2 - log10_p1))
     return Sphericity(
         mauchly_w=math.exp(log_w),
-        mauchly=Probability(
-            p=mauchly_p, log10_p=math.log10(mauchly_p) if mauchly_p > 0 else -math.inf
-        ),
+        mauchly=Probability(p=float(p1 + w2 * (p2 - p1)), log10_p=log10_p),
         gg_epsilon=gg,
         hf_epsilon=hf,
         gg=nan,

@@ -1,47 +1,83 @@
-"""The paper's claims beside what we measured, each with a verdict computed from the data.
+"""Published claims as data, each judged on a run's results by a fixed rule.
 
-Each claim of docs/design.md §5 becomes one row::
+A claim (:class:`Claim`) is one declarative entry of :data:`CLAIMS`: its source, the
+statement, the rule that decides it in words, the cells of the design it needs
+(:class:`~cirl_study.analysis.cells.Cells`), the results it reads (``evidence``: keys of
+``results.json`` and figures) and the function that applies the rule. A report judges every
+claim whose cells the run has and lists the others as not tested; a new claim is one entry.
+:func:`evaluate_claims` returns one row per claim::
 
     {"id", "source", "claim", "rule", "measurement", "values", "tested", "reproduced",
      "evidence"}
 
-``claim`` is the paper's statement, ``rule`` the documented test that decides
-``reproduced`` from the numbers in ``values`` (never written by hand), ``tested`` is false
-when the run has no data for the claim (then ``reproduced`` is false too), and
-``evidence`` names the keys of ``results.json`` (and figures) that support the row.
+``reproduced`` is the verdict (never written by hand): ``True`` or ``False``, ``None`` for a
+claim that asks a question the measurement answers; a claim that is not tested is not
+reproduced. Claims from another analysis (the office-supplies theory results) are appended
+with :func:`external_claims`.
 
-The rules (constants below):
+The rules, on the paper's tests (results ``paper``, the reference robot's trials of the expert
+and the best response) unless they say otherwise:
 
-1. ``policy_effect``: for every measure the mixed ANOVA's policy effect has
-   ``p < .0001`` and the best response's mean over the main block is below the expert's.
+1. ``policy_effect``: for every measure the policy effect has ``p < .0001`` and the best
+   response's mean over the main block is below the expert's.
 2. ``policy_f_above_962``: every measure's policy ``F`` exceeds 962.
 3. ``interaction_kl_l2``: for KL and L2, the policy x num_features interaction has
-   ``p < .05`` and the gap ``mean(expert) - mean(best_response)`` is larger at the
-   smallest feature level than at the largest.
+   ``p < .05`` and the gap ``mean(expert) - mean(best_response)`` is larger at the smallest
+   feature level than at the largest.
 4. ``cronbach_alpha``: the paper's .47 lies inside the 95% (Feldt) interval of our raw alpha.
-5. ``tukey_br_ahead``: for every measure and feature level, Tukey HSD (as the paper ran
-   it, ignoring the pairing) compares best response and expert at that level with
-   ``p < .05`` and the best response's mean is lower.
+5. ``tukey_br_ahead``: for every measure and feature level, Tukey HSD (as the paper ran it,
+   ignoring the pairing) compares best response and expert at that level with ``p < .05``
+   and the best response's mean is lower.
 6. ``lambda_intermediate``: at every feature level of the lambda sweep (at least three
-   lambdas) the lambda with the lowest mean best-response regret is neither the smallest
-   nor the largest, and the upper end of its 95% CI lies below the mean at both ends.
-
-Claims from other sources (e.g. the office-supplies theory results) are appended with
-:func:`external_claims`.
+   lambdas) the lambda with the lowest mean best-response regret (reference robot) is neither
+   the smallest nor the largest, and the upper end of its 95% CI lies below the mean at both
+   ends.
+7. ``paper_best_response``: with the MAP robot (else the first), the best response against
+   the expert baseline (``against_baseline``) is significant (Holm) and negative on every
+   measure and feature level.
+8. ``milli_dragan_crossover``: on every measure, the pragmatic robot's simple effect against
+   the literal robot, pooled over the feature levels, is significantly negative with the
+   pedagogic human and significantly positive with the literal one (Holm).
+9. ``milli_dragan_robustness``: on every measure, the robot main effect of the 2 x 2 ANOVA
+   has ``p < .05`` and the mean of the two simple effects is positive (the literal robot
+   ahead).
+10. ``best_response_vs_pedagogic`` and ``regret_optimal_gap``: questions, answered by the
+    measurement without a verdict.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
 from typing import Any
 
-from cirl_study.analysis.markdown import p_value
-from cirl_study.analysis.results import Results, plain
+import numpy as np
+
+from cirl_study.analysis.cells import (
+    MILLI_DRAGAN,
+    PAPER,
+    REGRET_OPTIMAL_GAP,
+    VERSUS_PEDAGOGIC,
+    Cells,
+    Design,
+)
+from cirl_study.analysis.markdown import MEASURE_NAMES, number, p_text, p_value
+from cirl_study.analysis.measure_rows import plain
 from cirl_study.errors import UserError
-from cirl_study.record import BEST_RESPONSE, EXPERT, MEASURES
+from cirl_study.record import (
+    BEST_RESPONSE,
+    EXPERT,
+    LITERAL,
+    MAP,
+    MEASURES,
+    PEDAGOGIC,
+)
+
+Results = dict[str, Any]
 
 SIGNIFICANCE = 0.05
-"""Significance level of the rules that the paper states without a level."""
+"""Significance level of the rules that their source states without a level (on
+Holm-adjusted p-values where a rule compares several cells)."""
 
 PAPER_P = 1e-4
 """The paper's bound on the p-values of the policy effect."""
@@ -54,13 +90,36 @@ PAPER_ALPHA = 0.47
 
 SECTION_POLICY = "paper, section 4.2"
 SECTION_LAMBDA = "paper, section 4.3"
+MILLI_DRAGAN_2019 = "Milli & Dragan (2019)"
+HO_2016 = "Ho et al. (2016), against the paper's best response"
+REGRET_OPTIMAL_SOURCE = "this study: the regret-optimal demonstration"
 
-MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
-"""Short names of the measures in measurement texts."""
+
+@dataclass(frozen=True)
+class Verdict:
+    """What a rule found: the measurement in words, its numbers, and whether the claim is
+    reproduced (``None``: the claim asks a question, which the measurement answers)."""
+
+    measurement: str
+    values: Mapping[str, Any]
+    reproduced: bool | None
 
 
-def _num(value: float) -> str:
-    return f"{value:.4g}"
+@dataclass(frozen=True)
+class Claim:
+    """One published claim and the rule that judges it (see the module docstring)."""
+
+    id: str
+    source: str
+    statement: str
+    rule: str
+    needs: Cells
+    evidence: tuple[str, ...]
+    judge: Callable[[Results], Verdict]
+
+
+def _num(value: float | None) -> str:
+    return number(value)
 
 
 def _p(value: float) -> str:
@@ -69,56 +128,45 @@ def _p(value: float) -> str:
     return f"p {shown}" if shown.startswith("<") else f"p = {shown}"
 
 
+def _reference(results: Results) -> str:
+    return results["design"]["reference_robot"]
+
+
 def _anova(results: Results, measure: str, effect: str) -> dict[str, Any]:
     return next(
-        row for row in results["anova"] if row["measure"] == measure and row["effect"] == effect
+        row
+        for row in results["paper"]["anova"]
+        if row["measure"] == measure and row["effect"] == effect
     )
 
 
-def _means(results: Results, measure: str) -> dict[tuple[int, str], dict[str, Any]]:
-    return {
-        (row["num_features"], row["policy"]): row
+def _paper_cells(results: Results, measure: str) -> list[dict[str, Any]]:
+    """The cell means of ``measure`` of the paper's humans with the reference robot."""
+    robot = _reference(results)
+    return [
+        row
         for row in results["cells"]
         if row["measure"] == measure
-    }
+        and row["robot"] == robot
+        and row["policy"] in (EXPERT, BEST_RESPONSE)
+    ]
 
 
 def _policy_mean(results: Results, measure: str, policy: str) -> float:
-    cells = [row for row in results["cells"] if row["measure"] == measure]
-    weighted = sum(row["n"] * row["mean"] for row in cells if row["policy"] == policy)
-    return weighted / sum(row["n"] for row in cells if row["policy"] == policy)
+    cells = [row for row in _paper_cells(results, measure) if row["policy"] == policy]
+    return sum(row["n"] * row["mean"] for row in cells) / sum(row["n"] for row in cells)
 
 
-def _row(
-    identifier: str,
-    source: str,
-    claim: str,
-    rule: str,
-    measurement: str,
-    values: dict[str, Any],
-    reproduced: bool,
-    evidence: list[str],
-    tested: bool = True,
-) -> dict[str, Any]:
-    return {
-        "id": identifier,
-        "source": source,
-        "claim": claim,
-        "rule": rule,
-        "measurement": measurement,
-        "values": plain(values),
-        "tested": tested,
-        "reproduced": bool(tested and reproduced),
-        "evidence": evidence,
-    }
+def _gap(results: Results, measure: str, level: int) -> float:
+    means = {(r["num_features"], r["policy"]): r["mean"] for r in _paper_cells(results, measure)}
+    return means[(level, EXPERT)] - means[(level, BEST_RESPONSE)]
 
 
 def _f_text(row: dict[str, Any]) -> str:
     return f"F({row['df1']}, {row['df2']}) = {_num(row['F'])}, {_p(row['p'])}"
 
 
-def policy_effect(results: Results) -> dict[str, Any]:
-    """Claim 1: the best response beats the expert on every measure, ``p < .0001``."""
+def _policy_effect(results: Results) -> Verdict:
     values, parts, holds = {}, [], True
     for measure in MEASURES:
         row = _anova(results, measure, "policy")
@@ -130,42 +178,19 @@ def policy_effect(results: Results) -> dict[str, Any]:
             f"{MEASURE_NAMES[measure]}: best response {_num(best)} vs expert {_num(expert)}, "
             f"{_f_text(row)}"
         )
-    return _row(
-        "policy_effect",
-        SECTION_POLICY,
-        "Best response outperforms demonstration-by-expert on all three measures "
-        "(significant effect of policy, p < .0001).",
-        f"every measure: policy effect p < {PAPER_P:g} and the best response's mean below "
-        "the expert's",
-        "; ".join(parts),
-        values,
-        holds,
-        ["anova", "cells", "figure2_measures"],
-    )
+    return Verdict("; ".join(parts), values, holds)
 
 
-def policy_f(results: Results) -> dict[str, Any]:
-    """Claim 1 (size): every policy ``F`` exceeds 962."""
+def _policy_f(results: Results) -> Verdict:
     values = {m: _anova(results, m, "policy")["F"] for m in MEASURES}
-    return _row(
-        "policy_f_above_962",
-        SECTION_POLICY,
-        "The effect of policy has F > 962 on every measure.",
-        f"every measure: policy effect F > {PAPER_F:g}",
+    return Verdict(
         "; ".join(f"{MEASURE_NAMES[m]}: F = {_num(f)}" for m, f in values.items()),
         values,
         min(values.values()) > PAPER_F,
-        ["anova"],
     )
 
 
-def _gap(results: Results, measure: str, level: int) -> float:
-    means = _means(results, measure)
-    return means[(level, EXPERT)]["mean"] - means[(level, BEST_RESPONSE)]["mean"]
-
-
-def interaction(results: Results) -> dict[str, Any]:
-    """Claim 2: policy x num_features interaction for KL and L2, gap larger with fewer features."""
+def _interaction(results: Results) -> Verdict:
     levels = results["design"]["feature_levels"]
     low, high = min(levels), max(levels)
     values, parts, holds = {}, [], True
@@ -179,92 +204,46 @@ def interaction(results: Results) -> dict[str, Any]:
             f"{MEASURE_NAMES[measure]}: interaction {_f_text(row)}; gap {_num(gaps[low])} at "
             f"{low} vs {_num(gaps[high])} at {high} features"
         )
-    return _row(
-        "interaction_kl_l2",
-        SECTION_POLICY,
-        "An interaction of policy with num_features for KL and L2: the gap between the "
-        "policies is larger with fewer features.",
-        f"KL and L2: interaction p < {SIGNIFICANCE:g} and the gap mean(expert) - "
-        f"mean(best response) larger at {low} than at {high} features (regret shown for context)",
-        "; ".join(parts),
-        values,
-        holds,
-        ["anova", "simple_effects", "cells", "figure2_measures"],
-    )
+    return Verdict("; ".join(parts), values, holds)
 
 
-def cronbach(results: Results) -> dict[str, Any]:
-    """Claim 3: Cronbach's alpha across the three measures is .47."""
-    alpha = results["cronbach_alpha"]
+def _cronbach(results: Results) -> Verdict:
+    alpha = results["paper"]["cronbach_alpha"]
     low, high = alpha["ci95"]
-    return _row(
-        "cronbach_alpha",
-        SECTION_POLICY,
-        "Relatively little correlation between the measures: Cronbach's alpha of .47.",
-        f"{PAPER_ALPHA:g} inside the 95% Feldt interval of our raw alpha",
+    return Verdict(
         f"raw alpha {_num(alpha['raw'])} [{_num(low)}, {_num(high)}], standardised "
         f"{_num(alpha['standardized'])}, over {alpha['n_rows']} main-block trials",
         {"raw": alpha["raw"], "ci95": [low, high], "standardized": alpha["standardized"]},
         low <= PAPER_ALPHA <= high,
-        ["cronbach_alpha"],
     )
 
 
-def tukey(results: Results) -> dict[str, Any]:
-    """Claim 4: Tukey HSD shows the best response ahead of the expert in every cell."""
+def _tukey(results: Results) -> Verdict:
     values, parts, holds = {}, [], True
-    for row in results["tukey_hsd"]:
+    for row in results["paper"]["tukey_hsd"]:
         level = row["a_num_features"]
         if level != row["b_num_features"]:
             continue
         means = {row["a_policy"]: row["mean_a"], row["b_policy"]: row["mean_b"]}
-        ahead = means[BEST_RESPONSE] < means[EXPERT]
-        holds &= ahead and row["p_tukey"] < SIGNIFICANCE
+        holds &= means[BEST_RESPONSE] < means[EXPERT] and row["p_tukey"] < SIGNIFICANCE
         values[f"{row['measure']}@{level}"] = {
             "diff_br_minus_expert": means[BEST_RESPONSE] - means[EXPERT],
             "p_tukey": row["p_tukey"],
+            "log10_p_tukey": row["log10_p_tukey"],
         }
         parts.append(
             f"{MEASURE_NAMES[row['measure']]} at {level}: best response minus expert "
-            f"{_num(means[BEST_RESPONSE] - means[EXPERT])}, {_p(row['p_tukey'])}"
+            f"{_num(means[BEST_RESPONSE] - means[EXPERT])}, p = {p_text(row['log10_p_tukey'])}"
         )
-    return _row(
-        "tukey_br_ahead",
-        SECTION_POLICY,
-        "Post-hoc Tukey HSD shows the best response outperforming the expert in every cell.",
-        f"every measure and feature level: Tukey HSD (ignoring the pairing) p < {SIGNIFICANCE:g} "
-        "and the best response's mean lower",
-        "; ".join(parts),
-        values,
-        holds,
-        ["tukey_hsd", "figure2_measures"],
-    )
+    return Verdict("; ".join(parts), values, holds)
 
 
-def lambda_minimum(results: Results) -> dict[str, Any]:
-    """Claim 5: the best response's regret is lowest at an intermediate lambda."""
+def _lambda_minimum(results: Results) -> Verdict:
+    robot = _reference(results)
     curves: dict[int, list[dict[str, Any]]] = {}
     for row in results["lambda_sweep"]:
-        if row["measure"] == "regret" and row["policy"] == BEST_RESPONSE:
+        if row["measure"] == "regret" and row["policy"] == BEST_RESPONSE and row["robot"] == robot:
             curves.setdefault(row["num_features"], []).append(row)
-    claim = "The best response's regret is lowest at an intermediate lambda."
-    rule = (
-        "every feature level: the lambda of lowest mean best-response regret is neither the "
-        "smallest nor the largest of the sweep, and its 95% CI's upper end is below the mean "
-        "at both ends"
-    )
-    if not curves or min(len(curve) for curve in curves.values()) < 3:
-        return _row(
-            "lambda_intermediate",
-            SECTION_LAMBDA,
-            claim,
-            rule,
-            "not measured: the run has no lambda sweep with at least three lambdas",
-            {},
-            False,
-            ["lambda_sweep"],
-            tested=False,
-        )
     values, parts, holds = {}, [], True
     for level, curve in sorted(curves.items()):
         curve = sorted(curve, key=lambda row: row["rationality"])
@@ -284,16 +263,268 @@ def lambda_minimum(results: Results) -> dict[str, Any]:
             f"at lambda = {best['rationality']:g}; {_num(ends[0])} at {curve[0]['rationality']:g}, "
             f"{_num(ends[1])} at {curve[-1]['rationality']:g}"
         )
-    return _row(
+    return Verdict("; ".join(parts), values, holds)
+
+
+def _effect(rows: list[dict], measure: str, **where: Any) -> dict[str, Any]:
+    """The one row of ``rows`` for ``measure`` that matches ``where``."""
+    found = [
+        r for r in rows if r["measure"] == measure and all(r.get(k) == v for k, v in where.items())
+    ]
+    if len(found) != 1:
+        raise ValueError(f"expected one row for {measure} {where}, found {len(found)}")
+    return found[0]
+
+
+def _signed(row: dict[str, Any], sign: int) -> bool:
+    """Significant (Holm) with ``mean_diff`` of the given sign."""
+    if row["p_holm"] is None or row["mean_diff"] is None:
+        return False
+    return bool(row["p_holm"] < SIGNIFICANCE and np.sign(row["mean_diff"]) == sign)
+
+
+def _paper_robot(results: Results) -> str:
+    robots = results["design"]["robots"]
+    return MAP if MAP in robots else robots[0]
+
+
+def _best_response_beats_expert(results: Results) -> Verdict:
+    robot = _paper_robot(results)
+    effects = [
+        _effect(results["against_baseline"], m, robot=robot, num_features=k, level=BEST_RESPONSE)
+        for m in MEASURES
+        for k in results["design"]["feature_levels"]
+    ]
+    return Verdict(
+        "; ".join(
+            f"{MEASURE_NAMES[e['measure']]} at K={e['num_features']}: {_num(e['mean_diff'])} "
+            f"(p_holm {p_value(e['p_holm'])})"
+            for e in effects
+        ),
+        {},
+        all(_signed(e, -1) for e in effects),
+    )
+
+
+def _robot_effects(results: Results, measure: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The 2 x 2's simple effects of the robot on ``measure``: with the pedagogic human, and
+    with the literal one (pooled over the feature levels)."""
+    effects = results["milli_dragan"]["robot_effect"]
+    return _effect(effects, measure, policy=PEDAGOGIC), _effect(effects, measure, policy=LITERAL)
+
+
+def _crossover(results: Results) -> Verdict:
+    crossover, measured = {}, []
+    for m in MEASURES:
+        with_pedagogic, with_literal = _robot_effects(results, m)
+        crossover[m] = _signed(with_pedagogic, -1) and _signed(with_literal, 1)
+        measured.append(
+            f"{MEASURE_NAMES[m]}: pragmatic - literal robot {_num(with_pedagogic['mean_diff'])} "
+            f"(p_holm {p_value(with_pedagogic['p_holm'])}) with a pedagogic human, "
+            f"{_num(with_literal['mean_diff'])} (p_holm {p_value(with_literal['p_holm'])}) with a "
+            "literal one"
+        )
+    return Verdict("; ".join(measured), {"by_measure": crossover}, all(crossover.values()))
+
+
+def _robustness(results: Results) -> Verdict:
+    robust, measured = {}, []
+    for m in MEASURES:
+        with_pedagogic, with_literal = _robot_effects(results, m)
+        anova = _effect(results["milli_dragan"]["anova"], m, effect="robot")
+        mean_effect = (with_pedagogic["mean_diff"] + with_literal["mean_diff"]) / 2
+        robust[m] = anova["p"] is not None and bool(anova["p"] < SIGNIFICANCE and mean_effect > 0)
+        measured.append(
+            f"{MEASURE_NAMES[m]}: mean pragmatic - literal {_num(mean_effect)}, robot "
+            f"F({anova['df1']}, {anova['df2']}) = {_num(anova['F'])}, p = {p_value(anova['p'])}"
+        )
+    return Verdict("; ".join(measured), {"by_measure": robust}, all(robust.values()))
+
+
+def _versus(results: Results) -> Verdict:
+    ahead: dict[str, str] = {}
+    measured = []
+    for row in results["best_response_vs_pedagogic"]:
+        key = f"{row['measure']}:{row['robot']}:{row['num_features']}"
+        if row["p_holm"] is None or row["p_holm"] >= SIGNIFICANCE:
+            ahead[key] = "neither"
+        else:
+            ahead[key] = BEST_RESPONSE if row["mean_diff"] < 0 else PEDAGOGIC
+        if row["measure"] == "regret":
+            measured.append(
+                f"robot {row['robot']}, K={row['num_features']}: best response - pedagogic "
+                f"{_num(row['mean_diff'])} (p_holm {p_value(row['p_holm'])})"
+            )
+    return Verdict("regret: " + "; ".join(measured), {"ahead": ahead}, None)
+
+
+def _optimal_gap(results: Results) -> Verdict:
+    gaps = [g for g in results["regret_optimal"]["gaps"] if g["policy"] == BEST_RESPONSE]
+    return Verdict(
+        "; ".join(
+            f"K={g['num_features']}: regret {_num(g['mean_policy'])} vs "
+            f"{_num(g['mean_regret_optimal'])}, gap {_num(g['mean_gap'])} "
+            f"[{_num(g['ci95_low'])}, {_num(g['ci95_high'])}], "
+            f"as good as the best found for {100 * g['share_optimal']:.1f}% of draws"
+            for g in gaps
+        )
+        or "the best response was not played",
+        {},
+        None,
+    )
+
+
+CLAIMS: tuple[Claim, ...] = (
+    Claim(
+        "policy_effect",
+        SECTION_POLICY,
+        "Best response outperforms demonstration-by-expert on all three measures "
+        "(significant effect of policy, p < .0001).",
+        f"every measure: policy effect p < {PAPER_P:g} and the best response's mean below "
+        "the expert's",
+        PAPER,
+        ("paper.anova", "cells", "figure2_measures"),
+        _policy_effect,
+    ),
+    Claim(
+        "policy_f_above_962",
+        SECTION_POLICY,
+        "The effect of policy has F > 962 on every measure.",
+        f"every measure: policy effect F > {PAPER_F:g}",
+        PAPER,
+        ("paper.anova",),
+        _policy_f,
+    ),
+    Claim(
+        "interaction_kl_l2",
+        SECTION_POLICY,
+        "An interaction of policy with num_features for KL and L2: the gap between the "
+        "policies is larger with fewer features.",
+        f"KL and L2: interaction p < {SIGNIFICANCE:g} and the gap mean(expert) - "
+        "mean(best response) larger at the smallest feature level than at the largest "
+        "(regret shown for context)",
+        Cells(humans=PAPER.humans, feature_levels=2),
+        ("paper.anova", "paper.simple_effects", "cells", "figure2_measures"),
+        _interaction,
+    ),
+    Claim(
+        "cronbach_alpha",
+        SECTION_POLICY,
+        "Relatively little correlation between the measures: Cronbach's alpha of .47.",
+        f"{PAPER_ALPHA:g} inside the 95% Feldt interval of our raw alpha",
+        PAPER,
+        ("paper.cronbach_alpha",),
+        _cronbach,
+    ),
+    Claim(
+        "tukey_br_ahead",
+        SECTION_POLICY,
+        "Post-hoc Tukey HSD shows the best response outperforming the expert in every cell.",
+        f"every measure and feature level: Tukey HSD (ignoring the pairing) p < {SIGNIFICANCE:g} "
+        "and the best response's mean lower",
+        PAPER,
+        ("paper.tukey_hsd", "figure2_measures"),
+        _tukey,
+    ),
+    Claim(
         "lambda_intermediate",
         SECTION_LAMBDA,
-        claim,
-        rule,
-        "; ".join(parts),
-        values,
-        holds,
-        ["lambda_sweep", "figure2_lambda"],
+        "The best response's regret is lowest at an intermediate lambda.",
+        "every feature level: the lambda of lowest mean best-response regret is neither the "
+        "smallest nor the largest of the sweep, and its 95% CI's upper end is below the mean "
+        "at both ends",
+        Cells(humans=(BEST_RESPONSE,), rationalities=3),
+        ("lambda_sweep", "figure2_lambda"),
+        _lambda_minimum,
+    ),
+    Claim(
+        "paper_best_response",
+        "paper, section 4.2, replayed against every human",
+        "The best response beats the expert on every measure and feature level (robot map), "
+        "paired by reward draw.",
+        "every measure and feature level: best response minus expert negative, Holm p < "
+        f"{SIGNIFICANCE:g} over the measure's comparisons of every human with the expert",
+        Cells(humans=PAPER.humans, baseline=EXPERT),
+        ("against_baseline",),
+        _best_response_beats_expert,
+    ),
+    Claim(
+        "milli_dragan_crossover",
+        MILLI_DRAGAN_2019,
+        "The pragmatic robot does better than the literal one with a pedagogic human and "
+        "worse with a literal human.",
+        "every measure: the robot's simple effect (pragmatic - literal, pooled over the feature "
+        f"levels) negative with the pedagogic human and positive with the literal one, each "
+        f"Holm p < {SIGNIFICANCE:g}",
+        MILLI_DRAGAN,
+        ("milli_dragan",),
+        _crossover,
+    ),
+    Claim(
+        "milli_dragan_robustness",
+        MILLI_DRAGAN_2019,
+        "The literal robot is the more robust choice: the pragmatic robot loses more with a "
+        "literal human than it gains with a pedagogic one.",
+        f"every measure: the 2 x 2 ANOVA's robot effect p < {SIGNIFICANCE:g} and the mean of "
+        "the two simple effects positive (literal ahead)",
+        MILLI_DRAGAN,
+        ("milli_dragan",),
+        _robustness,
+    ),
+    Claim(
+        "best_response_vs_pedagogic",
+        HO_2016,
+        "How does the paper's best response compare with the pedagogic human, robot by robot?",
+        "a question: per measure, robot and feature level, which human is ahead (Holm p < "
+        f"{SIGNIFICANCE:g}), or neither",
+        VERSUS_PEDAGOGIC,
+        ("best_response_vs_pedagogic",),
+        _versus,
+    ),
+    Claim(
+        "regret_optimal_gap",
+        REGRET_OPTIMAL_SOURCE,
+        "How far is the best response from the regret-optimal demonstration (MAP robot)?",
+        "a question: the mean regret gap with its 95% CI per feature level, and the share of "
+        "reward draws at which the best response is as good as the best demonstration found",
+        REGRET_OPTIMAL_GAP,
+        ("regret_optimal",),
+        _optimal_gap,
+    ),
+)
+"""Every claim a study's report judges, in the order it lists them."""
+
+
+def design_of_results(results: Results) -> Design:
+    """The :class:`~cirl_study.analysis.cells.Design` of a run's results."""
+    design = results["design"]
+    return Design(
+        humans=tuple(design["humans"]),
+        robots=tuple(design["robots"]),
+        feature_levels=tuple(design["feature_levels"]),
+        sweep_rationalities=tuple(design["sweep_rationalities"]),
     )
+
+
+def judged(claim: Claim, results: Results) -> dict[str, Any]:
+    """The row of one claim on ``results``: judged where the run has its cells."""
+    lacking = claim.needs.lacking(design_of_results(results))
+    verdict = (
+        Verdict(f"not tested: the run lacks {lacking}", {}, False)
+        if lacking
+        else claim.judge(results)
+    )
+    return {
+        "id": claim.id,
+        "source": claim.source,
+        "claim": claim.statement,
+        "rule": claim.rule,
+        "measurement": verdict.measurement,
+        "values": plain(verdict.values),
+        "tested": lacking is None,
+        "reproduced": None if verdict.reproduced is None else bool(verdict.reproduced),
+        "evidence": list(claim.evidence),
+    }
 
 
 _EXTERNAL_TEXT = ("id", "source", "claim", "rule", "measurement")
@@ -340,15 +571,8 @@ def external_claims(theory: Mapping[str, Any]) -> list[dict[str, Any]]:
 
 
 def evaluate_claims(results: Results, theory: Mapping[str, Any] | None = None) -> list[dict]:
-    """Every claim row: the paper's (docs/design.md §5), then those of ``theory``."""
-    claims = [
-        policy_effect(results),
-        policy_f(results),
-        interaction(results),
-        cronbach(results),
-        tukey(results),
-        lambda_minimum(results),
-    ]
+    """Every claim row: those of :data:`CLAIMS`, then those of ``theory``."""
+    claims = [judged(claim, results) for claim in CLAIMS]
     ids = {claim["id"] for claim in claims}
     for claim in external_claims(theory) if theory is not None else []:
         if claim["id"] in ids:

@@ -4,7 +4,17 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Mapping, Sequence
+from typing import Any
+
+MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
+"""Short names of the measures in tables and measurement texts."""
+
+P_VALUES = ("p", "p_holm", "p_tukey")
+"""Fields of the results shown as p-values."""
+
+Column = str | Callable[[Mapping[str, Any]], str]
+"""A column of a statistics table: a field of the results, or a function of the row."""
 
 
 def number(value: float | int | None, digits: int = 4) -> str:
@@ -29,15 +39,15 @@ def p_value(value: float | None) -> str:
     return "< 1e-300" if value == 0 else f"{value:.3g}"
 
 
-def p_from_log10(log10_p: float | None) -> str:
+def p_text(log10_p: float | None) -> str:
     """A p-value from its common logarithm, three significant digits, at any size:
     ``-545.52`` is ``3.02e-546``, where the double ``p`` itself is 0.
 
     Examples:
-        >>> p_from_log10(-545.52), p_from_log10(-1.3010299956639813), p_from_log10(None)
+        >>> p_text(-545.52), p_text(-1.3010299956639813), p_text(None)
         ('3.02e-546', '0.05', '–')
     """
-    if log10_p is None or math.isnan(log10_p):
+    if log10_p is None or not math.isfinite(log10_p):
         return "–"
     if log10_p > -300:
         return f"{10.0**log10_p:.3g}"
@@ -81,3 +91,30 @@ def document(sections: Sequence[Sequence[str]]) -> str:
 def anchor(heading: str) -> str:
     """The anchor GitHub gives a heading: lower case, punctuation dropped, spaces as ``-``."""
     return re.sub(r"[^a-z0-9 _-]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def formatted(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> list[list[str]]:
+    """The cells of ``rows``: a measure by its short name, a p-value, a text, or a number (every
+    report's tables; a column is a field of the rows or a function of a row)."""
+
+    def cell(row: Mapping[str, Any], column: Column) -> str:
+        if callable(column):
+            return column(row)
+        value = row[column]
+        if column == "measure":
+            return MEASURE_NAMES[value]
+        if column in P_VALUES:
+            return p_value(value)
+        return value if isinstance(value, str) else number(value)
+
+    return [[cell(row, column) for column in columns] for row in rows]
+
+
+def ci(row: Mapping[str, Any]) -> str:
+    """A row's 95% confidence interval, ``[ci95_low, ci95_high]``."""
+    return interval(row["ci95_low"], row["ci95_high"])
+
+
+def name(identifier: str) -> str:
+    """A human's or robot's registered name as text: ``best_response`` is ``best response``."""
+    return identifier.replace("_", " ")

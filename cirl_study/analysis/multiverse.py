@@ -6,7 +6,8 @@ and its pipeline, and returns plain JSON-ready data:
 * ``universes``: per universe, its settings, the paper's claims judged on its trials with the
   paper report's own rules (:func:`cirl_study.analysis.claims.evaluate_claims` on
   :func:`cirl_study.analysis.results.analyse` of its ``main`` block and the cross-validation it
-  used), the cross-validated etas, the mixed ANOVA and the cell means;
+  used), the cross-validated etas, the paper's mixed ANOVA, the cell means and Cronbach's
+  alpha;
 * ``effects``: per universe and measure, the policy effect: the mean over every ``main``
   subject (both feature levels) of ``d_s = y_{s,br} - y_{s,expert}``, with its paired-t 95%
   CI, ``t``, ``p`` and ``d_z`` (:func:`cirl_study.analysis.statistics.paired_differences`);
@@ -32,10 +33,11 @@ from statsmodels.stats.anova import anova_lm
 
 from cirl_study.analysis import statistics
 from cirl_study.analysis.claims import evaluate_claims
-from cirl_study.analysis.results import Results, analyse, plain, rows
+from cirl_study.analysis.measure_rows import plain, rows
+from cirl_study.analysis.results import Results, analyse
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.record import ETA_CV, EXPERT, MAIN, MEASURES, TrialRow
-from cirl_study.study.multiverse import base_universe, cv_universe, universes
+from cirl_study.study.multiverse import base_universe, cv_universe, universe_pipeline, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe, shortest_number
 from cirl_study.workers import map_in_workers
 
@@ -96,7 +98,7 @@ def analyse_multiverse(
     base = base_universe(pipeline)
     chosen = universe_trials(trials, pipeline)
     work = [
-        (universe, rows_of_universe, pipeline.name, universe == base)
+        (universe, rows_of_universe, universe_pipeline(pipeline, universe), universe == base)
         for universe, rows_of_universe in chosen.items()
     ]
     per_universe = []
@@ -124,16 +126,16 @@ def analyse_multiverse(
     }
 
 
-def _universe_summary(work: tuple[Universe, list[TrialRow], str, bool]) -> dict[str, Any]:
+def _universe_summary(work: tuple[Universe, list[TrialRow], Pipeline, bool]) -> dict[str, Any]:
     """One universe's entry of ``universes`` (see the module docstring), from its rows; the
     universes are analysed on every core (:func:`~cirl_study.workers.map_in_workers`).
 
     Raises:
         UserError: its rows do not hold a design the paper analysis can use.
     """
-    universe, rows_of_universe, pipeline_name, base = work
+    universe, rows_of_universe, study, base = work
     check_design(rows_of_universe)
-    results = analyse(rows_of_universe, pipeline_name)
+    results = analyse(rows_of_universe, study)
     claims = {
         claim["id"]: claim for claim in evaluate_claims(results) if claim["id"] in PAPER_CLAIMS
     }
@@ -146,9 +148,9 @@ def _universe_summary(work: tuple[Universe, list[TrialRow], str, bool]) -> dict[
             for key, claim in claims.items()
         },
         "eta": results["eta_cv"]["chosen"],
-        "anova": results["anova"],
+        "anova": results["paper"]["anova"],
         "cells": results["cells"],
-        "cronbach_alpha": results["cronbach_alpha"],
+        "cronbach_alpha": results["paper"]["cronbach_alpha"],
     }
 
 

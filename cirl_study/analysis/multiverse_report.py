@@ -18,11 +18,11 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.analysis import figures
-from cirl_study.analysis.claims import MEASURE_NAMES
-from cirl_study.analysis.markdown import document, interval, number, p_value, table
+from cirl_study.analysis.markdown import MEASURE_NAMES, document, interval, number, p_value, table
+from cirl_study.analysis.measure_rows import plain
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
 from cirl_study.analysis.output import write_report_directory
-from cirl_study.analysis.results import Results, plain
+from cirl_study.analysis.results import Results
 from cirl_study.record import MEASURES, TrialRow
 from cirl_study.study.spec import AXES, Pipeline
 

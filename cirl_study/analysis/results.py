@@ -1,26 +1,52 @@
-"""Every number of the report, computed from the trials' rows as JSON-ready data.
+"""Every number of a study's report, computed from the trials' rows as JSON-ready data.
 
-:func:`analyse` runs every test of :mod:`cirl_study.analysis.statistics` on the blocks
-they belong to, takes the cross-validated eta from the function the run chose it with
-(:func:`cirl_study.study.eta_cv.choose_etas`), and returns plain Python data (dicts,
-lists, ints, floats at full precision, ``None`` for an undefined number), which
-``results.json`` stores as is and the claims and the report read from. Its halves,
-:func:`estimates` (everything the figures draw) and :func:`tests`, depend only on the trials,
-so the report draws its figures in worker processes while it computes the tests.
+One analysis serves every design of humans x robots x feature levels (``docs/pipelines.md``):
+:func:`analyse` returns plain Python data (dicts, lists, ints, floats at full precision,
+``None`` for an undefined number), which ``results.json`` stores as is and the claims and the
+report read from. Its halves, :func:`estimates` (everything the figures draw) and
+:func:`tests`, depend only on the trials, so the report draws its figures in worker
+processes while it computes the tests. Every measure is a loss: lower is better.
+
+The sections, by key:
+
+* ``design``: the humans (the first, ``baseline``, is the one every other is compared with),
+  the robots (``reference_robot``, the paper's ``map`` when present, plays the eta
+  cross-validation), the feature levels and subjects per level, the main block's rationality
+  and etas, the sweep's rationalities, the teaching players' hypothesis space;
+* ``cells``: each measure's mean with its t-based 95% CI per feature level, human and robot
+  (:func:`cirl_study.analysis.statistics.group_means`);
+* ``anova``: per measure, the repeated-measures ANOVA with ``policy`` (the human) and, with
+  two robots or more, ``robot`` within subjects and ``num_features`` between (with two levels
+  or more), sphericity tested and corrected
+  (:func:`cirl_study.analysis.anova.repeated_measures_anova`);
+* ``pairwise``: per measure and within factor, every pair of its levels in every cell of the
+  other factors, paired by subject, Holm over the measure's and factor's rows
+  (:func:`cirl_study.analysis.statistics.pairwise_differences`);
+* ``against_baseline``: per robot and feature level, each human against the baseline,
+  paired (:func:`cirl_study.analysis.statistics.paired_differences`, Holm per measure);
+* ``lambda_sweep``: the means of the sweep per rationality, human, robot and feature level;
+* ``eta_cv``: the cross-validation of the best response's eta (:func:`eta_cv`);
+* ``certified``: per robot, block and rationality, the trials whose estimate the robot
+  certified;
+* ``paper``, where the run has the paper's humans (:data:`~cirl_study.analysis.cells.PAPER`):
+  the paper's analyses on the reference robot's trials of the expert and the best response:
+  its mixed ANOVA, the simple effects of policy, Tukey HSD as the paper ran it, Wilcoxon
+  checks and Cronbach's alpha (:func:`paper_tests`), and the reward draw of Figure 1;
+* ``robots``, with two robots or more: every other robot against the reference, paired, in
+  the main block and at every rationality of the sweep (:func:`robot_comparison`);
+* the teaching sections, where the run has their cells (:mod:`cirl_study.analysis.teaching`).
 """
 
 from __future__ import annotations
 
-import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Sequence
 from typing import Any
 
-import msgspec
-import numpy as np
 import pandas as pd
 
-from cirl_study.analysis import statistics
-from cirl_study.analysis.anova import repeated_measures_anova
+from cirl_study.analysis import statistics, teaching
+from cirl_study.analysis.cells import PAPER, Design
+from cirl_study.analysis.measure_rows import anova_rows, paired_rows, pairwise_rows, plain, rows
 from cirl_study.analysis.table import trial_table
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
@@ -32,54 +58,44 @@ from cirl_study.record import (
     LAMBDA_SWEEP,
     MAIN,
     MEASURES,
+    PAPER_POLICIES,
     TrialRow,
 )
 from cirl_study.study.eta_cv import choose_etas
+from cirl_study.study.spec import Pipeline
 
 Results = dict[str, Any]
 """The JSON-ready results of :func:`analyse` (the content of ``results.json``)."""
-
-
-def plain(value: Any) -> Any:
-    """``value`` as plain JSON data: numpy scalars unwrapped, NaN as ``None``.
-
-    Raises:
-        UserError: ``value`` holds something JSON cannot represent.
-    """
-    if isinstance(value, Mapping):
-        return {str(key): plain(item) for key, item in value.items()}
-    if isinstance(value, list | tuple | np.ndarray):
-        return [plain(item) for item in value]
-    if value is None or isinstance(value, bool | str):
-        return value
-    if isinstance(value, np.bool_):
-        return bool(value)
-    if isinstance(value, int | np.integer):
-        return int(value)
-    if isinstance(value, float | np.floating):
-        number = float(value)
-        return number if math.isfinite(number) else None
-    raise UserError(f"cannot store a {type(value).__name__} in results.json: {value!r}")
-
-
-def rows(frame: pd.DataFrame) -> list[dict[str, Any]]:
-    """The rows of ``frame`` as a list of plain dicts."""
-    return [plain(row) for row in frame.to_dict(orient="records")]
 
 
 def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
     return pd.concat(frames, ignore_index=True)
 
 
-def figure1_subject(main: pd.DataFrame) -> dict[str, Any]:
+def design_of(table: pd.DataFrame, pipeline: Pipeline) -> Design:
+    """The factors of the trials in ``table`` (:func:`~cirl_study.analysis.table.trial_table`),
+    in the order of ``pipeline``: the humans and robots its ``main`` block plays, its feature
+    levels, and the rationalities of its sweep."""
+    main = table[table["block"] == MAIN]
+    humans, robots = set(main["policy"]), set(main["robot"])
+    sweep = table.loc[table["block"] == LAMBDA_SWEEP, "rationality"]
+    return Design(
+        humans=tuple(h for h in pipeline.main.policies if h in humans),
+        robots=tuple(r for r in pipeline.main.robots if r in robots),
+        feature_levels=tuple(sorted(int(k) for k in main["num_features"].unique())),
+        sweep_rationalities=tuple(sorted(float(value) for value in sweep.unique())),
+    )
+
+
+def figure1_subject(paper_main: pd.DataFrame) -> dict[str, Any]:
     """The reward draw shown in Figure 1: a typical one at the smallest feature level.
 
     Among the subjects at the smallest feature level, the one whose regret improvement
     ``regret(expert) - regret(best_response)`` is the median (the lower median for an
     even count; ties broken by subject id).
     """
-    level = int(main["num_features"].min())
-    paired = statistics.paired_by_subject(main, "regret", level)
+    level = int(paper_main["num_features"].min())
+    paired = statistics.paired_by_subject(paper_main, "regret", level)
     improvement = (paired[EXPERT] - paired[BEST_RESPONSE]).rename("improvement")
     ordered = improvement.reset_index().sort_values(["improvement", "subject"], kind="mergesort")
     chosen = ordered.iloc[(len(ordered) - 1) // 2]
@@ -104,16 +120,23 @@ def _trial_counts(table: pd.DataFrame) -> dict[str, int]:
     return {"total": len(table), **{str(block): int(sizes[block]) for block in order}}
 
 
-def _design(main: pd.DataFrame) -> dict[str, Any]:
+def _design(main: pd.DataFrame, design: Design, pipeline: Pipeline) -> dict[str, Any]:
     subjects = main.groupby("num_features")["subject"].nunique()
+    spec = pipeline.teaching
     return {
-        "feature_levels": [int(level) for level in subjects.index],
+        "humans": list(design.humans),
+        "baseline": design.baseline,
+        "robots": list(design.robots),
+        "reference_robot": reference_robot(design.robots),
+        "feature_levels": list(design.feature_levels),
         "subjects_per_level": {str(level): int(n) for level, n in subjects.items()},
         "main_rationality": sorted({float(value) for value in main["rationality"]}),
         "main_eta": {
             str(level): sorted({float(value) for value in etas.dropna()})
             for level, etas in main.groupby("num_features")["eta"]
         },
+        "sweep_rationalities": list(design.sweep_rationalities),
+        "teaching": None if spec is None else vars(spec),
     }
 
 
@@ -182,47 +205,22 @@ def _certified(table: pd.DataFrame) -> list[dict[str, Any]]:
 
 
 def robot_comparison(table: pd.DataFrame, reference: str) -> dict[str, Any]:
-    """The robots study: the other robot against the reference, on the same demonstrations.
+    """Every other robot against the reference, on the same demonstrations.
 
-    ``anova``: per measure, the 2 x 2 x K split-plot ANOVA of the ``main`` block with
-    ``robot`` and ``policy`` within subjects and ``num_features`` between
-    (:func:`~cirl_study.analysis.anova.repeated_measures_anova`). ``main``: per measure, the
-    paired difference ``other - reference`` within each feature level and policy, Holm over
-    the measure's cells (:func:`~cirl_study.analysis.statistics.paired_differences`).
-    ``lambda_sweep``: the same per rationality, feature level and policy of the sweep, Holm
-    over the measure's whole sweep. Every measure is a loss: a negative difference means
-    the other robot did better.
+    ``main``: per measure, the paired difference ``other - reference`` within each feature
+    level and policy, Holm over the measure's cells
+    (:func:`~cirl_study.analysis.statistics.paired_differences`). ``lambda_sweep``: the same
+    per rationality, feature level and policy of the sweep, Holm over the measure's whole
+    sweep. A negative difference means the other robot did better.
     """
     main = table[table["block"] == MAIN]
     sweep = table[table["block"] == LAMBDA_SWEEP]
-    (other,) = sorted(set(main["robot"]) - {reference})
     cells = ["num_features", "policy"]
     return {
         "reference": reference,
-        "other": other,
-        "anova": [
-            msgspec.to_builtins(row)
-            for m in MEASURES
-            for row in repeated_measures_anova(main, m, ["robot", "policy"], "num_features")
-        ],
-        "main": rows(
-            _concat(
-                [
-                    statistics.paired_differences(main, m, "robot", reference, cells)
-                    for m in MEASURES
-                ]
-            )
-        ),
-        "lambda_sweep": rows(
-            _concat(
-                [
-                    statistics.paired_differences(
-                        sweep, m, "robot", reference, ["rationality", *cells]
-                    )
-                    for m in MEASURES
-                ]
-            )
-        )
+        "others": sorted(set(main["robot"]) - {reference}),
+        "main": paired_rows(main, "robot", reference, cells),
+        "lambda_sweep": paired_rows(sweep, "robot", reference, ["rationality", *cells])
         if not sweep.empty
         else [],
     }
@@ -232,98 +230,126 @@ RESULT_KEYS: tuple[str, ...] = (
     "pipeline",
     "trials",
     "design",
-    "anova",
-    "simple_effects",
-    "tukey_hsd",
-    "wilcoxon",
     "cells",
-    "cronbach_alpha",
+    "anova",
+    "pairwise",
+    "against_baseline",
     "lambda_sweep",
     "certified",
     "eta_cv",
-    "figure1",
+    "paper",
     "robots",
+    *teaching.SECTIONS,
 )
 """The keys of :func:`analyse`'s results, in the order ``results.json`` lists them."""
 
 
-def analyse(trials: Sequence[TrialRow], pipeline_name: str) -> Results:
-    """Run every analysis of docs/design.md §5 on checked trials: :func:`estimates` and
+def analyse(trials: Sequence[TrialRow], pipeline: Pipeline) -> Results:
+    """Run every analysis of the study's design on checked trials: :func:`estimates` and
     :func:`tests`, in this process.
 
     Args:
         trials: the trials' rows (:class:`~cirl_study.record.TrialRow`), already accepted by
             :func:`~cirl_study.analysis.table.check_design`, in any order.
-        pipeline_name: the pipeline's name, recorded in the results.
+        pipeline: the run's pipeline (the order of its humans and robots, its name).
 
     Returns:
-        Plain data with the keys of :data:`RESULT_KEYS`. Every statistic but ``robots`` and
-        ``certified`` is computed on the trials of the reference robot
-        (:func:`cirl_study.core.robot.reference_robot`: the paper's, ``map``, when the run has
-        it), so the paper's analysis of a run with two robots is that of its reference robot
-        alone. ``robots`` is the comparison of the two (:func:`robot_comparison`), ``None``
-        for a run with one robot. ``lambda_sweep`` is an empty list and ``eta_cv`` has empty
-        ``means`` and ``chosen`` when the run has no trials in that block (see
-        :func:`eta_cv`).
+        Plain data with the keys of :data:`RESULT_KEYS` (see the module docstring); a
+        section whose cells the run lacks is ``None``.
     """
     everything = trial_table(trials)
-    estimated = estimates(trials, everything, pipeline_name)
-    return combined(estimated, tests(reference_main_block(everything)))
+    return combined(estimates(trials, everything, pipeline), tests(everything, pipeline))
 
 
-def reference_main_block(everything: pd.DataFrame) -> pd.DataFrame:
-    """The ``main`` block's trials of the reference robot: the table the paper's tests read."""
+def paper_main_block(everything: pd.DataFrame, design: Design) -> pd.DataFrame:
+    """The ``main`` block's trials of the paper's humans watched by the reference robot: the
+    table the paper's tests read."""
     main = everything[everything["block"] == MAIN]
-    return main[main["robot"] == reference_robot(sorted(set(main["robot"])))]
+    reference = reference_robot(design.robots)
+    return main[(main["robot"] == reference) & main["policy"].isin(PAPER_POLICIES)]
 
 
-def estimates(trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline_name: str) -> Results:
+def estimates(trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline: Pipeline) -> Results:
     """What the trials measured, with confidence intervals: everything the figures draw.
 
-    The keys ``pipeline, trials, design, cells, lambda_sweep, certified, eta_cv, figure1,
-    robots`` of :func:`analyse`, from the rows and their table ``everything``
-    (:func:`~cirl_study.analysis.table.trial_table`).
+    The keys ``pipeline, trials, design, cells, lambda_sweep, certified, eta_cv, robots`` of
+    :func:`analyse` and, where the run has the paper's humans, ``paper.figure1``, from the
+    rows and their table ``everything`` (:func:`~cirl_study.analysis.table.trial_table`).
     """
-    robots = sorted(set(everything.loc[everything["block"] == MAIN, "robot"]))
-    reference = reference_robot(robots)
-    table = everything[everything["robot"] == reference]
-    main = reference_main_block(everything)
-    sweep = table[table["block"] == LAMBDA_SWEEP]
+    design = design_of(everything, pipeline)
+    reference = reference_robot(design.robots)
+    main = everything[everything["block"] == MAIN]
+    sweep = everything[everything["block"] == LAMBDA_SWEEP]
+    by_cell = ["num_features", "policy", "robot"]
     return {
-        "pipeline": pipeline_name,
+        "pipeline": pipeline.name,
         "trials": _trial_counts(everything),
-        "design": {**_design(main), "robots": robots, "reference_robot": reference},
-        "cells": rows(
-            _concat([statistics.group_means(main, m, ["num_features", "policy"]) for m in MEASURES])
-        ),
-        "lambda_sweep": rows(statistics.lambda_sweep(sweep, MEASURES)) if not sweep.empty else [],
+        "design": _design(main, design, pipeline),
+        "cells": rows(_concat([statistics.group_means(main, m, by_cell) for m in MEASURES])),
+        "lambda_sweep": rows(
+            _concat([statistics.group_means(sweep, m, ["rationality", *by_cell]) for m in MEASURES])
+        )
+        if not sweep.empty
+        else [],
         "certified": _certified(everything),
-        "eta_cv": eta_cv(trials, table),
-        "figure1": {**figure1_subject(main), "robot": reference},
-        "robots": robot_comparison(everything, reference) if len(robots) > 1 else None,
+        "eta_cv": eta_cv(trials, everything[everything["robot"] == reference]),
+        "paper": None
+        if PAPER.lacking(design)
+        else {
+            "figure1": {**figure1_subject(paper_main_block(everything, design)), "robot": reference}
+        },
+        "robots": robot_comparison(everything, reference) if len(design.robots) > 1 else None,
     }
 
 
-def tests(main: pd.DataFrame) -> Results:
-    """The paper's tests on the ``main`` block of the reference robot
-    (:func:`reference_main_block`): the keys ``anova, simple_effects, tukey_hsd, wilcoxon,
-    cronbach_alpha`` of :func:`analyse`."""
-    alpha = statistics.cronbach_alpha(main[list(MEASURES)].reset_index(drop=True))
+def tests(everything: pd.DataFrame, pipeline: Pipeline) -> Results:
+    """The tests of the study's design: the keys ``anova, pairwise, against_baseline`` of
+    :func:`analyse`, the paper's tests (``paper``, :func:`paper_tests`) and the teaching
+    sections (:func:`cirl_study.analysis.teaching.sections`)."""
+    design = design_of(everything, pipeline)
+    main = everything[everything["block"] == MAIN]
+    within = [
+        f for f, levels in (("policy", design.humans), ("robot", design.robots)) if levels[1:]
+    ]
+    return {
+        "anova": anova_rows(main, within),
+        "pairwise": pairwise_rows(main, {"policy": design.humans, "robot": design.robots}),
+        "against_baseline": paired_rows(main, "policy", design.baseline, ["robot", "num_features"])
+        if design.humans[1:]
+        else [],
+        "paper": None
+        if PAPER.lacking(design)
+        else paper_tests(paper_main_block(everything, design)),
+        **teaching.sections(main, design),
+    }
+
+
+def paper_tests(paper_main: pd.DataFrame) -> Results:
+    """The paper's tests on the ``main`` block of its humans and the reference robot
+    (:func:`paper_main_block`): ``anova`` (policy within subjects, ``num_features`` between),
+    ``simple_effects``, ``tukey_hsd``, ``wilcoxon`` and ``cronbach_alpha``."""
+    alpha = statistics.cronbach_alpha(paper_main[list(MEASURES)].reset_index(drop=True))
     alpha["items"] = list(MEASURES)
     alpha["rows"] = (
-        f"all {len(main)} trials of the main block, one row per trial (both policies, "
+        f"all {len(paper_main)} trials of the main block, one row per trial (both policies, "
         "every feature level), the three measures on their own scales"
     )
     return {
-        "anova": rows(_concat([statistics.mixed_anova(main, m) for m in MEASURES])),
-        "simple_effects": rows(_concat([statistics.simple_effects(main, m) for m in MEASURES])),
-        "tukey_hsd": rows(_concat([statistics.tukey_hsd(main, m) for m in MEASURES])),
-        "wilcoxon": rows(_concat([statistics.wilcoxon(main, m) for m in MEASURES])),
+        "anova": anova_rows(paper_main, ["policy"]),
+        "simple_effects": rows(
+            _concat([statistics.simple_effects(paper_main, m) for m in MEASURES])
+        ),
+        "tukey_hsd": rows(_concat([statistics.tukey_hsd(paper_main, m) for m in MEASURES])),
+        "wilcoxon": rows(_concat([statistics.wilcoxon(paper_main, m) for m in MEASURES])),
         "cronbach_alpha": plain(alpha),
     }
 
 
 def combined(estimated: Results, tested: Results) -> Results:
-    """:func:`estimates` and :func:`tests` as :func:`analyse` returns them."""
-    both = {**estimated, **tested}
-    return {key: both[key] for key in RESULT_KEYS}
+    """:func:`estimates` and :func:`tests` as :func:`analyse` returns them: the paper's
+    figure reward draw beside its tests."""
+    paper = None
+    if tested["paper"] is not None:
+        paper = {**tested["paper"], **estimated["paper"]}
+    both = {**estimated, **tested, "paper": paper}
+    return {key: plain(both[key]) for key in RESULT_KEYS}

@@ -25,8 +25,8 @@ import pandas as pd
 import pingouin as pg
 from scipy import special, stats
 
-from cirl_study.analysis.studentized_range import studentized_range_sf
-from cirl_study.analysis.tails import t_tail
+from cirl_study.analysis.studentized_range import studentized_range_log10_sf
+from cirl_study.analysis.tails import p_from_log10, t_tail
 from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_POLICIES
 
 CONFIDENCE = 0.95
@@ -37,61 +37,6 @@ BOOTSTRAP_RESAMPLES = 9999
 
 BOOTSTRAP_SEED = 2016
 """Seed of the generator of every bootstrap (each interval starts afresh from it)."""
-
-
-EFFECTS: tuple[str, ...] = ("policy", "num_features", "policy:num_features")
-"""Effects of the mixed ANOVA, in the order they are reported."""
-
-
-def mixed_anova(main: pd.DataFrame, measure: str) -> pd.DataFrame:
-    """Two-way mixed (split-plot) ANOVA of one measure.
-
-    Within subjects: ``policy``; between subjects: ``num_features``; error terms: subjects
-    within feature levels for ``num_features``, the policy-by-subject residual for
-    ``policy`` and ``policy:num_features``. With two policies sphericity holds trivially,
-    so the p-values are uncorrected. Unbalanced feature levels give a type II ANOVA.
-
-    Effect sizes (Bakeman 2005): partial eta squared ``np2 = SS_effect / (SS_effect +
-    SS_error)`` and generalised eta squared ``ges = SS_effect / (SS_effect + SS_subjects +
-    SS_residual)`` (Olejnik & Algina 2003, every factor manipulated).
-
-    References:
-        Maxwell, Delaney & Kelley (2018), *Designing Experiments and Analyzing Data*, ch. 12.
-        Olejnik & Algina (2003), Psychological Methods 8(4):434-447.
-        Bakeman (2005), Behavior Research Methods 37(3):379-384.
-        ``pingouin.mixed_anova`` (checked against JASP and JAMOVI).
-
-    Returns:
-        One row per effect of :data:`EFFECTS`: ``measure, effect, df1, df2, SS, MS, F, p,
-        np2, ges``.
-    """
-    arguments = dict(
-        data=main,
-        dv=measure,
-        within="policy",
-        between="num_features",
-        subject="subject",
-        correction=False,
-    )
-    partial = pg.mixed_anova(**arguments, effsize="np2")
-    generalised = pg.mixed_anova(**arguments, effsize="ng2")
-    names = {"policy": "policy", "num_features": "num_features", "Interaction": EFFECTS[2]}
-    frame = pd.DataFrame(
-        {
-            "measure": measure,
-            "effect": partial["Source"].map(names),
-            "df1": partial["DF1"].astype(int),
-            "df2": partial["DF2"].astype(int),
-            "SS": partial["SS"],
-            "MS": partial["MS"],
-            "F": partial["F"],
-            "p": partial["p_unc"],
-            "np2": partial["np2"],
-            "ges": generalised["ng2"],
-        }
-    )
-    order = frame.sort_values("effect", key=lambda effect: effect.map(EFFECTS.index))
-    return order.reset_index(drop=True)
 
 
 def paired_differences(
@@ -215,7 +160,7 @@ def pairwise_differences(
             )
     adjusted = holm_log10(np.array([row["log10_p"] for row in rows]))
     return [
-        PairedComparison(**row, p_holm=float(10.0**q), log10_p_holm=float(q))
+        PairedComparison(**row, p_holm=p_from_log10(q), log10_p_holm=float(q))
         for row, q in zip(rows, adjusted, strict=True)
     ]
 
@@ -460,10 +405,10 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     + MSE / n_B)``, ``T = diff / se`` and Hedges' g (``pingouin.compute_effsize``); the tests
     check the two agree. Its p-values are SciPy's ``1 - CDF``, which is 0.0 from ``q ~ 10.5``
     on (``k = 4``, ``N = 2000``) and took 0.15 s of a report to compute for nothing. Here
-    ``p_tukey`` is the accurate tail ``P(Q > q)`` of
-    :func:`cirl_study.analysis.studentized_range.studentized_range_sf` (relative error
-    ``<= 1e-8``): a ``p_tukey`` of 0.0 means the true p-value is below the smallest normal
-    double, ``2.2250738585072014e-308``.
+    ``p_tukey`` is the accurate tail ``P(Q > q)`` (relative error ``<= 1e-8``) and
+    ``log10_p_tukey`` its common logarithm, computed in log space by
+    :func:`cirl_study.analysis.studentized_range.studentized_range_log10_sf`: where the
+    p-value is below the smallest double, ``p_tukey`` is 0.0 and ``log10_p_tukey`` holds it.
 
     References:
         Tukey (1949), Biometrics 5(2):99-114; Kramer (1956), Biometrics 12(3):307-310.
@@ -471,7 +416,7 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
 
     Returns:
         One row per pair of cells: ``measure, a_num_features, a_policy, b_num_features,
-        b_policy, mean_a, mean_b, diff, se, T, p_tukey, hedges``.
+        b_policy, mean_a, mean_b, diff, se, T, p_tukey, log10_p_tukey, hedges``.
     """
     cells = ["num_features", "policy"]
     observed = main[[measure, *cells]].dropna()
@@ -491,6 +436,7 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     diff = means[first] - means[second]
     se = np.sqrt(mse / sizes[first] + mse / sizes[second])
     t = diff / se
+    log10_p = [studentized_range_log10_sf(math.sqrt(2) * abs(value), k, df) for value in t]
     return pd.DataFrame(
         {
             "measure": measure,
@@ -503,12 +449,8 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
             "diff": diff,
             "se": se,
             "T": t,
-            "p_tukey": [
-                math.nan
-                if math.isnan(value)
-                else studentized_range_sf(math.sqrt(2) * abs(value), k, df)
-                for value in t
-            ],
+            "p_tukey": [p_from_log10(value) for value in log10_p],
+            "log10_p_tukey": log10_p,
             "hedges": [
                 pg.compute_effsize(groups[labels[a]], groups[labels[b]], eftype="hedges")
                 for a, b in zip(first, second, strict=True)

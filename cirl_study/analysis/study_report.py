@@ -1,227 +1,161 @@
-"""The report of a study of any humans x robots x feature levels: ``report.md``,
-``results.json``, ``trials.csv``, a figure.
-
-:func:`write_study_report` turns the rows of a run (:mod:`cirl_study.analysis.study`) into a
-directory that reads well on GitHub: the study's questions with what we measured and a
-verdict, the cell means of every human with every robot, the repeated-measures ANOVA with its
-sphericity corrections, every pairwise comparison, each human against the baseline human,
-and where the run has their cells Milli & Dragan's 2 x 2, the paper's best response against
-the pedagogic human and against the regret-optimal demonstration, and the rationality sweep.
-Like the paper report it is a deterministic function of the trials (their order does not
-matter).
+"""The sections of ``report.md`` that every study has, whatever its humans, robots and feature
+levels: the cell means, the repeated-measures ANOVA with its sphericity corrections, every
+pairwise comparison, every human against the baseline, the lambda sweep and the eta
+cross-validation. Each is a function of the results alone (:mod:`cirl_study.analysis.results`)
+and returns its lines, or none when the run has nothing for it.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping, Sequence
-from pathlib import Path
 from typing import Any
 
 import pandas as pd
 
-from cirl_study.analysis import figures
-from cirl_study.analysis.markdown import document, image, interval, number, p_from_log10, table
-from cirl_study.analysis.output import write_report_directory
-from cirl_study.analysis.report import formatted
-from cirl_study.analysis.results import Results
-from cirl_study.analysis.study import ALPHA, analyse_study
-from cirl_study.analysis.table import trial_table
-from cirl_study.record import TrialRow
-from cirl_study.study.spec import Pipeline
+from cirl_study.analysis.markdown import (
+    ci,
+    formatted,
+    image,
+    interval,
+    name,
+    number,
+    p_text,
+    p_value,
+    table,
+)
+from cirl_study.analysis.sections import FIGURES, heading
+from cirl_study.record import LAMBDA_SWEEP
 
-FIGURE = "cell_means.png"
-"""The figure of every measure by human, robot and feature level."""
-
-
-def _verdict(question: Mapping[str, Any]) -> str:
-    if not question["tested"]:
-        return "not tested"
-    if question["holds"] is None:
-        return "answer"
-    return "✅ holds" if question["holds"] else "❌ does not hold"
+Results = dict[str, Any]
 
 
-def _header(results: Results) -> list[str]:
+def paper_only(results: Results) -> bool:
+    """Whether the run's design is the paper's own: exactly its two humans, one robot."""
     design = results["design"]
-    teaching = design["teaching"]
-    subjects = ", ".join(f"{n} at K = {k}" for k, n in design["subjects_per_level"].items())
-    space = ""
-    if teaching:
-        hypotheses = teaching["hypotheses"]
-        members = (
-            f"the true theta and {hypotheses - 1} prior draws"
-            if teaching["includes_truth"]
-            else "all prior draws, the true theta not among them"
-        )
-        shows = (
-            "draws her demonstration"
-            if teaching["demonstration"] == "draw"
-            else "shows her most likely demonstration"
-        )
-        space = (
-            f"{hypotheses} reward hypotheses per reward draw ({members}), pedagogic exponent "
-            f"alpha = {number(teaching['alpha'])}, the pedagogic human {shows}"
-        )
-    trials = ", ".join(f"{n} in `{block}`" for block, n in sorted(design["trials"].items()))
-    return [
-        f"# Study: `{results['pipeline']}`",
-        "",
-        "Humans and robots on the gridworld of Hadfield-Menell et al. (2016, section 4.1) "
-        "with the paper's measures, within subjects: every human demonstrates to every robot "
-        "on the same reward draws; the number of features varies between them. All three "
-        "measures are losses: lower is better.",
-        "",
-        f"- Humans: {', '.join(f'`{h}`' for h in design['humans'])} (baseline "
-        f"`{design['baseline']}`); robots: "
-        f"{', '.join(f'`{r}`' for r in design['robots'])}; rationality λ = "
-        f"{number(design['rationality'])}.",
-        f"- Reward draws: {subjects}. Trials: {trials}.",
-        *([f"- Hypothesis space: {space}."] if teaching else []),
-    ]
+    return (
+        results["paper"] is not None and len(design["humans"]) == 2 and len(design["robots"]) == 1
+    )
 
 
-def _questions(results: Results) -> list[str]:
+def cells(results: Results) -> list[str]:
+    """The cell means; the paper's Figure 2 (left) and, beyond the paper's design, the cell
+    figure of every human and robot."""
+    figures = []
+    if results["paper"] is not None:
+        file_name, _ = FIGURES["figure2_measures"]
+        robot = results["design"]["reference_robot"]
+        figures += [
+            "",
+            image(
+                "Figure 2, left: the three measures by policy and number of features "
+                f"(robot {robot})",
+                file_name,
+            ),
+        ]
+    if not paper_only(results):
+        file_name, _ = FIGURES["cell_means"]
+        figures += ["", image("Every measure by human, robot and number of features", file_name)]
     return [
-        "## Questions",
+        heading(3, "cells"),
         "",
         table(
-            ["question", "we measured", "verdict"],
-            [[q["question"], q["measured"], _verdict(q)] for q in results["questions"]],
-            [False, False, False],
-        ),
-        "",
-        f"A verdict needs p < {ALPHA} after Holm's adjustment within a measure, in the "
-        "direction asked; a question whose humans or robots the run does not play is not "
-        "tested."
-        + (
-            " Milli & Dragan's result has two parts: the *crossover* (the pragmatic robot "
-            "better with a pedagogic human, worse with a literal one) and *robustness* "
-            "(averaged over both humans the literal robot is better: the robot main effect of "
-            "the 2 x 2 ANOVA, literal ahead)."
-            if "milli_dragan" in results
-            else ""
-        ),
-    ]
-
-
-def _cells(results: Results) -> list[str]:
-    return [
-        "## Cell means",
-        "",
-        table(
-            ["measure", "K", "human", "robot", "n", "mean", "95% CI (t)"],
+            ["measure", "features", "human", "robot", "n", "mean", "95% CI (t)"],
             formatted(
                 results["cells"],
-                ["measure", "num_features", "policy", "robot", "n", "mean", _interval],
+                [
+                    "measure", "num_features", lambda r: name(r["policy"]), "robot", "n", "mean",
+                    ci,
+                ],
             ),
             [False, True, False, False, True, True, True],
         ),
-        "",
-        image("Every measure by human, robot and number of features", FIGURE),
-    ]
-
-
-def _interval(row: Mapping[str, Any]) -> str:
-    return interval(row["ci95_low"], row["ci95_high"])
-
-
-def _paired_table(rows: Sequence[Mapping[str, Any]], group: str, label: str) -> str:
-    """Paired differences of ``label`` against its baseline per ``group`` and feature level."""
-    return table(
-        [
-            "measure", group, "K", label, "n", "mean difference", "95% CI", "t", "p",
-            "p (Holm)", "d_z",
-        ],
-        formatted(
-            rows,
-            [
-                "measure", group, "num_features", "level", "n", "mean_diff", _interval, "t",
-                "p", "p_holm", "d_z",
-            ],
-        ),
-        [False, False, True, False, True, True, True, True, True, True, True],
-    )  # fmt: skip
-
-
-def _against_baseline(results: Results) -> list[str]:
-    if not results["against_baseline"]:
-        return []
-    baseline = results["design"]["baseline"]
-    return [
-        f"## Every human against the baseline, `{baseline}`",
-        "",
-        f"Paired by reward draw: the human's measure minus `{baseline}`'s (negative: the "
-        "human teaches better), per robot and number of features; Holm over each measure's "
-        "rows.",
-        "",
-        _paired_table(results["against_baseline"], "robot", "human"),
-    ]
-
-
-def _corrected(row: Mapping[str, Any], name: str) -> str:
-    sphericity = row["sphericity"]
-    if sphericity is None:
-        return "–"
-    epsilon = number(sphericity[f"{name}_epsilon"], 3)
-    return f"{p_from_log10(sphericity[name]['log10_p'])} (ε {epsilon})"
-
-
-def _anova(results: Results) -> list[str]:
-    if not results["anova"]:
-        return []
-    return [
-        "## Repeated-measures ANOVA",
-        "",
-        "Per measure: human (and robot) within subjects, the number of features between. "
-        "For a within effect on two degrees of freedom or more, Mauchly's test of sphericity "
-        "and the p-values corrected by the Greenhouse-Geisser and Huynh-Feldt epsilons "
-        "(Huynh-Feldt capped at 1); `ges` is the generalised eta squared.",
-        "",
-        table(
-            [
-                "measure", "effect", "df", "F", "p", "Mauchly W (p)", "p (GG)", "p (HF)",
-                "partial η²", "ges",
-            ],
-            formatted(
-                results["anova"],
-                [
-                    "measure", "effect", lambda r: f"{r['df1']}, {r['df2']}", "F",
-                    lambda r: p_from_log10(r["log10_p"]),
-                    lambda r: "–" if r["sphericity"] is None else (
-                        f"{number(r['sphericity']['mauchly_w'], 3)} "
-                        f"({p_from_log10(r['sphericity']['mauchly']['log10_p'])})"
-                    ),
-                    lambda r: _corrected(r, "gg"), lambda r: _corrected(r, "hf"), "np2", "ges",
-                ],
-            ),
-            [False, False, True, True, True, True, True, True, True, True],
-        ),
+        *figures,
     ]  # fmt: skip
 
 
-def _pairwise(results: Results) -> list[str]:
-    if not results["pairwise"]:
+def _corrected(row: Mapping[str, Any], key: str) -> str:
+    sphericity = row["sphericity"]
+    if sphericity is None:
+        return "–"
+    epsilon = number(sphericity[f"{key}_epsilon"], 3)
+    return f"{p_text(sphericity[key]['log10_p'])} (ε {epsilon})"
+
+
+def _mauchly(row: Mapping[str, Any]) -> str:
+    sphericity = row["sphericity"]
+    if sphericity is None:
+        return "–"
+    w = number(sphericity["mauchly_w"], 3)
+    return f"{w} ({p_text(sphericity['mauchly']['log10_p'])})"
+
+
+def anova_table(rows: Sequence[Mapping[str, Any]]) -> str:
+    """An ANOVA table: effect, degrees of freedom, F, p, both effect sizes, and Mauchly's test
+    with the corrected p-values where any effect has them."""
+    columns: list = [
+        "measure", "effect", lambda r: f"{r['df1']}, {r['df2']}", "F",
+        lambda r: p_text(r["log10_p"]),
+    ]  # fmt: skip
+    header = ["measure", "effect", "df", "F", "p"]
+    if any(row["sphericity"] is not None for row in rows):
+        columns += [_mauchly, lambda r: _corrected(r, "gg"), lambda r: _corrected(r, "hf")]
+        header += ["Mauchly W (p)", "p (GG)", "p (HF)"]
+    columns += ["np2", "ges"]
+    header += ["partial η²", "generalised η²"]
+    return table(header, formatted(rows, columns), [False, False, *[True] * (len(header) - 2)])
+
+
+def anova(results: Results) -> list[str]:
+    """The repeated-measures ANOVA of every human (and robot) and feature level, beyond the
+    paper's design (where it is the paper's mixed ANOVA)."""
+    if paper_only(results):
+        return []
+    within = "`policy` (the human)" + (", `robot`" if results["design"]["robots"][1:] else "")
+    between = (
+        ", between subjects `num_features` (a subject is one reward draw, at one feature level "
+        "only)"
+        if results["design"]["feature_levels"][1:]
+        else ""
+    )
+    return [
+        heading(3, "anova"),
+        "",
+        f"Per measure: within subjects {within}{between}. For a within effect on two degrees "
+        "of freedom or more, Mauchly's test of sphericity and the p-values corrected by the "
+        "Greenhouse-Geisser and Huynh-Feldt epsilons (Huynh-Feldt capped at 1); with two "
+        "levels per within factor sphericity holds, so the p-values are uncorrected.",
+        "",
+        anova_table(results["anova"]),
+    ]
+
+
+def pairwise(results: Results) -> list[str]:
+    """Every pair of humans (and of robots) in every cell of the other factors, beyond the
+    paper's design (where it is the simple effects of policy)."""
+    if not results["pairwise"] or paper_only(results):
         return []
 
     def cell(row: Mapping[str, Any]) -> str:
-        other = "robot" if row["factor"] == "policy" else "human"
-        return f"{other} `{row['robot'] if other == 'robot' else row['policy']}`"
+        if row["factor"] == "policy":
+            return f"robot `{row['robot']}`"
+        return f"human `{row['policy']}`"
 
     return [
-        "## Pairwise comparisons",
+        heading(3, "pairwise"),
         "",
         "Every pair of humans (and of robots) within each cell of the other factors, paired "
-        "by reward draw: `a - b` (negative: `a` does better); Holm over each measure's rows "
+        "by reward draw: `a - b` (negative: `a` did better); Holm over each measure's rows "
         "of one factor.",
         "",
         table(
-            ["measure", "K", "in", "a", "b", "n", "a - b", "95% CI", "t", "p", "p (Holm)", "d_z"],
+            ["measure", "features", "in", "a", "b", "n", "a - b", "95% CI (t)", "t", "p",
+             "p (Holm)", "d_z"],
             formatted(
                 results["pairwise"],
                 [
                     "measure", "num_features", cell, "level_a", "level_b", "n", "mean_diff",
-                    _interval, "t", lambda r: p_from_log10(r["log10_p"]),
-                    lambda r: p_from_log10(r["log10_p_holm"]), "d_z",
+                    ci, "t", lambda r: p_text(r["log10_p"]),
+                    lambda r: p_text(r["log10_p_holm"]), "d_z",
                 ],
             ),
             [False, True, False, False, False, True, True, True, True, True, True, True],
@@ -229,179 +163,183 @@ def _pairwise(results: Results) -> list[str]:
     ]  # fmt: skip
 
 
-def _lambda_sweep(results: Results) -> list[str]:
-    sweep = results.get("lambda_sweep")
-    if not sweep:
-        return []
-    return [
-        "## The rationality sweep",
-        "",
-        "Each measure's mean (95% CI, t) per rationality λ, human, robot and number of features.",
-        "",
-        table(
-            ["measure", "λ", "K", "human", "robot", "n", "mean", "95% CI (t)"],
-            formatted(
-                sweep,
-                [
-                    "measure",
-                    "rationality",
-                    "num_features",
-                    "policy",
-                    "robot",
-                    "n",
-                    "mean",
-                    _interval,
-                ],
-            ),
-            [False, True, True, False, False, True, True, True],
-        ),
-    ]
-
-
-def _milli_dragan(results: Results) -> list[str]:
-    square = results.get("milli_dragan")
-    if square is None:
-        return []
-    anova = table(
-        ["measure", "effect", "df", "F", "p", "partial η²"],
+def paired_table(rows: Sequence[Mapping[str, Any]], group: str, label: str) -> str:
+    """Paired differences of ``label`` against its baseline per ``group`` and feature level."""
+    return table(
+        [
+            "measure", group, "features", label, "n", "mean difference", "95% CI", "t", "p",
+            "p (Holm)", "d_z",
+        ],
         formatted(
-            square["anova"],
-            ["measure", "effect", lambda r: f"{r['df1']}, {r['df2']}", "F", "p", "np2"],
+            rows,
+            [
+                "measure", group, "num_features", "level", "n", "mean_diff", ci, "t",
+                "p", "p_holm", "d_z",
+            ],
         ),
-        [False, False, True, True, True, True],
-    )
-    pooled = [
-        {**r, "num_features": "all"} for r in square["robot_effect"]
-    ]  # pooled over the feature levels
+        [False, False, True, False, True, True, True, True, True, True, True],
+    )  # fmt: skip
+
+
+def against_baseline(results: Results) -> list[str]:
+    """Every human against the baseline."""
+    if not results["against_baseline"]:
+        return []
+    baseline = results["design"]["baseline"]
     return [
-        "## Milli & Dragan's 2 x 2: literal or pedagogic human, literal or pragmatic robot",
+        heading(3, "against_baseline"),
         "",
-        "Split-plot ANOVA per measure: human (`literal`, `pedagogic`) and robot (`literal`, "
-        "`pragmatic`) within subjects, the number of features between.",
+        f"Paired by reward draw: the human's measure minus `{baseline}`'s (negative: the "
+        "human did better), per robot and number of features; Holm over each measure's rows.",
         "",
-        anova,
-        "",
-        "The robot's simple effect, `pragmatic - literal`, under each human (negative: the "
-        "pragmatic robot does better), pooled over the feature levels and at each:",
-        "",
-        _paired_table(pooled + list(square["robot_effect_by_level"]), "policy", "robot"),
+        paired_table(results["against_baseline"], "robot", "human"),
     ]
 
 
-def _versus(results: Results) -> list[str]:
-    versus = results.get("best_response_vs_pedagogic")
-    if versus is None:
-        return []
-    return [
-        "## The paper's best response against the pedagogic human",
-        "",
-        "Paired by reward draw: `best_response - pedagogic` (negative: the best response "
-        "teaches better), per robot and number of features.",
-        "",
-        _paired_table(versus, "robot", "human"),
-    ]
+def grid_table(
+    frame: pd.DataFrame, x: str, x_label: str, columns: Sequence[tuple[str, Callable]]
+) -> str:
+    """One row per value of ``x``, one column per selector in ``columns``: ``mean [CI]``."""
+    rows = []
+    for value in sorted(frame[x].unique()):
+        at = frame[frame[x] == value]
+        shown = []
+        for _, select in columns:
+            match = at[select(at)]
+            shown.append(
+                "–"
+                if match.empty
+                else f"{number(match['mean'].iloc[0])} "
+                f"{interval(match['ci95_low'].iloc[0], match['ci95_high'].iloc[0], 3)}"
+            )
+        rows.append([f"{value:g}", *shown])
+    header = [x_label, *(label for label, _ in columns)]
+    return table(header, rows, [True] * len(header))
 
 
-def _regret_optimal(results: Results) -> list[str]:
-    optimal = results.get("regret_optimal")
-    if optimal is None:
-        return []
-    return [
-        "## How far from the regret-optimal demonstration",
-        "",
-        "With the MAP robot, each human's regret minus that of the best demonstration the "
-        "regret-optimal search found for the same reward draw (`regret_optimal`, "
-        "cirl_study.core.teaching). The search starts from the expert's path, the best "
-        "response at every eta of the cross-validation grid and the pedagogic human's most "
-        "telling paths, then improves by single-move changes; so the gap is a lower bound on "
-        "the distance to the true optimum, never negative for the expert or the best response.",
-        "",
-        table(
-            ["K", "human", "n", "mean regret", "regret-optimal", "gap", "95% CI", "p",
-             "smallest gap", "as good as the best found"],
-            formatted(
-                optimal["gaps"],
-                [
-                    "num_features", "policy", "n", "mean_policy", "mean_regret_optimal",
-                    "mean_gap", _interval, "p", "smallest_gap",
-                    lambda g: f"{100 * g['share_optimal']:.1f}%",
-                ],
+def lambda_sweep(results: Results) -> list[str]:
+    """Mean regret of every human at each rationality, with the reference robot."""
+    lines = [heading(2, "lambda_sweep"), ""]
+    if not results["lambda_sweep"]:
+        return [*lines, "This run has no trials in the `lambda_sweep` block."]
+    robot = results["design"]["reference_robot"]
+    sweep = pd.DataFrame(results["lambda_sweep"])
+    regret = sweep[(sweep["measure"] == "regret") & (sweep["robot"] == robot)]
+    columns = [
+        (
+            f"{name(human)}, {level}",
+            lambda at, level=level, human=human: (
+                (at["num_features"] == level) & (at["policy"] == human)
             ),
-            [True, False, True, True, True, True, True, True, True, True],
-        ),
-    ]  # fmt: skip
-
-
-def _eta(results: Results) -> list[str]:
-    cv = results.get("eta_cv")
-    if not cv or not cv["chosen"]:
-        return []
-    chosen = "; ".join(
-        f"K = {c['num_features']}: η = {number(c['eta'])} (mean regret {number(c['mean'])})"
-        for c in cv["chosen"]
-    )
+        )
+        for level in sorted(regret["num_features"].unique())
+        for human in results["design"]["humans"]
+    ]
+    figure = []
+    if results["paper"] is not None:
+        file_name, _ = FIGURES["figure2_lambda"]
+        figure = ["", image("Figure 2, right: regret against lambda", file_name)]
+    others = " and of every other robot" if results["design"]["robots"][1:] else ""
     return [
-        "## The best response's eta",
+        *lines,
+        f"Mean regret [95% CI] of each human at each rationality λ the robot `{robot}` "
+        f"assumes (columns: `human, features`); KL and L2{others} at every λ are in "
+        "`results.json` (`lambda_sweep`).",
         "",
-        f"Cross-validated as in the paper study, with the MAP robot: {chosen}. Every number "
-        "of the cross-validation is in `results.json`.",
+        grid_table(regret, "rationality", "λ", columns),
+        "",
+        _certification(results),
+        *figure,
     ]
 
 
-def render_markdown(results: Results) -> str:
-    """``report.md`` of a study: every section, from the results alone."""
-    sections = [
-        _header(results),
-        _questions(results),
-        _cells(results),
-        _anova(results),
-        _against_baseline(results),
-        _pairwise(results),
-        _milli_dragan(results),
-        _versus(results),
-        _regret_optimal(results),
-        _lambda_sweep(results),
-        _eta(results),
-        ["Every number at full precision is in `results.json`; every trial in `trials.csv`."],
+def _certification(results: Results) -> str:
+    """One sentence: at which lambdas the reference robot could not certify every estimate."""
+    short = [
+        f"{row['certified']} of {row['trials']} at λ = {number(row['rationality'])}"
+        for row in results["certified"]
+        if row["block"] == LAMBDA_SWEEP
+        and row["robot"] == results["design"]["reference_robot"]
+        and row["certified"] < row["trials"]
     ]
-    return document(sections)
-
-
-def write_study_report(
-    trials: Sequence[TrialRow],
-    out_dir: Path | str,
-    pipeline: Pipeline,
-    *,
-    run_id: str,
-    provenance: Mapping[str, Any] | None = None,
-    progress: Callable[[str], None] = lambda stage: None,
-) -> Results:
-    """Analyse a study run's trials and write its report directory.
-
-    Writes ``report.md``, ``results.json`` (every number at full precision), ``trials.csv``
-    and the figure (PNG and SVG) into ``out_dir``, and ``provenance`` (if given) as
-    ``provenance.json``.
-
-    Returns:
-        The content of ``results.json``.
-
-    Raises:
-        UserError: the run's design cannot be analysed, or the report cannot be written.
-    """
-    progress("statistics")
-    results = analyse_study(trials, pipeline)
-    results["run_id"] = run_id
-    progress("figures")
-    cells, design = pd.DataFrame(results["cells"]), results["design"]
-    drawn = figures.draw_all(
-        {FIGURE: (figures.cell_bars, (cells, design["humans"], design["robots"]))}
+    if not short:
+        return "Every estimate of the sweep is certified within 1e-6 of the MAP."
+    return (
+        "Estimates certified within 1e-6 of the MAP (the others lie where the likelihood is "
+        "flat to double-precision rounding in some direction, and stay where the robot "
+        f"stopped): {'; '.join(short)}; every other λ: all."
     )
-    write_report_directory(
-        out_dir,
-        markdown=render_markdown(results),
-        results=results,
-        tables={"trials.csv": trial_table(trials)},
-        figures=drawn,
-        provenance=provenance,
+
+
+def _eta_check(results: Results) -> str:
+    """One sentence: whether the main block was played with the cross-validated eta."""
+    faults = [
+        f"η = {', '.join(f'{eta:g}' for eta in row['main_etas']) or '–'} at "
+        f"{row['num_features']} features "
+        + (
+            "(not cross-validated)"
+            if row["chosen_eta"] is None
+            else f"(cross-validated: η = {row['chosen_eta']:g})"
+        )
+        for row in results["eta_cv"]["main_block"]
+        if not row["agree"]
+    ]
+    if not faults:
+        return "The main block used the cross-validated η."
+    return (
+        "**The main block's best response was not played with the cross-validated η**: "
+        f"{'; '.join(faults)}."
     )
-    return results
+
+
+def _eta_uncertainty(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+    """Per feature level, how clear-cut the chosen eta is (one bullet each)."""
+    lines = ["How clear-cut each choice is:", ""]
+    for row in rows:
+        one_se = ", ".join(f"{eta:g}" for eta in row["within_one_se"])
+        text = (
+            f"- {row['num_features']} features: η = {row['eta']:g} (mean regret "
+            f"{number(row['mean'])}, standard error {number(row['se'])}, {row['n']} draws)"
+        )
+        if row.get("runner_up") is not None:
+            separated = row["ci95_low"] > 0
+            text += (
+                f" against the runner-up η = {row['runner_up']:g} "
+                f"({number(row['runner_up_mean'])}): paired difference "
+                f"{number(row['mean_diff'])} {interval(row['ci95_low'], row['ci95_high'])}, "
+                f"p {p_value(row['p'])}, "
+                + ("the runner-up is worse" if separated else "not distinguishable")
+            )
+        lines.append(
+            f"{text}. By the one-standard-error rule (means within one standard error of the "
+            f"lowest) η ∈ {{{one_se}}} are all as good."
+        )
+    return lines
+
+
+def eta_cv(results: Results) -> list[str]:
+    """The cross-validation of the best response's eta."""
+    lines = [heading(2, "eta_cv"), ""]
+    if not results["eta_cv"]["means"]:
+        return [*lines, "This run has no trials in the `eta_cv` block."]
+    means = pd.DataFrame(results["eta_cv"]["means"])
+    columns = [
+        (f"{level} features", lambda at, level=level: at["num_features"] == level)
+        for level in sorted(means["num_features"].unique())
+    ]
+    chosen = ", ".join(
+        f"η = {row['eta']:g} at {row['num_features']} features (mean regret {number(row['mean'])})"
+        for row in results["eta_cv"]["chosen"]
+    )
+    file_name, _ = FIGURES["eta_cv_curve"]
+    return [
+        *lines,
+        f"Mean best-response regret [95% CI] per η, on reward draws disjoint from the main "
+        f"block's. Chosen (lowest mean regret): {chosen}. {_eta_check(results)}",
+        "",
+        *_eta_uncertainty(results["eta_cv"]["uncertainty"]),
+        "",
+        grid_table(means, "eta", "η", columns),
+        "",
+        image("eta cross-validation", file_name),
+    ]

@@ -72,12 +72,11 @@ def analyze(
     the figures (PNG and SVG). Reads only the run's MCAP logs, checking every CRC and that
     every file and record belongs to the run. A run missing planned trials, or holding a
     damaged file, is refused unless --partial; a foreign trial always is. Identical logs
-    give an identical report. A multiverse gets its claims in every universe; a study of
-    other humans, robots or feature levels than the paper's (any number of each) its
-    repeated-measures ANOVA with sphericity corrections, every pairwise comparison and its
-    questions (Milli & Dragan's 2 x 2, the best response against the pedagogic human and the
-    regret-optimal demonstration, where it plays them), with report.md, results.json,
-    trials.csv and a figure.
+    give an identical report. Any design of humans x robots x feature levels is analysed
+    alike: the repeated-measures ANOVA with sphericity corrections, every pairwise
+    comparison, and every published claim whose cells the run has (the paper's, Milli &
+    Dragan's, ...), the others listed as not tested. A multiverse gets the paper's claims in
+    every universe.
     """
 
     def stage(name: str) -> None:
@@ -155,24 +154,6 @@ def analyze(
             f"universes written to {target}: universes reproducing each claim: {shares}"
         )
         return
-    if not _paper_design(pipeline):
-        from cirl_study.analysis.study_report import write_study_report
-
-        study = write_study_report(
-            trials,
-            target,
-            pipeline,
-            run_id=contents.identity.run_id,
-            provenance=provenance,
-            progress=stage,
-        )
-        answered = sum(q["tested"] and q["holds"] is not None for q in study["questions"])
-        held = sum(bool(q["holds"]) for q in study["questions"])
-        typer.echo(
-            f"study report of {len(trials)} trials written to {target}: "
-            f"{len(study['questions'])} questions, {held} of {answered} tested claims hold"
-        )
-        return
     from cirl_study.analysis.report import write_report
     from cirl_study.analysis.theory_claims import office_supplies_claims
     from cirl_study.theory import office_supplies_results
@@ -181,7 +162,7 @@ def analyze(
     results = write_report(
         trials,
         target,
-        contents.identity.pipeline_name,
+        pipeline,
         records_of=lambda wanted: contents.records(run, wanted),
         run_id=contents.identity.run_id,
         theory=theory,
@@ -190,13 +171,15 @@ def analyze(
         progress=stage,
     )
     claims = results["claims"]
-    reproduced = sum(claim["reproduced"] for claim in claims)
-    untested = sum(not claim["tested"] for claim in claims)
+    tested = [claim for claim in claims if claim["tested"]]
+    reproduced = sum(claim["reproduced"] is True for claim in tested)
+    answered = sum(claim["reproduced"] is None for claim in tested)
     typer.echo(
         f"{'partial ' if partial_run else ''}report of {len(trials)} trials written to "
-        f"{target}: {len(claims)} claims, "
-        f"{reproduced} reproduced, {len(claims) - reproduced - untested} not reproduced, "
-        f"{untested} not tested"
+        f"{target}: {len(claims)} claims, {reproduced} reproduced, "
+        f"{len(tested) - reproduced - answered} not reproduced, "
+        f"{len(claims) - len(tested)} not tested"
+        + (f", {answered} questions answered" if answered else "")
     )
 
 
@@ -232,29 +215,10 @@ def _prepare_analysis() -> dict[str, Any]:
     }
 
 
-def _paper_design(pipeline: Pipeline) -> bool:
-    """Whether the paper's report analyses ``pipeline``'s runs: its humans are exactly the
-    paper's (expert, best response), at two feature levels or more, with one robot or two (a
-    comparison with the reference). Every other design of humans x robots x feature levels
-    gets the study report (:mod:`cirl_study.analysis.study_report`)."""
-    from cirl_study.record import PAPER_POLICIES
-
-    return (
-        tuple(pipeline.main.policies) == PAPER_POLICIES
-        and len(pipeline.game.feature_levels) >= 2
-        and len(pipeline.main.robots) <= 2
-    )
-
-
 def _analysed_only_whole(pipeline: Pipeline) -> str | None:
     """Why a run of ``pipeline`` has no partial report, or ``None`` when it may have one."""
     if pipeline.multiverse is not None:
         return "a multiverse is analysed only whole (its universes share the reward draws)"
-    if not _paper_design(pipeline):
-        return (
-            "a study of other humans, robots or feature levels than the paper's is analysed "
-            "only whole (it compares every human with every robot on each reward draw)"
-        )
     return None
 
 

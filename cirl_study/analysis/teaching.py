@@ -1,0 +1,119 @@
+"""The teaching sections of a study's results: humans who teach and robots who read them.
+
+Each section is computed where the run has its cells (:mod:`cirl_study.analysis.cells`), and
+is ``None`` otherwise; every measure is a loss (lower is better):
+
+* ``milli_dragan`` (:data:`~cirl_study.analysis.cells.MILLI_DRAGAN`): the 2 x 2 of Milli &
+  Dragan (2019), human {literal, pedagogic} x robot {literal, pragmatic}: the repeated-measures
+  ANOVA with both within subjects and the feature level between
+  (:func:`cirl_study.analysis.anova.repeated_measures_anova`), and the simple effect of the
+  robot, ``pragmatic - literal``, under each human, pooled over the feature levels and at each
+  (paired t, Holm per measure);
+* ``best_response_vs_pedagogic`` (:data:`~cirl_study.analysis.cells.VERSUS_PEDAGOGIC`): per
+  robot and feature level, ``best_response - pedagogic``, paired (Holm per measure);
+* ``regret_optimal`` (:data:`~cirl_study.analysis.cells.REGRET_OPTIMAL_GAP`): with the MAP
+  robot, every human's regret gap to the regret-optimal demonstration, ``regret(human) -
+  regret(regret_optimal)``, per feature level (paired t, its smallest value, and the share of
+  subjects at which the human's demonstration is as good as the best found).
+
+The claims that read them are in :mod:`cirl_study.analysis.claims`.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+import pandas as pd
+
+from cirl_study.analysis import statistics
+from cirl_study.analysis.cells import MILLI_DRAGAN, REGRET_OPTIMAL_GAP, VERSUS_PEDAGOGIC, Design
+from cirl_study.analysis.measure_rows import anova_rows, paired_rows
+from cirl_study.record import (
+    BEST_RESPONSE,
+    LITERAL,
+    LITERAL_ROBOT,
+    MAP,
+    PEDAGOGIC,
+    PRAGMATIC,
+    REGRET_OPTIMAL,
+)
+
+if TYPE_CHECKING:
+    from collections.abc import Callable
+
+SECTIONS: tuple[str, ...] = ("milli_dragan", "best_response_vs_pedagogic", "regret_optimal")
+"""The keys of the teaching sections, in the order ``results.json`` lists them."""
+
+SAME_REGRET = 1e-9
+"""Regret gap (absolute) below which a demonstration counts as good as the best found: the
+MAP robot certifies its estimate to 1e-6, and two demonstrations with the same visit class
+give the same estimate bit for bit."""
+
+
+def sections(main: pd.DataFrame, design: Design) -> dict[str, Any]:
+    """Every teaching section of the ``main`` block's table (``None`` where its cells lack)."""
+
+    def milli_dragan() -> dict[str, Any]:
+        square = main[
+            main["policy"].isin([LITERAL, PEDAGOGIC])
+            & main["robot"].isin([LITERAL_ROBOT, PRAGMATIC])
+        ]
+        return {
+            "anova": anova_rows(square, ["policy", "robot"]),
+            "robot_effect": paired_rows(
+                square.assign(pooled="all"), "robot", LITERAL_ROBOT, ["policy", "pooled"]
+            ),
+            "robot_effect_by_level": paired_rows(
+                square, "robot", LITERAL_ROBOT, ["policy", "num_features"]
+            ),
+        }
+
+    def versus() -> list[dict[str, Any]]:
+        pair = main[main["policy"].isin([BEST_RESPONSE, PEDAGOGIC])]
+        return paired_rows(pair, "policy", PEDAGOGIC, ["robot", "num_features"])
+
+    made: dict[str, tuple[Any, Callable[[], Any]]] = {
+        "milli_dragan": (MILLI_DRAGAN, milli_dragan),
+        "best_response_vs_pedagogic": (VERSUS_PEDAGOGIC, versus),
+        "regret_optimal": (
+            REGRET_OPTIMAL_GAP,
+            lambda: _regret_optimal(main[main["robot"] == MAP]),
+        ),
+    }
+    return {key: None if cells.lacking(design) else make() for key, (cells, make) in made.items()}
+
+
+def _regret_optimal(with_map: pd.DataFrame) -> dict[str, Any]:
+    """Each human's regret gap to the regret-optimal demonstration (MAP robot), per level."""
+    gaps = []
+    for (level,), group in with_map.groupby(["num_features"], sort=True):
+        paired = group.pivot(index="subject", columns="policy", values="regret").sort_index()
+        best = paired[REGRET_OPTIMAL].to_numpy()
+        for human in paired.columns:
+            if human == REGRET_OPTIMAL:
+                continue
+            gap = paired[human].to_numpy() - best
+            test = statistics.paired_differences(
+                group[group["policy"].isin([human, REGRET_OPTIMAL])],
+                "regret",
+                "policy",
+                REGRET_OPTIMAL,
+                ["num_features"],
+            ).iloc[0]
+            gaps.append(
+                {
+                    "num_features": int(level),
+                    "policy": human,
+                    "n": len(gap),
+                    "mean_regret_optimal": float(best.mean()),
+                    "mean_policy": float(paired[human].mean()),
+                    "mean_gap": float(gap.mean()),
+                    "ci95_low": float(test["ci95_low"]),
+                    "ci95_high": float(test["ci95_high"]),
+                    "p": float(test["p"]),
+                    "smallest_gap": float(gap.min()),
+                    "share_optimal": float(np.mean(np.abs(gap) <= SAME_REGRET)),
+                }
+            )
+    return {"gaps": gaps}
