@@ -380,3 +380,15 @@ def test_lambda_sweep_has_one_row_per_measure_lambda_policy_and_level():
     sweep = statistics.lambda_sweep(table[table["block"] == "lambda_sweep"], MEASURES)
     assert len(sweep) == 3 * 3 * 2 * 2
     assert set(sweep["n"]) == {3}
+
+
+@pytest.mark.parametrize(("n", "seed"), [(60, 0), (300, 1), (900, 2)])
+def test_the_wilcoxon_log_tail_is_scipys_normal_approximation(n, seed):
+    """The log-space tail (forced here with p = 0) equals log10 of SciPy's p, ties and zeros
+    included, where SciPy's p is a double; past the smallest double it stays finite."""
+    d = np.round(np.random.default_rng(seed).normal(0.8, 1.0, n), 1)
+    p = float(stats.wilcoxon(d, correction=True).pvalue)
+    assert statistics.wilcoxon_log10_p(d, 0.0) == pytest.approx(math.log10(p), rel=1e-12)
+    huge = np.arange(1.0, 2001.0)
+    assert float(stats.wilcoxon(huge, correction=True).pvalue) == 0.0
+    assert -330 < statistics.wilcoxon_log10_p(huge, 0.0) < -320

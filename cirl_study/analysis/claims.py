@@ -122,12 +122,6 @@ def _num(value: float | None) -> str:
     return number(value)
 
 
-def _p(value: float) -> str:
-    """``p = 0.0123``, or ``p < 1e-300`` (see :func:`cirl_study.analysis.markdown.p_value`)."""
-    shown = p_value(value)
-    return f"p {shown}" if shown.startswith("<") else f"p = {shown}"
-
-
 def _reference(results: Results) -> str:
     return results["design"]["reference_robot"]
 
@@ -163,7 +157,7 @@ def _gap(results: Results, measure: str, level: int) -> float:
 
 
 def _f_text(row: dict[str, Any]) -> str:
-    return f"F({row['df1']}, {row['df2']}) = {_num(row['F'])}, {_p(row['p'])}"
+    return f"F({row['df1']}, {row['df2']}) = {_num(row['F'])}, p = {p_text(row['log10_p'])}"
 
 
 def _policy_effect(results: Results) -> Verdict:

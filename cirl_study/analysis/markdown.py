@@ -94,8 +94,9 @@ def anchor(heading: str) -> str:
 
 
 def formatted(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> list[list[str]]:
-    """The cells of ``rows``: a measure by its short name, a p-value, a text, or a number (every
-    report's tables; a column is a field of the rows or a function of a row)."""
+    """The cells of ``rows``: a measure by its short name, a p-value (from its ``log10_``
+    field where the row has one, so an underflowed p shows its value), a text, or a number
+    (every report's tables; a column is a field of the rows or a function of a row)."""
 
     def cell(row: Mapping[str, Any], column: Column) -> str:
         if callable(column):
@@ -104,7 +105,8 @@ def formatted(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> l
         if column == "measure":
             return MEASURE_NAMES[value]
         if column in P_VALUES:
-            return p_value(value)
+            log10_p = row.get(f"log10_{column}")
+            return p_value(value) if log10_p is None else p_text(log10_p)
         return value if isinstance(value, str) else number(value)
 
     return [[cell(row, column) for column in columns] for row in rows]

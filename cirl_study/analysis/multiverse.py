@@ -36,6 +36,7 @@ from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.measure_rows import plain, rows
 from cirl_study.analysis.results import Results, analyse
 from cirl_study.analysis.table import check_design, trial_table
+from cirl_study.analysis.tails import t_tail
 from cirl_study.record import ETA_CV, EXPERT, MAIN, MEASURES, TrialRow
 from cirl_study.study.multiverse import base_universe, cv_universe, universe_pipeline, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe, shortest_number
@@ -170,7 +171,8 @@ def _effects(main: pd.DataFrame) -> pd.DataFrame:
         statistics.paired_differences(main, measure, "policy", EXPERT, ["universe"])
         for measure in MEASURES
     ]
-    effects = pd.concat(frames, ignore_index=True).drop(columns=["level", "p_holm"])
+    effects = pd.concat(frames, ignore_index=True)
+    effects = effects.drop(columns=["level", "p_holm", "log10_p_holm"])
     return effects.sort_values(["measure", "universe"], kind="mergesort").reset_index(drop=True)
 
 
@@ -245,6 +247,7 @@ def _regression(
                 "ci95_low": float(interval.loc[name, 0]),
                 "ci95_high": float(interval.loc[name, 1]),
                 "p": float(model.pvalues[name]),
+                "log10_p": t_tail(float(model.tvalues[name]), float(model.df_resid))[1],
             }
         )
     shares = None

@@ -22,6 +22,7 @@ from cirl_study.analysis.markdown import MEASURE_NAMES, document, interval, numb
 from cirl_study.analysis.measure_rows import plain
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
 from cirl_study.analysis.output import write_report_directory
+from cirl_study.analysis.result_types import MultiverseResults, checked
 from cirl_study.analysis.results import Results
 from cirl_study.record import MEASURES, TrialRow
 from cirl_study.study.spec import AXES, Pipeline
@@ -366,6 +367,7 @@ def write_multiverse_report(
     results["run_id"] = run_id
     progress("figures")
     results = plain(results)
+    checked(results, MultiverseResults)
     write_report_directory(
         out_dir,
         markdown=render_markdown(results),

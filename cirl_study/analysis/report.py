@@ -21,6 +21,7 @@ from cirl_study.analysis import figures, paper_report, study_report, teaching_re
 from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.markdown import document, number, svg_name, table
 from cirl_study.analysis.output import csv_file, write_report_directory
+from cirl_study.analysis.result_types import StudyResults, checked
 from cirl_study.analysis.results import Results, combined, estimates, plain, tests
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
@@ -315,6 +316,7 @@ def write_report(
         results["claims"] = evaluate_claims(results, theory)
         if theory is not None:
             results["theory"] = plain(theory)
+        checked(results, StudyResults)
         markdown = render_markdown(results)
         trials_csv = csv_file(everything) if len(everything) <= CSV_IN_MEMORY_ROWS else everything
         made = drawn()

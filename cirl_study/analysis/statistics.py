@@ -26,7 +26,7 @@ import pingouin as pg
 from scipy import special, stats
 
 from cirl_study.analysis.studentized_range import studentized_range_log10_sf
-from cirl_study.analysis.tails import p_from_log10, t_tail
+from cirl_study.analysis.tails import NORMAL_TAIL, p_from_log10, t_tail
 from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_POLICIES
 
 CONFIDENCE = 0.95
@@ -77,7 +77,7 @@ def paired_differences(
                 }
             )
     result = pd.DataFrame(rows)
-    result.insert(result.columns.get_loc("p") + 1, "p_holm", holm(result["p"].to_numpy()))
+    _insert_holm(result)
     return result
 
 
@@ -155,7 +155,6 @@ def pairwise_differences(
                     "mean_a": float(first.mean()),
                     "mean_b": float(second.mean()),
                     **test,
-                    "log10_p": t_tail(test["t"], test["df"])[1],
                 }
             )
     adjusted = holm_log10(np.array([row["log10_p"] for row in rows]))
@@ -200,7 +199,8 @@ def _d_z(differences: np.ndarray, axis: int = -1) -> np.ndarray:
 
 def _paired_t(first: np.ndarray, second: np.ndarray) -> dict[str, float | int]:
     """Paired t-test of ``d = first - second``: ``mean_diff``, its t-based CI, ``t``, ``df``,
-    ``p`` (two-sided) and ``d_z`` (``scipy.stats.ttest_rel``)."""
+    ``p`` (two-sided, ``scipy.stats.ttest_rel``), ``log10_p`` (in log space,
+    :func:`cirl_study.analysis.tails.t_tail`) and ``d_z``."""
     difference = first - second
     test = stats.ttest_rel(first, second)
     interval = test.confidence_interval(CONFIDENCE)
@@ -211,6 +211,7 @@ def _paired_t(first: np.ndarray, second: np.ndarray) -> dict[str, float | int]:
         "t": float(test.statistic),
         "df": int(test.df),
         "p": float(test.pvalue),
+        "log10_p": t_tail(float(test.statistic), int(test.df))[1],
         "d_z": float(_d_z(difference)),
     }
 
@@ -375,8 +376,16 @@ def simple_effects(main: pd.DataFrame, measure: str) -> pd.DataFrame:
             }
         )
     frame = pd.DataFrame(rows)
-    frame.insert(frame.columns.get_loc("p") + 1, "p_holm", holm(frame["p"].to_numpy()))
+    _insert_holm(frame)
     return frame
+
+
+def _insert_holm(frame: pd.DataFrame) -> None:
+    """Insert ``p_holm`` (:func:`holm`) and ``log10_p_holm`` (:func:`holm_log10`) after
+    ``log10_p``: the whole frame is one family."""
+    at = frame.columns.get_loc("log10_p") + 1
+    frame.insert(at, "p_holm", holm(frame["p"].to_numpy()))
+    frame.insert(at + 1, "log10_p_holm", holm_log10(frame["log10_p"].to_numpy()))
 
 
 def holm(p_values: np.ndarray) -> np.ndarray:
@@ -480,7 +489,7 @@ def wilcoxon(main: pd.DataFrame, measure: str) -> pd.DataFrame:
         ``pingouin.wilcoxon``, ``scipy.stats.wilcoxon``.
 
     Returns:
-        One row per feature level: ``measure, num_features, n, W, p, rbc, cles``.
+        One row per feature level: ``measure, num_features, n, W, p, log10_p, rbc, cles``.
     """
     rows = []
     for level in sorted(main["num_features"].unique()):
@@ -494,11 +503,42 @@ def wilcoxon(main: pd.DataFrame, measure: str) -> pd.DataFrame:
                 "n": len(paired),
                 "W": float(test.statistic),
                 "p": float(test.pvalue),
+                "log10_p": wilcoxon_log10_p(best - expert, float(test.pvalue)),
                 "rbc": _rank_biserial(best - expert),
                 "cles": _common_language(best, expert),
             }
         )
     return pd.DataFrame(rows)
+
+
+def wilcoxon_log10_p(differences: np.ndarray, p: float) -> float:
+    """``log10 p`` of the two-sided signed-rank test ``p`` of ``scipy.stats.wilcoxon`` (zeros
+    dropped, continuity correction), in log space where ``p`` is below
+    :data:`~cirl_study.analysis.tails.NORMAL_TAIL`.
+
+    There SciPy used the normal approximation (its exact null has ``p >= 2^(1-n)``, and it is
+    exact only up to ``n = 50``): ``z = (T - n (n + 1) / 4 - sign / 2) / se``, ``T`` the smaller
+    rank sum, ``se^2 = (n (n + 1)(2 n + 1) - sum_ties t (t^2 - 1) / 2) / 24``, so ``log p =
+    log 2 + log Phi(-|z|)`` (``scipy.special.log_ndtr``, exact far into the tail).
+
+    Examples:
+        >>> d = np.arange(1.0, 2001.0)
+        >>> p = float(stats.wilcoxon(d, correction=True).pvalue)
+        >>> p, round(wilcoxon_log10_p(d, p), 2)
+        (0.0, -327.49)
+    """
+    if p >= NORMAL_TAIL:
+        return math.log10(p)
+    nonzero = differences[differences != 0]
+    n = nonzero.size
+    ranks = stats.rankdata(np.abs(nonzero))
+    plus = float(ranks[nonzero > 0].sum())
+    smaller = min(plus, float(ranks.sum()) - plus)
+    mean = n * (n + 1) / 4
+    _, ties = np.unique(ranks, return_counts=True)
+    variance = (n * (n + 1) * (2 * n + 1) - 0.5 * float(np.sum(ties * (ties**2 - 1.0)))) / 24
+    z = (smaller - mean - 0.5 * np.sign(smaller - mean)) / math.sqrt(variance)
+    return (math.log(2.0) + float(special.log_ndtr(-abs(z)))) / math.log(10.0)
 
 
 def _rank_biserial(differences: np.ndarray) -> float:

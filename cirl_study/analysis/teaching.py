@@ -112,6 +112,7 @@ def _regret_optimal(with_map: pd.DataFrame) -> dict[str, Any]:
                     "ci95_low": float(test["ci95_low"]),
                     "ci95_high": float(test["ci95_high"]),
                     "p": float(test["p"]),
+                    "log10_p": float(test["log10_p"]),
                     "smallest_gap": float(gap.min()),
                     "share_optimal": float(np.mean(np.abs(gap) <= SAME_REGRET)),
                 }

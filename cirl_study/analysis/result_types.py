@@ -1,0 +1,474 @@
+"""The types of ``results.json``: a study's (:class:`StudyResults`) and a multiverse's
+(:class:`MultiverseResults`).
+
+Every report validates its results against these types before it writes them
+(:func:`checked`), and their JSON Schemas, generated from the same declarations
+(:func:`json_schema`), are kept in ``docs/`` (``results-study.schema.json``,
+``results-multiverse.schema.json``) for readers in other languages; a test keeps them equal.
+A number that is undefined (a mean of nothing, a test on a constant sample) is ``null``,
+never NaN; every p-value beside its common logarithm ``log10_p``, which holds it where the
+double ``p`` underflows to 0.
+"""
+
+from __future__ import annotations
+
+from typing import Any, TypeVar
+
+import msgspec
+
+from cirl_study.errors import UserError
+
+Number = float | None
+"""A number of the results; ``None`` (``null``) where it is undefined."""
+
+_ROW = {"frozen": True, "kw_only": True, "forbid_unknown_fields": True}
+
+
+class CellMean(msgspec.Struct, **_ROW):
+    """A measure's mean with its t-based 95% CI in one cell (``sweep``: at one rationality)."""
+
+    measure: str
+    num_features: int
+    policy: str
+    robot: str
+    n: int
+    mean: Number
+    sd: Number
+    ci95_low: Number
+    ci95_high: Number
+    rationality: float | None = None
+
+
+class Probability(msgspec.Struct, **_ROW):
+    p: Number
+    log10_p: Number
+
+
+class Sphericity(msgspec.Struct, **_ROW):
+    mauchly_w: Number
+    mauchly: Probability
+    gg_epsilon: Number
+    hf_epsilon: Number
+    gg: Probability
+    hf: Probability
+
+
+class AnovaRow(msgspec.Struct, **_ROW):
+    """One effect of :func:`cirl_study.analysis.anova.repeated_measures_anova`."""
+
+    measure: str
+    effect: str
+    df1: int
+    df2: int
+    SS: Number
+    MS: Number
+    F: Number
+    p: Number
+    log10_p: Number
+    np2: Number
+    ges: Number
+    sphericity: Sphericity | None
+
+
+class PairwiseRow(msgspec.Struct, **_ROW):
+    """One row of :func:`cirl_study.analysis.statistics.pairwise_differences`."""
+
+    measure: str
+    factor: str
+    level_a: str
+    level_b: str
+    policy: str | None
+    robot: str | None
+    num_features: int
+    n: int
+    mean_a: Number
+    mean_b: Number
+    mean_diff: Number
+    ci95_low: Number
+    ci95_high: Number
+    t: Number
+    df: int
+    p: Number
+    log10_p: Number
+    p_holm: Number
+    log10_p_holm: Number
+    d_z: Number
+
+
+class PairedDifference(msgspec.Struct, **_ROW):
+    """One row of :func:`cirl_study.analysis.statistics.paired_differences`: ``level`` against
+    the baseline in one group (its keys among ``policy, robot, num_features, rationality,
+    pooled, universe``); a multiverse's policy effects have neither ``level`` nor Holm."""
+
+    measure: str
+    n: int
+    mean_baseline: Number
+    mean_level: Number
+    mean_diff: Number
+    ci95_low: Number
+    ci95_high: Number
+    t: Number
+    df: int
+    p: Number
+    log10_p: Number
+    d_z: Number
+    level: str | None = None
+    p_holm: Number = None
+    log10_p_holm: Number = None
+    policy: str | None = None
+    robot: str | None = None
+    num_features: int | None = None
+    rationality: float | None = None
+    pooled: str | None = None
+    universe: str | None = None
+
+
+class SimpleEffect(msgspec.Struct, **_ROW):
+    measure: str
+    num_features: int
+    n: int
+    mean_expert: Number
+    mean_best_response: Number
+    mean_diff: Number
+    ci95_low: Number
+    ci95_high: Number
+    t: Number
+    df: int
+    p: Number
+    log10_p: Number
+    p_holm: Number
+    log10_p_holm: Number
+    d_z: Number
+    boot_diff_low: Number
+    boot_diff_high: Number
+    boot_d_z_low: Number
+    boot_d_z_high: Number
+
+
+class TukeyRow(msgspec.Struct, **_ROW):
+    measure: str
+    a_num_features: int
+    a_policy: str
+    b_num_features: int
+    b_policy: str
+    mean_a: Number
+    mean_b: Number
+    diff: Number
+    se: Number
+    T: Number
+    p_tukey: Number
+    log10_p_tukey: Number
+    hedges: Number
+
+
+class WilcoxonRow(msgspec.Struct, **_ROW):
+    measure: str
+    num_features: int
+    n: int
+    W: Number
+    p: Number
+    log10_p: Number
+    rbc: Number
+    cles: Number
+
+
+class CronbachAlpha(msgspec.Struct, **_ROW):
+    raw: Number
+    standardized: Number
+    ci95: list[Number]
+    ci95_standardized: list[Number]
+    n_rows: int
+    n_items: int
+    items: list[str]
+    rows: str
+
+
+class Figure1(msgspec.Struct, **_ROW):
+    subject: str
+    num_features: int
+    regret_expert: Number
+    regret_best_response: Number
+    rule: str
+    robot: str
+
+
+class PaperSection(msgspec.Struct, **_ROW):
+    """The paper's analyses on the reference robot's trials of its two humans."""
+
+    anova: list[AnovaRow]
+    simple_effects: list[SimpleEffect]
+    tukey_hsd: list[TukeyRow]
+    wilcoxon: list[WilcoxonRow]
+    cronbach_alpha: CronbachAlpha
+    figure1: Figure1
+
+
+class RobotComparison(msgspec.Struct, **_ROW):
+    reference: str
+    others: list[str]
+    main: list[PairedDifference]
+    lambda_sweep: list[PairedDifference]
+
+
+class EtaMean(msgspec.Struct, **_ROW):
+    measure: str
+    num_features: int
+    eta: float
+    n: int
+    mean: Number
+    sd: Number
+    ci95_low: Number
+    ci95_high: Number
+
+
+class EtaUncertainty(msgspec.Struct, **_ROW):
+    num_features: int
+    n: int
+    eta: float
+    mean: Number
+    se: Number
+    within_one_se: list[float]
+    runner_up: float | None = None
+    runner_up_mean: Number = None
+    mean_diff: Number = None
+    ci95_low: Number = None
+    ci95_high: Number = None
+    t: Number = None
+    df: int | None = None
+    p: Number = None
+    log10_p: Number = None
+    d_z: Number = None
+
+
+class EtaChoice(msgspec.Struct, **_ROW):
+    num_features: int
+    eta: float
+    mean: Number
+
+
+class EtaMainBlock(msgspec.Struct, **_ROW):
+    num_features: int
+    main_etas: list[float]
+    chosen_eta: float | None
+    agree: bool | None
+
+
+class EtaCrossValidation(msgspec.Struct, **_ROW):
+    means: list[EtaMean]
+    uncertainty: list[EtaUncertainty]
+    chosen: list[EtaChoice]
+    main_block: list[EtaMainBlock]
+
+
+class Certified(msgspec.Struct, **_ROW):
+    robot: str
+    block: str
+    rationality: float
+    trials: int
+    certified: int
+
+
+class MilliDragan(msgspec.Struct, **_ROW):
+    anova: list[AnovaRow]
+    robot_effect: list[PairedDifference]
+    robot_effect_by_level: list[PairedDifference]
+
+
+class RegretGap(msgspec.Struct, **_ROW):
+    num_features: int
+    policy: str
+    n: int
+    mean_regret_optimal: Number
+    mean_policy: Number
+    mean_gap: Number
+    ci95_low: Number
+    ci95_high: Number
+    p: Number
+    log10_p: Number
+    smallest_gap: Number
+    share_optimal: Number
+
+
+class RegretOptimal(msgspec.Struct, **_ROW):
+    gaps: list[RegretGap]
+
+
+class ClaimRow(msgspec.Struct, **_ROW):
+    """One claim as judged (:func:`cirl_study.analysis.claims.evaluate_claims`)."""
+
+    id: str
+    source: str
+    claim: str
+    rule: str
+    measurement: str
+    values: dict[str, Any]
+    tested: bool
+    reproduced: bool | None
+    evidence: list[str]
+
+
+class Teaching(msgspec.Struct, **_ROW):
+    hypotheses: int
+    includes_truth: bool
+    alpha: float
+    demonstration: str
+    learning_paths: int
+
+
+class Design(msgspec.Struct, **_ROW):
+    humans: list[str]
+    baseline: str
+    robots: list[str]
+    reference_robot: str
+    feature_levels: list[int]
+    subjects_per_level: dict[str, int]
+    main_rationality: list[float]
+    main_eta: dict[str, list[float]]
+    sweep_rationalities: list[float]
+    teaching: Teaching | None
+
+
+class Partial(msgspec.Struct, **_ROW):
+    planned: int
+    logged: int
+    missing: str | None
+    damaged_files: int
+    main_subjects_left_out: int
+
+
+class StudyResults(msgspec.Struct, **_ROW):
+    """``results.json`` of a study (:func:`cirl_study.analysis.results.analyse`, with the
+    report's ``run_id``, ``partial``, ``claims`` and ``theory``)."""
+
+    pipeline: str
+    trials: dict[str, int]
+    design: Design
+    cells: list[CellMean]
+    anova: list[AnovaRow]
+    pairwise: list[PairwiseRow]
+    against_baseline: list[PairedDifference]
+    lambda_sweep: list[CellMean]
+    certified: list[Certified]
+    eta_cv: EtaCrossValidation
+    paper: PaperSection | None
+    robots: RobotComparison | None
+    milli_dragan: MilliDragan | None
+    best_response_vs_pedagogic: list[PairedDifference] | None
+    regret_optimal: RegretOptimal | None
+    run_id: str | None
+    partial: Partial | None
+    claims: list[ClaimRow]
+    theory: dict[str, Any] | None = None
+
+
+class UniverseClaim(msgspec.Struct, **_ROW):
+    tested: bool
+    reproduced: bool | None
+    values: dict[str, Any]
+
+
+class UniverseSummary(msgspec.Struct, **_ROW):
+    id: str
+    base: bool
+    settings: dict[str, Any]
+    claims: dict[str, UniverseClaim]
+    eta: list[EtaChoice]
+    anova: list[AnovaRow]
+    cells: list[CellMean]
+    cronbach_alpha: CronbachAlpha
+
+
+class LevelShare(msgspec.Struct, **_ROW):
+    level: Any
+    universes: int
+    reproduced: int
+
+
+class ClaimShare(msgspec.Struct, **_ROW):
+    id: str
+    universes: int
+    reproduced: int
+    base_reproduced: bool | None
+    holds_in: list[str]
+    by_level: dict[str, list[LevelShare]]
+
+
+class Coefficient(msgspec.Struct, **_ROW):
+    """One coefficient of :class:`Regression`; the intercept has no ``axis`` or ``level``."""
+
+    axis: str | None
+    level: Any
+    estimate: Number
+    ci95_low: Number
+    ci95_high: Number
+    p: Number
+    log10_p: Number
+
+
+class Regression(msgspec.Struct, **_ROW):
+    """The OLS regression of the universes' policy effects on the axes (none without
+    residual degrees of freedom)."""
+
+    universes: int
+    df_residual: Number
+    coefficients: list[Coefficient] | None
+    variance_shares: dict[str, Number] | None
+    r_squared: Number = None
+
+
+class SignFlipStatistic(msgspec.Struct, **_ROW):
+    observed: Number
+    p: Number
+
+
+class JointTest(msgspec.Struct, **_ROW):
+    universes: int
+    subjects: int
+    resamples: int
+    seed: int
+    median_effect: SignFlipStatistic
+    share_significant: SignFlipStatistic
+    stouffer_z: SignFlipStatistic
+
+
+class MultiverseResults(msgspec.Struct, **_ROW):
+    """``results.json`` of a multiverse (:func:`cirl_study.analysis.multiverse.analyse_multiverse`,
+    with the report's ``run_id``)."""
+
+    pipeline: str
+    base_universe: str
+    axes: dict[str, list[Any]]
+    trials: dict[str, int]
+    universes: list[UniverseSummary]
+    effects: list[PairedDifference]
+    claims: list[ClaimShare]
+    regression: dict[str, Regression]
+    joint_test: dict[str, JointTest]
+    run_id: str | None
+
+
+SCHEMAS: dict[str, type[msgspec.Struct]] = {
+    "results-study.schema.json": StudyResults,
+    "results-multiverse.schema.json": MultiverseResults,
+}
+"""The schema files of ``docs/``, by name, and the type each is generated from."""
+
+Results = TypeVar("Results", StudyResults, MultiverseResults)
+
+
+def checked(results: dict[str, Any], kind: type[Results]) -> Results:
+    """``results`` as the typed record ``kind``: every field present, of its type.
+
+    Raises:
+        UserError: ``results`` does not have the shape of ``kind`` (an analysis fault: the
+            message names the field).
+    """
+    try:
+        return msgspec.convert(results, kind)
+    except msgspec.ValidationError as error:
+        raise UserError(f"the results do not match {kind.__name__}: {error}") from None
+
+
+def json_schema(kind: type[msgspec.Struct]) -> dict[str, Any]:
+    """The JSON Schema (draft 2020-12) of ``kind``, as kept in ``docs/``."""
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema", **msgspec.json.schema(kind)}
