@@ -28,7 +28,7 @@ REPORTS = sorted(path.parent for path in (ROOT / "reports").glob("*/results.json
 def test_the_committed_schemas_are_the_types(name: str) -> None:
     committed = json.loads((ROOT / "docs" / name).read_text(encoding="utf-8"))
     assert committed == json_schema(SCHEMAS[name]), (
-        f"docs/{name} is stale: regenerate it from cirl_study.analysis.result_types"
+        f"docs/{name} is stale: regenerate it with result_types.write_schemas('docs')"
     )
 
 

@@ -65,49 +65,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
+from cirl_study.analysis.result_types import AnovaEffect, Probability, Sphericity
 from cirl_study.analysis.tails import chi2_tail, f_tail
-
-_RESULT = {"frozen": True, "kw_only": True}
-
-
-class Probability(msgspec.Struct, **_RESULT):
-    """A p-value with its common logarithm: ``p`` may underflow to 0, ``log10_p`` does not."""
-
-    p: float
-    log10_p: float
-
-
-class Sphericity(msgspec.Struct, **_RESULT):
-    """Mauchly's test of one within effect, and its Greenhouse-Geisser and Huynh-Feldt
-    corrections (see the module docstring)."""
-
-    mauchly_w: float
-    mauchly: Probability
-    gg_epsilon: float
-    hf_epsilon: float
-    gg: Probability
-    hf: Probability
-
-
-class AnovaEffect(msgspec.Struct, **_RESULT):
-    """One row of the ANOVA table of one measure.
-
-    ``sphericity`` is ``None`` for a between-subjects effect and for a within effect on one
-    degree of freedom (where sphericity holds trivially).
-    """
-
-    measure: str
-    effect: str
-    df1: int
-    df2: int
-    SS: float
-    MS: float
-    F: float
-    p: float
-    log10_p: float
-    np2: float
-    ges: float
-    sphericity: Sphericity | None = None
 
 
 def contrasts(levels: int) -> NDArray[np.float64]:

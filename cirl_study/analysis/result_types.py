@@ -7,11 +7,16 @@ Every report validates its results against these types before it writes them
 ``results-multiverse.schema.json``) for readers in other languages; a test keeps them equal.
 A number that is undefined (a mean of nothing, a test on a constant sample) is ``null``,
 never NaN; every p-value beside its common logarithm ``log10_p``, which holds it where the
-double ``p`` underflows to 0.
+double ``p`` underflows to 0. The tests compute some of these records directly
+(:func:`cirl_study.analysis.anova.repeated_measures_anova`,
+:func:`cirl_study.analysis.statistics.pairwise_differences`), with NaN for an undefined
+number until the results are made plain.
 """
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
 from typing import Any, TypeVar
 
 import msgspec
@@ -40,11 +45,16 @@ class CellMean(msgspec.Struct, **_ROW):
 
 
 class Probability(msgspec.Struct, **_ROW):
+    """A p-value with its common logarithm: ``p`` may underflow to 0, ``log10_p`` does not."""
+
     p: Number
     log10_p: Number
 
 
 class Sphericity(msgspec.Struct, **_ROW):
+    """Mauchly's test of one within effect, and its Greenhouse-Geisser and Huynh-Feldt
+    corrections (:mod:`cirl_study.analysis.anova`)."""
+
     mauchly_w: Number
     mauchly: Probability
     gg_epsilon: Number
@@ -53,8 +63,12 @@ class Sphericity(msgspec.Struct, **_ROW):
     hf: Probability
 
 
-class AnovaRow(msgspec.Struct, **_ROW):
-    """One effect of :func:`cirl_study.analysis.anova.repeated_measures_anova`."""
+class AnovaEffect(msgspec.Struct, **_ROW):
+    """One effect of :func:`cirl_study.analysis.anova.repeated_measures_anova`.
+
+    ``sphericity`` is ``None`` for a between-subjects effect and for a within effect on one
+    degree of freedom (where sphericity holds trivially).
+    """
 
     measure: str
     effect: str
@@ -67,11 +81,31 @@ class AnovaRow(msgspec.Struct, **_ROW):
     log10_p: Number
     np2: Number
     ges: Number
-    sphericity: Sphericity | None
+    sphericity: Sphericity | None = None
 
 
-class PairwiseRow(msgspec.Struct, **_ROW):
-    """One row of :func:`cirl_study.analysis.statistics.pairwise_differences`."""
+class PairedT(msgspec.Struct, **_ROW):
+    """A paired t-test of ``d``: its mean with the t-based 95% CI, ``t`` on ``df`` degrees of
+    freedom, the two-sided ``p`` with its log10, and ``d_z = mean(d) / sd(d)``."""
+
+    mean_diff: Number
+    ci95_low: Number
+    ci95_high: Number
+    t: Number
+    df: int
+    p: Number
+    log10_p: Number
+    d_z: Number
+
+
+class PairedComparison(PairedT, **_ROW):
+    """One paired comparison of two levels of a within factor in one cell of the others
+    (:func:`cirl_study.analysis.statistics.pairwise_differences`).
+
+    ``policy`` and ``robot`` name the cell (``None`` for the factor compared); the
+    difference is ``level_a - level_b``; ``p_holm`` is Holm's adjustment over the family,
+    computed from ``log10_p`` (so it never underflows to 0 where ``p`` does not).
+    """
 
     measure: str
     factor: str
@@ -83,19 +117,11 @@ class PairwiseRow(msgspec.Struct, **_ROW):
     n: int
     mean_a: Number
     mean_b: Number
-    mean_diff: Number
-    ci95_low: Number
-    ci95_high: Number
-    t: Number
-    df: int
-    p: Number
-    log10_p: Number
     p_holm: Number
     log10_p_holm: Number
-    d_z: Number
 
 
-class PairedDifference(msgspec.Struct, **_ROW):
+class PairedDifference(PairedT, **_ROW):
     """One row of :func:`cirl_study.analysis.statistics.paired_differences`: ``level`` against
     the baseline in one group (its keys among ``policy, robot, num_features, rationality,
     pooled, universe``); a multiverse's policy effects have neither ``level`` nor Holm."""
@@ -104,14 +130,6 @@ class PairedDifference(msgspec.Struct, **_ROW):
     n: int
     mean_baseline: Number
     mean_level: Number
-    mean_diff: Number
-    ci95_low: Number
-    ci95_high: Number
-    t: Number
-    df: int
-    p: Number
-    log10_p: Number
-    d_z: Number
     level: str | None = None
     p_holm: Number = None
     log10_p_holm: Number = None
@@ -123,22 +141,17 @@ class PairedDifference(msgspec.Struct, **_ROW):
     universe: str | None = None
 
 
-class SimpleEffect(msgspec.Struct, **_ROW):
+class SimpleEffect(PairedT, **_ROW):
+    """The simple effect of policy at one feature level, with its BCa bootstrap intervals
+    (:func:`cirl_study.analysis.statistics.simple_effects`)."""
+
     measure: str
     num_features: int
     n: int
     mean_expert: Number
     mean_best_response: Number
-    mean_diff: Number
-    ci95_low: Number
-    ci95_high: Number
-    t: Number
-    df: int
-    p: Number
-    log10_p: Number
     p_holm: Number
     log10_p_holm: Number
-    d_z: Number
     boot_diff_low: Number
     boot_diff_high: Number
     boot_d_z_low: Number
@@ -195,7 +208,7 @@ class Figure1(msgspec.Struct, **_ROW):
 class PaperSection(msgspec.Struct, **_ROW):
     """The paper's analyses on the reference robot's trials of its two humans."""
 
-    anova: list[AnovaRow]
+    anova: list[AnovaEffect]
     simple_effects: list[SimpleEffect]
     tukey_hsd: list[TukeyRow]
     wilcoxon: list[WilcoxonRow]
@@ -269,7 +282,7 @@ class Certified(msgspec.Struct, **_ROW):
 
 
 class MilliDragan(msgspec.Struct, **_ROW):
-    anova: list[AnovaRow]
+    anova: list[AnovaEffect]
     robot_effect: list[PairedDifference]
     robot_effect_by_level: list[PairedDifference]
 
@@ -344,8 +357,8 @@ class StudyResults(msgspec.Struct, **_ROW):
     trials: dict[str, int]
     design: Design
     cells: list[CellMean]
-    anova: list[AnovaRow]
-    pairwise: list[PairwiseRow]
+    anova: list[AnovaEffect]
+    pairwise: list[PairedComparison]
     against_baseline: list[PairedDifference]
     lambda_sweep: list[CellMean]
     certified: list[Certified]
@@ -373,7 +386,7 @@ class UniverseSummary(msgspec.Struct, **_ROW):
     settings: dict[str, Any]
     claims: dict[str, UniverseClaim]
     eta: list[EtaChoice]
-    anova: list[AnovaRow]
+    anova: list[AnovaEffect]
     cells: list[CellMean]
     cronbach_alpha: CronbachAlpha
 
@@ -472,3 +485,11 @@ def checked(results: dict[str, Any], kind: type[Results]) -> Results:
 def json_schema(kind: type[msgspec.Struct]) -> dict[str, Any]:
     """The JSON Schema (draft 2020-12) of ``kind``, as kept in ``docs/``."""
     return {"$schema": "https://json-schema.org/draft/2020-12/schema", **msgspec.json.schema(kind)}
+
+
+def write_schemas(directory: Path | str) -> None:
+    """Write the schema files of :data:`SCHEMAS` into ``directory`` (``docs/``): ``python -c
+    "from cirl_study.analysis.result_types import write_schemas; write_schemas('docs')"``."""
+    for name, kind in SCHEMAS.items():
+        text = json.dumps(json_schema(kind), indent=2, sort_keys=True)
+        (Path(directory) / name).write_text(text + "\n", encoding="utf-8", newline="\n")

@@ -19,12 +19,12 @@ import math
 from collections.abc import Iterator, Mapping, Sequence
 from typing import Any
 
-import msgspec
 import numpy as np
 import pandas as pd
 import pingouin as pg
 from scipy import special, stats
 
+from cirl_study.analysis.result_types import PairedComparison
 from cirl_study.analysis.studentized_range import studentized_range_log10_sf
 from cirl_study.analysis.tails import NORMAL_TAIL, p_from_log10, t_tail
 from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_POLICIES
@@ -79,37 +79,6 @@ def paired_differences(
     result = pd.DataFrame(rows)
     _insert_holm(result)
     return result
-
-
-class PairedComparison(msgspec.Struct, frozen=True, kw_only=True):
-    """One paired comparison of two levels of a within factor in one cell of the others.
-
-    ``policy`` and ``robot`` name the cell (``None`` for the factor compared); the
-    difference is ``level_a - level_b``; ``p_holm`` is Holm's adjustment over the family
-    of :func:`pairwise_differences`, computed from ``log10_p`` (so it never underflows to 0
-    where ``p`` does not).
-    """
-
-    measure: str
-    factor: str
-    level_a: str
-    level_b: str
-    policy: str | None
-    robot: str | None
-    num_features: int
-    n: int
-    mean_a: float
-    mean_b: float
-    mean_diff: float
-    ci95_low: float
-    ci95_high: float
-    t: float
-    df: int
-    p: float
-    log10_p: float
-    p_holm: float
-    log10_p_holm: float
-    d_z: float
 
 
 def pairwise_differences(

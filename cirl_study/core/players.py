@@ -1,9 +1,19 @@
 """The players by name: every human policy and every robot a pipeline may name.
 
-A human policy is a :class:`Human`; a robot is an
-:data:`~cirl_study.core.estimate.Estimator`. Both read the batch's game
-(:class:`~cirl_study.core.apprenticeship.Apprenticeship`). Adding one is one function in its
-own module and one :func:`register_human` or :func:`register_robot` line here.
+A human policy is a :class:`Human`; a robot is a :class:`Robot` (an
+:data:`~cirl_study.core.estimate.Estimator`). Both read the batch's game
+(:class:`~cirl_study.core.apprenticeship.Apprenticeship`). The built-in ones are registered
+here; a package of your own adds players without editing this one, by declaring each as an
+entry point of the group :data:`ENTRY_POINTS` whose object is a :class:`Human` or a
+:class:`Robot` and whose name is the player's (``examples/cirl-study-example-players``)::
+
+    [project.entry-points."cirl_study.players"]
+    first_step = "my_players:FIRST_STEP"
+
+Installed players are loaded the first time a name is looked up that is not built in, or the
+registries are listed (:class:`Registry`); so a run of the built-in players never reads the
+installed packages' metadata. In a script, :func:`register_human` and :func:`register_robot`
+add a player for the process.
 
 Each registered player imports its module when it first plays: reading, checking and
 analysing logs need only the players' names and what they imply for a record
@@ -13,10 +23,11 @@ scipy, about 0.3 s of every such command's start).
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Generic, TypeVar
 
+from cirl_study.errors import UserError
 from cirl_study.record import (
     BEST_RESPONSE,
     EXPERT,
@@ -61,23 +72,94 @@ class Robot:
     teaches: bool = False
 
 
-HUMANS: dict[str, Human] = {}
+ENTRY_POINTS = "cirl_study.players"
+"""The entry-point group of the players of installed packages."""
+
+Player = TypeVar("Player", "Human", "Robot")
+
+
+class Registry(dict[str, Player], Generic[Player]):
+    """The players of one kind by name: the built-in ones, then those of the installed
+    packages (:data:`ENTRY_POINTS`, in name order), loaded on the first lookup of a name not
+    built in (``name in``, ``[name]``, :meth:`get`) or the first listing (iteration)."""
+
+    def __contains__(self, name: object) -> bool:
+        if dict.__contains__(self, name):
+            return True
+        _load_installed_players()
+        return dict.__contains__(self, name)
+
+    def __missing__(self, name: str) -> Player:
+        _load_installed_players()
+        if dict.__contains__(self, name):
+            return dict.__getitem__(self, name)
+        raise KeyError(name)
+
+    def get(self, name: str, default: Player | None = None) -> Player | None:  # type: ignore[override]
+        if name in self:  # loads the installed players on a miss (dict.get would not)
+            return dict.__getitem__(self, name)
+        return default
+
+    def __iter__(self) -> Iterator[str]:
+        _load_installed_players()
+        return dict.__iter__(self)
+
+
+HUMANS: Registry[Human] = Registry()
 """Every human policy, by the name a pipeline and a trial record use (``policy``)."""
 
-ROBOTS: dict[str, Robot] = {}
+ROBOTS: Registry[Robot] = Registry()
 """Every robot, by the name a pipeline and a trial record use (``robot``)."""
+
+_INSTALLED: list[str] = []
+"""The names of the installed packages' players, once loaded (``[]`` before)."""
+
+
+def _load_installed_players() -> None:
+    """Register the players of every installed package's :data:`ENTRY_POINTS`, once.
+
+    Raises:
+        UserError: an entry point cannot be loaded, is neither a :class:`Human` nor a
+            :class:`Robot`, or takes a name already registered (one line naming it and its
+            package).
+    """
+    if _INSTALLED:
+        return
+    from importlib.metadata import entry_points
+
+    _INSTALLED.append("")  # loading: a lookup from a player's own import does not recurse
+    for point in sorted(entry_points(group=ENTRY_POINTS), key=lambda point: point.name):
+        package = point.dist.name if point.dist is not None else "an installed package"
+        where = f"the player {point.name!r} of {package} ({point.value})"
+        try:
+            player = point.load()
+        except Exception as error:  # the package's own code: any fault is its
+            raise UserError(f"{where} cannot be loaded: {type(error).__name__}: {error}") from None
+        try:
+            if isinstance(player, Human):
+                register_human(point.name, player)
+            elif isinstance(player, Robot):
+                register_robot(point.name, player)
+            else:
+                raise UserError(
+                    f"{where} is a {type(player).__name__}, neither a "
+                    "cirl_study.core.players.Human nor a Robot"
+                )
+        except ValueError as error:
+            raise UserError(f"{where}: {error}") from None
+        _INSTALLED.append(point.name)
 
 
 def register_human(name: str, human: Human) -> None:
     """Make ``human`` playable as the policy ``name``."""
-    if name in HUMANS:
+    if dict.__contains__(HUMANS, name):
         raise ValueError(f"a human policy named {name!r} is already registered")
     HUMANS[name] = human
 
 
 def register_robot(name: str, robot: Robot) -> None:
     """Make ``robot`` playable as the robot ``name``."""
-    if name in ROBOTS:
+    if dict.__contains__(ROBOTS, name):
         raise ValueError(f"a robot named {name!r} is already registered")
     ROBOTS[name] = robot
 

@@ -72,7 +72,7 @@ import json
 import math
 import re
 import tomllib
-from collections.abc import Callable
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, NoReturn
@@ -383,7 +383,7 @@ class _Table:
     def positive_integers(self, key: str) -> tuple[int, ...]:
         return tuple(self._list(key, lambda v: _is_integer(v) and v > 0, "positive integers"))
 
-    def names(self, key: str, known: tuple[str, ...], what: str) -> tuple[str, ...]:
+    def names(self, key: str, known: Collection[str], what: str) -> tuple[str, ...]:
         value = self.value(key)
         if (
             not isinstance(value, list)
@@ -549,8 +549,8 @@ def _main(top: _Table) -> MainSpec:
     return MainSpec(
         subjects=block.integer("subjects", 1, "a positive integer"),
         rationality=block.number_in("rationality", RATIONALITY),
-        policies=block.names("policies", tuple(HUMANS), "human policies"),
-        robots=block.names("robots", tuple(ROBOTS), "robots"),
+        policies=block.names("policies", HUMANS, "human policies"),
+        robots=block.names("robots", ROBOTS, "robots"),
     )
 
 
