@@ -281,3 +281,36 @@ def test_mauchly_is_undefined_with_fewer_error_degrees_of_freedom_than_contrasts
     sphericity = effect.sphericity
     assert math.isnan(sphericity.mauchly_w) and math.isnan(sphericity.mauchly.p)
     assert 1 / 4 <= sphericity.gg_epsilon <= 1 and math.isfinite(sphericity.gg.p)
+
+
+@pytest.mark.parametrize("design", sorted(DESIGNS))
+def test_pairwise_differences_are_emmeans_contrasts(design: str) -> None:
+    """emmeans' simple contrasts (multivariate model) estimate the same differences; without a
+    between factor its error is the pair's own, so its t, df and p are the paired t-test's."""
+    frame = as_study_columns(read_fixture(f"{design}_data.csv"))
+    expected = read_fixture(f"{design}_pairwise.csv")
+    within_only = "group" not in read_fixture(f"{design}_data.csv")
+    checked = 0
+    for factor, column in (("human", "policy"), ("robot", "robot")):
+        theirs = expected[(expected["factor"] == factor) & (expected["by"] != "")]
+        if factor == "human" and theirs.empty:  # one within factor: the marginal is the simple
+            theirs = expected[expected["factor"] == factor]
+        if theirs.empty:
+            continue
+        ours = pairwise_differences(frame, "y", column, sorted(frame[column].unique()))
+        for reference in theirs.itertuples():
+            by = dict(part.split("=") for part in reference.by.split(",") if part)
+            (row,) = [
+                r
+                for r in ours
+                if (r.level_a, r.level_b) == (reference.level_a, reference.level_b)
+                and by.get("robot", r.robot) == r.robot
+                and by.get("human", r.policy) == r.policy
+                and by.get("group", f"g{r.num_features}") == f"g{r.num_features}"
+            ]
+            assert close(row.mean_diff, reference.estimate)
+            if within_only:
+                assert row.df == reference.df
+                assert close(row.t, reference.t) and close(row.p, reference.p_unadjusted)
+            checked += 1
+    assert checked >= 3

@@ -25,6 +25,7 @@ def report(directory: Path, results: object = None, trials: str = TRIALS) -> Pat
     directory.mkdir()
     (directory / "results.json").write_text(json.dumps(RESULTS if results is None else results))
     (directory / "trials.csv").write_text(trials)
+    (directory / "report.md").write_text("# Report\n")
     return directory
 
 
@@ -58,6 +59,15 @@ def test_tiny_numbers_fall_back_on_the_absolute_tolerance() -> None:
     assert not Tolerance(rtol=1e-9, atol=1e-12).agree(0.0, 5e-12)
     assert Tolerance().agree(float("nan"), float("nan"))
     assert not Tolerance().agree(float("nan"), 1.0)
+    assert Tolerance().agree(float("inf"), float("inf"))
+    assert not Tolerance().agree(float("inf"), float("-inf"))
+    assert not Tolerance().agree(float("inf"), 1e308)
+
+
+def test_an_expected_report_without_its_text_is_a_difference(tmp_path: Path) -> None:
+    a, b = report(tmp_path / "a"), report(tmp_path / "b")
+    (a / "report.md").unlink()
+    assert compare_reports(a, b) == ["report.md: missing from the expected report"]
 
 
 @pytest.mark.parametrize(
@@ -86,6 +96,9 @@ def test_command_line(tmp_path: Path) -> None:
     a, b = report(tmp_path / "a"), report(tmp_path / "b", scaled(RESULTS, 1 + 1e-6))
     same = CliRunner().invoke(app, ["compare", str(a), str(a)])
     assert same.exit_code == 0 and same.stdout.endswith("the same at rtol=1e-09, atol=1e-12\n")
+    assert same.stdout.startswith(f"{a} vs {a}: ")
+    in_order = CliRunner().invoke(app, ["compare", str(a), str(b)])
+    assert f"{a} vs {b}: different" in in_order.stdout  # EXPECTED first, as given
     loose = CliRunner().invoke(app, ["compare", str(a), str(b), "--rtol", "1e-5"])
     assert loose.exit_code == 0
     strict = CliRunner().invoke(app, ["compare", str(a), str(b)])

@@ -52,3 +52,9 @@ def test_the_console_script_exits_with_the_commands_code(arguments, exit_code, o
     assert done.returncode == exit_code
     assert (done.stdout + done.stderr).startswith(output)
     assert "Traceback" not in done.stderr
+
+
+def test_the_engine_help_names_commands_that_work_as_printed() -> None:
+    text = " ".join(_help("run").split())
+    assert "\\[" not in text
+    assert "pip install -e '.[dask]' in a checkout" in text and "'cirl-study[dask]'" in text

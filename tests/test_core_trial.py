@@ -261,8 +261,14 @@ def _best_response():
 
 
 UNPLAYABLE = {
-    "unknown policy": (lambda: _spec("novice", (0.4, -0.7, 0.1)), "unknown policy"),
-    "unknown robot": (lambda: msgspec.structs.replace(_expert(), robot="bayes"), "unknown robot"),
+    "unknown policy": (
+        lambda: _spec("novice", (0.4, -0.7, 0.1)),
+        "policy 'novice' is not a known human policy",
+    ),
+    "unknown robot": (
+        lambda: msgspec.structs.replace(_expert(), robot="bayes"),
+        "robot 'bayes' is not a known robot",
+    ),
     "eta given to the expert": (lambda: msgspec.structs.replace(_expert(), eta=0.5), "eta"),
     "eta missing for the best response": (
         lambda: msgspec.structs.replace(_best_response(), eta=None),

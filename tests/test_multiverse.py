@@ -349,6 +349,9 @@ def test_the_multiverse_report(tmp_path: Path, multiverse_run: Path):
         assert test["resamples"] >= 500 and 0 < test["stouffer_z"]["p"] <= 1
     text = (report / "report.md").read_text()
     assert "## Claims across universes" in text and "Specification curve" in text
+    assert text.startswith(f"# Multiverse report: `{results['pipeline']}`")
+    assert "(1 universes)" not in text and "| p | share significant | p |" not in text
+    assert "| p (median) | share significant | p (share) | Stouffer Z | p (Z) |" in text
     again = CliRunner().invoke(app, ["compare", str(report), str(report)])
     assert again.exit_code == 0
     # the cross-validation a universe used is that of its cross-validation universe

@@ -50,3 +50,13 @@ def test_unknown_pipeline_name_exits_2(tmp_path: Path, monkeypatch: pytest.Monke
     assert result.exit_code == 2
     assert result.stderr.startswith("error: no pipeline named 'no-such-study' (known pipelines:")
     assert result.stderr.count("\n") == 1
+
+
+def test_a_missing_pipeline_file_is_no_such_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.chdir(tmp_path)
+    result = CliRunner().invoke(app, ["run", "missing.toml"])
+    assert result.exit_code == 2
+    assert result.stderr.startswith("error: missing.toml: no such file, nor a shipped pipeline")
+    assert result.stderr.count("\n") == 1 and not (tmp_path / "data").exists()

@@ -57,6 +57,7 @@ def installed(monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[..., None]]:
 def test_a_built_in_name_does_not_read_the_installed_packages(installed) -> None:
     installed(shy=lambda: Human(nobody, takes_eta=False))
     assert "expert" in HUMANS and HUMANS.get("expert") is not None and "map" in ROBOTS
+    assert players.reference_robot(["posterior_mean", "map"]) == "map"
     assert players._INSTALLED == []
 
 

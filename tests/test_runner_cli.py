@@ -46,7 +46,10 @@ def test_dask_engine_without_dask_is_one_line(
         app, ["run", str(SMOKE), "--out", str(tmp_path), "--engine", "dask"]
     )
     assert result.exit_code == 2
-    assert result.stderr == "error: the dask engine needs Dask: pip install 'cirl-study[dask]'\n"
+    assert result.stderr == (
+        "error: the dask engine needs Dask: pip install -e '.[dask]' in a checkout, "
+        "pip install 'cirl-study[dask]' otherwise\n"
+    )
 
 
 def test_unreachable_scheduler_is_one_line() -> None:

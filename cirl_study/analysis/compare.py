@@ -54,8 +54,17 @@ class Tolerance:
     atol: float = ABSOLUTE_TOLERANCE
 
     def agree(self, expected: float, got: float) -> bool:
+        """Whether ``got`` equals ``expected`` within the tolerance: NaN agrees with NaN, an
+        infinity only with the same infinity.
+
+        Examples:
+            >>> Tolerance().agree(math.inf, math.inf), Tolerance().agree(math.inf, 1e308)
+            (True, False)
+        """
         if math.isnan(expected) or math.isnan(got):
             return math.isnan(expected) and math.isnan(got)
+        if math.isinf(expected) or math.isinf(got):
+            return expected == got
         return abs(expected - got) <= self.atol + self.rtol * abs(expected)
 
 
@@ -148,7 +157,7 @@ def _table_differences(
 
 def _text_differences(expected: Path, got: Path) -> list[str]:
     if not expected.exists():
-        return []
+        return [f"{expected.name}: missing from the expected report"]
     if not got.exists():
         return [f"{got.name}: missing"]
     lines = expected.read_text(encoding="utf-8").splitlines()

@@ -51,7 +51,7 @@ def _header(results: Results) -> list[str]:
     base = results["base_universe"]
     varied = {axis: results["axes"][axis] for axis in _varied(results)}
     lines = [
-        f"# Multiverse: {results['pipeline']}",
+        f"# Multiverse report: `{results['pipeline']}`",
         "",
         f"The paper's study (the eta cross-validation and the main policy x num_features "
         f"design) played in **{len(universes)} universes**, each a choice of the settings the "
@@ -93,7 +93,7 @@ def _claims(results: Results) -> list[str]:
                 "claim",
                 "universes reproducing it",
                 "base universe",
-                "levels at which it always holds",
+                "levels at which every universe reproduces it (levels of two universes or more)",
             ],
             rows,
             [False, True, False, False],
@@ -106,7 +106,8 @@ def _claims(results: Results) -> list[str]:
 
 
 def _where(claim: Mapping[str, Any]) -> str:
-    """The axis levels at which every universe reproduces the claim (or a word why none)."""
+    """The axis levels, each of two universes or more, at which every universe reproduces the
+    claim (or a word why none): a level of one universe says no more than that universe."""
     if claim["reproduced"] == 0:
         return "none"
     if claim["reproduced"] == claim["universes"]:
@@ -115,7 +116,7 @@ def _where(claim: Mapping[str, Any]) -> str:
         f"{axis} = {level_label(level['level'])} ({_share(level)})"
         for axis, levels in claim["by_level"].items()
         for level in levels
-        if level["universes"] and level["reproduced"] == level["universes"]
+        if level["universes"] >= 2 and level["reproduced"] == level["universes"]
     ]
     return ", ".join(always) if always else "no single level"
 
@@ -130,13 +131,18 @@ def _level_tables(results: Results) -> list[str]:
         header = [axis, *(claim["id"] for claim in claims)]
         body = [
             [
-                f"{level_label(level['level'])} ({level['universes']} universes)",
+                f"{level_label(level['level'])} ({_universe_count(level['universes'])})",
                 *(_share(claim["by_level"][axis][i]) for claim in claims),
             ]
             for i, level in enumerate(levels)
         ]
         lines += [table(header, body, [False, *[True] * len(claims)]), ""]
     return lines
+
+
+def _universe_count(count: int) -> str:
+    """``1 universe``, ``2 universes``."""
+    return f"{count} universe" if count == 1 else f"{count} universes"
 
 
 def _share(level: Mapping[str, Any]) -> str:
@@ -191,7 +197,15 @@ def _curves(results: Results) -> list[str]:
     resamples = results["joint_test"][MEASURES[0]]["resamples"]
     lines += [
         table(
-            ["measure", "median effect", "p", "share significant", "p", "Stouffer Z", "p"],
+            [
+                "measure",
+                "median effect",
+                "p (median)",
+                "share significant",
+                "p (share)",
+                "Stouffer Z",
+                "p (Z)",
+            ],
             rows,
             [False, *[True] * 6],
         ),

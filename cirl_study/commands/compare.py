@@ -30,7 +30,9 @@ def compare(
     ] = RELATIVE_TOLERANCE,
     atol: Annotated[float, typer.Option(help="Absolute tolerance.", min=0.0)] = ABSOLUTE_TOLERANCE,
 ) -> None:
-    """Compare two report directories number by number (results.json and trials.csv).
+    """Compare two report directories: every number of results.json and of each table
+    (trials.csv, a multiverse's universes.csv) within the tolerance, the text of report.md,
+    each figure within an image tolerance, and that every SVG exists.
 
     Exit code 0 when every number agrees within the tolerance and everything else is equal,
     1 otherwise (the differences are listed), 2 when a report cannot be read.
@@ -43,6 +45,6 @@ def compare(
     if len(differences) > SHOWN:
         typer.echo(f"... and {len(differences) - SHOWN} more")
     verdict = "the same" if not differences else f"different ({len(differences)} differences)"
-    typer.echo(f"{got} vs {expected}: {verdict} at rtol={rtol:g}, atol={atol:g}")
+    typer.echo(f"{expected} vs {got}: {verdict} at rtol={rtol:g}, atol={atol:g}")
     if differences:
         raise typer.Exit(code=1)

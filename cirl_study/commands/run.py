@@ -94,7 +94,8 @@ EngineOption = Annotated[
     typer.Option(
         "--engine",
         help="Where trials are played: 'local' (a process pool on this machine) or "
-        "'dask' (Dask distributed; needs pip install 'cirl-study\\[dask]'). "
+        "'dask' (Dask distributed; needs the dask extra: pip install -e '.[dask]' in a "
+        "checkout, pip install 'cirl-study[dask]' otherwise). "
         "Results do not depend on it.",
     ),
 ]

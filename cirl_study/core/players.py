@@ -164,6 +164,38 @@ def register_robot(name: str, robot: Robot) -> None:
     ROBOTS[name] = robot
 
 
+def player_faults(policy: str, robot: str, eta: float | None, has_teaching: bool) -> list[str]:
+    """What a trial's players make wrong in it, each named (empty when nothing): the human
+    and the robot must be registered, ``eta`` given exactly for a human with a trade-off
+    (:attr:`Human.takes_eta`), and a hypothesis space (``teaching``) for a player that
+    teaches. The one statement of these rules, for a trial about to be played
+    (:func:`cirl_study.core.trial.check_playable`) and a record read back
+    (:mod:`cirl_study.logs.record_checks`).
+
+    Examples:
+        >>> player_faults("expert", "map", None, False)
+        []
+        >>> player_faults("expert", "map", 0.5, False)
+        ['eta is 0.5 for policy expert (null exactly for a policy without a trade-off)']
+    """
+    faults = []
+    human, machine = HUMANS.get(policy), ROBOTS.get(robot)
+    if human is None:
+        faults.append(f"policy {policy!r} is not a known human policy ({', '.join(HUMANS)})")
+    elif (eta is None) == human.takes_eta:
+        faults.append(
+            f"eta is {eta} for policy {policy} (null exactly for a policy without a trade-off)"
+        )
+    if machine is None:
+        faults.append(f"robot {robot!r} is not a known robot ({', '.join(ROBOTS)})")
+    teaches = [
+        name for name, player in ((policy, human), (robot, machine)) if player and player.teaches
+    ]
+    if teaches and not has_teaching:
+        faults.append(f"{' and '.join(teaches)} need a hypothesis space, and teaching is null")
+    return faults
+
+
 def reference_robot(robots: Iterable[str]) -> str:
     """The reference among ``robots``: the first in the order of :data:`ROBOTS`.
 
@@ -171,6 +203,9 @@ def reference_robot(robots: Iterable[str]) -> str:
     eta cross-validation, and the paper's claims are judged on its trials.
     """
     present = set(robots)
+    for name in dict.__iter__(ROBOTS):  # the built-in ones first: no installed player loads
+        if name in present:
+            return name
     return next(name for name in ROBOTS if name in present)
 
 

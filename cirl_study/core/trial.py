@@ -42,7 +42,7 @@ from cirl_study.core.hypotheses import HypothesisSpace, draw_hypotheses
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.measures import regret, reward_l2, trajectory_kl
 from cirl_study.core.planning import IntArray, follow_policy, optimal_plan
-from cirl_study.core.players import HUMANS, ROBOTS
+from cirl_study.core.players import HUMANS, ROBOTS, player_faults
 from cirl_study.record import (
     Demonstration,
     Deployment,
@@ -61,19 +61,9 @@ def check_playable(spec: TrialSpec) -> None:
     """Raise ``ValueError`` unless ``spec`` is well-typed, names a known policy and robot and
     fits its game."""
     validated(spec)
-    human = HUMANS.get(spec.policy)
-    if human is None:
-        raise ValueError(f"unknown policy {spec.policy!r}; known: {', '.join(HUMANS)}")
-    robot = ROBOTS.get(spec.robot)
-    if robot is None:
-        raise ValueError(f"unknown robot {spec.robot!r}; known: {', '.join(ROBOTS)}")
-    if (human.teaches or robot.teaches) and spec.teaching is None:
-        raise ValueError(f"{spec.policy} with {spec.robot} needs a hypothesis space (teaching)")
-    if (spec.eta is None) == human.takes_eta:
-        raise ValueError(
-            f"eta must be given exactly for a policy with a trade-off ({spec.policy}: "
-            f"{'has' if human.takes_eta else 'has none'})"
-        )
+    faults = player_faults(spec.policy, spec.robot, spec.eta, spec.teaching is not None)
+    if faults:
+        raise ValueError(f"{spec.trial_id}: {'; '.join(faults)}")
     if len(spec.theta) != spec.num_features or len(spec.features.centers) != spec.num_features:
         raise ValueError("theta and the feature centres must have num_features entries")
     gridworld(spec).index(*spec.start)

@@ -27,7 +27,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from cirl_study.core.gridworld import ACTION_STEPS, ACTIONS, Gridworld, action_between, rbf_features
-from cirl_study.core.players import HUMANS, ROBOTS
+from cirl_study.core.players import player_faults
 from cirl_study.record import Cell, DecodeError, Grid, RBFFeatures, TrialRecord, decode
 
 NEGATIVE_TOLERANCE = 1e-9
@@ -87,10 +87,7 @@ def records_faults(records: Sequence[TrialRecord]) -> list[list[str]]:
 def _sound(r: TrialRecord) -> bool:
     """Whether :func:`_inconsistencies` finds nothing in ``r``, in one pass (the reader's
     most frequent case): the same rules, without naming what breaks them."""
-    human, robot = HUMANS.get(r.policy), ROBOTS.get(r.robot)
-    if human is None or robot is None or (r.eta is None) == human.takes_eta:
-        return False
-    if (human.teaches or robot.teaches) and r.teaching is None:
+    if player_faults(r.policy, r.robot, r.eta, r.teaching is not None):
         return False
     if not _sized(r):
         return False
@@ -128,21 +125,7 @@ def _walk(
 
 def _inconsistencies(r: TrialRecord) -> Iterator[str]:
     """Every inconsistency of ``r`` but its ``reward_l2``, each named."""
-    human = HUMANS.get(r.policy)
-    if human is None:
-        yield f"policy {r.policy!r} is not a known human policy ({', '.join(HUMANS)})"
-    elif (r.eta is None) == human.takes_eta:
-        yield (
-            f"eta is {r.eta} for policy {r.policy} (null exactly for a policy without a trade-off)"
-        )
-    robot = ROBOTS.get(r.robot)
-    if robot is None:
-        yield f"robot {r.robot!r} is not a known robot ({', '.join(ROBOTS)})"
-    teaches = [
-        name for name, player in ((r.policy, human), (r.robot, robot)) if player and player.teaches
-    ]
-    if teaches and r.teaching is None:
-        yield f"{' and '.join(teaches)} need a hypothesis space, and teaching is null"
+    yield from player_faults(r.policy, r.robot, r.eta, r.teaching is not None)
     k = r.num_features
     for name, length in _lengths(r).items():
         if length != k:

@@ -201,7 +201,10 @@ class DaskEngine(Engine):
         try:
             from dask.distributed import Client, LocalCluster
         except ImportError:
-            raise UserError("the dask engine needs Dask: pip install 'cirl-study[dask]'") from None
+            raise UserError(
+                "the dask engine needs Dask: pip install -e '.[dask]' in a checkout, "
+                "pip install 'cirl-study[dask]' otherwise"
+            ) from None
         if self.scheduler is None:
             with _children_ignore_sigint():
                 self._cluster = LocalCluster(

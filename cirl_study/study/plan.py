@@ -41,7 +41,7 @@ import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from functools import cached_property
-from typing import TypeVar
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 
@@ -96,6 +96,21 @@ def trial_seed(root_seed: int, demonstration: str) -> int:
 
 
 Planned = TypeVar("Planned")
+
+
+class Cell(NamedTuple):
+    """Where one trial stands in the plan: its block, subject, human, the robot's lambda, the
+    human's eta (``None`` without a trade-off) and the robot; with the pipeline, all that
+    makes the trial (:func:`_trial`) or its id (:func:`_block_and_id`)."""
+
+    block: str
+    subject: Subject
+    policy: str
+    rationality: float
+    eta: float | None
+    robot: str
+
+
 """What a plan gives of each trial: its :class:`TrialSpec`, or its block and id."""
 
 
@@ -180,19 +195,12 @@ def _subjects(pipeline: Pipeline, group: str, num_features: int, count: int) -> 
     return [Subject(pipeline, group, num_features, i) for i in range(1, count + 1)]
 
 
-def _trial(
-    pipeline: Pipeline,
-    block: str,
-    subject: Subject,
-    policy: str,
-    rationality: float,
-    eta: float | None,
-    robot: str,
-) -> TrialSpec:
+def _trial(pipeline: Pipeline, cell: Cell) -> TrialSpec:
+    block, subject, policy, rationality, eta, robot = cell
     shown = demonstration_id(block, subject.id, policy, rationality, eta)
     game = pipeline.game
     return TrialSpec(
-        trial_id=_block_and_id(pipeline, block, subject, policy, rationality, eta, robot)[1],
+        trial_id=_block_and_id(pipeline, cell)[1],
         run_id=pipeline.run_id,
         block=block,
         subject=subject.id,
@@ -215,16 +223,9 @@ def _trial(
     )
 
 
-def _block_and_id(
-    pipeline: Pipeline,
-    block: str,
-    subject: Subject,
-    policy: str,
-    rationality: float,
-    eta: float | None,
-    robot: str,
-) -> tuple[str, str]:
-    """The block and id of the trial :func:`_trial` builds from the same arguments."""
+def _block_and_id(pipeline: Pipeline, cell: Cell) -> tuple[str, str]:
+    """The block and id of the trial :func:`_trial` builds from the same cell."""
+    block, subject, policy, rationality, eta, robot = cell
     return block, in_universe(
         trial_id(block, subject.id, policy, rationality, eta, robot), pipeline.universe
     )
@@ -260,7 +261,7 @@ def eta_cv_trial_ids(pipeline: Pipeline) -> list[str]:
 
 def _eta_cv_plan(
     pipeline: Pipeline,
-    planned: Callable[[Pipeline, str, Subject, str, float, float | None, str], Planned],
+    planned: Callable[[Pipeline, Cell], Planned],
 ) -> list[Planned]:
     """:func:`eta_cv_trials`, each trial given by ``planned`` (see :func:`_study_plan`)."""
     if pipeline.multiverse is not None:
@@ -275,7 +276,7 @@ def _eta_cv_plan(
     for k in pipeline.game.feature_levels:
         subjects = _subjects(pipeline, CV_GROUP, k, cv.subjects)
         trials += [
-            planned(pipeline, ETA_CV, subject, policy, cv.rationality, eta, robot)
+            planned(pipeline, Cell(ETA_CV, subject, policy, cv.rationality, eta, robot))
             for policy in pipeline.policies_with_eta
             for eta in cv.etas
             for subject in subjects
@@ -309,10 +310,10 @@ def study_trial_ids(
 def _study_plan(
     pipeline: Pipeline,
     etas: Mapping[tuple[str | None, str, int], float],
-    planned: Callable[[Pipeline, str, Subject, str, float, float | None, str], Planned],
+    planned: Callable[[Pipeline, Cell], Planned],
 ) -> list[Planned]:
     """:func:`study_trials`, each trial given by ``planned`` (:func:`_trial` or
-    :func:`_block_and_id`) from its pipeline, block, subject, policy, lambda, eta and robot."""
+    :func:`_block_and_id`) from its pipeline and :class:`Cell`."""
     if pipeline.multiverse is None:
         return _single_study_plan(pipeline, None, etas, planned)
     return [
@@ -331,7 +332,7 @@ def _single_study_plan(
     pipeline: Pipeline,
     cv: str | None,
     etas: Mapping[tuple[str | None, str, int], float],
-    planned: Callable[[Pipeline, str, Subject, str, float, float | None, str], Planned],
+    planned: Callable[[Pipeline, Cell], Planned],
 ) -> list[Planned]:
     """:func:`_study_plan` of a single study, with the etas of cross-validation ``cv``."""
     main, sweep = pipeline.main, pipeline.lambda_sweep
@@ -344,14 +345,16 @@ def _single_study_plan(
         return etas[cv, policy, k] if policy in with_eta else None
 
     main_block = [
-        planned(pipeline, MAIN, subject, policy, main.rationality, eta_of(policy, k), robot)
+        planned(pipeline, Cell(MAIN, subject, policy, main.rationality, eta_of(policy, k), robot))
         for k in levels
         for subject in subjects[k]
         for policy in main.policies
         for robot in main.robots
     ]
     sweep_block = [
-        planned(pipeline, LAMBDA_SWEEP, subject, policy, rationality, eta_of(policy, k), robot)
+        planned(
+            pipeline, Cell(LAMBDA_SWEEP, subject, policy, rationality, eta_of(policy, k), robot)
+        )
         for k in levels
         for rationality in sweep.rationalities
         for subject in subjects[k][: sweep.subjects]

@@ -786,6 +786,8 @@ def resolve_pipeline(name_or_path: str) -> Path:
         available = sorted(
             {p.stem for d in pipeline_search_path() if d.is_dir() for p in d.glob("*.toml")}
         )
-        known = f" (known pipelines: {', '.join(available)})" if available else ""
-        raise UserError(f"no pipeline named {name_or_path!r}{known}")
+        known = f"known pipelines: {', '.join(available)}" if available else "none shipped"
+        if name_or_path.endswith(".toml"):
+            raise UserError(f"{name_or_path}: no such file, nor a shipped pipeline ({known})")
+        raise UserError(f"no pipeline named {name_or_path!r} ({known})")
     raise UserError(f"{name_or_path}: no such pipeline file")
