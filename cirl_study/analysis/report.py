@@ -18,11 +18,10 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.analysis import figures, paper_report, study_report, teaching_report
-from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.markdown import document, number, svg_name, table
 from cirl_study.analysis.output import csv_file, write_report_directory
 from cirl_study.analysis.result_types import StudyResults, checked
-from cirl_study.analysis.results import Results, combined, estimates, plain, tests
+from cirl_study.analysis.results import Results, combined, estimates, tests, with_claims
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_POLICIES, TrialRecord, TrialRow
@@ -310,12 +309,12 @@ def write_report(
     # The figures need only the estimates: they are drawn in workers while the tests, the
     # claims, the markdown and, up to CSV_IN_MEMORY_ROWS, trials.csv are made here.
     with figures.drawing(_drawings(trials, records_of, estimated)) as drawn:
-        results = combined(estimated, tests(everything, pipeline))
-        results["run_id"] = run_id
-        results["partial"] = None if partial is None else plain(partial)
-        results["claims"] = evaluate_claims(results, theory)
-        if theory is not None:
-            results["theory"] = plain(theory)
+        results = with_claims(
+            combined(estimated, tests(everything, pipeline)),
+            run_id=run_id,
+            partial=partial,
+            theory=theory,
+        )
         checked(results, StudyResults)
         markdown = render_markdown(results)
         trials_csv = csv_file(everything) if len(everything) <= CSV_IN_MEMORY_ROWS else everything

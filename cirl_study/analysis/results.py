@@ -39,7 +39,7 @@ The sections, by key:
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 import pandas as pd
@@ -353,3 +353,23 @@ def combined(estimated: Results, tested: Results) -> Results:
         paper = {**tested["paper"], **estimated["paper"]}
     both = {**estimated, **tested, "paper": paper}
     return {key: plain(both[key]) for key in RESULT_KEYS}
+
+
+def with_claims(
+    results: Results,
+    *,
+    run_id: str | None,
+    partial: Mapping[str, Any] | None,
+    theory: Mapping[str, Any] | None,
+) -> Results:
+    """``results`` with what the report adds to them: the run's id, what a partial run
+    lacks (``None`` for a complete one), every claim judged on them
+    (:func:`cirl_study.analysis.claims.evaluate_claims`, then those of ``theory``) and
+    ``theory`` itself (when given): the content of ``results.json``."""
+    from cirl_study.analysis.claims import evaluate_claims
+
+    finished = {**results, "run_id": run_id, "partial": None if partial is None else plain(partial)}
+    finished["claims"] = evaluate_claims(finished, theory)
+    if theory is not None:
+        finished["theory"] = plain(theory)
+    return finished

@@ -93,3 +93,11 @@ def office_supplies_claims(results: dict[str, Any]) -> dict[str, list[dict[str, 
     for claim in claims:  # the exact results are stored under "theory" in results.json
         claim["evidence"] = ["results.json"]
     return {"claims": claims}
+
+
+def theory_claims() -> dict[str, list[dict[str, Any]]]:
+    """:func:`office_supplies_claims` of :func:`cirl_study.theory.office_supplies_results`:
+    the theory claims every study's report lists beside the run's."""
+    from cirl_study.theory import office_supplies_results
+
+    return office_supplies_claims(office_supplies_results())

@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 import typer
 
 if TYPE_CHECKING:
-    from cirl_study.study.spec import Pipeline
+    pass
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``analyze`` command, merged into :data:`cirl_study.cli.app`."""
@@ -95,35 +95,12 @@ def analyze(
         run, salvage=partial, meanwhile=lambda: report_provenance.update(_prepare_analysis())
     )
 
-    from cirl_study.analysis.table import complete_main_subjects
-    from cirl_study.errors import UserError
-    from cirl_study.study.audit import audit_run, resume_command, run_pipeline_of
+    from cirl_study.study.audit import analysed_run
 
     for warning in contents.warnings:
         typer.echo(f"warning: {warning}", err=True)
-    pipeline = run_pipeline_of(contents.identity)
-    audit = audit_run(pipeline, contents.rows)
-    faults = audit.faults(resume_command(contents.identity, run))
-    only_whole = _analysed_only_whole(pipeline)
-    if audit.foreign or (faults and not partial):
-        advice = "" if audit.foreign or only_whole else ", or analyze it with --partial"
-        raise UserError(f"{run}: not a complete run: {faults[0]}{advice}")
-    trials, left_out = contents.rows, []
-    partial_run = None
-    complete = audit.complete and not contents.damaged
-    if only_whole and not complete:
-        raise UserError(
-            f"{run}: {only_whole}; resume it with `{resume_command(contents.identity, run)}`"
-        )
-    if partial and not complete:
-        trials, left_out = complete_main_subjects(trials)
-        partial_run = {
-            "planned": audit.planned,
-            "logged": audit.logged,
-            "missing": audit.missing_text() or None,
-            "damaged_files": len(contents.damaged),
-            "main_subjects_left_out": len(left_out),
-        }
+    chosen = analysed_run(run, contents, partial)
+    pipeline, trials, partial_run = chosen.pipeline, chosen.trials, chosen.partial
     target = out if out is not None else run / REPORT_NAME
     if not force:
         _refuse_another_runs_report(target, contents.identity.run_id)
@@ -155,17 +132,15 @@ def analyze(
         )
         return
     from cirl_study.analysis.report import write_report
-    from cirl_study.analysis.theory_claims import office_supplies_claims
-    from cirl_study.theory import office_supplies_results
+    from cirl_study.analysis.theory_claims import theory_claims
 
-    theory = office_supplies_claims(office_supplies_results())
     results = write_report(
         trials,
         target,
         pipeline,
         records_of=lambda wanted: contents.records(run, wanted),
         run_id=contents.identity.run_id,
-        theory=theory,
+        theory=theory_claims(),
         provenance=provenance,
         partial=partial_run,
         progress=stage,
@@ -213,13 +188,6 @@ def _prepare_analysis() -> dict[str, Any]:
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
         **machine_provenance(),
     }
-
-
-def _analysed_only_whole(pipeline: Pipeline) -> str | None:
-    """Why a run of ``pipeline`` has no partial report, or ``None`` when it may have one."""
-    if pipeline.multiverse is not None:
-        return "a multiverse is analysed only whole (its universes share the reward draws)"
-    return None
 
 
 def _refuse_another_runs_report(target: Path, run_id: str) -> None:

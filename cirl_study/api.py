@@ -1,0 +1,122 @@
+"""The Python API: play a pipeline, load a run's trials, analyse a run, from a script or a
+notebook. Each is what the command line does, without its report files:
+:func:`run` is ``cirl-study run``, :func:`analyze` the numbers of ``cirl-study analyze``.
+
+Every reader checks the logs as the command line does (every CRC, the schema, every record,
+that every file and record belongs to the one run); bad input raises
+:class:`cirl_study.errors.UserError` with a one-line message.
+
+Examples:
+    Play the smoke pipeline (82 trials on a 5 x 5 grid, a few seconds), load its trials and
+    analyse them:
+
+    >>> import tempfile
+    >>> from pathlib import Path
+    >>> import cirl_study
+    >>> out = cirl_study.run("smoke", Path(tempfile.mkdtemp()) / "smoke")
+    >>> trials = cirl_study.load_trials(out)
+    >>> len(trials), sorted(trials["policy"].unique()), sorted(trials["block"].unique())
+    (82, ['best_response', 'expert'], ['eta_cv', 'lambda_sweep', 'main'])
+    >>> main = trials[trials["block"] == "main"]
+    >>> main.groupby(["num_features", "policy"])["regret"].count().tolist()
+    [4, 4, 4, 4]
+    >>> results = cirl_study.analyze(out)
+    >>> results.design.humans, results.design.robots
+    (['expert', 'best_response'], ['map'])
+    >>> [row.effect for row in results.anova if row.measure == "regret"]
+    ['num_features', 'policy', 'policy:num_features']
+    >>> claim = next(c for c in results.claims if c.id == "lambda_intermediate")
+    >>> claim.tested, type(claim.reproduced).__name__
+    (True, 'bool')
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+    from cirl_study.analysis.result_types import MultiverseResults, StudyResults
+
+
+def run(pipeline: str | os.PathLike[str], out: str | os.PathLike[str], workers: int = 1) -> Path:
+    """Play (or resume) every trial of ``pipeline`` into the run directory ``out``.
+
+    Args:
+        pipeline: a pipeline file, or the name of a shipped one (``paper``, ``smoke``, ...).
+        out: the run directory: created, or resumed when it holds a run of the same pipeline.
+        workers: processes of the local pool; 1 plays in this process. The numbers do not
+            depend on it.
+
+    Returns:
+        ``out``, as a path.
+    """
+    from cirl_study.study.engines import LocalEngine
+    from cirl_study.study.runner import run_pipeline
+    from cirl_study.study.spec import load_pipeline, resolve_pipeline
+
+    target = Path(out)
+    run_pipeline(load_pipeline(resolve_pipeline(os.fspath(pipeline))), target, LocalEngine(workers))
+    return target
+
+
+def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
+    """The tidy trial table of a run: one row per trial, its identity, its measures and
+    whether its robot certified the estimate.
+
+    The columns are those of ``trials.csv`` (``docs/pipelines.md``, *The trial table*):
+    ``trial_id, run_id, universe, block, subject, policy, robot, num_features, rationality,
+    eta, seed, regret, kl, reward_l2, certified``; rows in a fixed order whatever the order of
+    the logs. The run may be incomplete: it holds what the logs hold.
+    """
+    from cirl_study.analysis.table import trial_table
+    from cirl_study.logs.reader import read_run
+
+    return trial_table(read_run(Path(run_dir)).rows)
+
+
+def analyze(
+    run_dir: str | os.PathLike[str], partial: bool = False
+) -> StudyResults | MultiverseResults:
+    """Every number of the report of a run, as typed results
+    (:mod:`cirl_study.analysis.result_types`): what ``cirl-study analyze`` writes to
+    ``results.json``, without writing anything.
+
+    Args:
+        run_dir: the run directory.
+        partial: analyse an incomplete or damaged run (main-block subjects that lack a cell
+            are left out), as ``--partial``.
+
+    Raises:
+        UserError: the run is incomplete (without ``partial``), holds a foreign trial, or its
+            design cannot be analysed.
+    """
+    from cirl_study.analysis.result_types import MultiverseResults, StudyResults, checked
+    from cirl_study.logs.reader import read_run
+    from cirl_study.study.audit import analysed_run
+
+    path = Path(run_dir)
+    contents = read_run(path, salvage=partial)
+    chosen = analysed_run(path, contents, partial)
+    run_id = contents.identity.run_id
+    if chosen.pipeline.multiverse is not None:
+        from cirl_study.analysis.measure_rows import plain
+        from cirl_study.analysis.multiverse import analyse_multiverse
+
+        results = analyse_multiverse(chosen.trials, chosen.pipeline)
+        return checked(plain({**results, "run_id": run_id}), MultiverseResults)
+    from cirl_study.analysis.results import analyse, with_claims
+    from cirl_study.analysis.table import check_design
+    from cirl_study.analysis.theory_claims import theory_claims
+
+    check_design(chosen.trials)
+    results = with_claims(
+        analyse(chosen.trials, chosen.pipeline),
+        run_id=run_id,
+        partial=chosen.partial,
+        theory=theory_claims(),
+    )
+    return checked(results, StudyResults)

@@ -1,0 +1,42 @@
+"""The Python API (cirl_study.api): the numbers of ``cirl-study analyze``, typed, without the
+report; the same refusals, as one-line errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+import cirl_study
+from cirl_study.analysis.result_types import StudyResults, checked
+from cirl_study.cli import app
+from cirl_study.errors import UserError
+
+
+def test_analyze_returns_the_reports_results_typed(smoke_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "report"
+    assert CliRunner().invoke(app, ["analyze", str(smoke_run), "--out", str(out)]).exit_code == 0
+    written = checked(json.loads((out / "results.json").read_text()), StudyResults)
+    assert cirl_study.analyze(smoke_run) == written
+    table = cirl_study.load_trials(smoke_run)
+    assert list(table["trial_id"]) == list(pd.read_csv(out / "trials.csv")["trial_id"])
+
+
+def test_an_incomplete_run_is_refused_unless_partial(smoke_run: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(smoke_run, run)
+    next(iter(sorted(run.glob("lambda_sweep-*.mcap")))).unlink()
+    with pytest.raises(UserError, match=r"not a complete run: lambda_sweep: .* missing"):
+        cirl_study.analyze(run)
+    results = cirl_study.analyze(run, partial=True)
+    assert results.partial is not None and results.partial.logged < results.partial.planned
+
+
+def test_the_package_exports_only_its_api() -> None:
+    assert cirl_study.API == ("run", "load_trials", "analyze")
+    with pytest.raises(AttributeError, match="has no attribute 'play'"):
+        _ = cirl_study.play
