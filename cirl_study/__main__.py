@@ -8,11 +8,10 @@ compete with those processes for the same cores, spinning while they wait for wo
 before any numerical library loads, :data:`ONE_THREAD` is set in the environment, where each
 library reads it when it loads and every process the command starts inherits it; a value
 the user has set is kept. Dask's worker processes get the same three settings
-(distributed's ``nanny.pre-spawn-environ``). On a 2-core machine the paper run's ``analyze``
-then takes 0.3-0.5 s less CPU time (of 5-6.5 s); a trial's time does not change. Nor do the
-results depend on the machine's number of cores any more: OpenBLAS splits its longest sums
-among its threads, which moves the last bits of the posterior-mean robot's estimates (see
-:mod:`cirl_study.core.posterior`; the paper pipeline's results are the same bits either way).
+(distributed's ``nanny.pre-spawn-environ``). Nor do the results depend on the machine's
+number of cores: OpenBLAS splits its longest sums among its threads, which moves the last
+bits of the posterior-mean robot's estimates (:mod:`cirl_study.core.posterior`). What this
+saves is measured in ``benchmarks/README.md``.
 """
 
 from __future__ import annotations
@@ -28,9 +27,9 @@ def console_script() -> None:
     """The application (:data:`cirl_study.cli.app`), with :data:`ONE_THREAD` set, then a
     prompt exit.
 
-    At exit the interpreter's last garbage collections walk every object the command left:
-    the statistics and plotting libraries alone make that about 0.4 s. Freezing them first
-    (``gc.freeze``) leaves them out of those collections; nothing is collected later anyway.
+    At exit the interpreter's last garbage collections walk every object the command left,
+    the statistics and plotting libraries among them. Freezing them first (``gc.freeze``)
+    leaves them out of those collections; nothing is collected later anyway.
     Tests invoke the application itself, so they keep collecting.
     """
     for name, value in ONE_THREAD.items():

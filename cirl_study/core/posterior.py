@@ -63,79 +63,21 @@ paper's MAP robot (:func:`cirl_study.core.robot.map_estimate`).
   (``converged``), each sized by :math:`N\\, ((\\mathrm{se}/\\mathrm{target})^2 - 1)` (at most
   doubling ``N``), or until ``max_samples`` likelihood evaluations (``iterations``).
 
-**Why this method** (measured on trials of the paper's game at K = 10).
-A likelihood evaluation (one soft value iteration) costs 18-35 µs, and at every
-:math:`\\lambda \\ge 1` some coordinates keep posterior standard deviations near the prior's
-0.58 (features the demonstration barely tests), so even independent posterior draws would need
-about :math:`(0.55 / 0.01)^2 \\approx 3000` evaluations for a standard error of 0.01; the
-variance must be cut below that of exact sampling, which control variates with exactly known
-proposal means do. The Laplace approximation at the MAP is useless at every :math:`\\lambda`:
-the MAP lies on the box's faces and :math:`\\lambda^2 \\mathrm{Cov}[\\phi]` there is nearly
-singular (its Gaussian's standard deviations reach :math:`10^2`-:math:`10^5`, wider than the
-box). Importance sampling from the prior keeps an ESS fraction of 72-86% at
-:math:`\\lambda = 0.1` but 4-12% at :math:`\\lambda = 1` and 1-9% above. The adaptive
-probit-space Gaussians reach about 0.88 (:math:`\\lambda = 0.1`), 0.65 (1), 0.4 (10) and
-0.2-0.25 (:math:`10^2`, :math:`10^3`; the posterior is then nearly flat on a polytope with
-walls :math:`1/\\lambda` thick); a Gaussian mixture fitted to 8000 exact posterior draws (an
-oracle) reached at most 0.4-0.6 at :math:`\\lambda = 10`-:math:`100`, and adaptive mixtures of
-two or three components needed more evaluations than one Gaussian, so richer smooth proposals
-were not kept. Gradient-based samplers (HMC, MALA) and gradient (Stein) control variates
-cost a moment computation (2.4 likelihood evaluations) per point, and at
-:math:`\\lambda \\ge 10` first-order Stein control variates still left 50-95% of most
-coordinates' posterior standard deviation (the information sits on the polytope's walls,
-where the gradient is of order :math:`\\lambda`); tempered SMC needs several evaluations per
-particle per temperature. The control variates cut the standard error from about 0.036 to
-0.002 or less at :math:`\\lambda \\le 10^{-2}` (256 prior points), halve it at
-:math:`\\lambda = 1` and remove 5-20% of it above; quadratic ones (:math:`u_j u_k`) saved up
-to 15% more evaluations but, at a few hundred points, biased the estimate by up to 0.3
-standard errors and understated its error by 15%, so they were dropped.
+Why this method and not another, and what it costs per trial at each :math:`\\lambda`:
+measured in ``benchmarks/README.md`` (*The posterior-mean robot*);
+``benchmarks/bench_posterior.py`` measures it again.
 
-**Measured** (``benchmarks/bench_posterior.py``: one core, 16 paper trials per cell with
-expert demonstrations, target 0.01). Likelihood evaluations per trial, median (slowest trial);
-CPU time per trial, median (slowest), which at 18-35 µs per evaluation on a shared machine
-(about 35 µs at :math:`\\lambda = 10^3`, where the soft value iteration is slower) is mostly
-evaluations; and the median ESS fraction:
-
-======  ==================================  ==============================
-lambda  K = 10                              K = 3
-======  ==================================  ==============================
-1e-4    256, 6-9 ms, 1.00                   256, 5-8 ms, 1.00
-1e-2    256, 6-10 ms, 1.00                  256, 6-8 ms, 1.00
-1e-1    768, 18-27 ms, 0.88                 512, 11-17 ms, 0.95
-1       2688 (3072), 92 (118) ms, 0.66      1280 (2048), 32 (42) ms, 0.76
-10      5376 (8960), 151 (290) ms, 0.41     2048 (3072), 43 (63) ms, 0.65
-1e2     13696 (32768), 330 (840) ms, 0.24   2176 (3840), 48 (78) ms, 0.52
-1e3     16000 (65536), 660 (3400) ms, 0.19  2560 (4608), 73 (133) ms, 0.46
-======  ==================================  ==============================
-
-(at :math:`\\lambda \\le 10^{-2}` the standard error is at most 0.002: the prior round with
-the control variates already meets the target). So the target standard error is met at every
-:math:`\\lambda`, in every measured trial (the slowest K = 10 trial at :math:`\\lambda = 10^3`
-needs the default cap of 65536 evaluations); 50 ms per trial is met at K = 10 only for
-:math:`\\lambda \\le 0.1` (:math:`\\lambda = 1` takes about twice that) and at K = 3 for
-:math:`\\lambda \\le 10^2` (median). Capped at 2048 evaluations (about 50 ms), K = 10
-reaches a median largest standard error of 0.010 (:math:`\\lambda = 1`), 0.022 (10), 0.028
-(:math:`10^2`) and 0.031 (:math:`10^3`). The reported standard errors are honest: over 200
-seeds of tiny games (K = 1-3, :math:`\\lambda = 0.1`-:math:`10^3`, against quadrature) the
-spread of the estimates around the exact posterior mean was 0.84-1.08 times the reported
-error, and over 20 seeds of paper trials (K = 10, :math:`\\lambda = 1, 10, 10^3`) the spread
-was 1.03-1.11 times it; the stopping rule (stop once the estimated error is below the target)
-biases the estimate by at most about 0.2 standard errors.
-
-**Determinism.** Each trial draws from its own generator, :func:`cirl_study.core.robot.
-robot_generator` of its seed, in an order fixed by its own data; a trial's points are scored
-by :meth:`cirl_study.core.maxent.MaxEnt.log_likelihood_at` row by row, so its estimate does
-not depend on the other trials of its batch, their order or ``chunk`` (bitwise; trials that
-ask for rounds of the same size are scored in one call). The proposals' moments and the
-regression use numpy's linear algebra, whose BLAS kernels differ by CPU and split their
-longest sums among the BLAS library's threads, so with another CPU or thread count the last
-bits can differ, and rarely a stopping decision with them, which moves the estimate by about
-its standard error. Going from two BLAS threads to one changed the last bits of 23 of the
-robots pipeline's 9,800 trials (all of this robot at :math:`\\lambda \\ge 10^2`) and the
-path of one trial's rounds, a K = 10 trial at :math:`\\lambda = 10^3` that used up its
-``max_samples`` short of the target either way: its KL divergence moved by 0.7%. The
-command line computes on one thread whatever the machine (:mod:`cirl_study.__main__`), so
-its results do not depend on the number of cores.
+**Determinism.** Each trial draws from its own generator,
+:func:`cirl_study.core.estimate.robot_generator` of its seed, in an order fixed by its own
+data; a trial's points are scored by :meth:`cirl_study.core.maxent.MaxEnt.log_likelihood_at`
+row by row, so its estimate does not depend on the other trials of its batch, their order or
+``chunk`` (bitwise; trials that ask for rounds of the same size are scored in one call). The
+proposals' moments and the regression use numpy's linear algebra, whose BLAS kernels differ by
+CPU and split their longest sums among the BLAS library's threads, so with another CPU or
+thread count the last bits can differ, and rarely a stopping decision with them, which moves
+the estimate by about its standard error (measured: ``benchmarks/README.md``). The command
+line computes on one thread whatever the machine (:mod:`cirl_study.__main__`), so its results
+do not depend on the number of cores.
 """
 
 from __future__ import annotations

@@ -21,13 +21,11 @@ that stopped on it stopped wherever rounding left it, differently on every CPU.
 The box-constrained problem is solved for a whole batch at once by Newton's method on the
 box: each step maximises the objective's quadratic model exactly over the box
 (:func:`box_step`, a compiled active-set method warm-started on the coordinates already on a
-bound), so the step lands on the face of the box the model prefers. A projected Newton step
-with an epsilon-active set (Bertsekas 1982) meets the bounds one at a time: on 1,000
-paper-size fits at K = 10 it took 8.5 iterations at lambda = 1 against 6.7, and about 60%
-more at lambda from 100 to 10^4, where it also certified fewer estimates (92-98% against
-95-99.8%). An Armijo backtracking search follows the step (and doubles along the projection
-arc where Newton's steps stay short in exponentially flat valleys), and a
-Levenberg-Marquardt ridge keeps it robust where the covariance is nearly singular. It stops
+bound), so the step lands on the face of the box the model prefers (a projected Newton step
+meets the bounds one at a time, and took more iterations: ``benchmarks/README.md``). An
+Armijo backtracking search follows the step (and doubles along the projection arc where
+Newton's steps stay short in exponentially flat valleys), and a Levenberg-Marquardt ridge
+keeps it robust where the covariance is nearly singular. It stops
 on the estimate, not on the gradient: once the undamped step is within the tolerance, that
 step is taken and the result certified by the same step at the new point (``converged``).
 Every linear solve is compiled, so no BLAS or LAPACK kernel enters the estimate: it is the
@@ -60,17 +58,14 @@ RESOLUTION = 16 * np.finfo(float).eps
 
 DAMPING_FACTOR = 10.0
 """Factor by which the ridge falls after a full step the line search accepts, and rises after
-one it cuts short (10 and 10 took 6.7 iterations at lambda = 1 and 31 at lambda = 1000 on
-300 paper-size fits; 100 up and 10 down, 6.7 and 40)."""
+one it cuts short (its tuning: ``benchmarks/README.md``)."""
 
 PROBE_RATIO = 0.01
 """Least ratio of the objective's slope at the full step to its slope at the start, both
 towards twice the step, at which the line search probes twice the step. A quadratic along
 the ray is higher there only above 1/3, but along the exponentially flat valleys of large
-lambda the objective is closer to an exponential, which rises all the way: on 300
-paper-size fits (K = 10), 0.01 left 3.8 of the 6.4 probes a fit at lambda = 1 with the same
-iterations, and about as many iterations at lambda = 10 to 1000 (31.3 against 31.0 at 1000),
-where 1/3 took up to 15% more."""
+lambda the objective is closer to an exponential, which rises all the way, so the threshold
+is far below 1/3 (its tuning: ``benchmarks/README.md``)."""
 
 MAX_STALLS = 8
 """Steps in a row that leave the objective unchanged at its rounding before a fit gives up."""

@@ -136,7 +136,7 @@ class MainSpec:
     order the report compares them: baseline first); ``robots`` are names of
     :data:`cirl_study.core.players.ROBOTS`, also within subjects: every robot watches the same
     demonstrations of the ``main`` and ``lambda_sweep`` blocks. One of them is the
-    *reference* (:func:`cirl_study.core.robot.reference_robot`: ``map`` when present): it
+    *reference* (:func:`cirl_study.core.players.reference_robot`: ``map`` when present): it
     plays the eta cross-validation, so each policy's eta, and with it the human's
     demonstration, is the same whichever robot watches.
     """
