@@ -26,7 +26,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from cirl_study.study.spec import MultiverseSpec, Pipeline, Universe
+from cirl_study.study.spec import AXES, MultiverseSpec, Pipeline, Universe
 
 
 def universes(pipeline: Pipeline) -> tuple[Universe, ...]:
@@ -46,29 +46,16 @@ def _multiverse(pipeline: Pipeline) -> MultiverseSpec:
 
 
 def universe_pipeline(pipeline: Pipeline, universe: Universe) -> Pipeline:
-    """The single study of ``universe``: ``pipeline`` with its settings, and no multiverse.
-
-    ``sigma``, ``centres``, ``demonstrator_stays`` and ``deployment_start`` go to ``game``,
-    ``steps`` to both horizons, ``rationality`` to ``main`` and ``eta_cv``, ``robot`` to
-    ``main.robots``; the run id stays the multiverse's, and ``universe`` is set.
+    """The single study of ``universe``: ``pipeline`` with its settings, each set by its axis
+    (:attr:`~cirl_study.study.spec.Axis.apply`: ``sigma``, ``centres``,
+    ``demonstrator_stays`` and ``deployment_start`` in ``game``, ``steps`` both horizons,
+    ``rationality`` in ``main`` and ``eta_cv``, ``robot`` as ``main.robots``), and no
+    multiverse; the run id stays the multiverse's, and ``universe`` is set.
     """
-    game = replace(
-        pipeline.game,
-        sigma=universe.sigma,
-        centres=universe.centres,
-        demonstrator_stays=universe.demonstrator_stays,
-        learning_steps=universe.steps,
-        deployment_steps=universe.steps,
-        deployment_start=universe.deployment_start,
-    )
-    return replace(
-        pipeline,
-        game=game,
-        eta_cv=replace(pipeline.eta_cv, rationality=universe.rationality),
-        main=replace(pipeline.main, rationality=universe.rationality, robots=(universe.robot,)),
-        multiverse=None,
-        universe=universe,
-    )
+    study = pipeline
+    for name, axis in AXES.items():
+        study = axis.apply(study, getattr(universe, name))
+    return replace(study, multiverse=None, universe=universe)
 
 
 def cv_universe(pipeline: Pipeline, universe: Universe) -> Universe:

@@ -180,24 +180,10 @@ class LambdaSweepSpec:
     rationalities: tuple[float, ...]
 
 
-AXES: tuple[str, ...] = (
-    "sigma",
-    "centres",
-    "demonstrator_stays",
-    "steps",
-    "rationality",
-    "robot",
-    "deployment_start",
-)
-"""The open settings a multiverse varies: ``game.sigma``, ``game.centres``,
-``game.demonstrator_stays``, ``steps`` (``game.learning_steps = game.deployment_steps``),
-``rationality`` (``main.rationality = eta_cv.rationality``), ``robot`` (the one robot of
-``main.robots``) and ``game.deployment_start``."""
-
-
 @dataclass(frozen=True)
 class Universe:
-    """One choice of every open setting of :data:`AXES` (see :mod:`cirl_study.study.multiverse`)."""
+    """One choice of every open setting of :data:`AXES` (see :mod:`cirl_study.study.multiverse`),
+    a field per axis, in the order of :data:`AXES`."""
 
     sigma: float
     centres: str
@@ -212,12 +198,126 @@ class Universe:
         """A readable id spelling out every choice, e.g. ``sigma=1.5,centres=per_draw,stays=yes,
         steps=9,lambda=1,robot=map,start=uniform``: a function of the choices alone, so adding
         a level to an axis never renames an existing universe."""
-        return (
-            f"sigma={shortest_number(self.sigma)},centres={self.centres},"
-            f"stays={'yes' if self.demonstrator_stays else 'no'},steps={self.steps},"
-            f"lambda={shortest_number(self.rationality)},robot={self.robot},"
-            f"start={self.deployment_start}"
+        return ",".join(
+            f"{axis.label}={axis.show(getattr(self, name))}" for name, axis in AXES.items()
         )
+
+
+LevelCheck = tuple[Callable[[Any], bool], str]
+"""Whether a value is a valid level of an axis, and the valid levels in words."""
+
+
+@dataclass(frozen=True)
+class Axis:
+    """One open setting a multiverse varies, declared once: how a universe's id shows its
+    level (``label=show(level)``), which levels are valid in a pipeline of ``game``
+    (``levels``), how a parsed level is stored (``convert``), the file's own level (``read``,
+    the base universe's) and how a level sets the pipeline of a universe (``apply``)."""
+
+    label: str
+    show: Callable[[Any], str]
+    levels: Callable[[GameSpec], LevelCheck]
+    read: Callable[[GameSpec, MainSpec], Any]
+    apply: Callable[[Pipeline, Any], Pipeline]
+    convert: Callable[[Any], Any] = lambda value: value
+
+
+def _set_game(*fields: str) -> Callable[[Pipeline, Any], Pipeline]:
+    """``apply`` of an axis whose level is each of these fields of ``game``."""
+    return lambda pipeline, level: replace(
+        pipeline, game=replace(pipeline.game, **dict.fromkeys(fields, level))
+    )
+
+
+def _set_rationality(pipeline: Pipeline, level: float) -> Pipeline:
+    """``main.rationality`` and ``eta_cv.rationality``: one lambda per universe."""
+    return replace(
+        pipeline,
+        eta_cv=replace(pipeline.eta_cv, rationality=level),
+        main=replace(pipeline.main, rationality=level),
+    )
+
+
+def _set_robot(pipeline: Pipeline, level: str) -> Pipeline:
+    """``main.robots``: a universe's one robot."""
+    return replace(pipeline, main=replace(pipeline.main, robots=(level,)))
+
+
+def _robots(_game: GameSpec) -> LevelCheck:
+    from cirl_study.core.players import ROBOTS
+
+    return (lambda v: isinstance(v, str) and v in ROBOTS), ", ".join(ROBOTS)
+
+
+def _sigmas(game: GameSpec) -> LevelCheck:
+    sigma = _sigma_limits(game.width, game.height)
+    return (lambda v: _is_positive_number(v) and sigma.low <= v <= sigma.high), (
+        f"numbers in {sigma}"
+    )
+
+
+AXES: dict[str, Axis] = {
+    "sigma": Axis(
+        label="sigma",
+        show=lambda v: shortest_number(v),
+        levels=_sigmas,
+        read=lambda game, main: game.sigma,
+        apply=_set_game("sigma"),
+        convert=float,
+    ),
+    "centres": Axis(
+        label="centres",
+        show=str,
+        levels=lambda game: (lambda v: v in CENTRE_PLACEMENTS, ", ".join(CENTRE_PLACEMENTS)),
+        read=lambda game, main: game.centres,
+        apply=_set_game("centres"),
+    ),
+    "demonstrator_stays": Axis(
+        label="stays",
+        show=lambda v: "yes" if v else "no",
+        levels=lambda game: (lambda v: isinstance(v, bool), "true or false"),
+        read=lambda game, main: game.demonstrator_stays,
+        apply=_set_game("demonstrator_stays"),
+    ),
+    "steps": Axis(
+        label="steps",
+        show=str,
+        levels=lambda game: (lambda v: _is_integer(v) and v >= 1, "positive integers"),
+        read=lambda game, main: game.learning_steps,
+        apply=_set_game("learning_steps", "deployment_steps"),
+    ),
+    "rationality": Axis(
+        label="lambda",
+        show=lambda v: shortest_number(v),
+        levels=lambda game: (
+            lambda v: _is_positive_number(v) and RATIONALITY.low <= v <= RATIONALITY.high,
+            f"numbers in {RATIONALITY}",
+        ),
+        read=lambda game, main: main.rationality,
+        apply=_set_rationality,
+        convert=float,
+    ),
+    "robot": Axis(
+        label="robot",
+        show=str,
+        levels=_robots,
+        read=lambda game, main: main.robots[0],
+        apply=_set_robot,
+    ),
+    "deployment_start": Axis(
+        label="start",
+        show=str,
+        levels=lambda game: (lambda v: v in DEPLOYMENT_STARTS, ", ".join(DEPLOYMENT_STARTS)),
+        read=lambda game, main: game.deployment_start,
+        apply=_set_game("deployment_start"),
+    ),
+}
+"""The open settings a multiverse varies, each declared once (:class:`Axis`), by the key of
+``[multiverse.*]`` tables and of :class:`Universe`: ``game.sigma``, ``game.centres``,
+``game.demonstrator_stays``, ``steps`` (``game.learning_steps = game.deployment_steps``),
+``rationality`` (``main.rationality = eta_cv.rationality``), ``robot`` (the one robot of
+``main.robots``) and ``game.deployment_start``. A new axis is one entry here and one field
+of :class:`Universe`."""
 
 
 def shortest_number(value: float) -> str:
@@ -647,27 +747,19 @@ def _multiverse(top: _Table, game: GameSpec, eta_cv: EtaCVSpec, main: MainSpec) 
             "eta_cv.rationality",
             "must equal main.rationality in a multiverse (one axis, rationality, sets both)",
         )
-    base = Universe(
-        sigma=game.sigma,
-        centres=game.centres,
-        demonstrator_stays=game.demonstrator_stays,
-        steps=game.learning_steps,
-        rationality=main.rationality,
-        robot=main.robots[0],
-        deployment_start=game.deployment_start,
-    )
+    base = Universe(**{name: axis.read(game, main) for name, axis in AXES.items()})
     block = top.table("multiverse", ("cross", "alone", "universes"))
     levels = _AxisLevels(game)
     universes = [base]
     if "cross" in block.data:
-        cross = block.table("cross", AXES)
+        cross = block.table("cross", tuple(AXES))
         axes = {axis: levels.of(cross, axis) for axis in AXES if axis in cross.data}
         universes += [
             replace(base, **dict(zip(axes, chosen, strict=True)))
             for chosen in itertools.product(*axes.values())
         ]
     if "alone" in block.data:
-        alone = block.table("alone", AXES)
+        alone = block.table("alone", tuple(AXES))
         universes += [
             replace(base, **{axis: level})
             for axis in AXES
@@ -679,7 +771,7 @@ def _multiverse(top: _Table, game: GameSpec, eta_cv: EtaCVSpec, main: MainSpec) 
         if not isinstance(listed, list) or not all(isinstance(u, dict) for u in listed):
             block.fail("universes", f"must be an array of tables, got {_show(listed)}")
         for position, entry in enumerate(listed):
-            table = _Table(top.label, f"multiverse.universes[{position}].", entry, AXES)
+            table = _Table(top.label, f"multiverse.universes[{position}].", entry, tuple(AXES))
             universes.append(
                 replace(base, **{axis: levels.one(table, axis) for axis in AXES if axis in entry})
             )
@@ -687,27 +779,11 @@ def _multiverse(top: _Table, game: GameSpec, eta_cv: EtaCVSpec, main: MainSpec) 
 
 
 class _AxisLevels:
-    """Validation of an axis's levels: the range the same setting has in ``[game]``/``[main]``."""
+    """Validation of an axis's levels: the range the same setting has in ``[game]``/``[main]``
+    (:attr:`Axis.levels`)."""
 
     def __init__(self, game: GameSpec):
-        from cirl_study.core.players import ROBOTS
-
-        sigma = _sigma_limits(game.width, game.height)
-        self.checks: dict[str, tuple[Callable[[Any], bool], str]] = {
-            "sigma": (
-                lambda v: _is_positive_number(v) and sigma.low <= v <= sigma.high,
-                f"numbers in {sigma}",
-            ),
-            "centres": (lambda v: v in CENTRE_PLACEMENTS, ", ".join(CENTRE_PLACEMENTS)),
-            "demonstrator_stays": (lambda v: isinstance(v, bool), "true or false"),
-            "steps": (lambda v: _is_integer(v) and v >= 1, "positive integers"),
-            "rationality": (
-                lambda v: _is_positive_number(v) and RATIONALITY.low <= v <= RATIONALITY.high,
-                f"numbers in {RATIONALITY}",
-            ),
-            "robot": (lambda v: isinstance(v, str) and v in ROBOTS, ", ".join(ROBOTS)),
-            "deployment_start": (lambda v: v in DEPLOYMENT_STARTS, ", ".join(DEPLOYMENT_STARTS)),
-        }
+        self.checks = {name: axis.levels(game) for name, axis in AXES.items()}
 
     def of(self, table: _Table, axis: str) -> list[Any]:
         """The distinct levels ``table[axis]`` lists."""
@@ -717,7 +793,7 @@ class _AxisLevels:
             table.fail(axis, f"must be a non-empty list of {what}, got {_show(value)}")
         if len(set(value)) != len(value):
             table.fail(axis, f"must not repeat a level, got {_show(value)}")
-        return [_level(axis, v) for v in value]
+        return [AXES[axis].convert(v) for v in value]
 
     def one(self, table: _Table, axis: str) -> Any:
         """The one level ``table[axis]`` names."""
@@ -725,11 +801,7 @@ class _AxisLevels:
         value = table.value(axis)
         if not ok(value):
             table.fail(axis, f"must be one of {what}, got {_show(value)}")
-        return _level(axis, value)
-
-
-def _level(axis: str, value: Any) -> Any:
-    return float(value) if axis in ("sigma", "rationality") else value
+        return AXES[axis].convert(value)
 
 
 def load_pipeline(path: Path) -> Pipeline:
