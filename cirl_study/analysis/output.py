@@ -7,6 +7,7 @@ to machine by design) is apart from the numbers.
 
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Mapping
 from pathlib import Path
@@ -15,6 +16,7 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.errors import UserError
+from cirl_study.files import open_for_writing, remove_file, write_file
 
 CSV_FORMAT: dict[str, Any] = {"index": False, "lineterminator": "\n"}
 """How every table of a report is written as CSV (``DataFrame.to_csv``): no index, ``\\n``."""
@@ -39,27 +41,34 @@ def write_report_directory(
     ``figures`` (by file name; ``None`` removes a stale copy of a figure the run has no data
     for) and ``provenance.json`` (if given) into ``out_dir``, created if needed.
 
+    Every file is written by :func:`cirl_study.files.write_file`: a link or anything but a
+    regular file in a file's place is refused, never written through.
+
     Raises:
         UserError: the directory or a file cannot be written (one line, the OS's reason).
     """
     out = Path(out_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        (out / "report.md").write_text(markdown, encoding="utf-8", newline="\n")
+        write_file(out / "report.md", markdown.encode("utf-8"))
         text = json.dumps(results, indent=2, ensure_ascii=False, allow_nan=False)
-        (out / "results.json").write_text(text + "\n", encoding="utf-8", newline="\n")
+        write_file(out / "results.json", (text + "\n").encode("utf-8"))
         for name, table in tables.items():
             if isinstance(table, bytes):
-                (out / name).write_bytes(table)
-            else:
-                table.to_csv(out / name, **CSV_FORMAT)
+                write_file(out / name, table)
+                continue
+            with (
+                open_for_writing(out / name) as stream,
+                io.TextIOWrapper(stream, encoding="utf-8", newline="") as text_stream,
+            ):
+                table.to_csv(text_stream, **CSV_FORMAT)  # row by row: a large table is not held
         if provenance is not None:
             text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
-            (out / "provenance.json").write_text(text + "\n", encoding="utf-8", newline="\n")
+            write_file(out / "provenance.json", (text + "\n").encode("utf-8"))
         for name, data in figures.items():
             if data is None:
-                (out / name).unlink(missing_ok=True)
+                remove_file(out / name)
             else:
-                (out / name).write_bytes(data)
+                write_file(out / name, data)
     except OSError as error:
         raise UserError(f"cannot write the report to {out}: {error.strerror}") from None

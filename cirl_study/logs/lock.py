@@ -17,6 +17,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from cirl_study.errors import UserError
+from cirl_study.files import open_descriptor
 
 LOCK_NAME = ".cirl-study.lock"
 """Name of the lock file inside a run directory."""
@@ -27,13 +28,14 @@ def writer_lock(run_dir: Path) -> Iterator[None]:
     """Hold the run directory's writer lock for the ``with`` block.
 
     Raises:
-        UserError: another process holds it, or the lock file cannot be opened.
+        UserError: another process holds it, or the lock file cannot be opened (a link or
+            anything but a regular file in its place is refused:
+            :func:`cirl_study.files.open_descriptor`).
     """
-    path = run_dir / LOCK_NAME
     try:
-        descriptor = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
-    except OSError as error:
-        raise UserError(f"{run_dir}: cannot lock the run directory: {error.strerror}") from None
+        descriptor = open_descriptor(run_dir / LOCK_NAME, os.O_RDWR, truncate=False)
+    except UserError as error:
+        raise UserError(f"{run_dir}: cannot lock the run directory: {error}") from None
     try:
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)

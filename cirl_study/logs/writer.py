@@ -18,6 +18,7 @@ import mcap
 from mcap.writer import CompressionType, Writer
 
 from cirl_study import __version__
+from cirl_study.files import open_for_writing
 from cirl_study.logs.episode import episode_messages
 from cirl_study.logs.format import (
     MESSAGE_ENCODING,
@@ -72,7 +73,7 @@ class TrialLogWriter:
     def __enter__(self) -> Self:
         if self.path.exists():
             raise FileExistsError(f"{self.path} already exists")
-        self._file = open(self.temp_path, "wb")  # noqa: SIM115 - closed in __exit__
+        self._file = open_for_writing(self.temp_path)  # closed in __exit__
         self._writer = Writer(
             self._file,
             chunk_size=self.chunk_size,
