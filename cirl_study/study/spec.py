@@ -180,6 +180,12 @@ class LambdaSweepSpec:
     rationalities: tuple[float, ...]
 
 
+def shortest_number(value: float) -> str:
+    """``value`` in Python's shortest round-trip form, less a trailing ``.0`` (``1.5``, ``4``,
+    ``1e-05``): distinct numbers give distinct text (universe ids and level labels)."""
+    return repr(float(value)).removesuffix(".0")
+
+
 @dataclass(frozen=True)
 class Universe:
     """One choice of every open setting of :data:`AXES` (see :mod:`cirl_study.study.multiverse`),
@@ -243,6 +249,16 @@ def _set_robot(pipeline: Pipeline, level: str) -> Pipeline:
     return replace(pipeline, main=replace(pipeline.main, robots=(level,)))
 
 
+def _game_field(name: str) -> Callable[[GameSpec, MainSpec], Any]:
+    """``read`` of an axis that is the field ``name`` of ``game``."""
+    return lambda game, main: getattr(game, name)
+
+
+def _one_of(choices: tuple[str, ...]) -> Callable[[GameSpec], LevelCheck]:
+    """``levels`` of an axis whose levels are the names ``choices``."""
+    return lambda game: (lambda v: v in choices, ", ".join(choices))
+
+
 def _robots(_game: GameSpec) -> LevelCheck:
     from cirl_study.core.players import ROBOTS
 
@@ -256,39 +272,36 @@ def _sigmas(game: GameSpec) -> LevelCheck:
     )
 
 
+def _game_axis(
+    field: str,
+    label: str,
+    show: Callable[[Any], str],
+    levels: Callable[[GameSpec], LevelCheck],
+    convert: Callable[[Any], Any] = lambda value: value,
+) -> Axis:
+    """The axis of one field of ``game``: read from it, set in it."""
+    return Axis(label, show, levels, _game_field(field), _set_game(field), convert)
+
+
 AXES: dict[str, Axis] = {
-    "sigma": Axis(
-        label="sigma",
-        show=lambda v: shortest_number(v),
-        levels=_sigmas,
-        read=lambda game, main: game.sigma,
-        apply=_set_game("sigma"),
-        convert=float,
-    ),
-    "centres": Axis(
-        label="centres",
-        show=str,
-        levels=lambda game: (lambda v: v in CENTRE_PLACEMENTS, ", ".join(CENTRE_PLACEMENTS)),
-        read=lambda game, main: game.centres,
-        apply=_set_game("centres"),
-    ),
-    "demonstrator_stays": Axis(
-        label="stays",
-        show=lambda v: "yes" if v else "no",
-        levels=lambda game: (lambda v: isinstance(v, bool), "true or false"),
-        read=lambda game, main: game.demonstrator_stays,
-        apply=_set_game("demonstrator_stays"),
+    "sigma": _game_axis("sigma", "sigma", shortest_number, _sigmas, convert=float),
+    "centres": _game_axis("centres", "centres", str, _one_of(CENTRE_PLACEMENTS)),
+    "demonstrator_stays": _game_axis(
+        "demonstrator_stays",
+        "stays",
+        lambda v: "yes" if v else "no",
+        lambda game: (lambda v: isinstance(v, bool), "true or false"),
     ),
     "steps": Axis(
         label="steps",
         show=str,
         levels=lambda game: (lambda v: _is_integer(v) and v >= 1, "positive integers"),
-        read=lambda game, main: game.learning_steps,
+        read=_game_field("learning_steps"),
         apply=_set_game("learning_steps", "deployment_steps"),
     ),
     "rationality": Axis(
         label="lambda",
-        show=lambda v: shortest_number(v),
+        show=shortest_number,
         levels=lambda game: (
             lambda v: _is_positive_number(v) and RATIONALITY.low <= v <= RATIONALITY.high,
             f"numbers in {RATIONALITY}",
@@ -304,13 +317,7 @@ AXES: dict[str, Axis] = {
         read=lambda game, main: main.robots[0],
         apply=_set_robot,
     ),
-    "deployment_start": Axis(
-        label="start",
-        show=str,
-        levels=lambda game: (lambda v: v in DEPLOYMENT_STARTS, ", ".join(DEPLOYMENT_STARTS)),
-        read=lambda game, main: game.deployment_start,
-        apply=_set_game("deployment_start"),
-    ),
+    "deployment_start": _game_axis("deployment_start", "start", str, _one_of(DEPLOYMENT_STARTS)),
 }
 """The open settings a multiverse varies, each declared once (:class:`Axis`), by the key of
 ``[multiverse.*]`` tables and of :class:`Universe`: ``game.sigma``, ``game.centres``,
@@ -318,12 +325,6 @@ AXES: dict[str, Axis] = {
 ``rationality`` (``main.rationality = eta_cv.rationality``), ``robot`` (the one robot of
 ``main.robots``) and ``game.deployment_start``. A new axis is one entry here and one field
 of :class:`Universe`."""
-
-
-def shortest_number(value: float) -> str:
-    """``value`` in Python's shortest round-trip form, less a trailing ``.0`` (``1.5``, ``4``,
-    ``1e-05``): distinct numbers give distinct text (universe ids and level labels)."""
-    return repr(float(value)).removesuffix(".0")
 
 
 @dataclass(frozen=True)
