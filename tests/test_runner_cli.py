@@ -46,10 +46,12 @@ def test_dask_engine_without_dask_is_one_line(
         app, ["run", str(SMOKE), "--out", str(tmp_path), "--engine", "dask"]
     )
     assert result.exit_code == 2
-    assert result.stderr == (
+    *notes, error = result.stderr.splitlines()  # the stage notes of plain progress, then it
+    assert error == (
         "error: the dask engine needs Dask: pip install -e '.[dask]' in a checkout, "
-        "pip install 'cirl-study[dask]' otherwise\n"
+        "pip install 'cirl-study[dask]' otherwise"
     )
+    assert all(note.startswith("preparing ") for note in notes)
 
 
 def test_unreachable_scheduler_is_one_line() -> None:
@@ -90,3 +92,33 @@ def test_a_study_of_humans_without_a_trade_off_plays_no_cross_validation(tmp_pat
     assert (
         result.stdout.splitlines()[2] == "eta by cross-validation: none (no policy has a trade-off)"
     )
+
+
+def test_progress_outside_a_terminal_is_plain_lines(tmp_path: Path) -> None:
+    """A run's stderr in a log: the stage notes, the trials to play, then a line at most
+    every LINE_SECONDS and one when the last trial is logged."""
+    import io
+
+    from cirl_study.commands.progress import plain_lines
+
+    stream = io.StringIO()
+    hooks = plain_lines(stream, period=3600.0)
+    hooks.note("preparing the numerical kernels")
+    hooks.start(10, 4)
+    for _ in range(6):
+        hooks.advance(1)
+    lines = stream.getvalue().splitlines()
+    assert lines[:2] == ["preparing the numerical kernels", "trials: 4/10 logged, 6 to play"]
+    assert len(lines) == 3 and lines[2].startswith("trials: 10/10, ")
+    every = io.StringIO()
+    hooks = plain_lines(every, period=0.0)
+    hooks.start(3, 0)
+    for _ in range(3):
+        hooks.advance(1)
+    assert [line.split(",")[0] for line in every.getvalue().splitlines()[1:]] == [
+        "trials: 1/3", "trials: 2/3", "trials: 3/3",
+    ]  # fmt: skip
+    result = CliRunner().invoke(app, ["run", str(SMOKE), "--out", str(tmp_path / "run")])
+    assert result.exit_code == 0, result.output
+    assert "trials: 0/82 logged, 82 to play" in result.stderr
+    assert "trials: 82/82, " in result.stderr

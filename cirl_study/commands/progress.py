@@ -1,10 +1,14 @@
-"""The progress bar of ``cirl-study run`` on stderr (rich), imported only when a run starts."""
+"""The progress of ``cirl-study run`` on stderr, imported only when a run starts: a live bar
+(rich) at a terminal, plain lines elsewhere (a log, CI), at least every
+:data:`LINE_SECONDS` while trials play."""
 
 from __future__ import annotations
 
+import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Any
+from typing import Any, TextIO
 
 from rich.console import Console
 from rich.progress import (
@@ -33,9 +37,55 @@ class RateColumn(ProgressColumn):
         return Text(f"{played / elapsed:.0f} trials/s")
 
 
+LINE_SECONDS = 10.0
+"""Longest time between two plain progress lines while trials play."""
+
+
 @contextmanager
 def progress_bar() -> Iterator[ProgressHooks]:
-    """A progress bar on stderr, shown from the first ``start`` until the block ends."""
+    """The run's progress on stderr: a live bar at a terminal (:func:`_live_bar`), else plain
+    lines (:func:`plain_lines`)."""
+    console = Console(stderr=True)
+    if not console.is_terminal:
+        yield plain_lines(sys.stderr)
+        return
+    with _live_bar(console) as hooks:
+        yield hooks
+
+
+def plain_lines(stream: TextIO, period: float = LINE_SECONDS) -> ProgressHooks:
+    """Progress as plain lines on ``stream``: each stage's note, the trials to play when
+    playing starts, then ``trials: n/N, r trials/s`` at most every ``period`` seconds and
+    when the last trial is logged."""
+    state = {"total": 0, "done": 0, "resumed": 0, "began": 0.0, "shown": 0.0}
+
+    def line(text: str) -> None:
+        print(text, file=stream, flush=True)
+
+    def start(total: int, done: int) -> None:
+        now = time.monotonic()
+        state.update(total=total, done=done, resumed=done, began=now, shown=now)
+        line(f"trials: {done}/{total} logged, {total - done} to play")
+
+    def advance(count: int) -> None:
+        state["done"] += count
+        now = time.monotonic()
+        if now - state["shown"] < period and state["done"] < state["total"]:
+            return
+        state["shown"] = now
+        elapsed = max(now - state["began"], 1e-9)
+        rate = (state["done"] - state["resumed"]) / elapsed
+        line(
+            f"trials: {state['done']}/{state['total']}, {rate:.0f} trials/s, "
+            f"{elapsed:.0f} s elapsed"
+        )
+
+    return ProgressHooks(start, advance, line)
+
+
+@contextmanager
+def _live_bar(console: Console) -> Iterator[ProgressHooks]:
+    """A progress bar on ``console``, shown from the first ``start`` until the block ends."""
     bar = Progress(
         TextColumn("trials"),
         BarColumn(),
@@ -45,7 +95,7 @@ def progress_bar() -> Iterator[ProgressHooks]:
         TextColumn("elapsed,"),
         TimeRemainingColumn(),
         TextColumn("left"),
-        console=Console(stderr=True),
+        console=console,
     )
     task: list[Any] = []
 
@@ -57,8 +107,7 @@ def progress_bar() -> Iterator[ProgressHooks]:
         bar.advance(task[0], count)
 
     def note(text: str) -> None:
-        if bar.console.is_terminal:
-            bar.console.print(text, style="dim", highlight=False)
+        bar.console.print(text, style="dim", highlight=False)
 
     try:
         yield ProgressHooks(start, advance, note)
