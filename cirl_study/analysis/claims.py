@@ -63,6 +63,7 @@ from cirl_study.analysis.cells import (
 )
 from cirl_study.analysis.markdown import MEASURE_NAMES, number, p_text, p_value
 from cirl_study.analysis.measure_rows import plain
+from cirl_study.analysis.result_types import Results
 from cirl_study.errors import UserError
 from cirl_study.record import (
     BEST_RESPONSE,
@@ -72,8 +73,6 @@ from cirl_study.record import (
     MEASURES,
     PEDAGOGIC,
 )
-
-Results = dict[str, Any]
 
 SIGNIFICANCE = 0.05
 """Significance level of the rules that their source states without a level (on

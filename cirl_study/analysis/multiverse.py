@@ -34,7 +34,8 @@ from statsmodels.stats.anova import anova_lm
 from cirl_study.analysis import statistics
 from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.measure_rows import plain, rows
-from cirl_study.analysis.results import Results, analyse
+from cirl_study.analysis.result_types import Results
+from cirl_study.analysis.results import analyse
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.analysis.tails import t_tail
 from cirl_study.record import ETA_CV, EXPERT, MAIN, MEASURES, TrialRow

@@ -22,8 +22,7 @@ from cirl_study.analysis.markdown import MEASURE_NAMES, document, interval, numb
 from cirl_study.analysis.measure_rows import plain
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
 from cirl_study.analysis.output import write_report_directory
-from cirl_study.analysis.result_types import MultiverseResults, checked
-from cirl_study.analysis.results import Results
+from cirl_study.analysis.result_types import MultiverseResults, Results, checked
 from cirl_study.record import MEASURES, TrialRow
 from cirl_study.study.spec import AXES, Pipeline
 

@@ -12,10 +12,9 @@ from typing import Any
 
 from cirl_study.analysis import markdown as md
 from cirl_study.analysis.claims import SIGNIFICANCE
+from cirl_study.analysis.result_types import Results
 from cirl_study.analysis.sections import FIGURES, heading
 from cirl_study.analysis.study_report import anova_table
-
-Results = dict[str, Any]
 
 
 def paper_anova(results: Results) -> list[str]:

@@ -20,8 +20,8 @@ import pandas as pd
 from cirl_study.analysis import figures, paper_report, study_report, teaching_report
 from cirl_study.analysis.markdown import document, number, svg_name, table
 from cirl_study.analysis.output import csv_file, write_report_directory
-from cirl_study.analysis.result_types import StudyResults, checked
-from cirl_study.analysis.results import Results, combined, estimates, tests, with_claims
+from cirl_study.analysis.result_types import Results, StudyResults, checked
+from cirl_study.analysis.results import combined, estimates, tests, with_claims
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_POLICIES, TrialRecord, TrialRow
@@ -223,7 +223,7 @@ def _drawings(
                 figures.lambda_curve,
                 (sweep[of_paper].drop(columns="robot").reset_index(drop=True),),
             )
-    if paper is None or len(design["humans"]) > 2 or len(design["robots"]) > 1:
+    if not study_report.paper_only(estimated):
         drawings[FIGURES["cell_means"][0]] = (
             figures.cell_bars,
             (cells, design["humans"], design["robots"]),

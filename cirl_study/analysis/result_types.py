@@ -23,6 +23,10 @@ import msgspec
 
 from cirl_study.errors import UserError
 
+Results = dict[str, Any]
+"""The results as plain JSON data (what ``results.json`` stores, and what the analysis makes
+and the renderers read), before :func:`checked` gives them their type."""
+
 Number = float | None
 """A number of the results; ``None`` (``null``) where it is undefined."""
 
@@ -328,7 +332,10 @@ class Teaching(msgspec.Struct, **_ROW):
     learning_paths: int
 
 
-class Design(msgspec.Struct, **_ROW):
+class StudyDesign(msgspec.Struct, **_ROW):
+    """The design section of a study's results: its factors
+    (:class:`cirl_study.analysis.cells.Design`), subjects, lambdas and etas."""
+
     humans: list[str]
     baseline: str
     robots: list[str]
@@ -355,7 +362,7 @@ class StudyResults(msgspec.Struct, **_ROW):
 
     pipeline: str
     trials: dict[str, int]
-    design: Design
+    design: StudyDesign
     cells: list[CellMean]
     anova: list[AnovaEffect]
     pairwise: list[PairedComparison]
@@ -466,10 +473,10 @@ SCHEMAS: dict[str, type[msgspec.Struct]] = {
 }
 """The schema files of ``docs/``, by name, and the type each is generated from."""
 
-Results = TypeVar("Results", StudyResults, MultiverseResults)
+Typed = TypeVar("Typed", StudyResults, MultiverseResults)
 
 
-def checked(results: dict[str, Any], kind: type[Results]) -> Results:
+def checked(results: Results, kind: type[Typed]) -> Typed:
     """``results`` as the typed record ``kind``: every field present, of its type.
 
     Raises:

@@ -47,6 +47,7 @@ import pandas as pd
 from cirl_study.analysis import statistics, teaching
 from cirl_study.analysis.cells import PAPER, Design
 from cirl_study.analysis.measure_rows import anova_rows, paired_rows, pairwise_rows, plain, rows
+from cirl_study.analysis.result_types import Results
 from cirl_study.analysis.table import trial_table
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
@@ -63,9 +64,6 @@ from cirl_study.record import (
 )
 from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.spec import Pipeline
-
-Results = dict[str, Any]
-"""The JSON-ready results of :func:`analyse` (the content of ``results.json``)."""
 
 
 def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
@@ -352,7 +350,7 @@ def combined(estimated: Results, tested: Results) -> Results:
     if tested["paper"] is not None:
         paper = {**tested["paper"], **estimated["paper"]}
     both = {**estimated, **tested, "paper": paper}
-    return {key: plain(both[key]) for key in RESULT_KEYS}
+    return {key: both[key] for key in RESULT_KEYS}
 
 
 def with_claims(

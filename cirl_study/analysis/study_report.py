@@ -23,10 +23,9 @@ from cirl_study.analysis.markdown import (
     p_value,
     table,
 )
+from cirl_study.analysis.result_types import Results
 from cirl_study.analysis.sections import FIGURES, heading
 from cirl_study.record import LAMBDA_SWEEP
-
-Results = dict[str, Any]
 
 
 def paper_only(results: Results) -> bool:

@@ -28,7 +28,7 @@ import pandas as pd
 
 from cirl_study.analysis import statistics
 from cirl_study.analysis.cells import MILLI_DRAGAN, REGRET_OPTIMAL_GAP, VERSUS_PEDAGOGIC, Design
-from cirl_study.analysis.measure_rows import anova_rows, paired_rows
+from cirl_study.analysis.measure_rows import anova_rows, paired_rows, plain
 from cirl_study.record import (
     BEST_RESPONSE,
     LITERAL,
@@ -81,7 +81,9 @@ def sections(main: pd.DataFrame, design: Design) -> dict[str, Any]:
             lambda: _regret_optimal(main[main["robot"] == MAP]),
         ),
     }
-    return {key: None if cells.lacking(design) else make() for key, (cells, make) in made.items()}
+    return {
+        key: None if cells.lacking(design) else plain(make()) for key, (cells, make) in made.items()
+    }
 
 
 def _regret_optimal(with_map: pd.DataFrame) -> dict[str, Any]:

@@ -6,13 +6,10 @@ lines, or none when the run lacks the section's cells.
 
 from __future__ import annotations
 
-from typing import Any
-
 from cirl_study.analysis.markdown import ci, formatted, table
+from cirl_study.analysis.result_types import Results
 from cirl_study.analysis.sections import heading
 from cirl_study.analysis.study_report import anova_table, paired_table
-
-Results = dict[str, Any]
 
 
 def milli_dragan(results: Results) -> list[str]:
