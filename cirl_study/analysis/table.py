@@ -18,8 +18,6 @@ import pandas as pd
 from cirl_study.errors import UserError
 from cirl_study.logs.run_checks import (
     design_faults,
-    incomplete_main_subjects,
-    subject_in_universe,
 )
 from cirl_study.record import MAIN, MEASURES, TrialRow
 
@@ -81,19 +79,6 @@ def trial_table(rows: Sequence[TrialRow]) -> pd.DataFrame:
     """
     table = pd.DataFrame(_columns(rows), columns=list(COLUMNS))
     return table.sort_values(list(SORT_KEYS), kind="mergesort").reset_index(drop=True)
-
-
-def complete_main_subjects(rows: Sequence[TrialRow]) -> tuple[list[TrialRow], list[str]]:
-    """The trials without the ``main``-block trials of subjects that lack a cell.
-
-    For a partial run: a ``main`` subject must have exactly one trial in every (policy,
-    robot) cell the block plays to enter the within-subjects analysis
-    (:func:`~cirl_study.logs.run_checks.incomplete_main_subjects`). Returns the rows kept
-    and the ids of the subjects whose ``main`` trials were left out.
-    """
-    _, incomplete = incomplete_main_subjects(rows)
-    kept = [r for r in rows if not (r.block == MAIN and subject_in_universe(r) in incomplete)]
-    return kept, sorted(incomplete)
 
 
 def check_design(rows: Sequence[TrialRow]) -> None:

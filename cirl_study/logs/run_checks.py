@@ -166,3 +166,16 @@ def _shared_draws(rows: Iterable[TrialRow]) -> list[str]:
 def _examples(items: Sequence[str]) -> str:
     shown = ", ".join(items[:EXAMPLES])
     return shown if len(items) <= EXAMPLES else f"{shown}, ... ({len(items) - EXAMPLES} more)"
+
+
+def complete_main_subjects(rows: Sequence[TrialRow]) -> tuple[list[TrialRow], list[str]]:
+    """The trials without the ``main``-block trials of subjects that lack a cell.
+
+    For a partial run: a ``main`` subject must have exactly one trial in every (policy,
+    robot) cell the block plays to enter the within-subjects analysis
+    (:func:`incomplete_main_subjects`). Returns the rows kept
+    and the ids of the subjects whose ``main`` trials were left out.
+    """
+    _, incomplete = incomplete_main_subjects(rows)
+    kept = [r for r in rows if not (r.block == MAIN and subject_in_universe(r) in incomplete)]
+    return kept, sorted(incomplete)

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 from cirl_study.errors import UserError
 from cirl_study.logs.provenance import RunIdentity
+from cirl_study.logs.run_checks import complete_main_subjects
 from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.plan import eta_cv_trial_ids, study_trial_ids, trial_counts
@@ -184,14 +185,12 @@ def analysed_run(run_dir: Path, contents: RunContents, partial: bool) -> Analyse
     """The trials of the run in ``run_dir`` (its logs read into ``contents``) an analysis
     takes: every trial of a complete run; with ``partial``, an incomplete or damaged run's
     trials less the ``main`` subjects that lack a cell
-    (:func:`~cirl_study.analysis.table.complete_main_subjects`).
+    (:func:`~cirl_study.logs.run_checks.complete_main_subjects`).
 
     Raises:
         UserError: a foreign trial; an incomplete run without ``partial`` (naming what is
             missing and how to resume); an incomplete multiverse (analysed only whole).
     """
-    from cirl_study.analysis.table import complete_main_subjects
-
     pipeline = run_pipeline_of(contents.identity)
     audit = audit_run(pipeline, contents.rows)
     resume = resume_command(contents.identity, run_dir)
