@@ -94,7 +94,6 @@ def analyze(
         UserError: the run is incomplete (without ``partial``), holds a foreign trial, or its
             design cannot be analysed.
     """
-    from cirl_study.analysis.result_types import MultiverseResults, StudyResults, checked
     from cirl_study.logs.reader import read_run
     from cirl_study.study.audit import analysed_run
 
@@ -103,20 +102,17 @@ def analyze(
     chosen = analysed_run(path, contents, partial)
     run_id = contents.identity.run_id
     if chosen.pipeline.multiverse is not None:
-        from cirl_study.analysis.measure_rows import plain
         from cirl_study.analysis.multiverse import analyse_multiverse
 
-        results = analyse_multiverse(chosen.trials, chosen.pipeline)
-        return checked(plain({**results, "run_id": run_id}), MultiverseResults)
+        return analyse_multiverse(chosen.trials, chosen.pipeline, run_id=run_id)
     from cirl_study.analysis.results import analyse, with_claims
     from cirl_study.analysis.table import check_design
     from cirl_study.analysis.theory_claims import theory_claims
 
     check_design(chosen.trials)
-    results = with_claims(
+    return with_claims(
         analyse(chosen.trials, chosen.pipeline),
         run_id=run_id,
         partial=chosen.partial,
         theory=theory_claims(),
     )
-    return checked(results, StudyResults)

@@ -13,8 +13,8 @@ from collections.abc import Callable
 import pytest
 from analysis_fixtures import pipeline, rows, synthetic_records
 
-from cirl_study.analysis.claims import evaluate_claims
-from cirl_study.analysis.results import analyse
+from cirl_study.analysis.result_types import ClaimRow
+from cirl_study.analysis.results import analyse, with_claims
 from cirl_study.errors import UserError
 from cirl_study.record import MEASURES
 
@@ -35,6 +35,11 @@ OTHER_IDS = [
     "best_response_vs_pedagogic",
     "regret_optimal_gap",
 ]
+
+
+def evaluate_claims(results: dict, theory: dict | None = None) -> list[ClaimRow]:
+    """The claim rows of the plain ``results``, as a report judges them (typed first)."""
+    return list(with_claims(results, run_id=None, partial=None, theory=theory).claims)
 
 
 def _anova(results: dict, measure: str, effect: str) -> dict:
@@ -73,26 +78,26 @@ def holding() -> dict:
 
 def _verdicts(results: dict) -> dict[str, bool]:
     """The paper's claims' verdicts."""
-    return {c["id"]: c["reproduced"] for c in evaluate_claims(results) if c["id"] in CLAIM_IDS}
+    return {c.id: c.reproduced for c in evaluate_claims(results) if c.id in CLAIM_IDS}
 
 
 def test_every_paper_claim_has_a_row_and_holds_when_its_numbers_do(holding):
     claims = evaluate_claims(holding)
-    assert [claim["id"] for claim in claims] == CLAIM_IDS + OTHER_IDS
+    assert [claim.id for claim in claims] == CLAIM_IDS + OTHER_IDS
     for claim in claims[: len(CLAIM_IDS)]:
-        assert claim["tested"] and claim["reproduced"]
-        assert claim["claim"] and claim["rule"] and claim["measurement"] and claim["evidence"]
-        assert claim["source"].startswith("paper, section 4.")
+        assert claim.tested and claim.reproduced
+        assert claim.claim and claim.rule and claim.measurement and claim.evidence
+        assert claim.source.startswith("paper, section 4.")
 
 
 def test_a_claim_whose_cells_the_run_lacks_is_not_tested(holding):
     """The synthetic study plays the paper's humans and robot only: the teaching claims are
     listed, not tested, and say what the run lacks."""
-    claims = {claim["id"]: claim for claim in evaluate_claims(holding)}
-    assert claims["paper_best_response"]["tested"]
+    claims = {claim.id: claim for claim in evaluate_claims(holding)}
+    assert claims["paper_best_response"].tested
     for claim in OTHER_IDS[1:]:
-        assert not claims[claim]["tested"] and claims[claim]["reproduced"] is False
-        assert claims[claim]["measurement"].startswith("not tested: the run lacks the human")
+        assert not claims[claim].tested and claims[claim].reproduced is False
+        assert claims[claim].measurement.startswith("not tested: the run lacks the human")
 
 
 def _policy_p(results):
@@ -176,9 +181,9 @@ def test_the_lambda_claim_is_not_tested_without_a_sweep_of_three_lambdas(holding
     results["lambda_sweep"] = [r for r in results["lambda_sweep"] if r["rationality"] in lambdas]
     results["design"]["sweep_rationalities"] = lambdas
     claim = evaluate_claims(results)[len(CLAIM_IDS) - 1]
-    assert claim["id"] == "lambda_intermediate"
-    assert not claim["tested"] and not claim["reproduced"]
-    assert claim["measurement"] == (
+    assert claim.id == "lambda_intermediate"
+    assert not claim.tested and not claim.reproduced
+    assert claim.measurement == (
         "not tested: the run lacks a lambda sweep of at least 3 rationalities"
     )
 
@@ -201,14 +206,14 @@ def _theory_claim(**changes) -> dict:
 def test_theory_claims_are_appended_after_the_papers(holding):
     theory = {"claims": [_theory_claim(), _theory_claim(id="untested", tested=False)]}
     claims = evaluate_claims(holding, theory)
-    assert [claim["id"] for claim in claims] == [
+    assert [claim.id for claim in claims] == [
         *CLAIM_IDS,
         *OTHER_IDS,
         "office_supplies_instructive",
         "untested",
     ]
-    assert claims[-2]["reproduced"] and claims[-2]["tested"]
-    assert not claims[-1]["reproduced"] and not claims[-1]["tested"]
+    assert claims[-2].reproduced and claims[-2].tested
+    assert not claims[-1].reproduced and not claims[-1].tested
 
 
 @pytest.mark.parametrize(

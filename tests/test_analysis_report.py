@@ -33,6 +33,11 @@ PROVENANCE = {"report": {"git_commit": "abc"}}
 PAPER = pipeline("paper")
 
 
+def _plain_report(*args, **kwargs) -> dict:
+    """What :func:`write_report` returns, as ``results.json`` stores it."""
+    return msgspec.to_builtins(write_report(*args, **kwargs))
+
+
 @pytest.fixture(scope="module")
 def records() -> list[TrialRecord]:
     return synthetic_records(subjects_per_level=8)
@@ -124,7 +129,7 @@ def test_a_main_block_played_with_another_eta_is_flagged(records, tmp_path):
         else r
         for r in records
     ]
-    results = write_report(rows(changed), tmp_path, PAPER, records_of=records_of(changed))
+    results = _plain_report(rows(changed), tmp_path, PAPER, records_of=records_of(changed))
     assert results["eta_cv"]["main_block"] == [
         {"num_features": 3, "main_etas": [1.0], "chosen_eta": 1.0, "agree": True},
         {"num_features": 10, "main_etas": [10.0], "chosen_eta": 1.0, "agree": False},
@@ -189,7 +194,7 @@ def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path
             }
         ]
     }
-    results = write_report(
+    results = _plain_report(
         rows(main_only),
         out,
         pipeline("main-only"),
@@ -236,7 +241,7 @@ def test_the_reports_results_are_analyses_whether_its_figures_are_drawn_in_worke
     for cores, name in ((1, "here"), (2, "workers")):
         monkeypatch.setattr(workers, "forkable", lambda: True)
         monkeypatch.setattr(workers, "cores", lambda cores=cores: cores)
-        results = write_report(
+        results = _plain_report(
             rows(records), tmp_path / name, PAPER, records_of=records_of(records)
         )
         assert list(results)[: len(RESULT_KEYS)] == list(RESULT_KEYS)

@@ -16,7 +16,7 @@ def results():
 
 def _verdicts(results):
     return {
-        row["id"]: row["reproduced"] for row in external_claims(office_supplies_claims(results))
+        row.id: row.reproduced for row in external_claims(office_supplies_claims(results))
     }
 
 

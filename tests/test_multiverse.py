@@ -196,7 +196,7 @@ def test_the_base_universe_plays_the_single_study_and_reports_its_numbers(
         assert records[trial_id].measures == record.measures
         assert records[trial_id].demonstration == record.demonstration
 
-    results = analyse_multiverse(read_run(run).rows, pipeline)
+    results = msgspec.to_builtins(analyse_multiverse(read_run(run).rows, pipeline, run_id=None))
     (base_results,) = [u for u in results["universes"] if u["base"]]
     contents = read_run(smoke_run)
     alone = analyse(contents.rows, run_pipeline_of(contents.identity))

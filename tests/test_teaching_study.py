@@ -18,13 +18,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import numpy as np
 import pytest
 from test_logs_helpers import run_records
 from typer.testing import CliRunner
 
-from cirl_study.analysis.claims import evaluate_claims
-from cirl_study.analysis.results import analyse
+from cirl_study.analysis.results import analyse, with_claims
 from cirl_study.cli import app
 from cirl_study.core.gridworld import Gridworld
 from cirl_study.core.hypotheses import MAX_PATHS, path_count
@@ -526,9 +526,9 @@ def synthetic_rows(
 
 
 def analysed(rows: list[TrialRow], pipeline: Pipeline) -> dict[str, Any]:
-    """The results of ``rows`` with their claims judged, as the report has them."""
-    results = analyse(rows, pipeline)
-    return {**results, "claims": evaluate_claims(results)}
+    """The results of ``rows`` with their claims judged, as ``results.json`` has them."""
+    judged = with_claims(analyse(rows, pipeline), run_id=None, partial=None, theory=None)
+    return msgspec.to_builtins(judged)
 
 
 def questions_of(results: dict[str, Any]) -> dict[str, dict[str, Any]]:

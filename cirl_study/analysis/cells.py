@@ -9,6 +9,7 @@ exactly when its evidence exists.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 from cirl_study import record
@@ -27,6 +28,16 @@ class Design:
     def baseline(self) -> str:
         """The human every other is compared with: the pipeline's first."""
         return self.humans[0]
+
+
+def papers_own(humans: Sequence[str], robots: Sequence[str]) -> bool:
+    """Whether a design is the paper's own: exactly its two humans, watched by one robot.
+
+    Examples:
+        >>> papers_own(["best_response", "expert"], ["map"]), papers_own(["expert"], ["map"])
+        (True, False)
+    """
+    return sorted(humans) == sorted(record.PAPER_POLICIES) and len(robots) == 1
 
 
 @dataclass(frozen=True)

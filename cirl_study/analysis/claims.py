@@ -5,11 +5,9 @@ statement, the rule that decides it in words, the cells of the design it needs
 (:class:`~cirl_study.analysis.cells.Cells`), the results it reads (``evidence``: keys of
 ``results.json`` and figures) and the function that applies the rule. A report judges every
 claim whose cells the run has and lists the others as not tested; a new claim is one entry.
-:func:`evaluate_claims` returns one row per claim::
-
-    {"id", "source", "claim", "rule", "measurement", "values", "tested", "reproduced",
-     "evidence"}
-
+:func:`evaluate_claims` judges them on a study's typed results
+(:class:`~cirl_study.analysis.result_types.StudyResults`) and returns one
+:class:`~cirl_study.analysis.result_types.ClaimRow` per claim.
 ``reproduced`` is the verdict (never written by hand): ``True`` or ``False``, ``None`` for a
 claim that asks a question the measurement answers; a claim that is not tested is not
 reproduced. Claims from another analysis (the office-supplies theory results) are appended
@@ -49,7 +47,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -63,7 +61,13 @@ from cirl_study.analysis.cells import (
 )
 from cirl_study.analysis.markdown import MEASURE_NAMES, number, p_text, p_value
 from cirl_study.analysis.measure_rows import plain
-from cirl_study.analysis.result_types import Results
+from cirl_study.analysis.result_types import (
+    AnovaEffect,
+    CellMean,
+    ClaimRow,
+    PairedDifference,
+    StudyResults,
+)
 from cirl_study.errors import UserError
 from cirl_study.record import (
     BEST_RESPONSE,
@@ -73,6 +77,9 @@ from cirl_study.record import (
     MEASURES,
     PEDAGOGIC,
 )
+
+Row = TypeVar("Row", AnovaEffect, PairedDifference)
+"""A row :func:`_effect` picks."""
 
 SIGNIFICANCE = 0.05
 """Significance level of the rules that their source states without a level (on
@@ -114,59 +121,55 @@ class Claim:
     rule: str
     needs: Cells
     evidence: tuple[str, ...]
-    judge: Callable[[Results], Verdict]
+    judge: Callable[[StudyResults], Verdict]
 
 
 def _num(value: float | None) -> str:
     return number(value)
 
 
-def _reference(results: Results) -> str:
-    return results["design"]["reference_robot"]
+def _reference(results: StudyResults) -> str:
+    return results.design.reference_robot
 
 
-def _anova(results: Results, measure: str, effect: str) -> dict[str, Any]:
+def _anova(results: StudyResults, measure: str, effect: str) -> AnovaEffect:
     return next(
-        row
-        for row in results["paper"]["anova"]
-        if row["measure"] == measure and row["effect"] == effect
+        row for row in results.paper.anova if row.measure == measure and row.effect == effect
     )
 
 
-def _paper_cells(results: Results, measure: str) -> list[dict[str, Any]]:
+def _paper_cells(results: StudyResults, measure: str) -> list[CellMean]:
     """The cell means of ``measure`` of the paper's humans with the reference robot."""
     robot = _reference(results)
     return [
         row
-        for row in results["cells"]
-        if row["measure"] == measure
-        and row["robot"] == robot
-        and row["policy"] in (EXPERT, BEST_RESPONSE)
+        for row in results.cells
+        if row.measure == measure and row.robot == robot and row.policy in (EXPERT, BEST_RESPONSE)
     ]
 
 
-def _policy_mean(results: Results, measure: str, policy: str) -> float:
-    cells = [row for row in _paper_cells(results, measure) if row["policy"] == policy]
-    return sum(row["n"] * row["mean"] for row in cells) / sum(row["n"] for row in cells)
+def _policy_mean(results: StudyResults, measure: str, policy: str) -> float:
+    cells = [row for row in _paper_cells(results, measure) if row.policy == policy]
+    return sum(row.n * row.mean for row in cells) / sum(row.n for row in cells)
 
 
-def _gap(results: Results, measure: str, level: int) -> float:
-    means = {(r["num_features"], r["policy"]): r["mean"] for r in _paper_cells(results, measure)}
+def _gap(results: StudyResults, measure: str, level: int) -> float:
+    means = {(r.num_features, r.policy): r.mean for r in _paper_cells(results, measure)}
     return means[(level, EXPERT)] - means[(level, BEST_RESPONSE)]
 
 
-def _f_text(row: dict[str, Any]) -> str:
-    return f"F({row['df1']}, {row['df2']}) = {_num(row['F'])}, p = {p_text(row['log10_p'])}"
+def _f_text(row: AnovaEffect) -> str:
+    return f"F({row.df1}, {row.df2}) = {_num(row.F)}, p = {p_text(row.log10_p)}"
 
 
-def _policy_effect(results: Results) -> Verdict:
+def _policy_effect(results: StudyResults) -> Verdict:
     values, parts, holds = {}, [], True
     for measure in MEASURES:
         row = _anova(results, measure, "policy")
         expert = _policy_mean(results, measure, EXPERT)
         best = _policy_mean(results, measure, BEST_RESPONSE)
-        values[measure] = {"F": row["F"], "p": row["p"], "mean_expert": expert, "mean_br": best}
-        holds &= row["p"] < PAPER_P and best < expert
+        values[measure] = {"F": row.F, "p": row.p, "mean_expert": expert, "mean_br": best}
+        holds &= row.p < PAPER_P and best < expert
         parts.append(
             f"{MEASURE_NAMES[measure]}: best response {_num(best)} vs expert {_num(expert)}, "
             f"{_f_text(row)}"
@@ -174,8 +177,8 @@ def _policy_effect(results: Results) -> Verdict:
     return Verdict("; ".join(parts), values, holds)
 
 
-def _policy_f(results: Results) -> Verdict:
-    values = {m: _anova(results, m, "policy")["F"] for m in MEASURES}
+def _policy_f(results: StudyResults) -> Verdict:
+    values = {m: _anova(results, m, "policy").F for m in MEASURES}
     return Verdict(
         "; ".join(f"{MEASURE_NAMES[m]}: F = {_num(f)}" for m, f in values.items()),
         values,
@@ -183,16 +186,16 @@ def _policy_f(results: Results) -> Verdict:
     )
 
 
-def _interaction(results: Results) -> Verdict:
-    levels = results["design"]["feature_levels"]
+def _interaction(results: StudyResults) -> Verdict:
+    levels = results.design.feature_levels
     low, high = min(levels), max(levels)
     values, parts, holds = {}, [], True
     for measure in MEASURES:
         row = _anova(results, measure, "policy:num_features")
         gaps = {low: _gap(results, measure, low), high: _gap(results, measure, high)}
-        values[measure] = {"F": row["F"], "p": row["p"], **{f"gap_{k}": g for k, g in gaps.items()}}
+        values[measure] = {"F": row.F, "p": row.p, **{f"gap_{k}": g for k, g in gaps.items()}}
         if measure != "regret":
-            holds &= row["p"] < SIGNIFICANCE and gaps[low] > gaps[high]
+            holds &= row.p < SIGNIFICANCE and gaps[low] > gaps[high]
         parts.append(
             f"{MEASURE_NAMES[measure]}: interaction {_f_text(row)}; gap {_num(gaps[low])} at "
             f"{low} vs {_num(gaps[high])} at {high} features"
@@ -200,98 +203,100 @@ def _interaction(results: Results) -> Verdict:
     return Verdict("; ".join(parts), values, holds)
 
 
-def _cronbach(results: Results) -> Verdict:
-    alpha = results["paper"]["cronbach_alpha"]
-    low, high = alpha["ci95"]
+def _cronbach(results: StudyResults) -> Verdict:
+    alpha = results.paper.cronbach_alpha
+    low, high = alpha.ci95
     return Verdict(
-        f"raw alpha {_num(alpha['raw'])} [{_num(low)}, {_num(high)}], standardised "
-        f"{_num(alpha['standardized'])}, over {alpha['n_rows']} main-block trials",
-        {"raw": alpha["raw"], "ci95": [low, high], "standardized": alpha["standardized"]},
+        f"raw alpha {_num(alpha.raw)} [{_num(low)}, {_num(high)}], standardised "
+        f"{_num(alpha.standardized)}, over {alpha.n_rows} main-block trials",
+        {"raw": alpha.raw, "ci95": [low, high], "standardized": alpha.standardized},
         low <= PAPER_ALPHA <= high,
     )
 
 
-def _tukey(results: Results) -> Verdict:
+def _tukey(results: StudyResults) -> Verdict:
     values, parts, holds = {}, [], True
-    for row in results["paper"]["tukey_hsd"]:
-        level = row["a_num_features"]
-        if level != row["b_num_features"]:
+    for row in results.paper.tukey_hsd:
+        level = row.a_num_features
+        if level != row.b_num_features:
             continue
-        means = {row["a_policy"]: row["mean_a"], row["b_policy"]: row["mean_b"]}
-        holds &= means[BEST_RESPONSE] < means[EXPERT] and row["p_tukey"] < SIGNIFICANCE
-        values[f"{row['measure']}@{level}"] = {
+        means = {row.a_policy: row.mean_a, row.b_policy: row.mean_b}
+        holds &= means[BEST_RESPONSE] < means[EXPERT] and row.p_tukey < SIGNIFICANCE
+        values[f"{row.measure}@{level}"] = {
             "diff_br_minus_expert": means[BEST_RESPONSE] - means[EXPERT],
-            "p_tukey": row["p_tukey"],
-            "log10_p_tukey": row["log10_p_tukey"],
+            "p_tukey": row.p_tukey,
+            "log10_p_tukey": row.log10_p_tukey,
         }
         parts.append(
-            f"{MEASURE_NAMES[row['measure']]} at {level}: best response minus expert "
-            f"{_num(means[BEST_RESPONSE] - means[EXPERT])}, p = {p_text(row['log10_p_tukey'])}"
+            f"{MEASURE_NAMES[row.measure]} at {level}: best response minus expert "
+            f"{_num(means[BEST_RESPONSE] - means[EXPERT])}, p = {p_text(row.log10_p_tukey)}"
         )
     return Verdict("; ".join(parts), values, holds)
 
 
-def _lambda_minimum(results: Results) -> Verdict:
+def _lambda_minimum(results: StudyResults) -> Verdict:
     robot = _reference(results)
-    curves: dict[int, list[dict[str, Any]]] = {}
-    for row in results["lambda_sweep"]:
-        if row["measure"] == "regret" and row["policy"] == BEST_RESPONSE and row["robot"] == robot:
-            curves.setdefault(row["num_features"], []).append(row)
+    curves: dict[int, list[CellMean]] = {}
+    for row in results.lambda_sweep:
+        if row.measure == "regret" and row.policy == BEST_RESPONSE and row.robot == robot:
+            curves.setdefault(row.num_features, []).append(row)
     values, parts, holds = {}, [], True
     for level, curve in sorted(curves.items()):
-        curve = sorted(curve, key=lambda row: row["rationality"])
-        best = min(curve, key=lambda row: (row["mean"], row["rationality"]))
-        ends = (curve[0]["mean"], curve[-1]["mean"])
+        curve = sorted(curve, key=lambda row: row.rationality)
+        best = min(curve, key=lambda row: (row.mean, row.rationality))
+        ends = (curve[0].mean, curve[-1].mean)
         interior = best is not curve[0] and best is not curve[-1]
-        holds &= interior and best["ci95_high"] < min(ends)
+        holds &= interior and best.ci95_high < min(ends)
         values[str(level)] = {
-            "argmin_lambda": best["rationality"],
-            "min_mean": best["mean"],
-            "min_ci95_high": best["ci95_high"],
+            "argmin_lambda": best.rationality,
+            "min_mean": best.mean,
+            "min_ci95_high": best.ci95_high,
             "mean_at_smallest_lambda": ends[0],
             "mean_at_largest_lambda": ends[1],
         }
         parts.append(
-            f"{level} features: lowest {_num(best['mean'])} (CI upper {_num(best['ci95_high'])}) "
-            f"at lambda = {best['rationality']:g}; {_num(ends[0])} at {curve[0]['rationality']:g}, "
-            f"{_num(ends[1])} at {curve[-1]['rationality']:g}"
+            f"{level} features: lowest {_num(best.mean)} (CI upper {_num(best.ci95_high)}) "
+            f"at lambda = {best.rationality:g}; {_num(ends[0])} at {curve[0].rationality:g}, "
+            f"{_num(ends[1])} at {curve[-1].rationality:g}"
         )
     return Verdict("; ".join(parts), values, holds)
 
 
-def _effect(rows: list[dict], measure: str, **where: Any) -> dict[str, Any]:
+def _effect(rows: list[Row], measure: str, **where: Any) -> Row:
     """The one row of ``rows`` for ``measure`` that matches ``where``."""
     found = [
-        r for r in rows if r["measure"] == measure and all(r.get(k) == v for k, v in where.items())
+        r
+        for r in rows
+        if r.measure == measure and all(getattr(r, k, None) == v for k, v in where.items())
     ]
     if len(found) != 1:
         raise ValueError(f"expected one row for {measure} {where}, found {len(found)}")
     return found[0]
 
 
-def _signed(row: dict[str, Any], sign: int) -> bool:
+def _signed(row: PairedDifference, sign: int) -> bool:
     """Significant (Holm) with ``mean_diff`` of the given sign."""
-    if row["p_holm"] is None or row["mean_diff"] is None:
+    if row.p_holm is None or row.mean_diff is None:
         return False
-    return bool(row["p_holm"] < SIGNIFICANCE and np.sign(row["mean_diff"]) == sign)
+    return bool(row.p_holm < SIGNIFICANCE and np.sign(row.mean_diff) == sign)
 
 
-def _paper_robot(results: Results) -> str:
-    robots = results["design"]["robots"]
+def _paper_robot(results: StudyResults) -> str:
+    robots = results.design.robots
     return MAP if MAP in robots else robots[0]
 
 
-def _best_response_beats_expert(results: Results) -> Verdict:
+def _best_response_beats_expert(results: StudyResults) -> Verdict:
     robot = _paper_robot(results)
     effects = [
-        _effect(results["against_baseline"], m, robot=robot, num_features=k, level=BEST_RESPONSE)
+        _effect(results.against_baseline, m, robot=robot, num_features=k, level=BEST_RESPONSE)
         for m in MEASURES
-        for k in results["design"]["feature_levels"]
+        for k in results.design.feature_levels
     ]
     return Verdict(
         "; ".join(
-            f"{MEASURE_NAMES[e['measure']]} at K={e['num_features']}: {_num(e['mean_diff'])} "
-            f"(p_holm {p_value(e['p_holm'])})"
+            f"{MEASURE_NAMES[e.measure]} at K={e.num_features}: {_num(e.mean_diff)} "
+            f"(p_holm {p_value(e.p_holm)})"
             for e in effects
         ),
         {},
@@ -299,66 +304,68 @@ def _best_response_beats_expert(results: Results) -> Verdict:
     )
 
 
-def _robot_effects(results: Results, measure: str) -> tuple[dict[str, Any], dict[str, Any]]:
+def _robot_effects(
+    results: StudyResults, measure: str
+) -> tuple[PairedDifference, PairedDifference]:
     """The 2 x 2's simple effects of the robot on ``measure``: with the pedagogic human, and
     with the literal one (pooled over the feature levels)."""
-    effects = results["milli_dragan"]["robot_effect"]
+    effects = results.milli_dragan.robot_effect
     return _effect(effects, measure, policy=PEDAGOGIC), _effect(effects, measure, policy=LITERAL)
 
 
-def _crossover(results: Results) -> Verdict:
+def _crossover(results: StudyResults) -> Verdict:
     crossover, measured = {}, []
     for m in MEASURES:
         with_pedagogic, with_literal = _robot_effects(results, m)
         crossover[m] = _signed(with_pedagogic, -1) and _signed(with_literal, 1)
         measured.append(
-            f"{MEASURE_NAMES[m]}: pragmatic - literal robot {_num(with_pedagogic['mean_diff'])} "
-            f"(p_holm {p_value(with_pedagogic['p_holm'])}) with a pedagogic human, "
-            f"{_num(with_literal['mean_diff'])} (p_holm {p_value(with_literal['p_holm'])}) with a "
+            f"{MEASURE_NAMES[m]}: pragmatic - literal robot {_num(with_pedagogic.mean_diff)} "
+            f"(p_holm {p_value(with_pedagogic.p_holm)}) with a pedagogic human, "
+            f"{_num(with_literal.mean_diff)} (p_holm {p_value(with_literal.p_holm)}) with a "
             "literal one"
         )
     return Verdict("; ".join(measured), {"by_measure": crossover}, all(crossover.values()))
 
 
-def _robustness(results: Results) -> Verdict:
+def _robustness(results: StudyResults) -> Verdict:
     robust, measured = {}, []
     for m in MEASURES:
         with_pedagogic, with_literal = _robot_effects(results, m)
-        anova = _effect(results["milli_dragan"]["anova"], m, effect="robot")
-        mean_effect = (with_pedagogic["mean_diff"] + with_literal["mean_diff"]) / 2
-        robust[m] = anova["p"] is not None and bool(anova["p"] < SIGNIFICANCE and mean_effect > 0)
+        anova = _effect(results.milli_dragan.anova, m, effect="robot")
+        mean_effect = (with_pedagogic.mean_diff + with_literal.mean_diff) / 2
+        robust[m] = anova.p is not None and bool(anova.p < SIGNIFICANCE and mean_effect > 0)
         measured.append(
             f"{MEASURE_NAMES[m]}: mean pragmatic - literal {_num(mean_effect)}, robot "
-            f"F({anova['df1']}, {anova['df2']}) = {_num(anova['F'])}, p = {p_value(anova['p'])}"
+            f"F({anova.df1}, {anova.df2}) = {_num(anova.F)}, p = {p_value(anova.p)}"
         )
     return Verdict("; ".join(measured), {"by_measure": robust}, all(robust.values()))
 
 
-def _versus(results: Results) -> Verdict:
+def _versus(results: StudyResults) -> Verdict:
     ahead: dict[str, str] = {}
     measured = []
-    for row in results["best_response_vs_pedagogic"]:
-        key = f"{row['measure']}:{row['robot']}:{row['num_features']}"
-        if row["p_holm"] is None or row["p_holm"] >= SIGNIFICANCE:
+    for row in results.best_response_vs_pedagogic:
+        key = f"{row.measure}:{row.robot}:{row.num_features}"
+        if row.p_holm is None or row.p_holm >= SIGNIFICANCE:
             ahead[key] = "neither"
         else:
-            ahead[key] = BEST_RESPONSE if row["mean_diff"] < 0 else PEDAGOGIC
-        if row["measure"] == "regret":
+            ahead[key] = BEST_RESPONSE if row.mean_diff < 0 else PEDAGOGIC
+        if row.measure == "regret":
             measured.append(
-                f"robot {row['robot']}, K={row['num_features']}: best response - pedagogic "
-                f"{_num(row['mean_diff'])} (p_holm {p_value(row['p_holm'])})"
+                f"robot {row.robot}, K={row.num_features}: best response - pedagogic "
+                f"{_num(row.mean_diff)} (p_holm {p_value(row.p_holm)})"
             )
     return Verdict("regret: " + "; ".join(measured), {"ahead": ahead}, None)
 
 
-def _optimal_gap(results: Results) -> Verdict:
-    gaps = [g for g in results["regret_optimal"]["gaps"] if g["policy"] == BEST_RESPONSE]
+def _optimal_gap(results: StudyResults) -> Verdict:
+    gaps = [g for g in results.regret_optimal.gaps if g.policy == BEST_RESPONSE]
     return Verdict(
         "; ".join(
-            f"K={g['num_features']}: regret {_num(g['mean_policy'])} vs "
-            f"{_num(g['mean_regret_optimal'])}, gap {_num(g['mean_gap'])} "
-            f"[{_num(g['ci95_low'])}, {_num(g['ci95_high'])}], "
-            f"as good as the best found for {100 * g['share_optimal']:.1f}% of draws"
+            f"K={g.num_features}: regret {_num(g.mean_policy)} vs "
+            f"{_num(g.mean_regret_optimal)}, gap {_num(g.mean_gap)} "
+            f"[{_num(g.ci95_low)}, {_num(g.ci95_high)}], "
+            f"as good as the best found for {100 * g.share_optimal:.1f}% of draws"
             for g in gaps
         )
         or "the best response was not played",
@@ -488,18 +495,18 @@ CLAIMS: tuple[Claim, ...] = (
 """Every claim a study's report judges, in the order it lists them."""
 
 
-def design_of_results(results: Results) -> Design:
+def design_of_results(results: StudyResults) -> Design:
     """The :class:`~cirl_study.analysis.cells.Design` of a run's results."""
-    design = results["design"]
+    design = results.design
     return Design(
-        humans=tuple(design["humans"]),
-        robots=tuple(design["robots"]),
-        feature_levels=tuple(design["feature_levels"]),
-        sweep_rationalities=tuple(design["sweep_rationalities"]),
+        humans=tuple(design.humans),
+        robots=tuple(design.robots),
+        feature_levels=tuple(design.feature_levels),
+        sweep_rationalities=tuple(design.sweep_rationalities),
     )
 
 
-def judged(claim: Claim, results: Results) -> dict[str, Any]:
+def judged(claim: Claim, results: StudyResults) -> ClaimRow:
     """The row of one claim on ``results``: judged where the run has its cells."""
     lacking = claim.needs.lacking(design_of_results(results))
     verdict = (
@@ -507,23 +514,23 @@ def judged(claim: Claim, results: Results) -> dict[str, Any]:
         if lacking
         else claim.judge(results)
     )
-    return {
-        "id": claim.id,
-        "source": claim.source,
-        "claim": claim.statement,
-        "rule": claim.rule,
-        "measurement": verdict.measurement,
-        "values": plain(verdict.values),
-        "tested": lacking is None,
-        "reproduced": None if verdict.reproduced is None else bool(verdict.reproduced),
-        "evidence": list(claim.evidence),
-    }
+    return ClaimRow(
+        id=claim.id,
+        source=claim.source,
+        claim=claim.statement,
+        rule=claim.rule,
+        measurement=verdict.measurement,
+        values=plain(verdict.values),
+        tested=lacking is None,
+        reproduced=None if verdict.reproduced is None else bool(verdict.reproduced),
+        evidence=list(claim.evidence),
+    )
 
 
 _EXTERNAL_TEXT = ("id", "source", "claim", "rule", "measurement")
 
 
-def external_claims(theory: Mapping[str, Any]) -> list[dict[str, Any]]:
+def external_claims(theory: Mapping[str, Any]) -> list[ClaimRow]:
     """Claim rows supplied by another analysis (e.g. the office-supplies theory results).
 
     ``theory["claims"]`` must be a list of rows with the string fields ``id, source, claim,
@@ -552,24 +559,26 @@ def external_claims(theory: Mapping[str, Any]) -> list[dict[str, Any]]:
         if not isinstance(evidence, list) or not all(isinstance(e, str) for e in evidence):
             raise UserError(f"{where}: 'evidence' must be a list of strings")
         claims.append(
-            {
+            ClaimRow(
                 **{key: entry[key] for key in _EXTERNAL_TEXT},
-                "values": plain(entry.get("values", {})),
-                "tested": tested,
-                "reproduced": bool(tested and entry["reproduced"]),
-                "evidence": list(evidence),
-            }
+                values=plain(entry.get("values", {})),
+                tested=tested,
+                reproduced=bool(tested and entry["reproduced"]),
+                evidence=list(evidence),
+            )
         )
     return claims
 
 
-def evaluate_claims(results: Results, theory: Mapping[str, Any] | None = None) -> list[dict]:
+def evaluate_claims(
+    results: StudyResults, theory: Mapping[str, Any] | None = None
+) -> list[ClaimRow]:
     """Every claim row: those of :data:`CLAIMS`, then those of ``theory``."""
     claims = [judged(claim, results) for claim in CLAIMS]
-    ids = {claim["id"] for claim in claims}
+    ids = {claim.id for claim in claims}
     for claim in external_claims(theory) if theory is not None else []:
-        if claim["id"] in ids:
-            raise UserError(f"theory results: claim id {claim['id']!r} is already used")
-        ids.add(claim["id"])
+        if claim.id in ids:
+            raise UserError(f"theory results: claim id {claim.id!r} is already used")
+        ids.add(claim.id)
         claims.append(claim)
     return claims

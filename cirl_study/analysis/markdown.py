@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 import re
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
@@ -13,8 +13,9 @@ MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
 P_VALUES = ("p", "p_holm", "p_tukey")
 """Fields of the results shown as p-values."""
 
-Column = str | Callable[[Mapping[str, Any]], str]
-"""A column of a statistics table: a field of the results, or a function of the row."""
+Column = str | Callable[[Any], str]
+"""A column of a statistics table: a field of the rows (an attribute of the typed results,
+:mod:`cirl_study.analysis.result_types`), or a function of the row."""
 
 
 def number(value: float | int | None, digits: int = 4) -> str:
@@ -93,28 +94,28 @@ def anchor(heading: str) -> str:
     return re.sub(r"[^a-z0-9 _-]", "", heading.strip().lower()).replace(" ", "-")
 
 
-def formatted(rows: Sequence[Mapping[str, Any]], columns: Sequence[Column]) -> list[list[str]]:
+def formatted(rows: Sequence[Any], columns: Sequence[Column]) -> list[list[str]]:
     """The cells of ``rows``: a measure by its short name, a p-value (from its ``log10_``
     field where the row has one, so an underflowed p shows its value), a text, or a number
     (every report's tables; a column is a field of the rows or a function of a row)."""
 
-    def cell(row: Mapping[str, Any], column: Column) -> str:
+    def cell(row: Any, column: Column) -> str:
         if callable(column):
             return column(row)
-        value = row[column]
+        value = getattr(row, column)
         if column == "measure":
             return MEASURE_NAMES[value]
         if column in P_VALUES:
-            log10_p = row.get(f"log10_{column}")
+            log10_p = getattr(row, f"log10_{column}", None)
             return p_value(value) if log10_p is None else p_text(log10_p)
         return value if isinstance(value, str) else number(value)
 
     return [[cell(row, column) for column in columns] for row in rows]
 
 
-def ci(row: Mapping[str, Any]) -> str:
+def ci(row: Any) -> str:
     """A row's 95% confidence interval, ``[ci95_low, ci95_high]``."""
-    return interval(row["ci95_low"], row["ci95_high"])
+    return interval(row.ci95_low, row.ci95_high)
 
 
 def name(identifier: str) -> str:

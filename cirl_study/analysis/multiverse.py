@@ -1,7 +1,8 @@
 """Every number of a multiverse's report: the paper's claims in every universe, and across them.
 
 :func:`analyse_multiverse` takes the rows of a multiverse run (:mod:`cirl_study.study.multiverse`)
-and its pipeline, and returns plain JSON-ready data:
+and its pipeline, and returns them typed
+(:class:`~cirl_study.analysis.result_types.MultiverseResults`):
 
 * ``universes``: per universe, its settings, the paper's claims judged on its trials with the
   paper report's own rules (:func:`cirl_study.analysis.claims.evaluate_claims` on
@@ -32,12 +33,17 @@ import statsmodels.api as sm
 from statsmodels.stats.anova import anova_lm
 
 from cirl_study.analysis import statistics
-from cirl_study.analysis.claims import evaluate_claims
 from cirl_study.analysis.measure_rows import plain, rows
-from cirl_study.analysis.result_types import Results
-from cirl_study.analysis.results import analyse
+from cirl_study.analysis.result_types import (
+    MultiverseResults,
+    UniverseClaim,
+    UniverseSummary,
+    checked,
+)
+from cirl_study.analysis.results import analyse, with_claims
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.analysis.tails import t_tail
+from cirl_study.errors import UserError
 from cirl_study.record import ETA_CV, EXPERT, MAIN, MEASURES, TrialRow
 from cirl_study.study.multiverse import base_universe, cv_universe, universe_pipeline, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe, shortest_number
@@ -89,9 +95,11 @@ def settings(universe: Universe) -> dict[str, Any]:
 def analyse_multiverse(
     trials: Sequence[TrialRow],
     pipeline: Pipeline,
+    *,
+    run_id: str | None,
     progress: Callable[[str], None] = lambda stage: None,
-) -> Results:
-    """Every number of the multiverse report (see the module docstring).
+) -> MultiverseResults:
+    """Every number of the multiverse report (see the module docstring), with the run's id.
 
     Raises:
         UserError: a universe's trials do not hold a design the paper analysis can use
@@ -105,14 +113,14 @@ def analyse_multiverse(
     ]
     per_universe = []
     for position, summary in enumerate(map_in_workers(_universe_summary, work), start=1):
-        progress(f"universe {position} of {len(chosen)} analysed: {summary['id']}")
+        progress(f"universe {position} of {len(chosen)} analysed: {summary.id}")
         per_universe.append(summary)
     progress("across universes")
     levels = _axes(pipeline)
     table = trial_table(trials)
     main = table[table["block"] == MAIN]
     effects = _effects(main)
-    return {
+    across = {
         "pipeline": pipeline.name,
         "base_universe": base.id,
         "axes": levels,
@@ -120,15 +128,16 @@ def analyse_multiverse(
             "total": len(table),
             **{str(b): int(n) for b, n in sorted(table["block"].value_counts().items())},
         },
-        "universes": plain(per_universe),
         "effects": rows(effects),
         "claims": _claim_shares(per_universe, levels),
         "regression": {m: _regression(effects, m, levels, pipeline) for m in MEASURES},
         "joint_test": {m: _joint_test(main, m) for m in MEASURES},
+        "run_id": run_id,
     }
+    return checked({**plain(across), "universes": per_universe}, MultiverseResults)
 
 
-def _universe_summary(work: tuple[Universe, list[TrialRow], Pipeline, bool]) -> dict[str, Any]:
+def _universe_summary(work: tuple[Universe, list[TrialRow], Pipeline, bool]) -> UniverseSummary:
     """One universe's entry of ``universes`` (see the module docstring), from its rows; the
     universes are analysed on every core (:func:`~cirl_study.workers.map_in_workers`).
 
@@ -137,23 +146,25 @@ def _universe_summary(work: tuple[Universe, list[TrialRow], Pipeline, bool]) -> 
     """
     universe, rows_of_universe, study, base = work
     check_design(rows_of_universe)
-    results = analyse(rows_of_universe, study)
-    claims = {
-        claim["id"]: claim for claim in evaluate_claims(results) if claim["id"] in PAPER_CLAIMS
-    }
-    return {
-        "id": universe.id,
-        "base": base,
-        "settings": settings(universe),
-        "claims": {
-            key: {k: claim[k] for k in ("tested", "reproduced", "values")}
-            for key, claim in claims.items()
+    results = with_claims(analyse(rows_of_universe, study), run_id=None, partial=None, theory=None)
+    if results.paper is None:
+        raise UserError(f"universe {universe.id}: its trials lack the paper's two humans")
+    return UniverseSummary(
+        id=universe.id,
+        base=base,
+        settings=plain(settings(universe)),
+        claims={
+            claim.id: UniverseClaim(
+                tested=claim.tested, reproduced=claim.reproduced, values=claim.values
+            )
+            for claim in results.claims
+            if claim.id in PAPER_CLAIMS
         },
-        "eta": results["eta_cv"]["chosen"],
-        "anova": results["paper"]["anova"],
-        "cells": results["cells"],
-        "cronbach_alpha": results["paper"]["cronbach_alpha"],
-    }
+        eta=results.eta_cv.chosen,
+        anova=results.paper.anova,
+        cells=results.cells,
+        cronbach_alpha=results.paper.cronbach_alpha,
+    )
 
 
 def _axes(pipeline: Pipeline) -> dict[str, list[Any]]:
@@ -178,19 +189,19 @@ def _effects(main: pd.DataFrame) -> pd.DataFrame:
 
 
 def _claim_shares(
-    per_universe: list[dict[str, Any]], levels: dict[str, list[Any]]
+    per_universe: list[UniverseSummary], levels: dict[str, list[Any]]
 ) -> list[dict[str, Any]]:
     """Per claim: universes reproducing it, the base universe's verdict, shares at each of the
     axis ``levels`` (:func:`_axes`)."""
     shares = []
     for claim in PAPER_CLAIMS:
-        tested = [u for u in per_universe if u["claims"][claim]["tested"]]
+        tested = [u for u in per_universe if u.claims[claim].tested]
         by_level = {
             axis: [
                 {
                     "level": level,
-                    "universes": len(at := [u for u in tested if u["settings"][axis] == level]),
-                    "reproduced": sum(u["claims"][claim]["reproduced"] for u in at),
+                    "universes": len(at := [u for u in tested if u.settings[axis] == level]),
+                    "reproduced": sum(u.claims[claim].reproduced for u in at),
                 }
                 for level in levels[axis]
             ]
@@ -201,11 +212,9 @@ def _claim_shares(
             {
                 "id": claim,
                 "universes": len(tested),
-                "reproduced": sum(u["claims"][claim]["reproduced"] for u in tested),
-                "base_reproduced": next(
-                    u["claims"][claim]["reproduced"] for u in per_universe if u["base"]
-                ),
-                "holds_in": [u["id"] for u in tested if u["claims"][claim]["reproduced"]],
+                "reproduced": sum(u.claims[claim].reproduced for u in tested),
+                "base_reproduced": next(u.claims[claim].reproduced for u in per_universe if u.base),
+                "holds_in": [u.id for u in tested if u.claims[claim].reproduced],
                 "by_level": by_level,
             }
         )

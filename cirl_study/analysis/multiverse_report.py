@@ -15,14 +15,14 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import pandas as pd
 
 from cirl_study.analysis import figures
 from cirl_study.analysis.markdown import MEASURE_NAMES, document, interval, number, p_value, table
-from cirl_study.analysis.measure_rows import plain
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
 from cirl_study.analysis.output import write_report_directory
-from cirl_study.analysis.result_types import MultiverseResults, Results, checked
+from cirl_study.analysis.result_types import ClaimShare, LevelShare, MultiverseResults, frame
 from cirl_study.record import MEASURES, TrialRow
 from cirl_study.study.spec import AXES, Pipeline
 
@@ -40,21 +40,21 @@ FIGURE_NAMES = {measure: f"specification_curve_{measure}.png" for measure in MEA
 """The specification curve of each measure."""
 
 
-def _varied(results: Results) -> list[str]:
+def _varied(results: MultiverseResults) -> list[str]:
     """The axes whose levels differ between the universes."""
-    return [axis for axis, levels in results["axes"].items() if len(levels) > 1]
+    return [axis for axis, levels in results.axes.items() if len(levels) > 1]
 
 
-def _header(results: Results) -> list[str]:
-    universes = results["universes"]
-    base = results["base_universe"]
-    varied = {axis: results["axes"][axis] for axis in _varied(results)}
+def _header(results: MultiverseResults) -> list[str]:
+    universes = results.universes
+    base = results.base_universe
+    varied = {axis: results.axes[axis] for axis in _varied(results)}
     lines = [
-        f"# Multiverse report: `{results['pipeline']}`",
+        f"# Multiverse report: `{results.pipeline}`",
         "",
         f"The paper's study (the eta cross-validation and the main policy x num_features "
         f"design) played in **{len(universes)} universes**, each a choice of the settings the "
-        f"paper leaves open, on the same reward draws ({results['trials']['total']} trials). "
+        f"paper leaves open, on the same reward draws ({results.trials['total']} trials). "
         "Each universe's claims are judged with the paper report's own rules; the lambda claim "
         "needs a sweep, which a universe does not play (lambda is an axis).",
         "",
@@ -72,15 +72,15 @@ def _header(results: Results) -> list[str]:
     return lines
 
 
-def _claims(results: Results) -> list[str]:
+def _claims(results: MultiverseResults) -> list[str]:
     rows = []
-    for claim in results["claims"]:
-        reproduced, tested = claim["reproduced"], claim["universes"]
+    for claim in results.claims:
+        reproduced, tested = claim.reproduced, claim.universes
         rows.append(
             [
-                f"{claim['id']}: {CLAIM_TEXT[claim['id']]}",
+                f"{claim.id}: {CLAIM_TEXT[claim.id]}",
                 f"{reproduced} of {tested}",
-                "✅" if claim["base_reproduced"] else "❌",
+                "✅" if claim.base_reproduced else "❌",
                 _where(claim),
             ]
         )
@@ -104,34 +104,34 @@ def _claims(results: Results) -> list[str]:
     ]
 
 
-def _where(claim: Mapping[str, Any]) -> str:
+def _where(claim: ClaimShare) -> str:
     """The axis levels, each of two universes or more, at which every universe reproduces the
     claim (or a word why none): a level of one universe says no more than that universe."""
-    if claim["reproduced"] == 0:
+    if claim.reproduced == 0:
         return "none"
-    if claim["reproduced"] == claim["universes"]:
+    if claim.reproduced == claim.universes:
         return "everywhere"
     always = [
-        f"{axis} = {level_label(level['level'])} ({_share(level)})"
-        for axis, levels in claim["by_level"].items()
+        f"{axis} = {level_label(level.level)} ({_share(level)})"
+        for axis, levels in claim.by_level.items()
         for level in levels
-        if level["universes"] >= 2 and level["reproduced"] == level["universes"]
+        if level.universes >= 2 and level.reproduced == level.universes
     ]
     return ", ".join(always) if always else "no single level"
 
 
-def _level_tables(results: Results) -> list[str]:
-    claims = results["claims"]
+def _level_tables(results: MultiverseResults) -> list[str]:
+    claims = results.claims
     lines = []
     for axis in AXES:
-        if axis not in claims[0]["by_level"]:
+        if axis not in claims[0].by_level:
             continue
-        levels = claims[0]["by_level"][axis]
-        header = [axis, *(claim["id"] for claim in claims)]
+        levels = claims[0].by_level[axis]
+        header = [axis, *(claim.id for claim in claims)]
         body = [
             [
-                f"{level_label(level['level'])} ({_universe_count(level['universes'])})",
-                *(_share(claim["by_level"][axis][i]) for claim in claims),
+                f"{level_label(level.level)} ({_universe_count(level.universes)})",
+                *(_share(claim.by_level[axis][i]) for claim in claims),
             ]
             for i, level in enumerate(levels)
         ]
@@ -144,8 +144,8 @@ def _universe_count(count: int) -> str:
     return f"{count} universe" if count == 1 else f"{count} universes"
 
 
-def _share(level: Mapping[str, Any]) -> str:
-    return f"{level['reproduced']} / {level['universes']}"
+def _share(level: LevelShare) -> str:
+    return f"{level.reproduced} / {level.universes}"
 
 
 def _effect(row: Mapping[str, Any], measure: str) -> str:
@@ -153,13 +153,13 @@ def _effect(row: Mapping[str, Any], measure: str) -> str:
     return f"{number(row[f'{measure}_effect'])} {interval(low, high)}"
 
 
-def _holds(results: Results) -> list[str]:
+def _holds(results: MultiverseResults) -> list[str]:
     lines = ["## Where the claims the base universe does not reproduce hold", ""]
-    for claim in results["claims"]:
-        if claim["base_reproduced"]:
+    for claim in results.claims:
+        if claim.base_reproduced:
             continue
-        holds = claim["holds_in"]
-        lines.append(f"- **{claim['id']}** ({CLAIM_TEXT[claim['id']]}): ")
+        holds = claim.holds_in
+        lines.append(f"- **{claim.id}** ({CLAIM_TEXT[claim.id]}): ")
         if not holds:
             lines[-1] += "in no universe."
         else:
@@ -167,7 +167,7 @@ def _holds(results: Results) -> list[str]:
     return lines
 
 
-def _curves(results: Results) -> list[str]:
+def _curves(results: MultiverseResults) -> list[str]:
     lines = [
         "## The policy effect across universes",
         "",
@@ -181,19 +181,19 @@ def _curves(results: Results) -> list[str]:
     ]
     rows = []
     for measure in MEASURES:
-        test = results["joint_test"][measure]
+        test = results.joint_test[measure]
         rows.append(
             [
                 MEASURE_NAMES[measure],
-                number(test["median_effect"]["observed"]),
-                p_value(test["median_effect"]["p"]),
-                number(test["share_significant"]["observed"]),
-                p_value(test["share_significant"]["p"]),
-                number(test["stouffer_z"]["observed"]),
-                p_value(test["stouffer_z"]["p"]),
+                number(test.median_effect.observed),
+                p_value(test.median_effect.p),
+                number(test.share_significant.observed),
+                p_value(test.share_significant.p),
+                number(test.stouffer_z.observed),
+                p_value(test.stouffer_z.p),
             ]
         )
-    resamples = results["joint_test"][MEASURES[0]]["resamples"]
+    resamples = results.joint_test[MEASURES[0]].resamples
     lines += [
         table(
             [
@@ -218,7 +218,7 @@ def _curves(results: Results) -> list[str]:
     return lines
 
 
-def _regression(results: Results) -> list[str]:
+def _regression(results: MultiverseResults) -> list[str]:
     lines = [
         "## What moves the effect",
         "",
@@ -230,41 +230,41 @@ def _regression(results: Results) -> list[str]:
     ]
     shares_rows = []
     for measure in MEASURES:
-        fit = results["regression"][measure]
-        if fit["variance_shares"] is None:
+        fit = results.regression[measure]
+        if fit.variance_shares is None:
             continue
         shares_rows.append(
             [
                 MEASURE_NAMES[measure],
-                *(number(fit["variance_shares"][axis], 3) for axis in fit["variance_shares"]),
-                number(fit["r_squared"], 3),
+                *(number(fit.variance_shares[axis], 3) for axis in fit.variance_shares),
+                number(fit.r_squared, 3),
             ]
         )
     first = next(
-        (results["regression"][m] for m in MEASURES if results["regression"][m]["variance_shares"]),
+        (results.regression[m] for m in MEASURES if results.regression[m].variance_shares),
         None,
     )
     if first is None:
         return [*lines, "Too few universes for the regression (no residual degrees of freedom)."]
-    axes = list(first["variance_shares"])
+    axes = list(first.variance_shares)
     lines += [
         table(["measure", *axes, "R²"], shares_rows, [False, *[True] * (len(axes) + 1)]),
         "",
     ]
     for measure in MEASURES:
-        fit = results["regression"][measure]
+        fit = results.regression[measure]
         rows = [
             [
-                "intercept (base universe)" if c["axis"] is None else f"{c['axis']} = {c['level']}",
-                number(c["estimate"]),
-                interval(c["ci95_low"], c["ci95_high"]),
-                p_value(c["p"]),
+                "intercept (base universe)" if c.axis is None else f"{c.axis} = {c.level}",
+                number(c.estimate),
+                interval(c.ci95_low, c.ci95_high),
+                p_value(c.p),
             ]
-            for c in fit["coefficients"]
+            for c in fit.coefficients
         ]
         lines += [
-            f"**{MEASURE_NAMES[measure]}** ({fit['universes']} universes, "
-            f"{int(fit['df_residual'])} residual df):",
+            f"**{MEASURE_NAMES[measure]}** ({fit.universes} universes, "
+            f"{int(fit.df_residual)} residual df):",
             "",
             table(["term", "estimate", "95% CI", "p"], rows, [False, True, False, True]),
             "",
@@ -272,16 +272,16 @@ def _regression(results: Results) -> list[str]:
     return lines
 
 
-def universe_table(results: Results) -> pd.DataFrame:
+def universe_table(results: MultiverseResults) -> pd.DataFrame:
     """One row per universe: its settings, its verdicts and its policy effect per measure."""
-    effects = pd.DataFrame(results["effects"]).set_index(["universe", "measure"])
+    effects = frame(results.effects).set_index(["universe", "measure"])
     rows = []
-    for universe in results["universes"]:
-        row: dict[str, Any] = {"universe": universe["id"], "base": universe["base"]}
-        row |= {axis: universe["settings"][axis] for axis in AXES}
-        row |= {claim: universe["claims"][claim]["reproduced"] for claim in PAPER_CLAIMS}
+    for universe in results.universes:
+        row: dict[str, Any] = {"universe": universe.id, "base": universe.base}
+        row |= {axis: universe.settings[axis] for axis in AXES}
+        row |= {claim: universe.claims[claim].reproduced for claim in PAPER_CLAIMS}
         for measure in MEASURES:
-            effect = effects.loc[(universe["id"], measure)]
+            effect = effects.loc[(universe.id, measure)]
             row |= {
                 f"{measure}_effect": effect["mean_diff"],
                 f"{measure}_ci95_low": effect["ci95_low"],
@@ -292,7 +292,7 @@ def universe_table(results: Results) -> pd.DataFrame:
     return pd.DataFrame(rows)
 
 
-def _universes(results: Results) -> list[str]:
+def _universes(results: MultiverseResults) -> list[str]:
     frame = universe_table(results)
     varied = _varied(results)
     rows = [
@@ -318,7 +318,7 @@ def _universes(results: Results) -> list[str]:
     ]
 
 
-def render_markdown(results: Results) -> str:
+def render_markdown(results: MultiverseResults) -> str:
     """``report.md`` of a multiverse: every section, from the results alone."""
     sections = [
         _header(results),
@@ -331,13 +331,13 @@ def render_markdown(results: Results) -> str:
     return document(sections)
 
 
-def render_figures(results: Results) -> dict[str, bytes]:
+def render_figures(results: MultiverseResults) -> dict[str, bytes]:
     """The specification curves, PNG and SVG, by file name."""
-    effects = pd.DataFrame(results["effects"])
+    effects = frame(results.effects)
     varied = _varied(results)
     choices = pd.DataFrame(
-        [{axis: level_label(u["settings"][axis]) for axis in varied} for u in results["universes"]],
-        index=[u["id"] for u in results["universes"]],
+        [{axis: level_label(u.settings[axis]) for axis in varied} for u in results.universes],
+        index=[u.id for u in results.universes],
     )
     return figures.draw_all(
         {
@@ -347,7 +347,7 @@ def render_figures(results: Results) -> dict[str, bytes]:
                     effects[effects["measure"] == measure],
                     choices,
                     measure,
-                    results["base_universe"],
+                    results.base_universe,
                 ),
             )
             for measure in MEASURES
@@ -363,7 +363,7 @@ def write_multiverse_report(
     run_id: str,
     provenance: Mapping[str, Any] | None = None,
     progress: Callable[[str], None] = lambda stage: None,
-) -> Results:
+) -> MultiverseResults:
     """Analyse a multiverse run's trials and write its report directory.
 
     Writes ``report.md``, ``results.json`` (every number at full precision),
@@ -371,20 +371,17 @@ def write_multiverse_report(
     and ``provenance`` (if given) as ``provenance.json``.
 
     Returns:
-        The content of ``results.json``.
+        The typed content of ``results.json``.
 
     Raises:
         UserError: a universe's design cannot be analysed, or the report cannot be written.
     """
-    results = analyse_multiverse(trials, pipeline, progress)
-    results["run_id"] = run_id
+    results = analyse_multiverse(trials, pipeline, run_id=run_id, progress=progress)
     progress("figures")
-    results = plain(results)
-    checked(results, MultiverseResults)
     write_report_directory(
         out_dir,
         markdown=render_markdown(results),
-        results=results,
+        results=msgspec.to_builtins(results),
         tables={"universes.csv": universe_table(results)},
         figures=render_figures(results),
         provenance=provenance,

@@ -7,35 +7,37 @@ lines, or none when the run has nothing for it.
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from typing import Any
-
 from cirl_study.analysis import markdown as md
 from cirl_study.analysis.claims import SIGNIFICANCE
-from cirl_study.analysis.result_types import Results
+from cirl_study.analysis.result_types import (
+    PairedDifference,
+    RobotComparison,
+    StudyResults,
+    TukeyRow,
+)
 from cirl_study.analysis.sections import FIGURES, heading
 from cirl_study.analysis.study_report import anova_table
 
 
-def paper_anova(results: Results) -> list[str]:
+def paper_anova(results: StudyResults) -> list[str]:
     """The paper's mixed ANOVA, on the reference robot's trials of its two humans (in the
     paper's own design, the ANOVA of the whole design)."""
-    if results["paper"] is None:
+    if results.paper is None:
         return []
     return [
         heading(3, "paper.anova"),
         "",
         f"On the trials of `expert` and `best_response` watched by "
-        f"`{results['design']['reference_robot']}`, per measure: within subjects `policy`, "
+        f"`{results.design.reference_robot}`, per measure: within subjects `policy`, "
         "between subjects `num_features` (a subject is one reward draw, at one feature level "
         "only). With two policies sphericity holds, so the p-values are uncorrected. The "
         "paper's claims are judged on it.",
         "",
-        anova_table(results["paper"]["anova"]),
+        anova_table(results.paper.anova),
     ]
 
 
-def simple_effects(results: Results) -> list[str]:
+def simple_effects(results: StudyResults) -> list[str]:
     """The paired simple effects of policy within each feature level."""
     columns: list[md.Column] = [
         "measure",
@@ -44,15 +46,13 @@ def simple_effects(results: Results) -> list[str]:
         "mean_expert",
         "mean_best_response",
         "mean_diff",
-        lambda row: md.interval(row["ci95_low"], row["ci95_high"]),
-        lambda row: md.interval(row["boot_diff_low"], row["boot_diff_high"]),
-        lambda row: f"t({row['df']}) = {md.number(row['t'])}",
+        lambda row: md.interval(row.ci95_low, row.ci95_high),
+        lambda row: md.interval(row.boot_diff_low, row.boot_diff_high),
+        lambda row: f"t({row.df}) = {md.number(row.t)}",
         "p_holm",
-        lambda row: (
-            f"{md.number(row['d_z'])} {md.interval(row['boot_d_z_low'], row['boot_d_z_high'], 3)}"
-        ),
+        lambda row: f"{md.number(row.d_z)} {md.interval(row.boot_d_z_low, row.boot_d_z_high, 3)}",
     ]
-    rows = md.formatted(results["paper"]["simple_effects"], columns)
+    rows = md.formatted(results.paper.simple_effects, columns)
     header = [
         "measure",
         "features",
@@ -78,17 +78,21 @@ def simple_effects(results: Results) -> list[str]:
     ]
 
 
-def tukey(results: Results) -> list[str]:
+def tukey(results: StudyResults) -> list[str]:
     """Tukey HSD over the policy x features cells, as the paper ran it."""
 
     def cell(side: str) -> md.Column:
-        return lambda row: f"{md.name(row[f'{side}_policy'])}, {row[f'{side}_num_features']}"
+        def label(row: TukeyRow) -> str:
+            policy = getattr(row, f"{side}_policy")
+            return f"{md.name(policy)}, {getattr(row, f'{side}_num_features')}"
+
+        return label
 
     columns = [
         "measure", cell("a"), cell("b"), "diff", "se", "T",
-        lambda row: md.p_text(row["log10_p_tukey"]), "hedges",
+        lambda row: md.p_text(row.log10_p_tukey), "hedges",
     ]  # fmt: skip
-    rows = md.formatted(results["paper"]["tukey_hsd"], columns)
+    rows = md.formatted(results.paper.tukey_hsd, columns)
     header = ["measure", "cell A", "cell B", "mean A − mean B", "SE", "T", "p (Tukey)", "Hedges g"]
     return [
         heading(3, "paper.tukey_hsd"),
@@ -105,10 +109,10 @@ def tukey(results: Results) -> list[str]:
     ]
 
 
-def wilcoxon(results: Results) -> list[str]:
+def wilcoxon(results: StudyResults) -> list[str]:
     """The Wilcoxon signed-rank checks of the simple effects."""
     rows = md.formatted(
-        results["paper"]["wilcoxon"], ["measure", "num_features", "n", "W", "p", "rbc", "cles"]
+        results.paper.wilcoxon, ["measure", "num_features", "n", "W", "p", "rbc", "cles"]
     )
     header = ["measure", "features", "n", "W", "p", "rank-biserial r", "CLES"]
     return [
@@ -120,68 +124,68 @@ def wilcoxon(results: Results) -> list[str]:
     ]
 
 
-def cronbach(results: Results) -> list[str]:
+def cronbach(results: StudyResults) -> list[str]:
     """Cronbach's alpha across the three measures, raw and standardised."""
-    alpha = results["paper"]["cronbach_alpha"]
+    alpha = results.paper.cronbach_alpha
     rows = [
-        ["raw", md.number(alpha["raw"]), md.interval(*alpha["ci95"])],
+        ["raw", md.number(alpha.raw), md.interval(*alpha.ci95)],
         [
             "standardised",
-            md.number(alpha["standardized"]),
-            md.interval(*alpha["ci95_standardized"]),
+            md.number(alpha.standardized),
+            md.interval(*alpha.ci95_standardized),
         ],
     ]
     return [
         heading(3, "paper.cronbach_alpha"),
         "",
-        f"Across the measures {', '.join(alpha['items'])}; rows: {alpha['rows']}. "
+        f"Across the measures {', '.join(alpha.items)}; rows: {alpha.rows}. "
         "Standardised alpha uses z-scored measures; intervals are Feldt's.",
         "",
         md.table(["alpha", "value", "95% CI"], rows, [False, True, True]),
     ]
 
 
-def figure1(results: Results) -> list[str]:
+def figure1(results: StudyResults) -> list[str]:
     """Figure 1: the true reward and both demonstrations of one typical reward draw."""
-    chosen = results["paper"]["figure1"]
+    chosen = results.paper.figure1
     name, _ = FIGURES["figure1"]
     return [
         heading(2, "paper.figure1"),
         "",
         md.image("Figure 1: true reward and both demonstrations over their MAP rewards", name),
         "",
-        f"Reward draw `{chosen['subject']}` ({chosen['num_features']} features), chosen as "
-        f"{chosen['rule']}: regret {md.number(chosen['regret_expert'])} after the expert's "
-        f"demonstration, {md.number(chosen['regret_best_response'])} after the best response's. "
+        f"Reward draw `{chosen.subject}` ({chosen.num_features} features), chosen as "
+        f"{chosen.rule}: regret {md.number(chosen.regret_expert)} after the expert's "
+        f"demonstration, {md.number(chosen.regret_best_response)} after the best response's. "
         "Left: the true reward of each cell; middle and right: each demonstration (from the "
         "white dot to the white square) over the MAP reward the robot inferred from it; crosses: "
         "RBF centres.",
     ]
 
 
-def _robot_verdict(row: Mapping[str, Any]) -> str:
+def _robot_verdict(row: PairedDifference) -> str:
     """``better``, ``worse`` (Holm-adjusted p below :data:`SIGNIFICANCE`) or ``no difference``."""
-    if row["p_holm"] is None or row["p_holm"] >= SIGNIFICANCE:
+    if row.p_holm is None or row.p_holm >= SIGNIFICANCE:
         return "no difference"
-    return "better" if row["mean_diff"] < 0 else "worse"
+    return "better" if row.mean_diff < 0 else "worse"
 
 
-def _robot_sweep_summary(robots: Mapping[str, Any], humans: list[str]) -> list[str]:
+def _robot_sweep_summary(robots: RobotComparison, humans: list[str]) -> list[str]:
     """Per other robot, feature level and human, the lambdas at which the other robot's
     regret is lower, and those at which it is higher, than the reference's."""
-    regret = [row for row in robots["lambda_sweep"] if row["measure"] == "regret"]
+    regret = [row for row in robots.lambda_sweep if row.measure == "regret"]
     lines = []
-    for other in robots["others"]:
-        for level in sorted({row["num_features"] for row in regret}):
+    for other in robots.others:
+        for level in sorted({row.num_features for row in regret}):
             for human in humans:
                 cell = [
                     r
                     for r in regret
-                    if r["level"] == other and r["num_features"] == level and r["policy"] == human
+                    if r.level == other and r.num_features == level and r.policy == human
                 ]
                 found = {
                     verdict: ", ".join(
-                        f"{r['rationality']:g}" for r in cell if _robot_verdict(r) == verdict
+                        f"{r.rationality:g}" for r in cell if _robot_verdict(r) == verdict
                     )
                     or "none"
                     for verdict in ("better", "worse")
@@ -193,33 +197,33 @@ def _robot_sweep_summary(robots: Mapping[str, Any], humans: list[str]) -> list[s
     return lines
 
 
-def robots(results: Results) -> list[str]:
+def robots(results: StudyResults) -> list[str]:
     """Every other robot against the reference, paired, in the main block and the sweep."""
-    compared = results["robots"]
+    compared = results.robots
     if compared is None:
         return []
-    reference, others = compared["reference"], compared["others"]
+    reference, others = compared.reference, compared.others
     named = ", ".join(f"`{other}`" for other in others)
-    lambdas = ", ".join(f"{value:g}" for value in results["design"]["main_rationality"])
-    main_regret = [row for row in compared["main"] if row["measure"] == "regret"]
+    lambdas = ", ".join(f"{value:g}" for value in results.design.main_rationality)
+    main_regret = [row for row in compared.main if row.measure == "regret"]
     answers = [
-        f"- `{row['level']}`, {md.name(row['policy'])}, {row['num_features']} features: "
-        f"{_robot_verdict(row)} (regret {md.number(row['mean_level'])} against "
-        f"{md.number(row['mean_baseline'])}; difference {md.number(row['mean_diff'])} "
-        f"{md.interval(row['ci95_low'], row['ci95_high'])}, Holm p {md.p_value(row['p_holm'])})"
+        f"- `{row.level}`, {md.name(row.policy)}, {row.num_features} features: "
+        f"{_robot_verdict(row)} (regret {md.number(row.mean_level)} against "
+        f"{md.number(row.mean_baseline)}; difference {md.number(row.mean_diff)} "
+        f"{md.interval(row.ci95_low, row.ci95_high)}, Holm p {md.p_value(row.p_holm)})"
         for row in main_regret
     ]
     paired_columns: list[md.Column] = [
         "measure",
         "num_features",
-        lambda row: md.name(row["policy"]),
+        lambda row: md.name(row.policy),
         "level",
         "n",
         "mean_baseline",
         "mean_level",
         "mean_diff",
-        lambda row: md.interval(row["ci95_low"], row["ci95_high"]),
-        lambda row: f"t({row['df']}) = {md.number(row['t'])}",
+        lambda row: md.interval(row.ci95_low, row.ci95_high),
+        lambda row: f"t({row.df}) = {md.number(row.t)}",
         "p_holm",
         "d_z",
     ]
@@ -248,15 +252,15 @@ def robots(results: Results) -> list[str]:
         "",
         md.table(
             paired_header,
-            md.formatted(compared["main"], paired_columns),
+            md.formatted(compared.main, paired_columns),
             [False, True, False, False, *[True] * 8],
         ),
     ]
-    if not compared["lambda_sweep"]:
+    if not compared.lambda_sweep:
         return [*lines, "", "This run has no trials in the `lambda_sweep` block."]
-    regret = [row for row in compared["lambda_sweep"] if row["measure"] == "regret"]
+    regret = [row for row in compared.lambda_sweep if row.measure == "regret"]
     sweep_columns: list[md.Column] = [
-        lambda row: f"{row['rationality']:g}",
+        lambda row: f"{row.rationality:g}",
         *paired_columns[1:9],
         "p_holm",
     ]
@@ -269,7 +273,7 @@ def robots(results: Results) -> list[str]:
         f"Regret against `{reference}`, Holm-adjusted over the whole sweep (KL and L2 are in "
         "`results.json`, `robots.lambda_sweep`):",
         "",
-        *_robot_sweep_summary(compared, results["design"]["humans"]),
+        *_robot_sweep_summary(compared, results.design.humans),
         "",
         md.table(
             ["λ", *paired_header[1:9], "p (Holm)"],

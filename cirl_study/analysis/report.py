@@ -15,12 +15,14 @@ from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import msgspec
 import pandas as pd
 
 from cirl_study.analysis import figures, paper_report, study_report, teaching_report
+from cirl_study.analysis.cells import papers_own
 from cirl_study.analysis.markdown import document, number, svg_name, table
 from cirl_study.analysis.output import csv_file, write_report_directory
-from cirl_study.analysis.result_types import Results, StudyResults, checked
+from cirl_study.analysis.result_types import ClaimRow, Results, StudyResults, Teaching
 from cirl_study.analysis.results import combined, estimates, tests, with_claims
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
@@ -32,21 +34,21 @@ VERDICTS = {True: "✅ reproduced", False: "❌ not reproduced", None: "💬 ans
 """A tested claim's verdict as the report shows it; ``None``: a question, answered."""
 
 
-def _verdict(claim: Mapping[str, Any]) -> str:
-    return VERDICTS[claim["reproduced"]] if claim["tested"] else "➖ not tested"
+def _verdict(claim: ClaimRow) -> str:
+    return VERDICTS[claim.reproduced] if claim.tested else "➖ not tested"
 
 
-def _claims(results: Results) -> list[str]:
+def _claims(results: StudyResults) -> list[str]:
     rows = [
         [
             str(position),
-            claim["claim"],
-            claim["source"],
-            claim["measurement"],
+            claim.claim,
+            claim.source,
+            claim.measurement,
             _verdict(claim),
-            ", ".join(link(key) for key in claim["evidence"]) if claim["tested"] else "–",
+            ", ".join(link(key) for key in claim.evidence) if claim.tested else "–",
         ]
-        for position, claim in enumerate(results["claims"], start=1)
+        for position, claim in enumerate(results.claims, start=1)
     ]
     header = ["#", "Claim", "Source", "We measured", "Verdict", "Evidence"]
     return [
@@ -59,14 +61,11 @@ def _claims(results: Results) -> list[str]:
     ]
 
 
-def _rules(results: Results) -> list[str]:
+def _rules(results: StudyResults) -> list[str]:
     return [
         heading(2, "rules"),
         "",
-        *(
-            f"- `{claim['id']}` ({claim['source']}): {claim['rule']}."
-            for claim in results["claims"]
-        ),
+        *(f"- `{claim.id}` ({claim.source}): {claim.rule}." for claim in results.claims),
         "",
         "A claim is *not tested* when the run lacks the humans, robots, feature levels or "
         "rationalities it needs. Every number of this report is in "
@@ -76,41 +75,41 @@ def _rules(results: Results) -> list[str]:
     ]
 
 
-def _hypothesis_space(teaching: Mapping[str, Any]) -> str:
-    hypotheses = teaching["hypotheses"]
+def _hypothesis_space(teaching: Teaching) -> str:
+    hypotheses = teaching.hypotheses
     members = (
         f"the true theta and {hypotheses - 1} prior draws"
-        if teaching["includes_truth"]
+        if teaching.includes_truth
         else "all prior draws, the true theta not among them"
     )
     shows = (
         "draws her demonstration"
-        if teaching["demonstration"] == "draw"
+        if teaching.demonstration == "draw"
         else "shows her most likely demonstration"
     )
     return (
         f"{hypotheses} reward hypotheses per reward draw ({members}), pedagogic exponent "
-        f"alpha = {number(teaching['alpha'])}, the pedagogic human {shows}"
+        f"alpha = {number(teaching.alpha)}, the pedagogic human {shows}"
     )
 
 
-def _header(results: Results) -> list[str]:
-    trials, design = results["trials"], results["design"]
-    per_level = ", ".join(f"{n} at {k} features" for k, n in design["subjects_per_level"].items())
+def _header(results: StudyResults) -> list[str]:
+    trials, design = results.trials, results.design
+    per_level = ", ".join(f"{n} at {k} features" for k, n in design.subjects_per_level.items())
     blocks = ", ".join(f"{n} in `{block}`" for block, n in trials.items() if block != "total")
-    lambdas = ", ".join(f"{value:g}" for value in design["main_rationality"])
+    lambdas = ", ".join(f"{value:g}" for value in design.main_rationality)
     etas = (
         "; ".join(
             f"{', '.join(f'{eta:g}' for eta in values)} at {level} features"
-            for level, values in design["main_eta"].items()
+            for level, values in design.main_eta.items()
             if values
         )
         or "–"
     )
-    space = design["teaching"]
+    space = design.teaching
     return [
         *_partial_title(results),
-        f"# Report: `{results['pipeline']}`",
+        f"# Report: `{results.pipeline}`",
         "",
         "On the gridworld of Cooperative Inverse Reinforcement Learning (Hadfield-Menell et "
         "al., NeurIPS 2016, section 4), with the paper's measures: the published claims "
@@ -118,35 +117,35 @@ def _header(results: Results) -> list[str]:
         "reward draws (within subjects); the number of features varies between them. All "
         "three measures are losses: lower is better.",
         "",
-        f"- Humans: {', '.join(f'`{h}`' for h in design['humans'])} (baseline "
-        f"`{design['baseline']}`); robots: {', '.join(f'`{r}`' for r in design['robots'])} "
-        f"(reference `{design['reference_robot']}`); rationality λ = {lambdas}; "
+        f"- Humans: {', '.join(f'`{h}`' for h in design.humans)} (baseline "
+        f"`{design.baseline}`); robots: {', '.join(f'`{r}`' for r in design.robots)} "
+        f"(reference `{design.reference_robot}`); rationality λ = {lambdas}; "
         f"best-response η = {etas}.",
         f"- Trials: {trials['total']} ({blocks}); reward draws {per_level}.",
         *([f"- Hypothesis space: {_hypothesis_space(space)}."] if space else []),
     ]
 
 
-def _partial_title(results: Results) -> list[str]:
+def _partial_title(results: StudyResults) -> list[str]:
     """The report's first lines for a partial run: what it lacks."""
-    partial = results.get("partial")
+    partial = results.partial
     if partial is None:
         return []
     lacks = [
-        partial["missing"],
-        f"{partial['damaged_files']} damaged file(s) salvaged" if partial["damaged_files"] else "",
-        f"{partial['main_subjects_left_out']} main-block subject(s) without every cell left out"
-        if partial["main_subjects_left_out"]
+        partial.missing,
+        f"{partial.damaged_files} damaged file(s) salvaged" if partial.damaged_files else "",
+        f"{partial.main_subjects_left_out} main-block subject(s) without every cell left out"
+        if partial.main_subjects_left_out
         else "",
     ]
     return [
-        f"**PARTIAL RUN: {partial['logged']} of {partial['planned']} planned trials logged; "
+        f"**PARTIAL RUN: {partial.logged} of {partial.planned} planned trials logged; "
         f"{'; '.join(text for text in lacks if text)}. Every number below is provisional.**",
         "",
     ]
 
 
-def render_markdown(results: Results) -> str:
+def render_markdown(results: StudyResults) -> str:
     """The text of ``report.md`` for ``results`` (with their ``claims``): every section the
     run's design has, in a fixed order."""
     sections = [
@@ -158,13 +157,13 @@ def render_markdown(results: Results) -> str:
         study_report.pairwise(results),
         study_report.against_baseline(results),
         paper_report.paper_anova(results),
-        paper_report.simple_effects(results) if results["paper"] else [],
-        paper_report.tukey(results) if results["paper"] else [],
-        paper_report.wilcoxon(results) if results["paper"] else [],
-        paper_report.cronbach(results) if results["paper"] else [],
+        paper_report.simple_effects(results) if results.paper else [],
+        paper_report.tukey(results) if results.paper else [],
+        paper_report.wilcoxon(results) if results.paper else [],
+        paper_report.cronbach(results) if results.paper else [],
         study_report.lambda_sweep(results),
         study_report.eta_cv(results),
-        paper_report.figure1(results) if results["paper"] else [],
+        paper_report.figure1(results) if results.paper else [],
         paper_report.robots(results),
         teaching_report.milli_dragan(results),
         teaching_report.versus(results),
@@ -223,7 +222,7 @@ def _drawings(
                 figures.lambda_curve,
                 (sweep[of_paper].drop(columns="robot").reset_index(drop=True),),
             )
-    if not study_report.paper_only(estimated):
+    if not papers_own(design["humans"], design["robots"]):
         drawings[FIGURES["cell_means"][0]] = (
             figures.cell_bars,
             (cells, design["humans"], design["robots"]),
@@ -269,7 +268,7 @@ def write_report(
     provenance: Mapping[str, Any] | None = None,
     partial: Mapping[str, Any] | None = None,
     progress: Callable[[str], None] = lambda stage: None,
-) -> Results:
+) -> StudyResults:
     """Analyse a run's trials and write the report directory.
 
     Writes ``report.md``, ``results.json`` (every number at full precision), ``trials.csv``
@@ -296,7 +295,7 @@ def write_report(
         progress: called with the name of each stage as it begins.
 
     Returns:
-        The content of ``results.json``.
+        The typed content of ``results.json``.
 
     Raises:
         UserError: the design cannot be analysed (see
@@ -315,7 +314,6 @@ def write_report(
             partial=partial,
             theory=theory,
         )
-        checked(results, StudyResults)
         markdown = render_markdown(results)
         trials_csv = csv_file(everything) if len(everything) <= CSV_IN_MEMORY_ROWS else everything
         made = drawn()
@@ -323,7 +321,7 @@ def write_report(
     write_report_directory(
         out_dir,
         markdown=markdown,
-        results=results,
+        results=msgspec.to_builtins(results),
         tables={"trials.csv": trials_csv},
         figures={file_name: made.get(file_name) for file_name in names},
         provenance=provenance,

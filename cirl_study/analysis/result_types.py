@@ -1,13 +1,15 @@
 """The types of ``results.json``: a study's (:class:`StudyResults`) and a multiverse's
-(:class:`MultiverseResults`).
+(:class:`MultiverseResults`), which the claims are judged on and the reports read.
 
-Every report validates its results against these types before it writes them
-(:func:`checked`), and their JSON Schemas, generated from the same declarations
-(:func:`json_schema`), are kept in ``docs/`` (``results-study.schema.json``,
-``results-multiverse.schema.json``) for readers in other languages; a test keeps them equal.
-A number that is undefined (a mean of nothing, a test on a constant sample) is ``null``,
-never NaN; every p-value beside its common logarithm ``log10_p``, which holds it where the
-double ``p`` underflows to 0. The tests compute some of these records directly
+The analysis makes plain data (:data:`Results`); :func:`checked` gives it its type, and
+``results.json`` is the typed record's encoding (``msgspec.to_builtins``). Their JSON Schemas,
+generated from the same declarations (:func:`json_schema`), are kept in ``docs/``
+(``results-study.schema.json``, ``results-multiverse.schema.json``) for readers in other
+languages; a test keeps them equal. A number that is undefined (a mean of nothing, a test on
+a constant sample) is ``null``, never NaN; a field with a default is left out where it has
+its default, so a missing optional field reads as ``null``. Every p-value is beside its
+common logarithm ``log10_p``, which holds it where the double ``p`` underflows to 0. The
+tests compute some of these records directly
 (:func:`cirl_study.analysis.anova.repeated_measures_anova`,
 :func:`cirl_study.analysis.statistics.pairwise_differences`), with NaN for an undefined
 number until the results are made plain.
@@ -16,10 +18,12 @@ number until the results are made plain.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any, TypeVar
 
 import msgspec
+import pandas as pd
 
 from cirl_study.errors import UserError
 
@@ -30,7 +34,7 @@ and the renderers read), before :func:`checked` gives them their type."""
 Number = float | None
 """A number of the results; ``None`` (``null``) where it is undefined."""
 
-_ROW = {"frozen": True, "kw_only": True, "forbid_unknown_fields": True}
+_ROW = {"frozen": True, "kw_only": True, "forbid_unknown_fields": True, "omit_defaults": True}
 
 
 class CellMean(msgspec.Struct, **_ROW):
@@ -85,7 +89,7 @@ class AnovaEffect(msgspec.Struct, **_ROW):
     log10_p: Number
     np2: Number
     ges: Number
-    sphericity: Sphericity | None = None
+    sphericity: Sphericity | None
 
 
 class PairedT(msgspec.Struct, **_ROW):
@@ -474,6 +478,11 @@ SCHEMAS: dict[str, type[msgspec.Struct]] = {
 """The schema files of ``docs/``, by name, and the type each is generated from."""
 
 Typed = TypeVar("Typed", StudyResults, MultiverseResults)
+
+
+def frame(rows: Sequence[msgspec.Struct]) -> pd.DataFrame:
+    """``rows`` of the typed results as a table: one row each, a column per field."""
+    return pd.DataFrame([msgspec.structs.asdict(row) for row in rows])
 
 
 def checked(results: Results, kind: type[Typed]) -> Typed:

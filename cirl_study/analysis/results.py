@@ -2,10 +2,11 @@
 
 One analysis serves every design of humans x robots x feature levels (``docs/pipelines.md``):
 :func:`analyse` returns plain Python data (dicts, lists, ints, floats at full precision,
-``None`` for an undefined number), which ``results.json`` stores as is and the claims and the
-report read from. Its halves, :func:`estimates` (everything the figures draw) and
-:func:`tests`, depend only on the trials, so the report draws its figures in worker
-processes while it computes the tests. Every measure is a loss: lower is better.
+``None`` for an undefined number); :func:`with_claims` gives it its type
+(:class:`~cirl_study.analysis.result_types.StudyResults`), which the claims are judged on,
+the report reads and ``results.json`` stores. Its halves, :func:`estimates` (everything
+the figures draw) and :func:`tests`, depend only on the trials, so the report draws its
+figures in worker processes while it computes the tests. Every measure is a loss: lower is better.
 
 The sections, by key:
 
@@ -42,12 +43,13 @@ from __future__ import annotations
 from collections.abc import Mapping, Sequence
 from typing import Any
 
+import msgspec
 import pandas as pd
 
 from cirl_study.analysis import statistics, teaching
 from cirl_study.analysis.cells import PAPER, Design
 from cirl_study.analysis.measure_rows import anova_rows, paired_rows, pairwise_rows, plain, rows
-from cirl_study.analysis.result_types import Results
+from cirl_study.analysis.result_types import Results, StudyResults, checked
 from cirl_study.analysis.table import trial_table
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
@@ -359,15 +361,21 @@ def with_claims(
     run_id: str | None,
     partial: Mapping[str, Any] | None,
     theory: Mapping[str, Any] | None,
-) -> Results:
-    """``results`` with what the report adds to them: the run's id, what a partial run
-    lacks (``None`` for a complete one), every claim judged on them
-    (:func:`cirl_study.analysis.claims.evaluate_claims`, then those of ``theory``) and
-    ``theory`` itself (when given): the content of ``results.json``."""
+) -> StudyResults:
+    """``results`` typed, with what the report adds to them: the run's id, what a partial run
+    lacks (``None`` for a complete one), ``theory`` itself (when given) and every claim judged
+    on them (:func:`cirl_study.analysis.claims.evaluate_claims`, then those of ``theory``):
+    the content of ``results.json``."""
     from cirl_study.analysis.claims import evaluate_claims
 
-    finished = {**results, "run_id": run_id, "partial": None if partial is None else plain(partial)}
-    finished["claims"] = evaluate_claims(finished, theory)
-    if theory is not None:
-        finished["theory"] = plain(theory)
-    return finished
+    finished = checked(
+        {
+            **results,
+            "run_id": run_id,
+            "partial": None if partial is None else plain(partial),
+            "claims": [],
+            "theory": None if theory is None else plain(theory),
+        },
+        StudyResults,
+    )
+    return msgspec.structs.replace(finished, claims=evaluate_claims(finished, theory))

@@ -7,11 +7,11 @@ and returns its lines, or none when the run has nothing for it.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping, Sequence
-from typing import Any
+from collections.abc import Callable, Sequence
 
 import pandas as pd
 
+from cirl_study.analysis.cells import papers_own
 from cirl_study.analysis.markdown import (
     ci,
     formatted,
@@ -23,26 +23,30 @@ from cirl_study.analysis.markdown import (
     p_value,
     table,
 )
-from cirl_study.analysis.result_types import Results
+from cirl_study.analysis.result_types import (
+    AnovaEffect,
+    EtaUncertainty,
+    PairedComparison,
+    PairedDifference,
+    StudyResults,
+    frame,
+)
 from cirl_study.analysis.sections import FIGURES, heading
 from cirl_study.record import LAMBDA_SWEEP
 
 
-def paper_only(results: Results) -> bool:
-    """Whether the run's design is the paper's own: exactly its two humans, one robot."""
-    design = results["design"]
-    return (
-        results["paper"] is not None and len(design["humans"]) == 2 and len(design["robots"]) == 1
-    )
+def paper_only(results: StudyResults) -> bool:
+    """Whether the run's design is the paper's own (:func:`.cells.papers_own`)."""
+    return papers_own(results.design.humans, results.design.robots)
 
 
-def cells(results: Results) -> list[str]:
+def cells(results: StudyResults) -> list[str]:
     """The cell means; the paper's Figure 2 (left) and, beyond the paper's design, the cell
     figure of every human and robot."""
     figures = []
-    if results["paper"] is not None:
+    if results.paper is not None:
         file_name, _ = FIGURES["figure2_measures"]
-        robot = results["design"]["reference_robot"]
+        robot = results.design.reference_robot
         figures += [
             "",
             image(
@@ -60,9 +64,9 @@ def cells(results: Results) -> list[str]:
         table(
             ["measure", "features", "human", "robot", "n", "mean", "95% CI (t)"],
             formatted(
-                results["cells"],
+                results.cells,
                 [
-                    "measure", "num_features", lambda r: name(r["policy"]), "robot", "n", "mean",
+                    "measure", "num_features", lambda r: name(r.policy), "robot", "n", "mean",
                     ci,
                 ],
             ),
@@ -72,31 +76,31 @@ def cells(results: Results) -> list[str]:
     ]  # fmt: skip
 
 
-def _corrected(row: Mapping[str, Any], key: str) -> str:
-    sphericity = row["sphericity"]
+def _corrected(row: AnovaEffect, key: str) -> str:
+    sphericity = row.sphericity
     if sphericity is None:
         return "–"
-    epsilon = number(sphericity[f"{key}_epsilon"], 3)
-    return f"{p_text(sphericity[key]['log10_p'])} (ε {epsilon})"
+    epsilon = number(getattr(sphericity, f"{key}_epsilon"), 3)
+    return f"{p_text(getattr(sphericity, key).log10_p)} (ε {epsilon})"
 
 
-def _mauchly(row: Mapping[str, Any]) -> str:
-    sphericity = row["sphericity"]
+def _mauchly(row: AnovaEffect) -> str:
+    sphericity = row.sphericity
     if sphericity is None:
         return "–"
-    w = number(sphericity["mauchly_w"], 3)
-    return f"{w} ({p_text(sphericity['mauchly']['log10_p'])})"
+    w = number(sphericity.mauchly_w, 3)
+    return f"{w} ({p_text(sphericity.mauchly.log10_p)})"
 
 
-def anova_table(rows: Sequence[Mapping[str, Any]]) -> str:
+def anova_table(rows: Sequence[AnovaEffect]) -> str:
     """An ANOVA table: effect, degrees of freedom, F, p, both effect sizes, and Mauchly's test
     with the corrected p-values where any effect has them."""
     columns: list = [
-        "measure", "effect", lambda r: f"{r['df1']}, {r['df2']}", "F",
-        lambda r: p_text(r["log10_p"]),
+        "measure", "effect", lambda r: f"{r.df1}, {r.df2}", "F",
+        lambda r: p_text(r.log10_p),
     ]  # fmt: skip
     header = ["measure", "effect", "df", "F", "p"]
-    if any(row["sphericity"] is not None for row in rows):
+    if any(row.sphericity is not None for row in rows):
         columns += [_mauchly, lambda r: _corrected(r, "gg"), lambda r: _corrected(r, "hf")]
         header += ["Mauchly W (p)", "p (GG)", "p (HF)"]
     columns += ["np2", "ges"]
@@ -104,16 +108,16 @@ def anova_table(rows: Sequence[Mapping[str, Any]]) -> str:
     return table(header, formatted(rows, columns), [False, False, *[True] * (len(header) - 2)])
 
 
-def anova(results: Results) -> list[str]:
+def anova(results: StudyResults) -> list[str]:
     """The repeated-measures ANOVA of every human (and robot) and feature level, beyond the
     paper's design (where it is the paper's mixed ANOVA)."""
     if paper_only(results):
         return []
-    within = "`policy` (the human)" + (", `robot`" if results["design"]["robots"][1:] else "")
+    within = "`policy` (the human)" + (", `robot`" if results.design.robots[1:] else "")
     between = (
         ", between subjects `num_features` (a subject is one reward draw, at one feature level "
         "only)"
-        if results["design"]["feature_levels"][1:]
+        if results.design.feature_levels[1:]
         else ""
     )
     return [
@@ -124,20 +128,20 @@ def anova(results: Results) -> list[str]:
         "Greenhouse-Geisser and Huynh-Feldt epsilons (Huynh-Feldt capped at 1); with two "
         "levels per within factor sphericity holds, so the p-values are uncorrected.",
         "",
-        anova_table(results["anova"]),
+        anova_table(results.anova),
     ]
 
 
-def pairwise(results: Results) -> list[str]:
+def pairwise(results: StudyResults) -> list[str]:
     """Every pair of humans (and of robots) in every cell of the other factors, beyond the
     paper's design (where it is the simple effects of policy)."""
-    if not results["pairwise"] or paper_only(results):
+    if not results.pairwise or paper_only(results):
         return []
 
-    def cell(row: Mapping[str, Any]) -> str:
-        if row["factor"] == "policy":
-            return f"robot `{row['robot']}`"
-        return f"human `{row['policy']}`"
+    def cell(row: PairedComparison) -> str:
+        if row.factor == "policy":
+            return f"robot `{row.robot}`"
+        return f"human `{row.policy}`"
 
     return [
         heading(3, "pairwise"),
@@ -150,11 +154,11 @@ def pairwise(results: Results) -> list[str]:
             ["measure", "features", "in", "a", "b", "n", "a - b", "95% CI (t)", "t", "p",
              "p (Holm)", "d_z"],
             formatted(
-                results["pairwise"],
+                results.pairwise,
                 [
                     "measure", "num_features", cell, "level_a", "level_b", "n", "mean_diff",
-                    ci, "t", lambda r: p_text(r["log10_p"]),
-                    lambda r: p_text(r["log10_p_holm"]), "d_z",
+                    ci, "t", lambda r: p_text(r.log10_p),
+                    lambda r: p_text(r.log10_p_holm), "d_z",
                 ],
             ),
             [False, True, False, False, False, True, True, True, True, True, True, True],
@@ -162,8 +166,14 @@ def pairwise(results: Results) -> list[str]:
     ]  # fmt: skip
 
 
-def paired_table(rows: Sequence[Mapping[str, Any]], group: str, label: str) -> str:
-    """Paired differences of ``label`` against its baseline per ``group`` and feature level."""
+def _features(row: PairedDifference) -> str:
+    """A row's feature level, or what it is pooled over (``all``)."""
+    return number(row.num_features) if row.pooled is None else row.pooled
+
+
+def paired_table(rows: Sequence[PairedDifference], group: str, label: str) -> str:
+    """Paired differences of ``label`` against its baseline per ``group`` and feature level
+    (or pooled over the levels)."""
     return table(
         [
             "measure", group, "features", label, "n", "mean difference", "95% CI", "t", "p",
@@ -172,7 +182,7 @@ def paired_table(rows: Sequence[Mapping[str, Any]], group: str, label: str) -> s
         formatted(
             rows,
             [
-                "measure", group, "num_features", "level", "n", "mean_diff", ci, "t",
+                "measure", group, _features, "level", "n", "mean_diff", ci, "t",
                 "p", "p_holm", "d_z",
             ],
         ),
@@ -180,18 +190,18 @@ def paired_table(rows: Sequence[Mapping[str, Any]], group: str, label: str) -> s
     )  # fmt: skip
 
 
-def against_baseline(results: Results) -> list[str]:
+def against_baseline(results: StudyResults) -> list[str]:
     """Every human against the baseline."""
-    if not results["against_baseline"]:
+    if not results.against_baseline:
         return []
-    baseline = results["design"]["baseline"]
+    baseline = results.design.baseline
     return [
         heading(3, "against_baseline"),
         "",
         f"Paired by reward draw: the human's measure minus `{baseline}`'s (negative: the "
         "human did better), per robot and number of features; Holm over each measure's rows.",
         "",
-        paired_table(results["against_baseline"], "robot", "human"),
+        paired_table(results.against_baseline, "robot", "human"),
     ]
 
 
@@ -216,13 +226,13 @@ def grid_table(
     return table(header, rows, [True] * len(header))
 
 
-def lambda_sweep(results: Results) -> list[str]:
+def lambda_sweep(results: StudyResults) -> list[str]:
     """Mean regret of every human at each rationality, with the reference robot."""
     lines = [heading(2, "lambda_sweep"), ""]
-    if not results["lambda_sweep"]:
+    if not results.lambda_sweep:
         return [*lines, "This run has no trials in the `lambda_sweep` block."]
-    robot = results["design"]["reference_robot"]
-    sweep = pd.DataFrame(results["lambda_sweep"])
+    robot = results.design.reference_robot
+    sweep = frame(results.lambda_sweep)
     regret = sweep[(sweep["measure"] == "regret") & (sweep["robot"] == robot)]
     columns = [
         (
@@ -232,13 +242,13 @@ def lambda_sweep(results: Results) -> list[str]:
             ),
         )
         for level in sorted(regret["num_features"].unique())
-        for human in results["design"]["humans"]
+        for human in results.design.humans
     ]
     figure = []
-    if results["paper"] is not None:
+    if results.paper is not None:
         file_name, _ = FIGURES["figure2_lambda"]
         figure = ["", image("Figure 2, right: regret against lambda", file_name)]
-    others = " and of every other robot" if results["design"]["robots"][1:] else ""
+    others = " and of every other robot" if results.design.robots[1:] else ""
     return [
         *lines,
         f"Mean regret [95% CI] of each human at each rationality λ the robot `{robot}` "
@@ -252,14 +262,14 @@ def lambda_sweep(results: Results) -> list[str]:
     ]
 
 
-def _certification(results: Results) -> str:
+def _certification(results: StudyResults) -> str:
     """One sentence: at which lambdas the reference robot could not certify every estimate."""
     short = [
-        f"{row['certified']} of {row['trials']} at λ = {number(row['rationality'])}"
-        for row in results["certified"]
-        if row["block"] == LAMBDA_SWEEP
-        and row["robot"] == results["design"]["reference_robot"]
-        and row["certified"] < row["trials"]
+        f"{row.certified} of {row.trials} at λ = {number(row.rationality)}"
+        for row in results.certified
+        if row.block == LAMBDA_SWEEP
+        and row.robot == results.design.reference_robot
+        and row.certified < row.trials
     ]
     if not short:
         return "Every estimate of the sweep is certified within 1e-6 of the MAP."
@@ -270,18 +280,18 @@ def _certification(results: Results) -> str:
     )
 
 
-def _eta_check(results: Results) -> str:
+def _eta_check(results: StudyResults) -> str:
     """One sentence: whether the main block was played with the cross-validated eta."""
     faults = [
-        f"η = {', '.join(f'{eta:g}' for eta in row['main_etas']) or '–'} at "
-        f"{row['num_features']} features "
+        f"η = {', '.join(f'{eta:g}' for eta in row.main_etas) or '–'} at "
+        f"{row.num_features} features "
         + (
             "(not cross-validated)"
-            if row["chosen_eta"] is None
-            else f"(cross-validated: η = {row['chosen_eta']:g})"
+            if row.chosen_eta is None
+            else f"(cross-validated: η = {row.chosen_eta:g})"
         )
-        for row in results["eta_cv"]["main_block"]
-        if not row["agree"]
+        for row in results.eta_cv.main_block
+        if not row.agree
     ]
     if not faults:
         return "The main block used the cross-validated η."
@@ -291,22 +301,22 @@ def _eta_check(results: Results) -> str:
     )
 
 
-def _eta_uncertainty(rows: Sequence[Mapping[str, Any]]) -> list[str]:
+def _eta_uncertainty(rows: Sequence[EtaUncertainty]) -> list[str]:
     """Per feature level, how clear-cut the chosen eta is (one bullet each)."""
     lines = ["How clear-cut each choice is:", ""]
     for row in rows:
-        one_se = ", ".join(f"{eta:g}" for eta in row["within_one_se"])
+        one_se = ", ".join(f"{eta:g}" for eta in row.within_one_se)
         text = (
-            f"- {row['num_features']} features: η = {row['eta']:g} (mean regret "
-            f"{number(row['mean'])}, standard error {number(row['se'])}, {row['n']} draws)"
+            f"- {row.num_features} features: η = {row.eta:g} (mean regret "
+            f"{number(row.mean)}, standard error {number(row.se)}, {row.n} draws)"
         )
-        if row.get("runner_up") is not None:
-            separated = row["ci95_low"] > 0
+        if row.runner_up is not None:
+            separated = row.ci95_low > 0
             text += (
-                f" against the runner-up η = {row['runner_up']:g} "
-                f"({number(row['runner_up_mean'])}): paired difference "
-                f"{number(row['mean_diff'])} {interval(row['ci95_low'], row['ci95_high'])}, "
-                f"p {p_value(row['p'])}, "
+                f" against the runner-up η = {row.runner_up:g} "
+                f"({number(row.runner_up_mean)}): paired difference "
+                f"{number(row.mean_diff)} {interval(row.ci95_low, row.ci95_high)}, "
+                f"p {p_value(row.p)}, "
                 + ("the runner-up is worse" if separated else "not distinguishable")
             )
         lines.append(
@@ -316,19 +326,19 @@ def _eta_uncertainty(rows: Sequence[Mapping[str, Any]]) -> list[str]:
     return lines
 
 
-def eta_cv(results: Results) -> list[str]:
+def eta_cv(results: StudyResults) -> list[str]:
     """The cross-validation of the best response's eta."""
     lines = [heading(2, "eta_cv"), ""]
-    if not results["eta_cv"]["means"]:
+    if not results.eta_cv.means:
         return [*lines, "This run has no trials in the `eta_cv` block."]
-    means = pd.DataFrame(results["eta_cv"]["means"])
+    means = frame(results.eta_cv.means)
     columns = [
         (f"{level} features", lambda at, level=level: at["num_features"] == level)
         for level in sorted(means["num_features"].unique())
     ]
     chosen = ", ".join(
-        f"η = {row['eta']:g} at {row['num_features']} features (mean regret {number(row['mean'])})"
-        for row in results["eta_cv"]["chosen"]
+        f"η = {row.eta:g} at {row.num_features} features (mean regret {number(row.mean)})"
+        for row in results.eta_cv.chosen
     )
     file_name, _ = FIGURES["eta_cv_curve"]
     return [
@@ -336,7 +346,7 @@ def eta_cv(results: Results) -> list[str]:
         f"Mean best-response regret [95% CI] per η, on reward draws disjoint from the main "
         f"block's. Chosen (lowest mean regret): {chosen}. {_eta_check(results)}",
         "",
-        *_eta_uncertainty(results["eta_cv"]["uncertainty"]),
+        *_eta_uncertainty(results.eta_cv.uncertainty),
         "",
         grid_table(means, "eta", "η", columns),
         "",

@@ -7,37 +7,34 @@ lines, or none when the run lacks the section's cells.
 from __future__ import annotations
 
 from cirl_study.analysis.markdown import ci, formatted, table
-from cirl_study.analysis.result_types import Results
+from cirl_study.analysis.result_types import StudyResults
 from cirl_study.analysis.sections import heading
 from cirl_study.analysis.study_report import anova_table, paired_table
 
 
-def milli_dragan(results: Results) -> list[str]:
+def milli_dragan(results: StudyResults) -> list[str]:
     """The 2 x 2 of human {literal, pedagogic} x robot {literal, pragmatic}."""
-    square = results.get("milli_dragan")
+    square = results.milli_dragan
     if square is None:
         return []
-    pooled = [
-        {**r, "num_features": "all"} for r in square["robot_effect"]
-    ]  # pooled over the feature levels
     return [
         heading(2, "milli_dragan"),
         "",
         "Repeated-measures ANOVA per measure: human (`literal`, `pedagogic`) and robot "
         "(`literal`, `pragmatic`) within subjects, the number of features between.",
         "",
-        anova_table(square["anova"]),
+        anova_table(square.anova),
         "",
         "The robot's simple effect, `pragmatic - literal`, under each human (negative: the "
         "pragmatic robot does better), pooled over the feature levels and at each:",
         "",
-        paired_table(pooled + list(square["robot_effect_by_level"]), "policy", "robot"),
+        paired_table([*square.robot_effect, *square.robot_effect_by_level], "policy", "robot"),
     ]
 
 
-def versus(results: Results) -> list[str]:
+def versus(results: StudyResults) -> list[str]:
     """The best response minus the pedagogic human, per robot and feature level."""
-    versus = results.get("best_response_vs_pedagogic")
+    versus = results.best_response_vs_pedagogic
     if versus is None:
         return []
     return [
@@ -50,9 +47,9 @@ def versus(results: Results) -> list[str]:
     ]
 
 
-def regret_optimal(results: Results) -> list[str]:
+def regret_optimal(results: StudyResults) -> list[str]:
     """Every human's regret gap to the regret-optimal demonstration, MAP robot."""
-    optimal = results.get("regret_optimal")
+    optimal = results.regret_optimal
     if optimal is None:
         return []
     return [
@@ -69,11 +66,11 @@ def regret_optimal(results: Results) -> list[str]:
             ["K", "human", "n", "mean regret", "regret-optimal", "gap", "95% CI", "p",
              "smallest gap", "as good as the best found"],
             formatted(
-                optimal["gaps"],
+                optimal.gaps,
                 [
                     "num_features", "policy", "n", "mean_policy", "mean_regret_optimal",
                     "mean_gap", ci, "p", "smallest_gap",
-                    lambda g: f"{100 * g['share_optimal']:.1f}%",
+                    lambda g: f"{100 * g.share_optimal:.1f}%",
                 ],
             ),
             [True, False, True, True, True, True, True, True, True, True],

@@ -123,11 +123,10 @@ def analyze(
             progress=stage,
         )
         shares = ", ".join(
-            f"{claim['id']} {claim['reproduced']}/{claim['universes']}"
-            for claim in multiverse["claims"]
+            f"{claim.id} {claim.reproduced}/{claim.universes}" for claim in multiverse.claims
         )
         typer.echo(
-            f"multiverse report of {len(trials)} trials in {len(multiverse['universes'])} "
+            f"multiverse report of {len(trials)} trials in {len(multiverse.universes)} "
             f"universes written to {target}: universes reproducing each claim: {shares}"
         )
         return
@@ -145,10 +144,10 @@ def analyze(
         partial=partial_run,
         progress=stage,
     )
-    claims = results["claims"]
-    tested = [claim for claim in claims if claim["tested"]]
-    reproduced = sum(claim["reproduced"] is True for claim in tested)
-    answered = sum(claim["reproduced"] is None for claim in tested)
+    claims = results.claims
+    tested = [claim for claim in claims if claim.tested]
+    reproduced = sum(claim.reproduced is True for claim in tested)
+    answered = sum(claim.reproduced is None for claim in tested)
     typer.echo(
         f"{'partial ' if partial_run else ''}report of {len(trials)} trials written to "
         f"{target}: {len(claims)} claims, {reproduced} reproduced, "
