@@ -254,6 +254,32 @@ class TrialRow(msgspec.Struct, **_STRUCT):
         )
 
 
+def setting_faults(spec: TrialSpec) -> list[str]:
+    """Every way ``spec``'s settings break the rules their types cannot state: ``theta`` and
+    the RBF centres have ``num_features`` entries each, and the start ``s_0`` lies on the grid
+    (empty for a sound spec). A record (a :class:`TrialSpec` too) is checked by the same
+    rules before it is believed (:mod:`cirl_study.logs.record_checks`).
+
+    Examples:
+        >>> spec = TrialSpec(trial_id="t", run_id="r", block="main", subject="s",
+        ...     policy="expert", robot="map", num_features=1, rationality=1.0, eta=None,
+        ...     seed=0, grid=Grid(width=2, height=2), start=(2, 0), learning_steps=1,
+        ...     deployment_steps=1, features=RBFFeatures(centers=((0.0, 0.0),), sigma=1.0),
+        ...     theta=(0.5, 0.1), demonstrator_stays=True, deployment_start="uniform")
+        >>> setting_faults(spec)
+        ['theta has 2 entries, num_features is 1', 'start [2, 0] is outside the 2x2 grid']
+    """
+    k, grid = spec.num_features, spec.grid
+    lengths = {"theta": len(spec.theta), "features.centers": len(spec.features.centers)}
+    faults = [
+        f"{name} has {n} entries, num_features is {k}" for name, n in lengths.items() if n != k
+    ]
+    x, y = spec.start
+    if not (0 <= x < grid.width and 0 <= y < grid.height):
+        faults.append(f"start {list(spec.start)} is outside the {grid.width}x{grid.height} grid")
+    return faults
+
+
 def draw_digest(spec: TrialSpec) -> str:
     """BLAKE2b digest of a trial's reward draw: ``num_features``, ``theta``, the features, the
     grid and the start cell."""

@@ -267,9 +267,12 @@ def _cell(width: int, height: int) -> st.SearchStrategy[list[int]]:
 
 @settings(max_examples=400, deadline=None)
 @given(data=st.data(), policy=st.sampled_from(["expert", "best_response"]))
-def test_the_one_pass_check_agrees_with_the_named_faults(data: st.DataObject, policy: str) -> None:
-    """``_sound`` (the reader's one pass) accepts a decoded record exactly when the checks that
-    name each fault find none, whatever cells, moves, steps or players the record holds."""
+def test_the_move_table_walk_agrees_with_the_named_path_faults(
+    data: st.DataObject, policy: str
+) -> None:
+    """The record checks walk each path through the grid's move table and name its faults
+    cell by cell only when that walk fails: the walk fails exactly when the named checks find
+    a fault, whatever cells, moves, steps or players the record holds."""
     record = plain_record(data.draw(st.integers(0, 50)), policy, rollouts=2)
     width, height = record["grid"]["width"], record["grid"]["height"]
     demonstration, deployment = record["demonstration"], record["deployment"]
@@ -303,7 +306,24 @@ def test_the_one_pass_check_agrees_with_the_named_faults(data: st.DataObject, po
         decoded = msgspec.json.decode(json.dumps(record).encode(), type=TrialRecord)
     except msgspec.ValidationError:
         return  # a coordinate below zero: a type fault, found before any consistency check
-    assert record_checks._sound(decoded) == (list(record_checks._inconsistencies(decoded)) == [])
+    moves, grid = record_checks._moves(decoded.grid), record_checks._gridworld(decoded.grid)
+    paths = [
+        (
+            "demonstration.states",
+            decoded.demonstration.states,
+            decoded.start,
+            decoded.learning_steps,
+        )
+    ]
+    paths += [
+        (f"deployment.paths[{i}]", path, start, decoded.deployment_steps)
+        for i, (start, path) in enumerate(
+            zip(decoded.deployment.starts, decoded.deployment.paths, strict=False)
+        )
+    ]
+    for name, path, start, steps in paths:
+        named = list(record_checks._path_faults(name, path, start, steps, grid))
+        assert (record_checks._walk(path, start, steps, moves) is None) == bool(named), name
 
 
 def test_reward_l2_is_checked_record_by_record_in_a_batch() -> None:

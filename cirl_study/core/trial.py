@@ -50,6 +50,7 @@ from cirl_study.record import (
     Measures,
     TrialRecord,
     TrialSpec,
+    setting_faults,
     validated,
 )
 
@@ -62,11 +63,9 @@ def check_playable(spec: TrialSpec) -> None:
     fits its game."""
     validated(spec)
     faults = player_faults(spec.policy, spec.robot, spec.eta, spec.teaching is not None)
+    faults += setting_faults(spec)
     if faults:
         raise ValueError(f"{spec.trial_id}: {'; '.join(faults)}")
-    if len(spec.theta) != spec.num_features or len(spec.features.centers) != spec.num_features:
-        raise ValueError("theta and the feature centres must have num_features entries")
-    gridworld(spec).index(*spec.start)
 
 
 def _group_key(spec: TrialSpec) -> Hashable:

@@ -28,7 +28,15 @@ from numpy.typing import NDArray
 
 from cirl_study.core.gridworld import ACTION_STEPS, ACTIONS, Gridworld, action_between, rbf_features
 from cirl_study.core.players import player_faults
-from cirl_study.record import Cell, DecodeError, Grid, RBFFeatures, TrialRecord, decode
+from cirl_study.record import (
+    Cell,
+    DecodeError,
+    Grid,
+    RBFFeatures,
+    TrialRecord,
+    decode,
+    setting_faults,
+)
 
 NEGATIVE_TOLERANCE = 1e-9
 """Rounding allowed below zero for measures that are non-negative in exact arithmetic."""
@@ -78,72 +86,42 @@ def record_faults(record: TrialRecord) -> list[str]:
 def records_faults(records: Sequence[TrialRecord]) -> list[list[str]]:
     """:func:`record_faults` of every record; the ``reward_l2`` checks are one array
     product per grid and ``K`` (:func:`_reward_l2_faults`) instead of one per record."""
-    faults = [[] if _sound(r) else list(_inconsistencies(r)) for r in records]
+    faults = [list(_inconsistencies(r)) for r in records]
     for index, fault in _reward_l2_faults(records):
         faults[index].append(fault)
     return faults
 
 
-def _sound(r: TrialRecord) -> bool:
-    """Whether :func:`_inconsistencies` finds nothing in ``r``, in one pass (the reader's
-    most frequent case): the same rules, without naming what breaks them."""
-    if player_faults(r.policy, r.robot, r.eta, r.teaching is not None):
-        return False
-    if not _sized(r):
-        return False
-    moves = _moves(r.grid)
-    actions = _walk(r.demonstration.states, r.start, r.learning_steps, moves)
-    if actions is None or actions != r.demonstration.actions:
-        return False
-    if not r.demonstrator_stays and "stay" in actions:
-        return False
-    if r.deployment is not None:
-        starts, paths = r.deployment.starts, r.deployment.paths
-        if len(starts) != len(paths):
-            return False
-        if r.deployment_start == "demonstration" and any(s != r.start for s in starts):
-            return False
-        for start, path in zip(starts, paths, strict=True):
-            if _walk(path, start, r.deployment_steps, moves) is None:
-                return False
-    return r.measures.regret >= -NEGATIVE_TOLERANCE and r.measures.kl >= -NEGATIVE_TOLERANCE
-
-
-def _walk(
-    path: Sequence[Cell], start: Cell, steps: int, moves: dict[tuple[Cell, Cell], str]
-) -> tuple[str, ...] | None:
-    """The actions of ``path`` if it is a walk of ``steps`` available moves from ``start``
-    (``steps >= 1``), else ``None`` (also for cells that are not tuples: the detailed
-    checks then decide)."""
-    if steps < 1 or len(path) != steps + 1 or path[0] != start:
-        return None
-    try:
-        return tuple(map(moves.__getitem__, zip(path, path[1:], strict=False)))
-    except (KeyError, TypeError):
-        return None
-
-
 def _inconsistencies(r: TrialRecord) -> Iterator[str]:
-    """Every inconsistency of ``r`` but its ``reward_l2``, each named."""
+    """Every inconsistency of ``r`` but its ``reward_l2``, each named.
+
+    Each rule is written once. A path is first walked through the grid's move table
+    (:func:`_walk`, one lookup per step: the case of a sound record, which the reader meets
+    most); only a path that fails it is examined cell by cell (:func:`_path_faults`) to name
+    what breaks.
+    """
     yield from player_faults(r.policy, r.robot, r.eta, r.teaching is not None)
-    k = r.num_features
-    for name, length in _lengths(r).items():
-        if length != k:
-            yield f"{name} has {length} entries, num_features is {k}"
+    yield from setting_faults(r)
+    if len(r.theta_hat) != r.num_features:
+        yield f"theta_hat has {len(r.theta_hat)} entries, num_features is {r.num_features}"
     grid = _gridworld(r.grid)
-    if not grid.contains(*r.start):
-        yield f"start {list(r.start)} is outside the {grid.width}x{grid.height} grid"
+    moves = _moves(r.grid)
     states, actions = r.demonstration.states, r.demonstration.actions
-    yield from _path_faults("demonstration.states", states, r.start, r.learning_steps, grid)
+    walked = _walk(states, r.start, r.learning_steps, moves)
+    if walked is None:
+        yield from _path_faults("demonstration.states", states, r.start, r.learning_steps, grid)
     if len(actions) != r.learning_steps:
         yield f"demonstration has {len(actions)} actions, learning_steps is {r.learning_steps}"
-    for t, (action, cell, next_cell) in enumerate(zip(actions, states, states[1:], strict=False)):
-        if action != action_between(cell, next_cell):
-            yield (
-                f"demonstration.actions[{t}] is {action} but the path moves "
-                f"{list(cell)} -> {list(next_cell)}"
-            )
-            break
+    if walked != actions:
+        for t, (action, cell, next_cell) in enumerate(
+            zip(actions, states, states[1:], strict=False)
+        ):
+            if action != action_between(cell, next_cell):
+                yield (
+                    f"demonstration.actions[{t}] is {action} but the path moves "
+                    f"{list(cell)} -> {list(next_cell)}"
+                )
+                break
     if not r.demonstrator_stays and "stay" in actions:
         yield "the demonstration stays put, but demonstrator_stays is false"
     if r.deployment is not None:
@@ -153,25 +131,32 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
         if len(starts) != len(paths):
             yield f"deployment has {len(starts)} starts and {len(paths)} paths"
         for i, (start, path) in enumerate(zip(starts, paths, strict=False)):
-            yield from _path_faults(f"deployment.paths[{i}]", path, start, r.deployment_steps, grid)
+            if _walk(path, start, r.deployment_steps, moves) is None:
+                yield from _path_faults(
+                    f"deployment.paths[{i}]", path, start, r.deployment_steps, grid
+                )
     for name in ("regret", "kl"):
         value = getattr(r.measures, name)
         if value < -NEGATIVE_TOLERANCE:
             yield f"measures.{name} is {value} < 0"
 
 
+def _walk(
+    path: Sequence[Cell], start: Cell, steps: int, moves: dict[tuple[Cell, Cell], str]
+) -> tuple[str, ...] | None:
+    """The actions of ``path`` if it is a walk of ``steps`` available moves from ``start``
+    (``steps >= 1``), else ``None`` (also for cells that are not tuples)."""
+    if steps < 1 or len(path) != steps + 1 or path[0] != start:
+        return None
+    try:
+        return tuple(map(moves.__getitem__, zip(path, path[1:], strict=False)))
+    except (KeyError, TypeError):
+        return None
+
+
 def _sized(r: TrialRecord) -> bool:
     """Whether ``theta``, ``theta_hat`` and the centres all have ``num_features`` entries."""
     return len(r.theta) == len(r.theta_hat) == len(r.features.centers) == r.num_features
-
-
-def _lengths(r: TrialRecord) -> dict[str, int]:
-    """The lengths that must all be ``num_features``, by field."""
-    return {
-        "theta": len(r.theta),
-        "theta_hat": len(r.theta_hat),
-        "features.centers": len(r.features.centers),
-    }
 
 
 def _reward_l2_faults(records: Sequence[TrialRecord]) -> Iterator[tuple[int, str]]:
