@@ -479,10 +479,9 @@ def _log_axis(axes: Axes) -> None:
     """A log x axis labelled in plain numbers (0.01, 1, 100), without minor ticks.
 
     Plain labels read as the values a pipeline file states, and they spare the mathtext
-    parser that matplotlib's default ``10^n`` labels start in every process (a quarter of
-    a figure's drawing time). Minor ticks, eight a decade, each a tick with its own label
-    laid out (empty or not), more than doubled the drawing of a lambda curve (0.82 s against
-    0.36 s); the points the figures show sit on the labelled values or between them.
+    parser that matplotlib's default ``10^n`` labels start in every process. There are no
+    minor ticks, each a tick with its own label laid out (empty or not): the points the
+    figures show sit on the labelled values or between them.
     """
     axes.set_xscale("log")
     axes.xaxis.set_major_formatter(ticker.FuncFormatter(lambda value, _: f"{value:g}"))

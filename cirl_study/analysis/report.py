@@ -250,11 +250,10 @@ def _drawings(
 
 
 CSV_IN_MEMORY_ROWS = 200_000
-"""Up to this many trials, trials.csv is made here while the figures are drawn in workers,
-after the tests, whose end would otherwise leave this process waiting for the figures. Its
-text costs about 150 bytes a trial, so a larger run's table is written row by row at the
-end, which keeps the analysis of a million trials within 2 GB. (Made in a worker, it also
-cost a copy of the table sent there, and added to the figures' work, which ends last.)"""
+"""Up to this many trials, trials.csv is made in this process while the figures are drawn in
+workers, after the tests, whose end would otherwise leave it waiting for the figures; a
+larger run's table is written row by row at the end, so its text is never held whole (its
+memory: ``benchmarks/README.md``, *The analysis's choices*)."""
 
 
 def write_report(

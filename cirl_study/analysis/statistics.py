@@ -205,7 +205,7 @@ def bootstrap_mean_d_z(differences: np.ndarray) -> dict[str, tuple[float, float]
     This equals ``scipy.stats.bootstrap(method="BCa")`` with the same generator (the
     resamples are the same draws; checked in the tests), but stays linear in ``n``: scipy
     computes the ``n`` leave-one-out statistics from ``n`` copies of the sample (``O(n^2)``
-    time and, unbatched, memory: 2 GB at ``n = 16,000``), where here they have closed forms,
+    time and, unbatched, memory), where here they have closed forms,
     and the resamples are drawn :data:`BOOTSTRAP_BATCH_ELEMENTS` values at a time. Leave-one-out
     mean ``m_(i) = m - e_i / (n - 1)`` with ``e_i = d_i - m``, and sum of squares about it
     ``Q - e_i^2 n / (n - 1)`` with ``Q = sum e_j^2``, so ``d_z(i) = m_(i) / sqrt((Q - e_i^2 n /
@@ -363,7 +363,8 @@ def holm(p_values: np.ndarray) -> np.ndarray:
     ``p~_(i) = min(1, max_{j <= i} (n - j + 1) p_(j))`` over the ``n`` finite p-values in
     increasing order; a NaN stays NaN and does not count in ``n``. By ``pingouin.multicomp``:
     statsmodels' ``multipletests`` computes the same numbers but runs a full garbage
-    collection on every call, 0.1 s beside a read run's rows.
+    collection on every call, which walks every object of the process (a read run's rows
+    among them).
     """
     return pg.multicomp(p_values, method="holm")[1]
 
@@ -382,7 +383,7 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     same cells (observed combinations, sorted, NaN rows dropped), means, ``se = sqrt(MSE / n_A
     + MSE / n_B)``, ``T = diff / se`` and Hedges' g (``pingouin.compute_effsize``); the tests
     check the two agree. Its p-values are SciPy's ``1 - CDF``, which is 0.0 from ``q ~ 10.5``
-    on (``k = 4``, ``N = 2000``) and took 0.15 s of a report to compute for nothing. Here
+    on (``k = 4``, ``N = 2000``), so they are not computed. Here
     ``p_tukey`` is the accurate tail ``P(Q > q)`` (relative error ``<= 1e-8``) and
     ``log10_p_tukey`` its common logarithm, computed in log space by
     :func:`cirl_study.analysis.studentized_range.studentized_range_log10_sf`: where the
@@ -447,9 +448,8 @@ def wilcoxon(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     ``n^2`` pairs of a best-response and an expert value (Vargha & Delaney 2000).
 
     These are ``pingouin.wilcoxon``'s numbers (checked equal in the tests), computed here
-    because pingouin forms the ``n x n`` matrix of pairs for ``cles`` (20 GB at ``n =
-    50,000``); counting them by binary search over the sorted expert values is ``O(n log n)``
-    and exact.
+    because pingouin forms the ``n x n`` matrix of pairs for ``cles`` (``O(n^2)`` memory);
+    counting them by binary search over the sorted expert values is ``O(n log n)`` and exact.
 
     References:
         Wilcoxon (1945), Biometrics Bulletin 1(6):80-83.

@@ -8,12 +8,9 @@ import importlib
 import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import Annotated, Any
 
 import typer
-
-if TYPE_CHECKING:
-    pass
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``analyze`` command, merged into :data:`cirl_study.cli.app`."""
@@ -159,15 +156,14 @@ def analyze(
 
 def _prepare_analysis() -> dict[str, Any]:
     """What every report needs that the logs do not hold, prepared while they are read: the
-    libraries (pandas, scipy, matplotlib, pingouin and the run's audit: about 1.3 s) and the
+    libraries (pandas, scipy, matplotlib, pingouin and the run's audit) and the
     report's provenance, which it returns: the date, the machine and the packages
     (:func:`~cirl_study.logs.provenance.machine_provenance`).
 
     The libraries live as long as the process, so the garbage collector is paused while they
     load and they are frozen out of it after (``gc.freeze``, until workers fork: see
     :func:`~cirl_study.workers.started`): its full collections would otherwise walk their few
-    hundred thousand objects while they load and while the rows arrive, 0.2 s of this
-    process's time.
+    hundred thousand objects while they load and while the rows arrive.
     """
     gc.disable()
     try:

@@ -18,7 +18,7 @@ add a player for the process.
 Each registered player imports its module when it first plays: reading, checking and
 analysing logs need only the players' names and what they imply for a record
 (:attr:`Human.takes_eta`, ``teaches``), and so never load the numerical core (numba and
-scipy, about 0.3 s of every such command's start).
+scipy) at their start.
 """
 
 from __future__ import annotations
