@@ -13,6 +13,7 @@ import numpy as np
 import pandas as pd
 import pytest
 from analysis_fixtures import synthetic_records
+from matplotlib.backends.backend_agg import FigureCanvasAgg
 
 from cirl_study.analysis import figures
 from cirl_study.core.gridworld import feature_matrix
@@ -147,3 +148,49 @@ def test_figure1_draws_every_step_and_names_each_regret(pair):
     arrows = [text for text in moved.texts if text.arrow_patch is not None]
     assert len(arrows) == sum(a != "stay" for a in best.demonstration.actions)
     assert figures._step_label([0, 2, 3, 5]) == "0,2-3,5"
+
+
+def test_every_lambda_panel_labels_its_regret_and_the_star_sits_above_the_interval():
+    """The star marks the best response's lowest regret without covering its point or its
+    interval: it is drawn above the interval's upper end."""
+    figure = figures.lambda_figure(_identical_sweep())
+    FigureCanvasAgg(figure).draw()
+    for axes in [axes for axes in figure.axes if axes.get_title()]:
+        assert axes.get_ylabel() == "mean regret (95% CI)"
+        (star,) = [line for line in axes.get_lines() if line.get_marker() == "*"]
+        bars = {container.get_label(): container for container in axes.containers}
+        caps = bars["best response"].lines[1]
+        top_of_interval = max(
+            axes.transData.transform((x, y))[1]
+            for cap in caps
+            for x, y in zip(cap.get_xdata(), cap.get_ydata(), strict=True)
+        )
+        star_y = star.get_transform().transform(star.get_xydata()[0])[1]
+        assert star_y >= top_of_interval + figures.STAR_OFFSET * figure.dpi / 72 - 1
+
+
+def test_figure1_explains_its_step_labels_and_shading(pair):
+    figure = figures.reward_figure(*pair, "draw")
+    (key,) = [text.get_text() for text in figure.texts if "steps" in text.get_text()]
+    assert "3-4: steps 3 to 4" in key and "2,5: steps 2 and 5" in key and "light" in key
+
+
+@pytest.mark.parametrize("humans", [5, 8])
+def test_the_cell_figure_labels_its_axes_and_its_human_names_do_not_collide(humans):
+    names = [f"human_number_{i}" for i in range(humans)]
+    robots = ["map", "literal", "pragmatic"]
+    cells = pd.DataFrame(
+        [
+            {"measure": m, "num_features": k, "policy": h, "robot": r, "mean": 1.0,
+             "ci95_low": 0.5, "ci95_high": 1.5}
+            for m in ("regret", "kl", "reward_l2") for k in (3, 10) for h in names for r in robots
+        ]
+    )  # fmt: skip
+    figure = figures.cell_figure(cells, names, robots)
+    renderer = FigureCanvasAgg(figure).get_renderer()
+    panels = [axes for axes in figure.axes if axes.get_title()]
+    assert all(axes.get_ylabel().startswith("mean ") for axes in panels)
+    assert any(axes.get_xlabel() == "human" for axes in panels)
+    for axes in panels:
+        boxes = [label.get_window_extent(renderer) for label in axes.get_xticklabels()]
+        assert all(a.x1 <= b.x0 for a, b in zip(boxes, boxes[1:], strict=False)), axes.get_title()

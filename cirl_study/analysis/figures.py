@@ -26,7 +26,7 @@ from typing import Any
 import matplotlib.style
 import numpy as np
 import pandas as pd
-from matplotlib import rc_context, ticker
+from matplotlib import rc_context, ticker, transforms
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -286,6 +286,13 @@ def _step_label(times: list[int]) -> str:
 MAP_SIZE = 2.5
 """Side of each square reward map of Figure 1, in inches."""
 
+FIGURE1_KEY = (
+    "Demonstration: white dot = start, white square = end; arrows shade from light (first "
+    "step) to dark (last); a ring is a stay.\nNumbers: the steps at which the demonstration "
+    "is on the cell (3-4: steps 3 to 4; 2,5: steps 2 and 5). Crosses: RBF centres."
+)
+"""The key printed under Figure 1's panels."""
+
 
 def reward_maps(expert: TrialRecord, best_response: TrialRecord, title: str) -> Rendered:
     """Figure 1, rendered: see :func:`reward_figure`."""
@@ -300,7 +307,9 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
     (2 sigma^2))``; the three panels share one symmetric colour scale. The demonstration
     runs from the white dot (step 0) to the white square, every step drawn and numbered, in
     shades from light (first) to dark (last), a stay as a ring; the crosses are the RBF
-    centres. Each demonstration panel names its regret.
+    centres. The number beside a cell lists the steps at which the demonstration is there
+    (``3-4``: steps 3 to 4; ``2,5``: steps 2 and 5). Each demonstration panel names its
+    regret, and a legend line under the panels says how to read them.
 
     Args:
         expert: the expert's trial record of the reward draw.
@@ -321,7 +330,7 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
     )
     with matplotlib.style.context("default"), rc_context(STYLE):
         # Square maps of MAP_SIZE inches; the colour bar to the right of the last one.
-        margins = Margins(left=0.55, right=1.2, top=0.85, across=0.5)
+        margins = Margins(left=0.55, right=1.2, bottom=0.95, top=0.85, across=0.5)
         figure = _new_figure(
             margins.left + 3 * MAP_SIZE + 2 * margins.across + margins.right,
             margins.bottom + MAP_SIZE + margins.top,
@@ -353,6 +362,7 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
             )
         )
         figure.colorbar(image, cax=bar, label="reward of the cell")
+        figure.text(0.5, 0.12 / height, FIGURE1_KEY, ha="center", va="bottom", fontsize=7)
         figure.suptitle(title)
         return figure
 
@@ -406,9 +416,17 @@ its own, so every panel spans the figure's width."""
 
 
 def cell_bars(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str]) -> Rendered:
+    """The cell means, rendered: see :func:`cell_figure`."""
+    with matplotlib.style.context("default"), rc_context(STYLE):
+        return render(cell_figure(cells, humans, robots))
+
+
+def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str]) -> Figure:
     """Every measure's mean with its 95% CI by human (groups) and robot (bars): a row of
     panels per feature level, the measures across; or, with more than :data:`WIDE_CELLS`
     bars a panel (up to 8 humans and 4 robots), a row per measure, the feature levels across.
+    Each panel labels its measure; a human's name is broken at its underscores, so the names
+    of 8 humans fit under a panel side by side.
 
     Args:
         cells: rows ``measure, num_features, policy, robot, mean, ci95_low, ci95_high``.
@@ -448,17 +466,14 @@ def cell_bars(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str])
                         color=ROBOT_COLOURS[index % len(ROBOT_COLOURS)],
                         label=f"robot {robot}",
                     )
-                panel.set_xticks(
-                    positions,
-                    [h.replace("_", " ") for h in humans],
-                    rotation=30,
-                    ha="right",
-                    rotation_mode="anchor",
-                )
+                panel.set_xticks(positions, [h.replace("_", "\n") for h in humans], fontsize=8)
                 panel.set_title(f"{MEASURE_LABELS[measure]}, {level} features")
+                panel.set_ylabel(f"mean {MEASURE_LABELS[measure]} (95% CI)", fontsize=8)
+        for panel in grid[-1]:
+            panel.set_xlabel("human")
         _figure_legend(figure, grid[0][0], columns=len(robots))
         figure.suptitle("Lower is better: mean (95% CI) by human and robot")
-        return render(figure)
+        return figure
 
 
 def _curves(
@@ -488,6 +503,19 @@ def _log_axis(axes: Axes) -> None:
     axes.xaxis.set_minor_locator(ticker.NullLocator())
 
 
+STAR_OFFSET = 9.0
+"""How far above a point's confidence interval its star sits, in points: a star marks a point
+without hiding it or its interval."""
+
+
+def _star_above(axes: Axes, x: float, top: float, label: str) -> None:
+    """A gold star :data:`STAR_OFFSET` points above ``(x, top)``, the upper end of a point's
+    interval."""
+    above = transforms.offset_copy(axes.transData, fig=axes.figure, y=STAR_OFFSET, units="points")
+    axes.plot(x, top, marker="*", markersize=13, color="gold", markeredgecolor="black",
+              linestyle="none", label=label, zorder=4, transform=above)  # fmt: skip
+
+
 def lambda_curve(sweep: pd.DataFrame) -> Rendered:
     """Figure 2 (right), rendered: see :func:`lambda_figure`."""
     with matplotlib.style.context("default"), rc_context(STYLE):
@@ -499,8 +527,9 @@ def lambda_figure(sweep: pd.DataFrame) -> Figure:
 
     One panel per feature level; in each, both policies in their colours and markers (expert
     circles, best response squares), dodged sideways so that neither hides the other where
-    they coincide; bars are 95% CIs. A star marks the lambda at which the best response's
-    mean regret is lowest, the point of the paper's claim.
+    they coincide; bars are 95% CIs. A star above its interval marks the lambda at which the
+    best response's mean regret is lowest, the point of the paper's claim. Every panel has
+    its own regret scale, labelled.
 
     Args:
         sweep: rows ``measure, rationality, policy, num_features, mean, ci95_low, ci95_high``.
@@ -515,12 +544,11 @@ def lambda_figure(sweep: pd.DataFrame) -> Figure:
             _curves(axes, at_level, "rationality", _policy_series(at_level))
             best = at_level[at_level["policy"] == BEST_RESPONSE]
             lowest = best.loc[best["mean"].idxmin()]
-            axes.plot(lowest["rationality"] * DODGE[BEST_RESPONSE], lowest["mean"], marker="*",
-                      markersize=15, color="gold", markeredgecolor="black", linestyle="none",
-                      label="lowest best-response regret", zorder=4)  # fmt: skip
+            _star_above(axes, lowest["rationality"] * DODGE[BEST_RESPONSE],
+                        lowest["ci95_high"], "lowest best-response regret")  # fmt: skip
             axes.set_title(f"{level} features")
             axes.set_xlabel("robot's rationality λ")
-        panels[0].set_ylabel("mean regret (95% CI)")
+            axes.set_ylabel("mean regret (95% CI)")
         panels[0].legend(frameon=False, fontsize=8, markerscale=1.2)
         figure.suptitle("Regret against the rationality the robot assumes (lower is better)")
         return figure
@@ -544,8 +572,9 @@ def eta_curve(means: pd.DataFrame, choice: pd.DataFrame) -> Rendered:
     """The eta cross-validation: mean best-response regret against eta, chosen eta starred.
 
     One panel per feature level (their regrets differ tenfold), in the best response's colour
-    as everywhere else; a gold star marks the chosen eta and a dashed line one standard error
-    above its mean: every eta below the line is as good by the one-standard-error rule.
+    as everywhere else; a gold star above its interval marks the chosen eta and a dashed line
+    one standard error above its mean: every eta below the line is as good by the
+    one-standard-error rule.
 
     Args:
         means: rows ``num_features, eta, mean, ci95_low, ci95_high``.
@@ -569,8 +598,9 @@ def eta_curve(means: pd.DataFrame, choice: pd.DataFrame) -> Rendered:
                 line = float(row["mean"].iloc[0] + row["se"].iloc[0])
                 axes.axhline(line, color="black", linestyle="--", linewidth=0.8,
                              label="one SE above the chosen")  # fmt: skip
-                axes.plot(row["eta"], row["mean"], marker="*", markersize=15, color="gold",
-                          markeredgecolor="black", linestyle="none", label="chosen η")  # fmt: skip
+                chosen = rows[rows["eta"] == float(row["eta"].iloc[0])]
+                _star_above(axes, float(row["eta"].iloc[0]),
+                            float(chosen["ci95_high"].iloc[0]), "chosen η")  # fmt: skip
             axes.set_title(f"{level} features")
             axes.set_xlabel("η (trade-off between reward and feature matching)")
         panels[0].set_ylabel("mean best-response regret (95% CI)")
