@@ -6,7 +6,8 @@ place must not make it hang or write there. :func:`open_for_writing` opens the f
 (``O_NOFOLLOW``: a link in its place is refused, not followed), without blocking
 (``O_NONBLOCK``: a FIFO without a reader fails at once), checks on the open descriptor that
 it is a regular file, and only then truncates it, so nothing but a regular file is ever
-changed. Every refusal is one line naming the file (:class:`cirl_study.errors.UserError`).
+changed. :func:`read_file` reads a file the same way: never through a link, never a FIFO.
+Every refusal is one line naming the file (:class:`cirl_study.errors.UserError`).
 """
 
 from __future__ import annotations
@@ -63,6 +64,31 @@ def write_file(path: Path, data: bytes) -> None:
     """Write ``data`` as the whole content of ``path`` (see :func:`open_for_writing`)."""
     with open_for_writing(path) as stream:
         stream.write(data)
+
+
+def read_file(path: Path) -> bytes:
+    """The whole content of the regular file ``path``, opened as :func:`open_descriptor`
+    opens one (a link in its place is refused, not followed; a FIFO does not block).
+
+    Raises:
+        FileNotFoundError: there is no ``path``.
+        UserError: ``path`` is a symbolic link or not a regular file, or cannot be read.
+    """
+    try:
+        descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except FileNotFoundError:
+        raise
+    except OSError as error:
+        if error.errno == errno.ELOOP:
+            raise UserError(f"{path}: is a symbolic link; refusing to read through it") from None
+        raise UserError(f"{path}: cannot read: {error.strerror}") from None
+    with os.fdopen(descriptor, "rb") as stream:
+        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+            raise UserError(f"{path}: is not a regular file; refusing to read it")
+        try:
+            return stream.read()
+        except OSError as error:
+            raise UserError(f"{path}: cannot read: {error.strerror}") from None
 
 
 def remove_file(path: Path) -> None:

@@ -179,8 +179,6 @@ def test_every_claim_has_a_verdict_and_every_link_resolves(reports):
 
 def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path):
     out = tmp_path / "report"
-    out.mkdir()
-    (out / "figure2_lambda.png").write_bytes(b"stale")
     main_only = [record for record in records if record.block == "main"]
     theory = {
         "claims": [

@@ -375,7 +375,7 @@ def test_reproduce_compares_a_multiverse_report_with_the_one_it_replaces(
     second = CliRunner().invoke(app, arguments)
     assert second.exit_code == 0, second.output
     assert second.output.rstrip().endswith(
-        f"{report}: equals the report it replaced, number by number"
+        f"{report}: equals the report there, number by number; its files are kept"
     )
 
 

@@ -1,5 +1,6 @@
 """Nothing the project writes goes through a link or into anything but a regular file
-(cirl_study.files): the lock file, a log's temporary file and every file of a report. Each
+(cirl_study.files): the lock file, a log's temporary file and every file of a report (a
+link in an old report leaves with it: cirl_study.analysis.replacement). Each
 case plants the hostile entry, runs the command, and checks one line, a non-zero exit and
 the target outside untouched."""
 
@@ -58,28 +59,31 @@ def test_a_link_in_place_of_a_logs_temporary_file_is_refused(tmp_path: Path) -> 
 
 
 @pytest.mark.parametrize("name", ["report.md", "results.json", "trials.csv", "eta_cv.png"])
-def test_a_link_in_a_report_directory_is_refused(
+def test_a_link_in_a_report_directory_is_replaced_not_written_through(
     smoke_run: Path, tmp_path: Path, name: str
 ) -> None:
+    """The new report is written into a fresh directory: a link in the old one in place of
+    a file of the report leaves with the old report, and what it points to stays."""
     target = victim(tmp_path)
     report = tmp_path / "report"
     report.mkdir()
     (report / name).symlink_to(target)
     result = CliRunner().invoke(app, ["analyze", str(smoke_run), "--out", str(report), "--force"])
-    one_line_error(result, name, "symbolic link")
+    assert result.exit_code == 0, result.output
+    assert (report / name).is_file() and not (report / name).is_symlink()
     assert target.read_text() == VICTIM
 
 
 def test_a_stale_figure_that_is_a_link_is_removed_not_followed(
     smoke_run: Path, tmp_path: Path
 ) -> None:
-    """A report without a robots comparison removes a stale robots figure: a link there is
-    removed itself, and what it points to stays."""
+    """A report without a robots comparison leaves a stale robots figure with the old report:
+    a link there is removed itself, and what it points to stays."""
     target = victim(tmp_path)
     report = tmp_path / "report"
     report.mkdir()
     (report / "robots_lambda.png").symlink_to(target)
-    result = CliRunner().invoke(app, ["analyze", str(smoke_run), "--out", str(report)])
+    result = CliRunner().invoke(app, ["analyze", str(smoke_run), "--out", str(report), "--force"])
     assert result.exit_code == 0, result.output
     assert not (report / "robots_lambda.png").is_symlink() and target.read_text() == VICTIM
 

@@ -33,7 +33,7 @@ def test_reproduce_runs_then_reports_and_a_second_call_changes_nothing(tmp_path:
     assert "0 played now" in second.output
     assert first.output.rstrip().endswith("a new report (there was none to compare with)")
     assert second.output.rstrip().endswith(
-        f"{report}: equals the report it replaced, number by number"
+        f"{report}: equals the report there, number by number; its files are kept"
     )
     assert _report_bytes(report) == written
     timing = re.compile(r"^run [\d.]+ s, analysis [\d.]+ s \([\d.]+ x the run\)$", re.MULTILINE)

@@ -2,7 +2,8 @@
 
 Every file is written with ``\\n`` line ends and UTF-8, so identical results give identical
 bytes on every platform; ``provenance.json`` (what made the report, which differs from machine
-to machine by design) is apart from the numbers.
+to machine by design) is apart from the numbers. A report replaces another by being written
+into a fresh directory, swapped in whole (:mod:`cirl_study.analysis.replacement`).
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from typing import Any
 import pandas as pd
 
 from cirl_study.errors import UserError
-from cirl_study.files import open_for_writing, remove_file, write_file
+from cirl_study.files import open_for_writing, write_file
 
 CSV_FORMAT: dict[str, Any] = {"index": False, "lineterminator": "\n"}
 """How every table of a report is written as CSV (``DataFrame.to_csv``): no index, ``\\n``."""
@@ -37,9 +38,10 @@ def write_report_directory(
     provenance: Mapping[str, Any] | None,
 ) -> None:
     """Write ``report.md``, ``results.json``, the ``tables`` (CSV by file name: a frame, or
-    its file as :func:`csv_file` made it), the
-    ``figures`` (by file name; ``None`` removes a stale copy of a figure the run has no data
-    for) and ``provenance.json`` (if given) into ``out_dir``, created if needed.
+    its file as :func:`csv_file` made it), the ``figures`` (by file name; ``None``: a figure
+    the run has no data for, not written) and ``provenance.json`` (if given) into
+    ``out_dir``, created if needed. It writes in place: to replace a report, write it into
+    the stage of :func:`~cirl_study.analysis.replacement.replacing_report`.
 
     Every file is written by :func:`cirl_study.files.write_file`: a link or anything but a
     regular file in a file's place is refused, never written through.
@@ -66,9 +68,7 @@ def write_report_directory(
             text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
             write_file(out / "provenance.json", (text + "\n").encode("utf-8"))
         for name, data in figures.items():
-            if data is None:
-                remove_file(out / name)
-            else:
+            if data is not None:
                 write_file(out / name, data)
     except OSError as error:
         raise UserError(f"cannot write the report to {out}: {error.strerror}") from None

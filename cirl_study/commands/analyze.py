@@ -8,9 +8,12 @@ import importlib
 import json
 import sys
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
+
+if TYPE_CHECKING:
+    from cirl_study.analysis.replacement import Replacement
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``analyze`` command, merged into :data:`cirl_study.cli.app`."""
@@ -34,14 +37,15 @@ ReportDirectoryOption = Annotated[
         "--out",
         metavar="DIR",
         show_default="RUN/report",
-        help="Report directory: report.md, results.json, trials.csv and the figures. A "
-        "report of another run there is refused unless --force.",
+        help="Report directory: report.md, results.json, trials.csv and the figures, "
+        "replaced whole once written (its other files are kept). A report of another run "
+        "there is refused unless --force.",
     ),
 ]
 
 ForceOption = Annotated[
     bool,
-    typer.Option("--force", help="Overwrite a report of another run in the report directory."),
+    typer.Option("--force", help="Replace a report of another run in the report directory."),
 ]
 
 
@@ -73,7 +77,29 @@ def analyze(
     alike: the repeated-measures ANOVA with sphericity corrections, every pairwise
     comparison, and every published claim whose cells the run has (the paper's, Milli &
     Dragan's, ...), the others listed as not tested. A multiverse gets the paper's claims in
-    every universe.
+    every universe. The new report replaces the old one at once, when it is complete: a
+    failure leaves the old one whole.
+    """
+    report_run(run, out if out is not None else run / REPORT_NAME, partial=partial, force=force)
+
+
+def report_run(
+    run: Path,
+    target: Path,
+    *,
+    partial: bool = False,
+    force: bool = False,
+    keep_if_equal: bool = False,
+) -> Replacement:
+    """Analyse the run ``run`` into the report directory ``target`` and say so in one line:
+    what :func:`analyze` does, for it and for ``reproduce``.
+
+    The report replaces the one there whole, and only a report of the same run unless
+    ``force``; with ``keep_if_equal`` a report there equal by value to the new one is kept
+    untouched (:func:`~cirl_study.analysis.replacement.replacing_report`).
+
+    Returns:
+        What the replacement did.
     """
 
     def stage(name: str) -> None:
@@ -89,18 +115,19 @@ def analyze(
     stage(f"reading the logs of {run}")
     report_provenance: dict[str, Any] = {}
     contents = read_run(
-        run, salvage=partial, meanwhile=lambda: report_provenance.update(_prepare_analysis())
+        run,
+        salvage=partial,
+        meanwhile=lambda: report_provenance.update(_prepare_analysis(outputs=(run, target))),
     )
 
+    from cirl_study.analysis.replacement import replacing_report
     from cirl_study.study.audit import analysed_run
 
     for warning in contents.warnings:
         typer.echo(f"warning: {warning}", err=True)
     chosen = analysed_run(run, contents, partial)
     pipeline, trials, partial_run = chosen.pipeline, chosen.trials, chosen.partial
-    target = out if out is not None else run / REPORT_NAME
-    if not force:
-        _refuse_another_runs_report(target, contents.identity.run_id)
+    run_id = contents.identity.run_id
     provenance = {
         "run": sorted(
             {json.dumps(p, sort_keys=True): p for p in contents.provenance}.values(),
@@ -108,57 +135,63 @@ def analyze(
         ),
         "report": report_provenance,
     }
-    if pipeline.multiverse is not None:
-        from cirl_study.analysis.multiverse_report import write_multiverse_report
+    with replacing_report(
+        target, run_id=run_id, force=force, keep_if_equal=keep_if_equal
+    ) as replacement:
+        if pipeline.multiverse is not None:
+            from cirl_study.analysis.multiverse_report import write_multiverse_report
 
-        multiverse = write_multiverse_report(
-            trials,
-            target,
-            pipeline,
-            run_id=contents.identity.run_id,
-            provenance=provenance,
-            progress=stage,
-        )
-        shares = ", ".join(
-            f"{claim.id} {claim.reproduced}/{claim.universes}" for claim in multiverse.claims
-        )
-        typer.echo(
-            f"multiverse report of {len(trials)} trials in {len(multiverse.universes)} "
-            f"universes written to {target}: universes reproducing each claim: {shares}"
-        )
-        return
-    from cirl_study.analysis.report import write_report
-    from cirl_study.analysis.theory_claims import theory_claims
+            multiverse = write_multiverse_report(
+                trials,
+                replacement.stage,
+                pipeline,
+                run_id=run_id,
+                provenance=provenance,
+                progress=stage,
+            )
+            shares = ", ".join(
+                f"{claim.id} {claim.reproduced}/{claim.universes}" for claim in multiverse.claims
+            )
+            what = f"multiverse report of {len(trials)} trials in {len(multiverse.universes)} "
+            what += "universes"
+            summary = f"universes reproducing each claim: {shares}"
+        else:
+            from cirl_study.analysis.report import write_report
+            from cirl_study.analysis.theory_claims import theory_claims
 
-    results = write_report(
-        trials,
-        target,
-        pipeline,
-        records_of=lambda wanted: contents.records(run, wanted),
-        run_id=contents.identity.run_id,
-        theory=theory_claims(),
-        provenance=provenance,
-        partial=partial_run,
-        progress=stage,
-    )
-    claims = results.claims
-    tested = [claim for claim in claims if claim.tested]
-    reproduced = sum(claim.reproduced is True for claim in tested)
-    answered = sum(claim.reproduced is None for claim in tested)
-    typer.echo(
-        f"{'partial ' if partial_run else ''}report of {len(trials)} trials written to "
-        f"{target}: {len(claims)} claims, {reproduced} reproduced, "
-        f"{len(tested) - reproduced - answered} not reproduced, "
-        f"{len(claims) - len(tested)} not tested"
-        + (f", {answered} questions answered" if answered else "")
-    )
+            results = write_report(
+                trials,
+                replacement.stage,
+                pipeline,
+                records_of=lambda wanted: contents.records(run, wanted),
+                run_id=run_id,
+                theory=theory_claims(),
+                provenance=provenance,
+                partial=partial_run,
+                progress=stage,
+            )
+            claims = results.claims
+            tested = [claim for claim in claims if claim.tested]
+            reproduced = sum(claim.reproduced is True for claim in tested)
+            answered = sum(claim.reproduced is None for claim in tested)
+            what = f"{'partial ' if partial_run else ''}report of {len(trials)} trials"
+            summary = (
+                f"{len(claims)} claims, {reproduced} reproduced, "
+                f"{len(tested) - reproduced - answered} not reproduced, "
+                f"{len(claims) - len(tested)} not tested"
+                + (f", {answered} questions answered" if answered else "")
+            )
+    where = "equal by value to the one kept in" if replacement.kept else "written to"
+    typer.echo(f"{what} {where} {target}: {summary}")
+    return replacement
 
 
-def _prepare_analysis() -> dict[str, Any]:
+def _prepare_analysis(outputs: tuple[Path, ...]) -> dict[str, Any]:
     """What every report needs that the logs do not hold, prepared while they are read: the
     libraries (pandas, scipy, matplotlib, pingouin and the run's audit) and the
     report's provenance, which it returns: the date, the machine and the packages
-    (:func:`~cirl_study.logs.provenance.machine_provenance`).
+    (:func:`~cirl_study.logs.provenance.machine_provenance`; whether the checkout is dirty
+    judged without the ``outputs``, the run and report directories).
 
     The libraries live as long as the process, so the garbage collector is paused while they
     load and they are frozen out of it after (``gc.freeze``, until workers fork: see
@@ -181,23 +214,5 @@ def _prepare_analysis() -> dict[str, Any]:
 
     return {
         "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        **machine_provenance(),
+        **machine_provenance(outputs=outputs),
     }
-
-
-def _refuse_another_runs_report(target: Path, run_id: str) -> None:
-    """Refuse to overwrite the report of another run (by its ``results.json``'s ``run_id``)."""
-    from cirl_study.errors import UserError
-
-    existing = target / "results.json"
-    if not existing.is_file():
-        return
-    try:
-        theirs = json.loads(existing.read_text(encoding="utf-8")).get("run_id")
-    except (OSError, ValueError, AttributeError):
-        theirs = None
-    if theirs != run_id:
-        raise UserError(
-            f"{target}: holds the report of {'another run' if theirs is None else theirs}, not "
-            f"of {run_id}; give another --out, or --force to overwrite it"
-        )

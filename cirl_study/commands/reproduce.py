@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-import shutil
-import tempfile
 import time
 from pathlib import Path
 from typing import Annotated
 
 import typer
 
-from cirl_study.commands.analyze import analyze
+from cirl_study.commands.analyze import ForceOption, report_run
 from cirl_study.commands.run import (
     EngineName,
     EngineOption,
@@ -27,7 +25,9 @@ ReportOption = Annotated[
         "--report",
         metavar="DIR",
         show_default="reports/<pipeline name>",
-        help="Report directory: report.md, results.json, trials.csv and the figures.",
+        help="Report directory: report.md, results.json, trials.csv and the figures, "
+        "replaced whole unless equal by value (its other files are kept). A report of "
+        "another run there is refused unless --force.",
     ),
 ]
 
@@ -48,42 +48,39 @@ def reproduce(
     workers: WorkersOption = None,
     engine: EngineOption = EngineName.local,
     scheduler: SchedulerOption = None,
+    force: ForceOption = False,
 ) -> None:
     """Reproduce a study: play every trial of PIPELINE (run), then write its report (analyze).
 
     With the defaults this regenerates reports/paper/ from nothing (run again, it resumes)
-    and says whether the new report equals the one it replaced, number by number
-    (cirl-study compare), and how long the run and the analysis took.
+    and says whether the new report equals the one there, number by number (cirl-study
+    compare): if it does, the files there are kept as they are; else the new report
+    replaces them. It also says how long the run and the analysis took. A report of another
+    run is refused (before the run) unless --force.
     """
-    from cirl_study.analysis.compare import compare_reports
+    from cirl_study.analysis.replacement import refuse_another_runs_report
     from cirl_study.study.runner import default_out_dir
     from cirl_study.study.spec import load_pipeline, resolve_pipeline
 
     spec = load_pipeline(resolve_pipeline(pipeline))
     run_directory = out or default_out_dir(spec)
     target = report or REPORTS_DIRECTORY / spec.name
+    if not force:  # checked again, under the report's lock, before it is replaced
+        refuse_another_runs_report(target, spec.run_id)
     began = time.perf_counter()
     run(pipeline, run_directory, workers, engine, scheduler)
     played = time.perf_counter() - began
-    with tempfile.TemporaryDirectory(prefix="cirl-study-previous-") as scratch:
-        previous = Path(scratch) / "report"
-        had_report = (target / "results.json").is_file() and any(target.glob("*.csv"))
-        if had_report:
-            shutil.copytree(target, previous)
-        began = time.perf_counter()
-        analyze(run_directory, target, force=True)
-        analysed = time.perf_counter() - began
-        typer.echo(
-            f"run {played:.1f} s, analysis {analysed:.1f} s ({analysed / played:.2f} x the run)"
-        )
-        if not had_report:
-            typer.echo(f"{target}: a new report (there was none to compare with)")
-            return
-        differences = compare_reports(previous, target)
-    if differences:
+    began = time.perf_counter()
+    replacement = report_run(run_directory, target, force=force, keep_if_equal=True)
+    analysed = time.perf_counter() - began
+    typer.echo(f"run {played:.1f} s, analysis {analysed:.1f} s ({analysed / played:.2f} x the run)")
+    differences = replacement.differences
+    if differences is None:
+        typer.echo(f"{target}: a new report (there was none to compare with)")
+    elif differences:
         typer.echo(
             f"{target}: DIFFERS from the report it replaced in {len(differences)} place(s), "
             f"e.g. {differences[0]}"
         )
     else:
-        typer.echo(f"{target}: equals the report it replaced, number by number")
+        typer.echo(f"{target}: equals the report there, number by number; its files are kept")

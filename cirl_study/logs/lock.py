@@ -1,11 +1,13 @@
-"""One writer per run directory: an advisory lock held for as long as a run writes.
+"""One writer per directory: an advisory lock held for as long as a run or a report writes.
 
-The lock is :func:`fcntl.flock` on the file :data:`LOCK_NAME` in the run directory. The
-operating system releases it when its holder ends, however it ends (``kill -9`` included),
-so a lock is never left stale; the file itself stays and only says who held it last. A second
-writer gets a one-line error naming the holder's process id, and touches nothing: it neither
-plays trials nor deletes the holder's temporary files. Readers take no lock: they see only
-complete files (:mod:`cirl_study.logs.writer`).
+The lock is :func:`fcntl.flock` on a lock file: :data:`LOCK_NAME` inside a run directory
+(:func:`writer_lock`), a file beside a report directory (whose swap would lose one inside it:
+:mod:`cirl_study.analysis.replacement`). The operating system releases it when its holder
+ends, however it ends (``kill -9`` included), so a lock is never left stale; the file itself
+stays and only says who held it last. A second writer gets a one-line error naming the
+holder's process id, and touches nothing: it neither plays trials nor deletes the holder's
+temporary files. Readers take no lock: they see only complete files
+(:mod:`cirl_study.logs.writer`) and whole reports.
 """
 
 from __future__ import annotations
@@ -13,7 +15,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from cirl_study.errors import UserError
@@ -28,23 +30,46 @@ def writer_lock(run_dir: Path) -> Iterator[None]:
     """Hold the run directory's writer lock for the ``with`` block.
 
     Raises:
-        UserError: another process holds it, or the lock file cannot be opened (a link or
-            anything but a regular file in its place is refused:
+        UserError: as :func:`exclusive_lock`.
+    """
+    with exclusive_lock(
+        run_dir / LOCK_NAME,
+        cannot=f"{run_dir}: cannot lock the run directory",
+        busy=lambda pid: (
+            f"{run_dir}: another cirl-study run (pid {pid}) is writing to it; "
+            "wait for it to end, or use another --out directory"
+        ),
+    ):
+        yield
+
+
+@contextlib.contextmanager
+def exclusive_lock(lock_file: Path, *, cannot: str, busy: Callable[[str], str]) -> Iterator[None]:
+    """Hold the lock on ``lock_file`` (created if missing) for the ``with`` block, with this
+    process's id written in the file.
+
+    Args:
+        lock_file: the lock file.
+        cannot: the start of the error when the lock file cannot be opened.
+        busy: the error when another process holds the lock, of the process id the file
+            names (``unknown`` if it names none).
+
+    Raises:
+        UserError: another process holds the lock, or the lock file cannot be opened (a link
+            or anything but a regular file in its place is refused:
             :func:`cirl_study.files.open_descriptor`).
     """
     try:
-        descriptor = open_descriptor(run_dir / LOCK_NAME, os.O_RDWR, truncate=False)
+        descriptor = open_descriptor(lock_file, os.O_RDWR, truncate=False)
     except UserError as error:
-        raise UserError(f"{run_dir}: cannot lock the run directory: {error}") from None
+        raise UserError(f"{cannot}: {error}") from None
     try:
         try:
             fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            holder = os.pread(descriptor, 64, 0).decode(errors="replace").strip() or "unknown"
-            raise UserError(
-                f"{run_dir}: another cirl-study run (pid {holder}) is writing to it; "
-                "wait for it to end, or use another --out directory"
-            ) from None
+            holder = os.pread(descriptor, 64, 0).decode(errors="replace").strip()
+            pid = holder if holder.isdigit() else "unknown"
+            raise UserError(busy(pid)) from None
         os.ftruncate(descriptor, 0)
         os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
         yield

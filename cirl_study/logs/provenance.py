@@ -15,7 +15,7 @@ import hashlib
 import os
 import platform
 import subprocess
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -100,25 +100,28 @@ class RunIdentity:
         return identity
 
 
-def collect_provenance(identity: RunIdentity) -> dict[str, str]:
+def collect_provenance(identity: RunIdentity, run_dir: Path | None = None) -> dict[str, str]:
     """Provenance of the log files of a run, as a string-to-string map.
 
     The entries of :meth:`RunIdentity.provenance`, ``log_format``, then those of
-    :func:`machine_provenance`. Nothing depends on the clock, so every file of a run carries
-    the same record.
+    :func:`machine_provenance` (``git_dirty`` judged without the run directory ``run_dir``).
+    Nothing depends on the clock, so every file of a run carries the same record.
     """
     return {
         **identity.provenance(),
         "log_format": LOG_FORMAT_VERSION,
-        **machine_provenance(),
+        **machine_provenance(outputs=() if run_dir is None else (run_dir,)),
     }
 
 
-def machine_provenance() -> dict[str, str]:
+def machine_provenance(outputs: Iterable[Path] = ()) -> dict[str, str]:
     """The code and the machine, as a string-to-string map.
 
     Keys: ``cirl_study_version``, ``git_commit`` and ``git_dirty`` (of the source tree the
-    package runs from; ``unknown`` outside a git checkout), ``python_version``, ``platform``,
+    package runs from; ``unknown`` outside a git checkout; changes to tracked files in the
+    ``outputs``, the directories the command writes, do not count: a report committed in
+    the checkout and written again does not make the code dirty), ``python_version``,
+    ``platform``,
     ``cpu`` (the processor's model name), ``blas`` (each BLAS/OpenMP library numpy has loaded,
     with its version, kernel architecture and threads, from :func:`threadpoolctl.threadpool_info`;
     the environment variables that steer OpenBLAS's kernel choice are named when set) and
@@ -129,7 +132,7 @@ def machine_provenance() -> dict[str, str]:
 
     provenance = {
         "cirl_study_version": __version__,
-        **_git_state(Path(__file__).resolve().parent),
+        **git_state(Path(__file__).resolve().parent, outputs),
         "python_version": platform.python_version(),
         "platform": platform.platform(),
         "cpu": _cpu_model(),
@@ -175,8 +178,9 @@ def _blas() -> str:
     return "; ".join(libraries + steering) or "none found"
 
 
-def _git_state(directory: Path) -> dict[str, str]:
-    """``git_commit`` and ``git_dirty`` of the checkout containing ``directory``."""
+def git_state(directory: Path, outputs: Iterable[Path]) -> dict[str, str]:
+    """``git_commit`` and ``git_dirty`` of the checkout containing ``directory``; changes to
+    tracked files in the ``outputs`` (directories or files, anywhere) are not counted."""
 
     def git(*args: str) -> str | None:
         try:
@@ -194,6 +198,14 @@ def _git_state(directory: Path) -> dict[str, str]:
     commit = git("rev-parse", "HEAD")
     if commit is None:
         return {"git_commit": "unknown", "git_dirty": "unknown"}
-    status = git("status", "--porcelain", "--untracked-files=no")
+    top = git("rev-parse", "--show-toplevel")
+    excluded = []
+    for output in outputs if top is not None else ():
+        try:
+            inside = Path(os.path.realpath(output)).relative_to(os.path.realpath(top))
+        except ValueError:
+            continue  # outside the checkout
+        excluded.append(f":(top,exclude,literal){inside.as_posix()}")
+    status = git("status", "--porcelain", "--untracked-files=no", "--", ":(top)", *excluded)
     dirty = "unknown" if status is None else str(bool(status)).lower()
     return {"git_commit": commit, "git_dirty": dirty}

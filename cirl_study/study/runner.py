@@ -332,7 +332,7 @@ def _run_locked(
 ) -> RunResult:
     """:func:`run_pipeline` once this process holds the directory's writer lock."""
     identity = run_identity(pipeline)
-    provenance = collect_provenance(identity)
+    provenance = collect_provenance(identity, out_dir)
     done = prepare_run_directory(out_dir, identity)
     resumed = len(done)
     total = sum(trial_counts(pipeline).values())
