@@ -16,6 +16,7 @@ from typer.core import TyperGroup
 from cirl_study import __version__
 from cirl_study.commands import analyze, compare, office_supplies, reproduce, run, validate
 from cirl_study.errors import UserError
+from cirl_study.escape import terminal
 
 INTERRUPTED_EXIT_CODE = 130
 """Exit code after Ctrl-C (128 + SIGINT), as shells report it."""
@@ -28,7 +29,7 @@ class _Commands(TyperGroup):
         try:
             return super().invoke(ctx)
         except UserError as error:
-            typer.echo(f"error: {error}", err=True)
+            typer.echo(f"error: {terminal(error, limit=None)}", err=True)
             raise typer.Exit(error.exit_code) from None
         except KeyboardInterrupt:
             typer.echo("interrupted", err=True)

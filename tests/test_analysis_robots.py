@@ -28,7 +28,6 @@ from cirl_study.analysis.statistics import paired_differences
 from cirl_study.analysis.table import check_design
 from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.record import ETA_CV, MAIN, MAP, POSTERIOR_MEAN
-from cirl_study.study.audit import run_pipeline_of
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
 from cirl_study.study.runner import run_pipeline
@@ -214,7 +213,7 @@ def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
             _plain_report(
                 contents.rows,
                 tmp_path / name,
-                run_pipeline_of(contents.identity),
+                contents.identity.pipeline,
                 records_of=lambda wanted, run=run, contents=contents: read_trials(
                     run, contents.identity, wanted
                 ),

@@ -15,9 +15,7 @@ def results():
 
 
 def _verdicts(results):
-    return {
-        row.id: row.reproduced for row in external_claims(office_supplies_claims(results))
-    }
+    return {row.id: row.reproduced for row in external_claims(office_supplies_claims(results))}
 
 
 def test_every_theory_claim_is_reproduced(results):

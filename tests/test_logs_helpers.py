@@ -16,6 +16,7 @@ from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.logs.record_checks import record_faults
 from cirl_study.record import TrialRecord, from_builtins
+from cirl_study.study.spec import parse_pipeline
 
 
 def run_records(run: Path) -> list[TrialRecord]:
@@ -24,9 +25,20 @@ def run_records(run: Path) -> list[TrialRecord]:
     return read_trials(run, contents.identity, {row.trial_id for row in contents.rows})
 
 
-def provenance_for(run_id: str = "run-test", name: str = "test") -> dict[str, str]:
-    """A ``provenance`` record naming run ``run_id``; its pipeline text is a stand-in."""
-    return RunIdentity(run_id, name, f"{name}.toml", f'name = "{name}"\n').provenance()
+SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
+
+
+def provenance_for(name: str = "test", variant: str = "") -> dict[str, str]:
+    """A ``provenance`` record of a run of a valid pipeline named ``name`` (the smoke pipeline,
+    renamed), whose run id is that of its name and text; ``variant`` is appended to the text
+    (a comment makes it another run)."""
+    text = SMOKE.read_text().replace('name = "smoke"', f'name = "{name}"', 1) + variant
+    pipeline = parse_pipeline(text, Path(f"{name}.toml"))
+    return RunIdentity(pipeline.run_id, name, f"{name}.toml", text).provenance()
+
+
+RUN_ID = provenance_for()["run_id"]
+"""The run id of :func:`provenance_for`'s default run, which fabricated records carry."""
 
 
 STEPS = {"stay": (0, 0), "N": (0, 1), "S": (0, -1), "E": (1, 0), "W": (-1, 0)}
@@ -67,7 +79,7 @@ def make_record(
     learning_steps: int = 4,
     deployment_steps: int = 3,
     rollouts: int = 2,
-    run_id: str = "run-test",
+    run_id: str = RUN_ID,
 ) -> TrialRecord:
     """A consistent trial record; the reward draw depends only on ``(subject, num_features)``."""
     draw = random.Random(f"{subject}/{num_features}")

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import msgspec
 import pytest
-from test_logs_helpers import make_record, make_study, provenance_for
+from test_logs_helpers import RUN_ID, make_record, make_study, provenance_for
 
 from cirl_study.errors import UserError
 from cirl_study.logs.provenance import RunIdentity
@@ -15,7 +15,7 @@ from cirl_study.logs.scan import scan_file
 from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, TrialRow
 
-PROVENANCE = {**provenance_for(name="smoke"), "git_commit": "abc"}
+PROVENANCE = {**provenance_for(), "git_commit": "abc"}
 IDENTITY = RunIdentity.of(PROVENANCE)
 
 
@@ -44,7 +44,7 @@ def test_the_rows_of_every_file_sorted_by_trial_id(run: Path) -> None:
     contents = read_run(run)
     assert contents.rows == rows(sorted(study, key=lambda r: r.trial_id))
     assert contents.provenance == [PROVENANCE, PROVENANCE]
-    assert contents.identity == IDENTITY and contents.identity.pipeline_name == "smoke"
+    assert contents.identity == IDENTITY and contents.identity.pipeline_name == "test"
     assert contents.warnings == [] and contents.damaged == []
     assert logged_trials(run, IDENTITY) == {r.trial_id for r in study}
 
@@ -66,7 +66,8 @@ def test_whole_records_are_fetched_from_the_files_that_log_them(run: Path) -> No
     assert fetched == read_trials(run, IDENTITY, wanted)
     other = {**PROVENANCE, **provenance_for(name="paper")}
     (run / "b.mcap").unlink()
-    write(run / "b.mcap", study[:5], other)  # replaced since it was read
+    replaced = [msgspec.structs.replace(r, run_id=other["run_id"]) for r in study[:5]]
+    write(run / "b.mcap", replaced, other)  # replaced since it was read
     with pytest.raises(UserError, match="b.mcap: now holds the logs of another run"):
         contents.records(run, wanted)
 
@@ -152,11 +153,11 @@ def test_a_faulty_record_is_refused(run: Path) -> None:
 
 def test_files_of_two_runs_are_refused(run: Path) -> None:
     write(run / "a.mcap", [make_record(1)])
-    other = {**PROVENANCE, **provenance_for(name="paper")}  # same run id, another pipeline
-    write(run / "b.mcap", [make_record(2)], other)
+    other = {**PROVENANCE, **provenance_for(name="paper")}
+    paper = RunIdentity.of(other).run_id
+    write(run / "b.mcap", [make_record(2, run_id=paper)], other)
     expected = (
-        f"{run}: log files of 2 runs: a.mcap and b.mcap differ (pipeline sha256 "
-        f"{IDENTITY.pipeline_sha256[:12]} against {RunIdentity.of(other).pipeline_sha256[:12]})"
+        f"{run}: log files of 2 runs: a.mcap and b.mcap differ (run {RUN_ID} against {paper})"
     )
     with pytest.raises(UserError) as error:
         read_run(run)
@@ -169,16 +170,18 @@ def test_files_of_two_runs_are_refused(run: Path) -> None:
 
 
 def test_a_record_of_another_run_is_refused(run: Path) -> None:
-    path = write(run / "a.mcap", [make_record(1, run_id="other-run")], provenance_for("other-run"))
+    other = provenance_for("other")
+    other_run = other["run_id"]
+    path = write(run / "a.mcap", [make_record(1, run_id=other_run)], other)
     write(run / "b.mcap", [make_record(2)])
-    with pytest.raises(UserError, match="log files of 2 runs: .*run other-run against run-test"):
+    with pytest.raises(UserError, match=f"log files of 2 runs: .*run {other_run} against {RUN_ID}"):
         read_run(run)
     path.unlink()
-    foreign = make_record(3, run_id="other-run")
+    foreign = make_record(3, run_id=other_run)
     with TrialLogWriter(run / "c.mcap", PROVENANCE) as log:
-        log.run_id = "other-run"  # past the writer's own check, as a hand-made file would be
+        log.run_id = other_run  # past the writer's own check, as a hand-made file would be
         log.write(foreign)
-    expected = f"trial {foreign.trial_id} belongs to run other-run, the file to run run-test"
+    expected = f"trial {foreign.trial_id} belongs to run {other_run}, the file to run {RUN_ID}"
     with pytest.raises(UserError, match=expected):
         read_run(run)
     # Resuming reads each file's provenance and trial index only (every CRC checked); the
@@ -189,7 +192,7 @@ def test_a_record_of_another_run_is_refused(run: Path) -> None:
 def test_the_writer_refuses_a_record_of_another_run(run: Path) -> None:
     with (
         TrialLogWriter(run / "a.mcap", PROVENANCE) as log,
-        pytest.raises(ValueError, match="belongs to run other-run, the file to run-test"),
+        pytest.raises(ValueError, match=f"belongs to run other-run, the file to {RUN_ID}"),
     ):
         log.write(make_record(1, run_id="other-run"))
 

@@ -190,18 +190,18 @@ def test_cross_validation_draws_are_not_test_draws(run: Path) -> None:
 
 
 def test_runs_and_pipelines_are_not_mixed(run: Path) -> None:
-    with TrialLogWriter(run / "a.mcap", provenance_for("r1")) as log:
-        log.write(make_record(1, run_id="r1"))
+    with TrialLogWriter(run / "a.mcap", PROVENANCE) as log:
+        log.write(make_record(1))
         log.run_id = "r2"  # past the writer's own check, as a hand-made file would be
         log.write(make_record(1, "best_response", run_id="r2"))
-    other = provenance_for("r1", name="other")
+    other = provenance_for(variant="# another text of the same pipeline\n")
     with TrialLogWriter(run / "b.mcap", other):
         pass
-    first, other_sha = provenance_for("r1")["pipeline_sha256"], other["pipeline_sha256"]
+    first, second = PROVENANCE, other
     assert validate_run(run).faults == (
         "a.mcap holds records of run(s) r2",
-        f"files of 2 runs: r1 (pipeline sha256 {first}) in a.mcap; "
-        f"r1 (pipeline sha256 {other_sha}) in b.mcap",
+        f"files of 2 runs: {first['run_id']} (pipeline sha256 {first['pipeline_sha256']}) in "
+        f"a.mcap; {second['run_id']} (pipeline sha256 {second['pipeline_sha256']}) in b.mcap",
     )
 
 

@@ -210,7 +210,11 @@ def test_collect_provenance() -> None:
     assert provenance["pipeline_sha256"] == (
         "69b1f260376d9e58171da83a305b3b2da7f22ab722ca729c9af53174ce8cd422"
     )
-    assert RunIdentity.of(provenance) == identity
+    # A provenance is an identity only once its text is found to be a valid pipeline.
+    with pytest.raises(ValueError, match="provenance's pipeline_toml: description is missing"):
+        RunIdentity.of(provenance)
+    valid = provenance_for("smoke")
+    assert RunIdentity.of(valid).provenance() == valid
     with pytest.raises(ValueError, match="not the hash of its pipeline_toml"):
         RunIdentity.of({**provenance, "pipeline_toml": 'name = "smoke2"\n'})
     with pytest.raises(ValueError, match="provenance lacks run_id"):

@@ -35,7 +35,6 @@ from cirl_study.logs.format import log_files
 from cirl_study.logs.reader import read_run
 from cirl_study.logs.validate import validate_run
 from cirl_study.record import MAIN, encode
-from cirl_study.study.audit import run_pipeline_of
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.multiverse import cv_universe, universe_pipeline
 from cirl_study.study.plan import (
@@ -199,7 +198,7 @@ def test_the_base_universe_plays_the_single_study_and_reports_its_numbers(
     results = msgspec.to_builtins(analyse_multiverse(read_run(run).rows, pipeline, run_id=None))
     (base_results,) = [u for u in results["universes"] if u["base"]]
     contents = read_run(smoke_run)
-    alone = analyse(contents.rows, run_pipeline_of(contents.identity))
+    alone = analyse(contents.rows, contents.identity.pipeline)
     assert base_results["anova"] == alone["paper"]["anova"]
     assert base_results["cells"] == alone["cells"]
     assert base_results["cronbach_alpha"] == alone["paper"]["cronbach_alpha"]

@@ -77,9 +77,10 @@ def test_a_complete_run_plays_nothing_again(
 def test_a_directory_of_another_pipeline_is_refused(serial_run: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     shutil.copytree(serial_run, out)
-    other = tmp_path / "smoke.toml"
-    other.write_text(SMOKE.read_text().replace("seed = 7", "seed = 8"))
-    with pytest.raises(UserError, match=r"holds the logs of another run \(run smoke-") as caught:
+    other = tmp_path / "other.toml"
+    other.write_text(SMOKE.read_text().replace('name = "smoke"', 'name = "other"'))
+    expected = r"holds the logs of another run \(run smoke-\w+ against other-"
+    with pytest.raises(UserError, match=expected) as caught:
         run_pipeline(load_pipeline(other), out, LocalEngine(1))
     assert "\n" not in str(caught.value)
 

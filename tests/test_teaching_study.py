@@ -33,7 +33,7 @@ from cirl_study.errors import UserError
 from cirl_study.logs.validate import validate_run
 from cirl_study.record import MAIN, MEASURES, Measures, TrialRecord, TrialRow, encode
 from cirl_study.study.engines import LocalEngine
-from cirl_study.study.runner import check_resources, run_pipeline
+from cirl_study.study.runner import run_pipeline
 from cirl_study.study.spec import Pipeline, TeachingSpec, parse_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
@@ -628,9 +628,8 @@ def test_a_hypothesis_space_too_large_for_a_batch_is_refused_before_anything_run
             hypotheses="200000", includes_truth="true", alpha="1.0", demonstration='"draw"'
         ),
     )
-    pipeline = parse_pipeline(text, tmp_path / "teach.toml")
     with pytest.raises(UserError, match=r"one batch of trials would need about 93\.\d GiB"):
-        check_resources(pipeline)
+        parse_pipeline(text, tmp_path / "teach.toml")
 
 
 def test_an_incomplete_teaching_run_is_refused_unless_partial(

@@ -18,6 +18,7 @@ from typing import Any
 import msgspec
 import pandas as pd
 
+from cirl_study import escape
 from cirl_study.analysis import figures
 from cirl_study.analysis.markdown import MEASURE_NAMES, document, interval, number, p_value, table
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
@@ -50,7 +51,7 @@ def _header(results: MultiverseResults) -> list[str]:
     base = results.base_universe
     varied = {axis: results.axes[axis] for axis in _varied(results)}
     lines = [
-        f"# Multiverse report: `{results.pipeline}`",
+        f"# Multiverse report: {escape.markdown(results.pipeline)}",
         "",
         f"The paper's study (the eta cross-validation and the main policy x num_features "
         f"design) played in **{len(universes)} universes**, each a choice of the settings the "
@@ -58,7 +59,7 @@ def _header(results: MultiverseResults) -> list[str]:
         "Each universe's claims are judged with the paper report's own rules; the lambda claim "
         "needs a sweep, which a universe does not play (lambda is an axis).",
         "",
-        f"The base universe, the pipeline's own settings: `{base}`.",
+        f"The base universe, the pipeline's own settings: {escape.markdown(base)}.",
         "",
         table(
             ["setting", "levels (base first)"],

@@ -52,6 +52,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cirl_study.errors import UserError
+from cirl_study.escape import terminal
 from cirl_study.files import read_file, remove_file
 from cirl_study.logs.lock import exclusive_lock
 
@@ -177,7 +178,7 @@ def refuse_another_runs_report(target: Path, run_id: str) -> None:
     if theirs == run_id:
         return
     held = (
-        f"the report of {theirs}"
+        f"the report of {terminal(theirs)}"
         if theirs is not None
         else f"{len(names)} report file(s) but no report of a run"
     )

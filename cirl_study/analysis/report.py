@@ -18,6 +18,7 @@ from typing import Any
 import msgspec
 import pandas as pd
 
+from cirl_study import escape
 from cirl_study.analysis import figures, paper_report, study_report, teaching_report
 from cirl_study.analysis.cells import papers_own
 from cirl_study.analysis.markdown import document, number, svg_name, table
@@ -96,7 +97,9 @@ def _hypothesis_space(teaching: Teaching) -> str:
 def _header(results: StudyResults) -> list[str]:
     trials, design = results.trials, results.design
     per_level = ", ".join(f"{n} at {k} features" for k, n in design.subjects_per_level.items())
-    blocks = ", ".join(f"{n} in `{block}`" for block, n in trials.items() if block != "total")
+    blocks = ", ".join(
+        f"{n} in {escape.markdown(block)}" for block, n in trials.items() if block != "total"
+    )
     lambdas = ", ".join(f"{value:g}" for value in design.main_rationality)
     etas = (
         "; ".join(
@@ -109,7 +112,7 @@ def _header(results: StudyResults) -> list[str]:
     space = design.teaching
     return [
         *_partial_title(results),
-        f"# Report: `{results.pipeline}`",
+        f"# Report: {escape.markdown(results.pipeline)}",
         "",
         "On the gridworld of Cooperative Inverse Reinforcement Learning (Hadfield-Menell et "
         "al., NeurIPS 2016, section 4), with the paper's measures: the published claims "
@@ -117,9 +120,10 @@ def _header(results: StudyResults) -> list[str]:
         "reward draws (within subjects); the number of features varies between them. All "
         "three measures are losses: lower is better.",
         "",
-        f"- Humans: {', '.join(f'`{h}`' for h in design.humans)} (baseline "
-        f"`{design.baseline}`); robots: {', '.join(f'`{r}`' for r in design.robots)} "
-        f"(reference `{design.reference_robot}`); rationality λ = {lambdas}; "
+        f"- Humans: {', '.join(escape.markdown(h) for h in design.humans)} (baseline "
+        f"{escape.markdown(design.baseline)}); robots: "
+        f"{', '.join(escape.markdown(r) for r in design.robots)} "
+        f"(reference {escape.markdown(design.reference_robot)}); rationality λ = {lambdas}; "
         f"best-response η = {etas}.",
         f"- Trials: {trials['total']} ({blocks}); reward draws {per_level}.",
         *([f"- Hypothesis space: {_hypothesis_space(space)}."] if space else []),

@@ -12,6 +12,8 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from cirl_study.escape import terminal
+
 if TYPE_CHECKING:
     from cirl_study.analysis.replacement import Replacement
 
@@ -105,7 +107,7 @@ def report_run(
     def stage(name: str) -> None:
         """Say at a terminal which stage is under way (each can take seconds)."""
         if sys.stderr.isatty():
-            typer.echo(f"{name} ...", err=True)
+            typer.echo(f"{terminal(name, limit=None)} ...", err=True)
 
     # Only the reader loads before the workers start reading the logs; the rest (pandas, the
     # statistics and plotting libraries) loads meanwhile, with the report's own provenance,
@@ -124,7 +126,7 @@ def report_run(
     from cirl_study.study.audit import analysed_run
 
     for warning in contents.warnings:
-        typer.echo(f"warning: {warning}", err=True)
+        typer.echo(f"warning: {terminal(warning, limit=None)}", err=True)
     chosen = analysed_run(run, contents, partial)
     pipeline, trials, partial_run = chosen.pipeline, chosen.trials, chosen.partial
     run_id = contents.identity.run_id
@@ -182,7 +184,7 @@ def report_run(
                 + (f", {answered} questions answered" if answered else "")
             )
     where = "equal by value to the one kept in" if replacement.kept else "written to"
-    typer.echo(f"{what} {where} {target}: {summary}")
+    typer.echo(f"{what} {where} {terminal(target)}: {summary}")
     return replacement
 
 

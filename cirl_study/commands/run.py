@@ -9,6 +9,7 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from cirl_study.errors import UserError
+from cirl_study.escape import terminal
 from cirl_study.study.spec import load_pipeline, resolve_pipeline
 
 app = typer.Typer(rich_markup_mode=None)
@@ -47,7 +48,7 @@ def _summary(result: RunResult, engine: str) -> str:
         )
     return "\n".join(
         [
-            f"run {result.run_id}: {result.total} trials logged in {result.out_dir} "
+            f"run {result.run_id}: {result.total} trials logged in {terminal(result.out_dir)} "
             f"({result.files} files); {result.played} played now, "
             f"{result.resumed} were already logged",
             f"{result.seconds:.1f} s in all; playing {playing:.1f} s, {rate:.0f} trials/s, "

@@ -33,6 +33,7 @@ def validate(
 
     Exit code 0 when everything is sound, 1 on any fault, 2 when RUN is not a directory.
     """
+    from cirl_study.escape import terminal
     from cirl_study.logs.validate import validate_run
     from cirl_study.study.audit import plan_faults
 
@@ -40,7 +41,7 @@ def validate(
     plan = plan_faults(run, verdict.rows) if verdict.rows else []
     verdict = dataclasses.replace(verdict, faults=(*plan, *verdict.faults))
     for file_verdict in verdict.files:
-        typer.echo(file_verdict.line())
-    typer.echo(verdict.line())
+        typer.echo(terminal(file_verdict.line(), limit=None))
+    typer.echo(terminal(verdict.line(), limit=None))
     if not verdict.ok:
         raise typer.Exit(code=1)

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from mcap.records import Metadata
 
+from cirl_study.escape import terminal
 from cirl_study.logs.episode import replay_counts
 from cirl_study.logs.format import (
     GRID_SCHEMA_NAME,
@@ -82,7 +83,7 @@ def read_file_contents(path: Path) -> FileContents:
     ):
         # An undecodable payload may still name its trial.
         trial_id = payload_trial_id(message.data) if record is None else record.trial_id
-        label = f"trial message {index}" if trial_id is None else f"trial {trial_id}"
+        label = f"trial message {index}" if trial_id is None else f"trial {terminal(trial_id)}"
         faults.extend(f"{label}: {problem}" for problem in problems)
         if record is None or problems:
             continue
@@ -139,22 +140,23 @@ def _channel_faults(scan: FileScan) -> list[str]:
     schemas = {**scan.summary_schemas, **scan.schemas}
     for channel in channels.values():
         schema = schemas.get(channel.schema_id)
+        topic = terminal(channel.topic)
         if channel.message_encoding != MESSAGE_ENCODING:
-            faults.append(f"{channel.topic}: message encoding {channel.message_encoding!r}")
+            faults.append(f"{topic}: message encoding '{terminal(channel.message_encoding)}'")
         if schema is None:
-            faults.append(f"{channel.topic}: no schema")
+            faults.append(f"{topic}: no schema")
             continue
         if schema.encoding != SCHEMA_ENCODING:
-            faults.append(f"{channel.topic}: schema encoding {schema.encoding!r}")
+            faults.append(f"{topic}: schema encoding '{terminal(schema.encoding)}'")
         expected = TRIAL_SCHEMA_NAME if channel.topic == TRIAL_TOPIC else None
         if channel.topic.startswith("/cirl/reward/"):
             expected = GRID_SCHEMA_NAME
         if expected is not None and schema.name != expected:
-            faults.append(f"{channel.topic}: schema {schema.name!r}, expected {expected!r}")
+            faults.append(f"{topic}: schema '{terminal(schema.name)}', expected {expected!r}")
         try:
             json.loads(schema.data)
         except ValueError:
-            faults.append(f"{channel.topic}: schema {schema.name!r} is not valid JSON")
+            faults.append(f"{topic}: schema '{terminal(schema.name)}' is not valid JSON")
     return faults
 
 
@@ -165,7 +167,7 @@ def _layout_faults(scan: FileScan, records: list[TrialRecord]) -> list[str]:
     for record, message in zip(records, scan.topic_messages(TRIAL_TOPIC), strict=True):
         if message.log_time != start_ns:
             faults.append(
-                f"trial {record.trial_id}: logged at {message.log_time} ns, "
+                f"trial {terminal(record.trial_id)}: logged at {message.log_time} ns, "
                 f"expected {start_ns} ns from its position in the file"
             )
             break

@@ -7,7 +7,8 @@ ends, however it ends (``kill -9`` included), so a lock is never left stale; the
 stays and only says who held it last. A second writer gets a one-line error naming the
 holder's process id, and touches nothing: it neither plays trials nor deletes the holder's
 temporary files. Readers take no lock: they see only complete files
-(:mod:`cirl_study.logs.writer`) and whole reports.
+(:mod:`cirl_study.logs.writer`) and whole reports; they ask :func:`writer_pid` whether a run
+is being written, so as to say so rather than advise resuming it.
 """
 
 from __future__ import annotations
@@ -15,6 +16,8 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import stat
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -23,6 +26,10 @@ from cirl_study.files import open_descriptor
 
 LOCK_NAME = ".cirl-study.lock"
 """Name of the lock file inside a run directory."""
+
+LOCK_ATTEMPTS = 20
+"""Tries, 10 ms apart, to take the lock before another writer is said to hold it: a reader
+asking :func:`writer_pid` holds the lock's shared side for an instant."""
 
 
 @contextlib.contextmanager
@@ -55,23 +62,56 @@ def exclusive_lock(lock_file: Path, *, cannot: str, busy: Callable[[str], str]) 
             names (``unknown`` if it names none).
 
     Raises:
-        UserError: another process holds the lock, or the lock file cannot be opened (a link
-            or anything but a regular file in its place is refused:
-            :func:`cirl_study.files.open_descriptor`).
+        UserError: another process holds the lock (after :data:`LOCK_ATTEMPTS` tries), or the
+            lock file cannot be opened (a link or anything but a regular file in its place is
+            refused: :func:`cirl_study.files.open_descriptor`).
     """
     try:
         descriptor = open_descriptor(lock_file, os.O_RDWR, truncate=False)
     except UserError as error:
         raise UserError(f"{cannot}: {error}") from None
     try:
-        try:
-            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            holder = os.pread(descriptor, 64, 0).decode(errors="replace").strip()
-            pid = holder if holder.isdigit() else "unknown"
-            raise UserError(busy(pid)) from None
+        for attempt in range(LOCK_ATTEMPTS):
+            try:
+                fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if attempt == LOCK_ATTEMPTS - 1:
+                    raise UserError(busy(_holder(descriptor))) from None
+                time.sleep(0.01)
         os.ftruncate(descriptor, 0)
         os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
         yield
     finally:
         os.close(descriptor)  # closing releases the lock
+
+
+def writer_pid(run_dir: Path) -> str | None:
+    """The process id of the run writing to ``run_dir`` now (``unknown`` if its lock file does
+    not say), or ``None`` when none is.
+
+    For readers, which never write into a run directory: the lock file is neither created nor
+    changed, a link or anything but a regular file in its place means no writer, and the
+    lock's shared side is held only for the instant of asking (:data:`LOCK_ATTEMPTS`).
+    """
+    flags = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
+    try:
+        descriptor = os.open(run_dir / LOCK_NAME, flags)
+    except OSError:
+        return None
+    try:
+        if not stat.S_ISREG(os.fstat(descriptor).st_mode):
+            return None
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_SH | fcntl.LOCK_NB)
+        except BlockingIOError:
+            return _holder(descriptor)
+        return None
+    finally:
+        os.close(descriptor)  # closing releases the shared lock
+
+
+def _holder(descriptor: int) -> str:
+    """The process id the lock file holds, as its holder wrote it; ``unknown`` unless digits."""
+    text = os.pread(descriptor, 64, 0).decode(errors="replace").strip()
+    return text if text.isdigit() and text.isascii() else "unknown"

@@ -11,6 +11,7 @@ writes the run's and its own to the report's ``provenance.json``.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import platform
@@ -20,6 +21,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from cirl_study import __version__
+from cirl_study.errors import UserError
+from cirl_study.escape import terminal
 from cirl_study.logs.format import (
     IDENTITY_KEYS,
     PIPELINE_FILE_KEY,
@@ -28,6 +31,7 @@ from cirl_study.logs.format import (
     PIPELINE_TEXT_KEY,
     RUN_ID_KEY,
 )
+from cirl_study.study.spec import Pipeline, parse_pipeline
 
 KEY_PACKAGES: tuple[str, ...] = (
     "numpy",
@@ -55,8 +59,9 @@ class RunIdentity:
     """The run a log file belongs to: its id and the pipeline file it plays.
 
     ``pipeline_sha256`` is the SHA-256 of the file's UTF-8 text: two files belong to one run
-    exactly when their identities are equal, which the file's name does not enter (the same
-    pipeline copied under another name is the same run).
+    exactly when their identities are equal, which the file's path does not enter (the same
+    pipeline copied under another name is the same run). ``pipeline_file`` is where the run
+    found the file (:func:`cirl_study.study.spec.path_argument`), only for advice.
     """
 
     run_id: str
@@ -67,6 +72,15 @@ class RunIdentity:
     @property
     def pipeline_sha256(self) -> str:
         return hashlib.sha256(self.pipeline_text.encode()).hexdigest()
+
+    @property
+    def pipeline(self) -> Pipeline:
+        """The pipeline the run plays, validated as a pipeline file is (its limits included).
+
+        Raises:
+            UserError: the text is not a valid pipeline for this version of cirl-study.
+        """
+        return _pipeline(self.pipeline_text, self.pipeline_file)
 
     def provenance(self) -> dict[str, str]:
         """The identity's entries of a ``provenance`` metadata record."""
@@ -80,11 +94,18 @@ class RunIdentity:
 
     @classmethod
     def of(cls, provenance: Mapping[str, str]) -> RunIdentity:
-        """The identity a ``provenance`` record states.
+        """The identity a ``provenance`` record states, once it is found to be one.
+
+        Nothing a log says of its run is believed unchecked: every reader (``validate``,
+        ``analyze``, resume, the API) and the writer come here. The recorded hash must be that
+        of the recorded pipeline text; the text must be a valid pipeline
+        (:attr:`pipeline`), whose name is the recorded ``pipeline_name`` and whose run id
+        (:attr:`cirl_study.study.spec.Pipeline.run_id`: the name and the start of the hash) is
+        the recorded ``run_id``.
 
         Raises:
-            ValueError: a key is missing, or the recorded hash is not that of the recorded
-                pipeline text.
+            ValueError: a key is missing or any of these does not hold; the message names
+                the key.
         """
         missing = [key for key in IDENTITY_KEYS if key not in provenance]
         if missing:
@@ -96,8 +117,32 @@ class RunIdentity:
             pipeline_text=provenance[PIPELINE_TEXT_KEY],
         )
         if identity.pipeline_sha256 != provenance[PIPELINE_SHA_KEY]:
-            raise ValueError("provenance's pipeline_sha256 is not the hash of its pipeline_toml")
+            raise ValueError(
+                f"provenance's {PIPELINE_SHA_KEY} is not the hash of its {PIPELINE_TEXT_KEY}"
+            )
+        try:
+            pipeline = identity.pipeline
+        except UserError as error:
+            raise ValueError(f"provenance's {error}") from None
+        if identity.pipeline_name != pipeline.name:
+            raise ValueError(
+                f"provenance's {PIPELINE_NAME_KEY} '{terminal(identity.pipeline_name)}' is not "
+                f"the name its {PIPELINE_TEXT_KEY} gives ({pipeline.name!r})"
+            )
+        if identity.run_id != pipeline.run_id:
+            raise ValueError(
+                f"provenance's {RUN_ID_KEY} '{terminal(identity.run_id)}' is not the run id of "
+                f"its pipeline ({pipeline.run_id!r}: the name and the start of its "
+                f"{PIPELINE_SHA_KEY})"
+            )
         return identity
+
+
+@functools.lru_cache(maxsize=4)
+def _pipeline(text: str, file: str) -> Pipeline:
+    """:attr:`RunIdentity.pipeline`, parsed once per process (every file of a run carries the
+    same text, and each is checked by several readers)."""
+    return parse_pipeline(text, Path(file), label=PIPELINE_TEXT_KEY)
 
 
 def collect_provenance(identity: RunIdentity, run_dir: Path | None = None) -> dict[str, str]:

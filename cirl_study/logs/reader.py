@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import io
 import struct
+import tomllib
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +33,7 @@ from mcap.records import Chunk
 from mcap.summary import Summary
 
 from cirl_study.errors import UserError
+from cirl_study.escape import terminal
 from cirl_study.logs.contents import FileContents, read_file_contents, trial_index
 from cirl_study.logs.format import (
     PROVENANCE_METADATA_NAME,
@@ -39,6 +41,7 @@ from cirl_study.logs.format import (
     log_files,
     temp_files,
 )
+from cirl_study.logs.lock import writer_pid
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.record_checks import decode_trials
 from cirl_study.logs.scan import (
@@ -278,9 +281,13 @@ def read_run(
             rows += reading.rows
     unfinished = temp_files(run_dir)
     if unfinished:
+        pid = writer_pid(run_dir)
         warnings.append(
             f"{run_dir}: {len(unfinished)} unfinished temporary file(s) of an interrupted run "
             "ignored; run the pipeline again to complete the run"
+            if pid is None
+            else f"{run_dir}: {len(unfinished)} temporary file(s) ignored: a cirl-study run "
+            f"(pid {pid}) is still writing it"
         )
     return RunContents(
         rows=sorted(rows, key=lambda row: row.trial_id),
@@ -363,11 +370,31 @@ def _indexed_files(run_dir: Path, identity: RunIdentity) -> list[_IntactFile | F
     if files:
         found = _one_identity(run_dir, files)
         if found != identity:
-            raise UserError(
-                f"{run_dir}: holds the logs of another run ({_difference(found, identity)}); "
-                "use another --out directory"
-            )
+            raise UserError(f"{run_dir}: {_another_run(found, identity)}")
     return files
+
+
+def _another_run(logged: RunIdentity, asked: RunIdentity) -> str:
+    """Why the run ``logged`` in a directory is not the run ``asked`` to resume, and what to do.
+
+    A pipeline of the same name whose text changed (a comment will do: the run is its text)
+    is said to be that, with both run ids.
+    """
+    if logged.pipeline_name != asked.pipeline_name or logged.run_id == asked.run_id:
+        return (
+            f"holds the logs of another run ({_difference(logged, asked)}); "
+            "use another --out directory"
+        )
+    settings = (
+        "only its comments or layout differ"
+        if tomllib.loads(logged.pipeline_text) == tomllib.loads(asked.pipeline_text)
+        else "its settings differ"
+    )
+    return (
+        f"holds run {logged.run_id}, made from another text of {asked.pipeline_file}, which "
+        f"is now run {asked.run_id} ({settings}); restore the text the run was made from to "
+        "resume it, or use another --out directory"
+    )
 
 
 def _one_identity(run_dir: Path, files: list[_IntactFile | FileContents]) -> RunIdentity:
@@ -387,8 +414,8 @@ def _file_identity(contents: _IntactFile | FileContents) -> RunIdentity:
     foreign = next((r for r in contents.records if r.run_id != identity.run_id), None)
     if foreign is not None:
         raise UserError(
-            f"{contents.path}: trial {foreign.trial_id} belongs to run {foreign.run_id}, "
-            f"the file to run {identity.run_id}"
+            f"{contents.path}: trial {terminal(foreign.trial_id)} belongs to run "
+            f"{terminal(foreign.run_id)}, the file to run {identity.run_id}"
         )
     return identity
 
@@ -467,6 +494,7 @@ def _refuse_duplicates(first_file: dict[str, Path], path: Path, trial_ids: list[
     for trial_id in trial_ids:
         if trial_id in first_file:
             raise UserError(
-                f"trial {trial_id} is logged twice: in {first_file[trial_id]} and in {path}"
+                f"trial {terminal(trial_id)} is logged twice: in {first_file[trial_id]} and "
+                f"in {path}"
             )
         first_file[trial_id] = path

@@ -22,6 +22,7 @@ from collections import Counter, defaultdict
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 
+from cirl_study.escape import terminal
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.record import ETA_CV, MAIN, TrialRow
 
@@ -49,7 +50,7 @@ def run_faults(
         runs[f"{identity.run_id} (pipeline sha256 {identity.pipeline_sha256})"].append(path.name)
         foreign = sorted({r.run_id for r in file_rows} - {identity.run_id})
         if foreign:
-            faults.append(f"{path.name} holds records of run(s) {_examples(foreign)}")
+            faults.append(f"{path.name} holds records of run(s) {_examples(_shown(foreign))}")
     if len(runs) > 1:
         described = [f"{run} in {_examples(names)}" for run, names in runs.items()]
         faults.append(f"files of {len(runs)} runs: {'; '.join(described)}")
@@ -61,7 +62,8 @@ def design_faults(rows: Sequence[TrialRow]) -> list[str]:
     """Faults of the study design held by the trials' ``rows`` (see the module docstring)."""
     counts = Counter(row.trial_id for row in rows)
     repeated = sorted(trial for trial, count in counts.items() if count > 1)
-    faults = [f"{len(repeated)} trial id(s) repeated: {_examples(repeated)}"] if repeated else []
+    shown = _examples(_shown(repeated))
+    faults = [f"{len(repeated)} trial id(s) repeated: {shown}"] if repeated else []
     return faults + _subject_faults(rows) + _main_block_faults(rows) + _shared_draws(rows)
 
 
@@ -74,7 +76,9 @@ def _duplicate_faults(
         for row in rows:
             trial_id = row.trial_id
             if trial_id in first_file and first_file[trial_id] != path:
-                duplicates.append(f"{trial_id} in {first_file[trial_id].name} and {path.name}")
+                duplicates.append(
+                    f"{terminal(trial_id)} in {first_file[trial_id].name} and {path.name}"
+                )
             first_file.setdefault(trial_id, path)
     if not duplicates:
         return []
@@ -99,8 +103,8 @@ def _subject_faults(rows: Iterable[TrialRow]) -> list[str]:
                 else ""
             )
             disagreeing.append(
-                f"{row.subject} (the reward draw of {row.trial_id} differs from "
-                f"{reference.trial_id}'s{levels})"
+                f"{terminal(row.subject)} (the reward draw of {terminal(row.trial_id)} differs "
+                f"from {terminal(reference.trial_id)}'s{levels})"
             )
     if not disagreeing:
         return []
@@ -116,12 +120,12 @@ def _main_block_faults(rows: Sequence[TrialRow]) -> list[str]:
     if not incomplete:
         return []
     described = [
-        f"{subject} has {dict(sorted(count.items()))}"
+        f"{terminal(subject)} has {terminal(dict(sorted(count.items())))}"
         for subject, count in sorted(incomplete.items())
     ]
     return [
         f"main block incomplete: {len(described)} subject(s) without exactly one trial of "
-        f"each of {', '.join(cells)}: {_examples(described)}"
+        f"each of {', '.join(_shown(cells))}: {_examples(described)}"
     ]
 
 
@@ -160,7 +164,13 @@ def _shared_draws(rows: Iterable[TrialRow]) -> list[str]:
     shared = sorted(s for s, b in blocks.items() if ETA_CV in b and len(b) > 1)
     if not shared:
         return []
-    return [f"{len(shared)} eta_cv subject(s) also used in the test blocks: {_examples(shared)}"]
+    shown = _examples(_shown(shared))
+    return [f"{len(shared)} eta_cv subject(s) also used in the test blocks: {shown}"]
+
+
+def _shown(items: Iterable[str]) -> list[str]:
+    """Texts from the logs as a terminal shows them (:func:`cirl_study.escape.terminal`)."""
+    return [terminal(item) for item in items]
 
 
 def _examples(items: Sequence[str]) -> str:

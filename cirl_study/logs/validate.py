@@ -17,6 +17,7 @@ from pathlib import Path
 
 from cirl_study.logs.contents import read_file_contents
 from cirl_study.logs.format import log_files, temp_files
+from cirl_study.logs.lock import writer_pid
 from cirl_study.logs.reader import check_run_directory
 from cirl_study.logs.run_checks import run_faults
 from cirl_study.record import TrialRow
@@ -89,7 +90,13 @@ def validate_run(run_dir: str | Path) -> RunVerdict:
         files.append((verdict.path, rows, provenance))
     faults = run_faults(files) if verdicts else ["no complete log files (*.mcap)"]
     unfinished = temp_files(run_dir)
-    if unfinished:
+    pid = writer_pid(run_dir) if unfinished else None
+    if pid is not None:
+        faults.append(
+            f"{len(unfinished)} temporary file(s): a cirl-study run (pid {pid}) is still "
+            "writing it, wait for it to end"
+        )
+    elif unfinished:
         faults.append(
             f"{len(unfinished)} unfinished temporary file(s) of an interrupted run "
             f"(e.g. {unfinished[0].name}); run the pipeline again to complete the run"

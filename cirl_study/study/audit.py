@@ -1,18 +1,23 @@
 """Is a run complete? Its logged trials against the trials its pipeline plans.
 
 Every log file carries the run's pipeline file (:class:`~cirl_study.logs.provenance.RunIdentity`),
-so the logs alone say what the run must hold. :func:`audit_run` parses that pipeline, plans
+so the logs alone say what the run must hold. :func:`audit_run` takes that pipeline (validated
+when the identity was read: :attr:`~cirl_study.logs.provenance.RunIdentity.pipeline`), plans
 block ``eta_cv`` (:func:`~cirl_study.study.plan.eta_cv_trial_ids`), chooses eta from the logged
 cross-validation records exactly as the run did (:func:`~cirl_study.study.eta_cv.choose_etas`),
 plans blocks ``main`` and ``lambda_sweep`` with it, and compares trial ids: a planned trial
 that is not logged is *missing*, a logged trial that is not planned is *foreign*. Until every
 cross-validation trial is logged the study blocks cannot be planned trial by trial; they are
 then counted (:func:`~cirl_study.study.plan.trial_counts`) and their records checked only
-for belonging to a study block.
+for belonging to a study block. :func:`resume_advice` says how to complete a run that lacks
+trials.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
+import stat
 from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -20,12 +25,19 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from cirl_study.errors import UserError
+from cirl_study.escape import shell, terminal
+from cirl_study.logs.lock import writer_pid
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.run_checks import complete_main_subjects
 from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.plan import eta_cv_trial_ids, study_trial_ids, trial_counts
-from cirl_study.study.spec import Pipeline, parse_pipeline
+from cirl_study.study.spec import (
+    MAX_PIPELINE_BYTES,
+    Pipeline,
+    path_argument,
+    pipeline_search_path,
+)
 
 if TYPE_CHECKING:
     from cirl_study.logs.reader import RunContents
@@ -79,11 +91,12 @@ class RunAudit:
             text += " (the study blocks are checked trial by trial once eta_cv is complete)"
         return text
 
-    def faults(self, resume: str) -> list[str]:
-        """One line per fault: foreign trials; missing trials, with the ``resume`` command."""
+    def faults(self, advice: str) -> list[str]:
+        """One line per fault: foreign trials; missing trials, with the ``advice`` on
+        completing the run (:func:`resume_advice`)."""
         faults = []
         if self.foreign:
-            shown = ", ".join(self.foreign[:EXAMPLES])
+            shown = ", ".join(terminal(trial_id) for trial_id in self.foreign[:EXAMPLES])
             more = (
                 f" and {len(self.foreign) - EXAMPLES} more" if len(self.foreign) > EXAMPLES else ""
             )
@@ -92,22 +105,8 @@ class RunAudit:
                 f"{shown}{more}"
             )
         if self.missing_text():
-            faults.append(f"{self.missing_text()}; resume with `{resume}`")
+            faults.append(f"{self.missing_text()}; {advice}")
         return faults
-
-
-def run_pipeline_of(identity: RunIdentity) -> Pipeline:
-    """The pipeline a run's logs carry, validated as if it were read from its file.
-
-    Raises:
-        UserError: the carried pipeline is not valid for this version of cirl-study.
-    """
-    try:
-        return parse_pipeline(identity.pipeline_text, Path(identity.pipeline_file))
-    except UserError as error:
-        raise UserError(
-            f"the run's pipeline, as its logs carry it, is not valid: {error}"
-        ) from None
 
 
 def audit_run(pipeline: Pipeline, rows: Sequence[TrialRow]) -> RunAudit:
@@ -156,17 +155,62 @@ def plan_faults(
     if len(identities) != 1:
         return []
     (identity,) = identities
-    try:
-        pipeline = run_pipeline_of(identity)
-    except UserError as error:
-        return [str(error)]
     rows = [row for _, file_rows, _ in files for row in file_rows]
-    return audit_run(pipeline, rows).faults(resume_command(identity, run_dir))
+    return audit_run(identity.pipeline, rows).faults(resume_advice(identity, run_dir))
 
 
-def resume_command(identity: RunIdentity, run_dir: Path) -> str:
-    """The command that completes the run in ``run_dir``."""
-    return f"cirl-study run {identity.pipeline_file} --out {run_dir}"
+def resume_advice(identity: RunIdentity, run_dir: Path) -> str:
+    """How to complete the run in ``run_dir``: that a run is writing to it, while one is
+    (:func:`~cirl_study.logs.lock.writer_pid`); else ``resume with `<command>```, each argument
+    of the command a shell word (:func:`~cirl_study.escape.shell`) naming its path as
+    :func:`~cirl_study.study.spec.path_argument` does.
+
+    The command's pipeline is a file that holds the run's pipeline text now
+    (:func:`_pipeline_file`); when none does, the command says ``PIPELINE`` and what it must be.
+    """
+    pid = writer_pid(run_dir)
+    if pid is not None:
+        return f"a cirl-study run (pid {pid}) is still writing it: wait for it to end"
+    out = shell(path_argument(run_dir))
+    pipeline = _pipeline_file(identity)
+    if pipeline is None:
+        return (
+            f"resume with `cirl-study run PIPELINE --out {out}`, PIPELINE a file holding the "
+            f"run's pipeline text (its logs' pipeline_toml, sha256 "
+            f"{identity.pipeline_sha256[:12]}...), which is no longer at "
+            f"{terminal(identity.pipeline_file)}"
+        )
+    return f"resume with `cirl-study run {shell(pipeline)} --out {out}`"
+
+
+def _pipeline_file(identity: RunIdentity) -> str | None:
+    """A file that holds the run's pipeline text, as :func:`~cirl_study.study.spec.path_argument`
+    names it: the file the run was made from, where the run recorded it, else the pipeline of
+    the run's name in :func:`~cirl_study.study.spec.pipeline_search_path`; ``None`` if neither
+    does."""
+    candidates = [identity.pipeline_file] + [
+        str(directory / f"{identity.pipeline_name}.toml") for directory in pipeline_search_path()
+    ]
+    for candidate in candidates:
+        if _holds(candidate, identity.pipeline_sha256):
+            return path_argument(Path(candidate))
+    return None
+
+
+def _holds(path: str, sha256: str) -> bool:
+    """Whether ``path`` is a regular file of at most :data:`MAX_PIPELINE_BYTES` whose bytes
+    hash to ``sha256``. The path may come from a log: a FIFO or a device there is not read,
+    nor waited on."""
+    try:
+        descriptor = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_CLOEXEC)
+    except (OSError, ValueError):
+        return False
+    with os.fdopen(descriptor, "rb") as stream:
+        status = os.fstat(descriptor)
+        if not stat.S_ISREG(status.st_mode) or status.st_size > MAX_PIPELINE_BYTES:
+            return False
+        data = stream.read(MAX_PIPELINE_BYTES + 1)
+    return hashlib.sha256(data).hexdigest() == sha256
 
 
 @dataclass(frozen=True)
@@ -191,20 +235,21 @@ def analysed_run(run_dir: Path, contents: RunContents, partial: bool) -> Analyse
         UserError: a foreign trial; an incomplete run without ``partial`` (naming what is
             missing and how to resume); an incomplete multiverse (analysed only whole).
     """
-    pipeline = run_pipeline_of(contents.identity)
+    pipeline = contents.identity.pipeline
     audit = audit_run(pipeline, contents.rows)
-    resume = resume_command(contents.identity, run_dir)
+    resume = resume_advice(contents.identity, run_dir)
     faults = audit.faults(resume)
     whole = pipeline.multiverse is not None
+    shown = terminal(run_dir)
     if audit.foreign or (faults and not partial):
         advice = "" if audit.foreign or whole else ", or analyze it with --partial"
-        raise UserError(f"{run_dir}: not a complete run: {faults[0]}{advice}")
+        raise UserError(f"{shown}: not a complete run: {faults[0]}{advice}")
     if audit.complete and not contents.damaged:
         return AnalysedRun(pipeline, contents.rows, None)
     if whole:
         raise UserError(
-            f"{run_dir}: a multiverse is analysed only whole (its universes share the reward "
-            f"draws); resume it with `{resume}`"
+            f"{shown}: a multiverse is analysed only whole (its universes share the reward "
+            f"draws); {resume}"
         )
     trials, left_out = complete_main_subjects(contents.rows)
     lacks = {

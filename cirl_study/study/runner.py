@@ -37,77 +37,12 @@ from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.engines import Engine
 from cirl_study.study.eta_cv import EtaChoice, choose_etas
+from cirl_study.study.limits import MAX_BATCH
 from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
-from cirl_study.study.spec import Pipeline
-
-MAX_BATCH = 250
-"""Most trials sent to a worker at once (and logged in one file)."""
+from cirl_study.study.spec import Pipeline, path_argument
 
 BATCHES_PER_WORKER = 4
 """A block is cut into at least this many batches per worker, so that workers finish together."""
-
-
-MAX_TRIALS = 2_000_000
-"""Most trials a pipeline may plan: the plan holds every trial's spec in memory (about 1 KB
-each), so this keeps it within about 2 GB."""
-
-BATCH_MEMORY_BUDGET = 4 * 2**30
-"""Bytes a worker may need to play one batch (:func:`batch_memory`): the 2-core, 24 GiB
-machine this study is sized for runs two workers beside the parent with room to spare."""
-
-
-ENUMERATION_BYTES_PER_PATH = 200
-"""Peak bytes per learning path of enumerating a teaching study's visit classes
-(:class:`cirl_study.core.hypotheses.VisitClasses`): measured 160 at the paper's 1,910,313
-paths (305 MB above the interpreter)."""
-
-
-def batch_memory(pipeline: Pipeline) -> int:
-    """Estimated peak bytes of playing one batch of :data:`MAX_BATCH` trials.
-
-    The dynamic programmes of a trial hold, for every step ``t <= T`` and cell, at most a
-    float per action (5), per feature (``K``) and per pair of features (``K^2``, the
-    covariance of the feature counts), so a batch needs at most about
-    ``MAX_BATCH (T + 1) S (5 + K + K^2) 8`` bytes with ``T`` the longer horizon, ``S`` the
-    cells and ``K`` the largest feature level. An upper bound: measured peaks of a batch of
-    250 best-response trials at ``K = 10``, ``T = 9`` are 0.17 GB on 10 x 10 cells (bound
-    0.23) and 2.0 GB on 40 x 40 (bound 3.7). A teaching study adds the enumeration of its
-    learning phase's paths (:data:`ENUMERATION_BYTES_PER_PATH` each) and, for the
-    hypotheses' log-partitions, each trial's features once per hypothesis
-    (``MAX_BATCH H S K 8`` bytes).
-    """
-    game = pipeline.game
-    steps = max(game.learning_steps, game.deployment_steps) + 1
-    k = max(game.feature_levels)
-    trials = MAX_BATCH * steps * game.width * game.height * (5 + k + k * k) * 8
-    teaching = pipeline.teaching
-    if teaching is None:
-        return trials
-    # The hypotheses' log-partitions repeat each trial's features once per hypothesis.
-    repeated = MAX_BATCH * teaching.hypotheses * game.width * game.height * k * 8
-    return trials + repeated + ENUMERATION_BYTES_PER_PATH * teaching.learning_paths
-
-
-def check_resources(pipeline: Pipeline) -> None:
-    """Refuse, before anything is written, a pipeline that cannot fit the machine.
-
-    Raises:
-        UserError: more than :data:`MAX_TRIALS` trials, or a batch over
-            :data:`BATCH_MEMORY_BUDGET` (:func:`batch_memory`).
-    """
-    total = sum(trial_counts(pipeline).values())
-    if total > MAX_TRIALS:
-        raise UserError(
-            f"{pipeline.path}: plans {total} trials, more than the {MAX_TRIALS} one run may "
-            "hold; split the study into several pipelines"
-        )
-    need = batch_memory(pipeline)
-    if need > BATCH_MEMORY_BUDGET:
-        raise UserError(
-            f"{pipeline.path}: one batch of trials would need about {need / 2**30:.3g} GiB, "
-            f"more than the {BATCH_MEMORY_BUDGET / 2**30:g} GiB budget; shrink the grid, "
-            "the horizons or the largest feature level"
-        )
 
 
 @dataclass(frozen=True)
@@ -204,7 +139,7 @@ def batch_file_name(batch: Sequence[TrialSpec]) -> str:
 
 def run_identity(pipeline: Pipeline) -> RunIdentity:
     """The identity every log file of ``pipeline``'s run states in its provenance."""
-    return RunIdentity(pipeline.run_id, pipeline.name, pipeline.path.name, pipeline.text)
+    return RunIdentity(pipeline.run_id, pipeline.name, path_argument(pipeline.path), pipeline.text)
 
 
 def prepare_run_directory(out_dir: Path, identity: RunIdentity) -> set[str]:
@@ -293,10 +228,13 @@ def run_pipeline(
     engine: Engine,
     progress: ProgressHooks | None = None,
 ) -> RunResult:
-    """Run (or resume) ``pipeline`` into ``out_dir`` on ``engine`` (not yet entered)."""
+    """Run (or resume) ``pipeline`` into ``out_dir`` on ``engine`` (not yet entered).
+
+    ``pipeline`` is as :func:`~cirl_study.study.spec.parse_pipeline` validates it, within the
+    limits of :mod:`cirl_study.study.limits`.
+    """
     hooks = progress or ProgressHooks()
     began = time.perf_counter()
-    check_resources(pipeline)
     _make_directory(out_dir)
     with writer_lock(out_dir):
         return _run_locked(pipeline, out_dir, engine, hooks, began)

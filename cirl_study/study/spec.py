@@ -529,9 +529,29 @@ def _display_path(path: Path) -> str:
         return str(path)
 
 
-def parse_pipeline(text: str, path: Path) -> Pipeline:
-    """Validate the TOML ``text`` of the pipeline file ``path`` (named in every error)."""
-    label = _display_path(path)
+def path_argument(path: Path) -> str:
+    """``path`` as a command the user is told to run names it, and as a run records where it
+    found its pipeline file: relative to the current directory when it lies below it, else
+    absolute. It never reads as a pipeline's name, which ``cirl-study run`` would look up among
+    the shipped pipelines (:func:`resolve_pipeline`), nor as an option: a file of the current
+    directory itself is ``./name``, as is a relative path that starts with ``-``.
+    """
+    resolved = path.resolve()
+    try:
+        shown = str(resolved.relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(resolved)
+    return shown if "/" in shown and not shown.startswith("-") else f"./{shown}"
+
+
+def parse_pipeline(text: str, path: Path, *, label: str | None = None) -> Pipeline:
+    """Validate the TOML ``text`` of the pipeline file ``path``, and what it plans against the
+    limits of one run (:func:`cirl_study.study.limits.check_resources`).
+
+    Every error is one line beginning with ``label``, by default ``path`` as the user sees it.
+    """
+    label = _display_path(path) if label is None else label
+    _check_size(label, len(text.encode()))
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
@@ -552,7 +572,7 @@ def parse_pipeline(text: str, path: Path) -> Pipeline:
             f"must be letters, digits, '.', '_' or '-' (it names a directory), got {_show(name)}",
         )
     # Keyword arguments are evaluated in order: the file is checked top to bottom.
-    return Pipeline(
+    pipeline = Pipeline(
         name=name,
         description=top.string("description"),
         seed=top.integer("seed", 0, "a non-negative integer"),
@@ -566,6 +586,11 @@ def parse_pipeline(text: str, path: Path) -> Pipeline:
         text=text,
         sha256=hashlib.sha256(text.encode()).hexdigest(),
     )
+    # The limits count the trials planned, which needs the plan (which reads this module).
+    from cirl_study.study.limits import check_resources
+
+    check_resources(pipeline, label)
+    return pipeline
 
 
 def _game(top: _Table) -> GameSpec:
@@ -805,17 +830,23 @@ class _AxisLevels:
         return AXES[axis].convert(value)
 
 
+def _check_size(label: str, size: int) -> None:
+    """Refuse a pipeline of more than :data:`MAX_PIPELINE_BYTES` (its text, or as much of its
+    file as was read)."""
+    if size > MAX_PIPELINE_BYTES:
+        raise UserError(
+            f"{label}: more than {MAX_PIPELINE_BYTES} bytes, too large for a pipeline file"
+        )
+
+
 def load_pipeline(path: Path) -> Pipeline:
     """Read and validate the pipeline file at ``path``."""
     try:
-        raw = path.read_bytes()
+        with path.open("rb") as stream:
+            raw = stream.read(MAX_PIPELINE_BYTES + 1)
     except OSError as error:
         raise UserError(f"{_display_path(path)}: cannot read: {error.strerror}") from None
-    if len(raw) > MAX_PIPELINE_BYTES:
-        raise UserError(
-            f"{_display_path(path)}: {len(raw)} bytes is not a pipeline file (at most "
-            f"{MAX_PIPELINE_BYTES} bytes)"
-        )
+    _check_size(_display_path(path), len(raw))
     if raw.startswith(codecs.BOM_UTF8):
         raise UserError(
             f"{_display_path(path)}: starts with a UTF-8 byte-order mark; save it as plain "

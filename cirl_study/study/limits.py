@@ -1,0 +1,79 @@
+"""What one run may plan: the limits every pipeline is held to, read from its file or from a
+run's logs (:func:`cirl_study.study.spec.parse_pipeline` applies :func:`check_resources`).
+
+A pipeline that passes them plays on the machine this study is sized for; one that does not
+is refused before anything is written, and a run's logs that carry one are refused before
+the trials it plans are listed (a run's plan is held in memory).
+"""
+
+from __future__ import annotations
+
+from cirl_study.errors import UserError
+from cirl_study.study.plan import trial_counts
+from cirl_study.study.spec import Pipeline
+
+MAX_BATCH = 250
+"""Most trials sent to a worker at once (and logged in one file)."""
+
+MAX_TRIALS = 2_000_000
+"""Most trials a pipeline may plan: the plan holds every trial's spec in memory (about 1 KB
+each), so this keeps it within about 2 GB."""
+
+BATCH_MEMORY_BUDGET = 4 * 2**30
+"""Bytes a worker may need to play one batch (:func:`batch_memory`): the 2-core, 24 GiB
+machine this study is sized for runs two workers beside the parent with room to spare."""
+
+
+ENUMERATION_BYTES_PER_PATH = 200
+"""Peak bytes per learning path of enumerating a teaching study's visit classes
+(:class:`cirl_study.core.hypotheses.VisitClasses`): measured 160 at the paper's 1,910,313
+paths (305 MB above the interpreter)."""
+
+
+def batch_memory(pipeline: Pipeline) -> int:
+    """Estimated peak bytes of playing one batch of :data:`MAX_BATCH` trials.
+
+    The dynamic programmes of a trial hold, for every step ``t <= T`` and cell, at most a
+    float per action (5), per feature (``K``) and per pair of features (``K^2``, the
+    covariance of the feature counts), so a batch needs at most about
+    ``MAX_BATCH (T + 1) S (5 + K + K^2) 8`` bytes with ``T`` the longer horizon, ``S`` the
+    cells and ``K`` the largest feature level. An upper bound: measured peaks of a batch of
+    250 best-response trials at ``K = 10``, ``T = 9`` are 0.17 GB on 10 x 10 cells (bound
+    0.23) and 2.0 GB on 40 x 40 (bound 3.7). A teaching study adds the enumeration of its
+    learning phase's paths (:data:`ENUMERATION_BYTES_PER_PATH` each) and, for the
+    hypotheses' log-partitions, each trial's features once per hypothesis
+    (``MAX_BATCH H S K 8`` bytes).
+    """
+    game = pipeline.game
+    steps = max(game.learning_steps, game.deployment_steps) + 1
+    k = max(game.feature_levels)
+    trials = MAX_BATCH * steps * game.width * game.height * (5 + k + k * k) * 8
+    teaching = pipeline.teaching
+    if teaching is None:
+        return trials
+    # The hypotheses' log-partitions repeat each trial's features once per hypothesis.
+    repeated = MAX_BATCH * teaching.hypotheses * game.width * game.height * k * 8
+    return trials + repeated + ENUMERATION_BYTES_PER_PATH * teaching.learning_paths
+
+
+def check_resources(pipeline: Pipeline, label: str) -> None:
+    """Refuse a pipeline that cannot fit the machine, in one line beginning with ``label``
+    (the file it was read from).
+
+    Raises:
+        UserError: more than :data:`MAX_TRIALS` trials, or a batch over
+            :data:`BATCH_MEMORY_BUDGET` (:func:`batch_memory`).
+    """
+    total = sum(trial_counts(pipeline).values())
+    if total > MAX_TRIALS:
+        raise UserError(
+            f"{label}: plans {total} trials, more than the {MAX_TRIALS} one run may "
+            "hold; split the study into several pipelines"
+        )
+    need = batch_memory(pipeline)
+    if need > BATCH_MEMORY_BUDGET:
+        raise UserError(
+            f"{label}: one batch of trials would need about {need / 2**30:.3g} GiB, "
+            f"more than the {BATCH_MEMORY_BUDGET / 2**30:g} GiB budget; shrink the grid, "
+            "the horizons or the largest feature level"
+        )
