@@ -294,6 +294,10 @@ DecodeError = msgspec.DecodeError
 """Raised by :func:`decode` on bytes that are not a valid trial record (a ``ValueError``)."""
 
 
+class NestedTooDeep(DecodeError):
+    """Raised by :func:`decode` on JSON nested deeper than it follows (see there)."""
+
+
 def encode(value: object) -> bytes:
     """Canonical JSON of a record (or of any message of the logs): keys sorted, no spaces.
 
@@ -307,11 +311,19 @@ def encode(value: object) -> bytes:
 def decode(data: bytes) -> TrialRecord:
     """The record in ``data``, validated against the types above.
 
+    A record's own fields nest five deep; what lies deeper is a field the record does not
+    have, which msgspec skips by recursion, up to the interpreter's recursion limit: a payload
+    nested deeper than that is refused here, not left to end the reader in a traceback.
+
     Raises:
-        DecodeError: malformed JSON, or a field missing, of the wrong type or out of range
-            (``msgspec.ValidationError`` is a subclass), with the JSON path of the fault.
+        DecodeError: malformed JSON, nested past the recursion limit (:class:`NestedTooDeep`),
+            or a field missing, of the wrong type or out of range (``msgspec.ValidationError``
+            is a subclass), with the JSON path of the fault.
     """
-    return _DECODER.decode(data)
+    try:
+        return _DECODER.decode(data)
+    except RecursionError:
+        raise NestedTooDeep("JSON nested deeper than a trial record can be read") from None
 
 
 def from_builtins(data: object) -> TrialRecord:

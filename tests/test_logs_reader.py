@@ -1,4 +1,4 @@
-"""`read_run` and `logged_trials`: what analysis and resume read from a run."""
+"""`read_run` and `logged_run`: what analysis and resume read from a run."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from test_logs_helpers import RUN_ID, make_record, make_study, provenance_for
 
 from cirl_study.errors import UserError
 from cirl_study.logs.provenance import RunIdentity
-from cirl_study.logs.reader import logged_trials, read_run, read_trials
+from cirl_study.logs.reader import logged_run, read_run, read_trials
 from cirl_study.logs.scan import scan_file
 from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, TrialRow
@@ -46,7 +46,7 @@ def test_the_rows_of_every_file_sorted_by_trial_id(run: Path) -> None:
     assert contents.provenance == [PROVENANCE, PROVENANCE]
     assert contents.identity == IDENTITY and contents.identity.pipeline_name == "test"
     assert contents.warnings == [] and contents.damaged == []
-    assert logged_trials(run, IDENTITY) == {r.trial_id for r in study}
+    assert logged_run(run, IDENTITY).trial_ids == {r.trial_id for r in study}
 
 
 def test_whole_records_are_fetched_from_the_files_that_log_them(run: Path) -> None:
@@ -79,7 +79,7 @@ def test_temporary_files_are_ignored(run: Path) -> None:
         log.write(study[2])
         raise KeyboardInterrupt
     assert (run / "b.mcap.tmp").exists()
-    assert logged_trials(run, IDENTITY) == {r.trial_id for r in study[:2]}
+    assert logged_run(run, IDENTITY).trial_ids == {r.trial_id for r in study[:2]}
     contents = read_run(run)
     assert contents.rows == rows(sorted(study[:2], key=lambda r: r.trial_id))
     assert contents.warnings == [
@@ -127,7 +127,7 @@ def test_a_damaged_chunk_is_skipped_and_counted(run: Path) -> None:
     assert warning.startswith(f"{path}: damaged (damaged chunk at byte {chunk}: ")
     assert f"recovered {len(contents.rows)} trial(s) of {len(study)} from " in warning
     with pytest.raises(UserError, match=f"{path} is damaged"):
-        logged_trials(run, IDENTITY)
+        logged_run(run, IDENTITY)
 
 
 def test_a_trial_in_two_files_is_refused(run: Path) -> None:
@@ -141,7 +141,7 @@ def test_a_trial_in_two_files_is_refused(run: Path) -> None:
         read_run(run)
     assert str(error.value) == message
     with pytest.raises(UserError, match="logged twice"):
-        logged_trials(run, IDENTITY)
+        logged_run(run, IDENTITY)
 
 
 def test_a_faulty_record_is_refused(run: Path) -> None:
@@ -163,10 +163,10 @@ def test_files_of_two_runs_are_refused(run: Path) -> None:
         read_run(run)
     assert str(error.value) == expected
     with pytest.raises(UserError, match="log files of 2 runs"):
-        logged_trials(run, RunIdentity.of(other))
+        logged_run(run, RunIdentity.of(other))
     (run / "a.mcap").unlink()
     with pytest.raises(UserError, match="holds the logs of another run .*use another --out"):
-        logged_trials(run, IDENTITY)
+        logged_run(run, IDENTITY)
 
 
 def test_a_record_of_another_run_is_refused(run: Path) -> None:
@@ -184,9 +184,9 @@ def test_a_record_of_another_run_is_refused(run: Path) -> None:
     expected = f"trial {foreign.trial_id} belongs to run {other_run}, the file to run {RUN_ID}"
     with pytest.raises(UserError, match=expected):
         read_run(run)
-    # Resuming reads each file's provenance and trial index only (every CRC checked); the
-    # records themselves are read, and refused, by read_run and validate.
-    assert logged_trials(run, IDENTITY) == {make_record(2).trial_id, foreign.trial_id}
+    # Resuming decides from the records, not from the file's own trial index.
+    with pytest.raises(UserError, match=expected):
+        logged_run(run, IDENTITY)
 
 
 def test_the_writer_refuses_a_record_of_another_run(run: Path) -> None:
@@ -212,5 +212,5 @@ def test_unreadable_runs_are_user_errors(run: Path, setup, message: str) -> None
 
 
 def test_resume_of_a_fresh_run(tmp_path: Path) -> None:
-    assert logged_trials(tmp_path / "not-yet", IDENTITY) == set()
-    assert logged_trials(tmp_path, IDENTITY) == set()
+    assert logged_run(tmp_path / "not-yet", IDENTITY).trial_ids == set()
+    assert logged_run(tmp_path, IDENTITY).trial_ids == set()

@@ -24,7 +24,7 @@ from cirl_study.errors import UserError
 from cirl_study.logs.contents import read_file_contents
 from cirl_study.logs.format import log_files
 from cirl_study.logs.provenance import RunIdentity
-from cirl_study.logs.reader import logged_trials, read_run
+from cirl_study.logs.reader import logged_run, read_run
 from cirl_study.logs.scan import scan_file
 from cirl_study.record import encode
 
@@ -238,7 +238,7 @@ def test_any_flipped_bit_anywhere_is_refused(one_file: Path, data) -> None:
         with pytest.raises(UserError, match=str(one_file)):
             read_run(one_file.parent)
         with pytest.raises(UserError, match=str(one_file)):
-            logged_trials(one_file.parent, identity_of(good))
+            logged_run(one_file.parent, identity_of(good))
     finally:
         one_file.write_bytes(good)
 

@@ -53,7 +53,7 @@ from pathlib import Path
 
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
-from cirl_study.files import read_file, remove_file
+from cirl_study.files import read_regular_file, remove_file
 from cirl_study.logs.lock import exclusive_lock
 
 REPORT_FILE_NAMES = frozenset({"report.md", "results.json", "provenance.json"})
@@ -158,6 +158,11 @@ def replacing_report(
                 _remove(stage)
 
 
+RESULTS_BYTES = 1 << 30
+"""Longest ``results.json`` read to learn whose report a directory holds (the multiverse's
+53 universes write about 8 MB); a longer one is taken as no report of a run."""
+
+
 def refuse_another_runs_report(target: Path, run_id: str) -> None:
     """Refuse to replace report files in ``target`` that are not a report of ``run_id``
     (by its ``results.json``'s ``run_id``): those of another run, or files of a report
@@ -191,7 +196,7 @@ def refuse_another_runs_report(target: Path, run_id: str) -> None:
 def _run_id_of(results: Path) -> str | None:
     """The ``run_id`` a ``results.json`` states, ``None`` if it cannot be read or states none."""
     try:
-        run_id = json.loads(read_file(results)).get("run_id")
+        run_id = json.loads(read_regular_file(results, RESULTS_BYTES)).get("run_id")
     except (OSError, UserError, ValueError, AttributeError):
         return None
     return run_id if isinstance(run_id, str) else None

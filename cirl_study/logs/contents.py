@@ -7,7 +7,10 @@ channel; each ``/cirl/trial`` payload decodes into a
 (:func:`~cirl_study.logs.record_checks.decode_trials`); no trial id twice;
 in an undamaged file, trial log times follow the documented layout, the replay topics hold
 as many messages as the records imply, and the ``trial_index`` metadata record lists the
-file's trials in order.
+file's trials in order. A file holding more trials than
+:data:`~cirl_study.logs.bounds.MAX_FILE_TRIALS` is damaged (only that many are decoded), and
+so is one holding a record past a bound
+(:class:`~cirl_study.logs.record_checks.BoundFault`: the record is passed over).
 """
 
 from __future__ import annotations
@@ -21,6 +24,7 @@ from pathlib import Path
 from mcap.records import Metadata
 
 from cirl_study.escape import terminal
+from cirl_study.logs.bounds import MAX_FILE_TRIALS
 from cirl_study.logs.episode import replay_counts
 from cirl_study.logs.format import (
     GRID_SCHEMA_NAME,
@@ -34,7 +38,7 @@ from cirl_study.logs.format import (
     trial_duration_ns,
 )
 from cirl_study.logs.provenance import RunIdentity
-from cirl_study.logs.record_checks import decode_trials, payload_trial_id
+from cirl_study.logs.record_checks import BoundFault, decode_trials, payload_trial_id
 from cirl_study.logs.scan import FileScan, scan_file
 from cirl_study.record import TrialRecord, encode
 
@@ -69,13 +73,24 @@ class FileContents:
 
 def read_file_contents(path: Path) -> FileContents:
     """Scan ``path``, decode its trials and provenance, and check its content."""
-    contents = FileContents(scan=scan_file(path))
-    if not contents.scan.readable:
+    return contents_of(scan_file(path))
+
+
+def contents_of(scan: FileScan) -> FileContents:
+    """:func:`read_file_contents` of a file already scanned."""
+    contents = FileContents(scan=scan)
+    if not scan.readable:
         return contents
     faults = contents.content_faults
     _read_provenance(contents)
-    faults.extend(_channel_faults(contents.scan))
-    trial_messages = contents.scan.topic_messages(TRIAL_TOPIC)
+    faults.extend(_channel_faults(scan))
+    trial_messages = scan.topic_messages(TRIAL_TOPIC)
+    if len(trial_messages) > MAX_FILE_TRIALS:
+        scan.faults.append(
+            f"{len(trial_messages)} trial messages, more than the {MAX_FILE_TRIALS} a log file "
+            f"may hold: only the first {MAX_FILE_TRIALS} are read"
+        )
+        trial_messages = trial_messages[:MAX_FILE_TRIALS]
     seen: set[str] = set()
     decoded = decode_trials(message.data for message in trial_messages)
     for index, (message, (record, problems)) in enumerate(
@@ -84,6 +99,10 @@ def read_file_contents(path: Path) -> FileContents:
         # An undecodable payload may still name its trial.
         trial_id = payload_trial_id(message.data) if record is None else record.trial_id
         label = f"trial message {index}" if trial_id is None else f"trial {terminal(trial_id)}"
+        past = [problem for problem in problems if isinstance(problem, BoundFault)]
+        if past:  # damage: the record is passed over, like a damaged chunk
+            scan.faults.append(f"{label}: {past[0]}")
+            continue
         faults.extend(f"{label}: {problem}" for problem in problems)
         if record is None or problems:
             continue
@@ -100,18 +119,25 @@ def read_file_contents(path: Path) -> FileContents:
 
 
 def trial_index(metadata: Iterable[Metadata]) -> list[str] | None:
-    """The trial ids a file's ``trial_index`` record lists, ``None`` without exactly one."""
+    """The trial ids a file's ``trial_index`` record lists, ``None`` without exactly one or
+    when it lists more than :data:`~cirl_study.logs.bounds.MAX_FILE_TRIALS` (not split: a
+    record of newlines alone would be millions of strings)."""
     records = [m for m in metadata if m.name == TRIAL_INDEX_METADATA_NAME]
     if len(records) != 1 or TRIAL_INDEX_KEY not in records[0].metadata:
         return None
     text = records[0].metadata[TRIAL_INDEX_KEY]
+    if text.count("\n") >= MAX_FILE_TRIALS:
+        return None
     return text.split("\n") if text else []
 
 
 def _index_faults(scan: FileScan, records: list[TrialRecord]) -> list[str]:
     index = trial_index(scan.metadata)
     if index is None:
-        return [f"no {TRIAL_INDEX_METADATA_NAME!r} metadata record"]
+        return [
+            f"no {TRIAL_INDEX_METADATA_NAME!r} metadata record listing at most "
+            f"{MAX_FILE_TRIALS} trials"
+        ]
     if index != [record.trial_id for record in records]:
         return [f"the {TRIAL_INDEX_METADATA_NAME!r} record does not list the file's trials"]
     return []
@@ -157,6 +183,8 @@ def _channel_faults(scan: FileScan) -> list[str]:
             json.loads(schema.data)
         except ValueError:
             faults.append(f"{topic}: schema '{terminal(schema.name)}' is not valid JSON")
+        except RecursionError:
+            faults.append(f"{topic}: schema '{terminal(schema.name)}' nests too deep to read")
     return faults
 
 

@@ -47,7 +47,8 @@ MESSAGE_ENCODING = "json"
 PROVENANCE_METADATA_NAME = "provenance"
 TRIAL_INDEX_METADATA_NAME = "trial_index"
 """Metadata record closing every file: ``{"trial_ids": <the file's trial ids, one per line,
-in order>}``, so a resume learns what a file holds without decompressing it."""
+in order>}``; readers check it against the file's records, which alone decide what the file
+holds."""
 TRIAL_INDEX_KEY = "trial_ids"
 PIPELINE_NAME_KEY = "pipeline_name"
 RUN_ID_KEY = "run_id"
@@ -77,13 +78,17 @@ def temp_path(path: Path) -> Path:
 
 
 def log_files(run_dir: Path) -> list[Path]:
-    """The complete log files of a run directory, sorted by name."""
-    return sorted(p for p in run_dir.glob(f"*{LOG_SUFFIX}") if p.is_file())
+    """The complete log files of a run directory, sorted by name: every entry named
+    ``*.mcap``, whatever it is, so that a reader refuses or reports one that is no regular
+    file (a link, a FIFO, a directory) instead of passing over it
+    (:func:`cirl_study.logs.bounds.read_log`)."""
+    return sorted(run_dir.glob(f"*{LOG_SUFFIX}"))
 
 
 def temp_files(run_dir: Path) -> list[Path]:
-    """Unfinished (temporary) log files left in a run directory by an interrupted run."""
-    return sorted(p for p in run_dir.glob(f"*{LOG_SUFFIX}{TEMP_SUFFIX}") if p.is_file())
+    """Unfinished (temporary) log files left in a run directory by an interrupted run: every
+    entry named ``*.mcap.tmp``, whatever it is (see :func:`log_files`)."""
+    return sorted(run_dir.glob(f"*{LOG_SUFFIX}{TEMP_SUFFIX}"))
 
 
 def trial_duration_ns(learning_steps: int, deployment_steps: int) -> int:

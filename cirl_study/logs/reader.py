@@ -1,18 +1,21 @@
 """Reading a run directory: the trials every analysis starts from, file by file.
 
 Only complete files (``*.mcap``) are read; temporary files of an interrupted run are
-ignored with a warning. An intact file is read through its summary index with every CRC
-checked (data section, summary and each chunk holding a trial), taking only the
-``/cirl/trial`` messages (fast). A file that does not read cleanly that way is scanned record
-by record instead, which says what is wrong with it.
+ignored with a warning. Every file is read whole once (:func:`~cirl_study.logs.bounds.read_log`:
+a regular file only, within the bounds of :mod:`cirl_study.logs.bounds`). An intact file is
+read through its summary index with every CRC checked (data section, summary and each chunk
+holding a trial), taking only the ``/cirl/trial`` messages (fast). A file that does not read
+cleanly that way is scanned record by record instead, which says what is wrong with it.
 
 A run is what its logs prove. Every file must name the same run (its provenance's
 :class:`~cirl_study.logs.provenance.RunIdentity`: run id and pipeline file) and every record
-that run's id; a damaged file (truncated, a bad CRC anywhere) is refused, or, when the caller
-asks to ``salvage``, the trials of its intact chunks are kept with a warning naming the file
-and what was recovered. Content that cannot be trusted (a malformed or inconsistent record, a
-trial logged twice, files or records of another run) is always refused with a
-:class:`~cirl_study.errors.UserError`. ``cirl-study validate`` checks every record of every
+that run's id; a damaged file (truncated, a bad CRC anywhere, a bound passed) is refused, or,
+when the caller asks to ``salvage``, the trials of its intact chunks are kept with a warning
+naming the file and what was recovered. An entry named like a log that is no regular file (a
+link, a FIFO, a device, a directory), or a file too long to read, is refused the same way, or
+reported and passed over when salvaging. Content that cannot be trusted (a malformed or
+inconsistent record, a trial logged twice, files or records of another run) is always refused
+with a :class:`~cirl_study.errors.UserError`. ``cirl-study validate`` checks every record of every
 file in full.
 """
 
@@ -21,7 +24,7 @@ from __future__ import annotations
 import io
 import struct
 import tomllib
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,7 +37,9 @@ from mcap.summary import Summary
 
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
-from cirl_study.logs.contents import FileContents, read_file_contents, trial_index
+from cirl_study.files import UnreadableFile, non_regular
+from cirl_study.logs.bounds import MAX_FILE_TRIALS, Budget, framed_records, read_log
+from cirl_study.logs.contents import FileContents, contents_of, trial_index
 from cirl_study.logs.format import (
     PROVENANCE_METADATA_NAME,
     TRIAL_TOPIC,
@@ -44,12 +49,7 @@ from cirl_study.logs.format import (
 from cirl_study.logs.lock import writer_pid
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.record_checks import decode_trials
-from cirl_study.logs.scan import (
-    MESSAGE_HEADER,
-    RECORD_PREFIX,
-    decompressed_chunk,
-    section_crcs_hold,
-)
+from cirl_study.logs.scan import MESSAGE_HEADER, RECORD_PREFIX, scan_data, section_crcs_hold
 from cirl_study.record import TrialRecord, TrialRow
 from cirl_study.workers import started
 
@@ -70,19 +70,17 @@ class RunContents:
 
     def records(self, run_dir: Path, wanted: set[str]) -> list[TrialRecord]:
         """The whole records of the ``wanted`` trials, decoding only the files that log one
-        (:func:`read_trials` without reading every file's index again)."""
-        return _records_of(run_dir, self.identity, self.files, wanted)
+        (the records of the intact chunks of a file salvaged)."""
+        return _records_of(run_dir, self.identity, self.files, wanted, self.damaged)
 
 
 @dataclass
 class _IntactFile:
-    """A file that read cleanly through its summary: its provenance, the trial ids its
-    ``trial_index`` lists, and its trial records (none when only the index was read)."""
+    """A file that read cleanly through its summary: its provenance and its trial records."""
 
     path: Path
     records: list[TrialRecord]
     provenance: dict[str, str]
-    trial_ids: list[str]
     damage: list[str] = field(default_factory=list)
     content_faults: list[str] = field(default_factory=list)
 
@@ -91,50 +89,58 @@ class _IntactFile:
         return []
 
 
-def _intact_summary(path: Path, *, with_records: bool) -> _IntactFile | None:
-    """The file through its summary, or ``None`` if it does not read cleanly.
+def _intact_summary(path: Path, data: bytes) -> _IntactFile | None:
+    """The file ``path`` (its content ``data``) through its summary, or ``None`` if it does not
+    read cleanly.
 
     Every CRC that covers what is read holds (:func:`~cirl_study.logs.scan.section_crcs_hold`:
-    the data section, chunks included, and the summary); there is one ``provenance`` record
-    stating a run identity and a ``trial_index`` listing as many distinct trials as the summary
-    counts. With ``with_records`` every chunk holding a trial is also decompressed with its
-    own CRC checked, and every record must be complete and consistent
+    the data section, chunks included, and the summary); the file frames no more records than
+    a log file may hold (:func:`~cirl_study.logs.bounds.framed_records`, before the summary is
+    parsed); there is one ``provenance`` record stating a run identity and a ``trial_index``
+    listing as many distinct trials as the summary counts, at most
+    :data:`~cirl_study.logs.bounds.MAX_FILE_TRIALS`. Every chunk holding a trial is
+    decompressed with its own CRC checked, and every record must be complete and consistent
     (:func:`~cirl_study.logs.record_checks.decode_trials`) and listed by the index in order.
     """
+    budget = Budget()
     try:
-        data = path.read_bytes()
         if not section_crcs_hold(data):
             return None
+        budget.parsed(framed_records(data))
         reader = make_reader(io.BytesIO(data), validate_crcs=True)
         summary = reader.get_summary()
         if summary is None or summary.statistics is None:
             return None
         metadata = list(reader.iter_metadata())
-        decoded = decode_trials(_trial_payloads(data, summary)) if with_records else []
+        trial_channels = [c.id for c in summary.channels.values() if c.topic == TRIAL_TOPIC]
+        counts = summary.statistics.channel_message_counts
+        announced = sum(counts.get(c, 0) for c in trial_channels)
+        if announced > MAX_FILE_TRIALS:
+            return None
+        decoded = decode_trials(_trial_payloads(data, summary, budget))
     except Exception:  # any damage: the record-by-record scan will say what and salvage
         return None
     provenance = [m for m in metadata if m.name == PROVENANCE_METADATA_NAME]
     index = trial_index(metadata)
-    trial_channels = [c.id for c in summary.channels.values() if c.topic == TRIAL_TOPIC]
-    announced = sum(summary.statistics.channel_message_counts.get(c, 0) for c in trial_channels)
     records = [record for record, faults in decoded if record is not None and not faults]
     sound = (
         len(provenance) == 1
         and _states_identity(provenance[0].metadata)
         and index is not None
         and len(index) == len(set(index)) == announced
-        and (not with_records or [r.trial_id for r in records] == index)
+        and [r.trial_id for r in records] == index
     )
     if not sound:
         return None
-    return _IntactFile(path, records, dict(provenance[0].metadata), index)
+    return _IntactFile(path, records, dict(provenance[0].metadata))
 
 
-def _trial_payloads(data: bytes, summary: Summary) -> list[bytes]:
+def _trial_payloads(data: bytes, summary: Summary, budget: Budget) -> list[bytes]:
     """The ``/cirl/trial`` payloads of a file, in file order, through its indexes.
 
     For every chunk that holds trial messages (by the summary's chunk indexes) the chunk is
-    decompressed and its uncompressed CRC checked; the trial channel's message index, which
+    decompressed within ``budget`` (:meth:`~cirl_study.logs.bounds.Budget.inflate`) and its
+    uncompressed CRC checked; the trial channel's message index, which
     the chunk index points to, gives each trial message's offset in the chunk, so no other
     message is parsed (the replay topics are most of a file). The mcap package's reader
     parses every message of a chunk in pure Python: at the paper's size this is about five
@@ -151,8 +157,11 @@ def _trial_payloads(data: bytes, summary: Summary) -> list[bytes]:
             continue
         start = index.chunk_start_offset + RECORD_PREFIX
         chunk = Chunk.read(ReadDataStream(io.BytesIO(data[start : start + index.chunk_length])))
-        raw = decompressed_chunk(chunk)
-        for offset in _message_offsets(data, index.message_index_offsets[channel], channel):
+        if not chunk.uncompressed_crc:
+            raise ValueError("a chunk carries no CRC")
+        raw = budget.inflate(chunk)
+        position = index.message_index_offsets[channel]
+        for offset in _message_offsets(data, position, channel, budget):
             opcode, length, channel_id = struct.unpack_from("<BQH", raw, offset)
             if opcode != Opcode.MESSAGE or channel_id != channel:
                 raise ValueError(f"no trial message at offset {offset}")
@@ -161,8 +170,9 @@ def _trial_payloads(data: bytes, summary: Summary) -> list[bytes]:
     return payloads
 
 
-def _message_offsets(data: bytes, position: int, channel: int) -> list[int]:
-    """The offsets in its chunk of every message a ``MessageIndex`` record lists, sorted.
+def _message_offsets(data: bytes, position: int, channel: int, budget: Budget) -> list[int]:
+    """The offsets in its chunk of every message a ``MessageIndex`` record lists, sorted (each
+    counted in ``budget`` before any is read).
 
     The record at ``position`` is opcode, length, ``channel_id`` (u16), ``records_length``
     (u32) and ``(log_time, offset)`` pairs of u64 (MCAP specification); read with numpy
@@ -173,6 +183,7 @@ def _message_offsets(data: bytes, position: int, channel: int) -> list[int]:
         raise ValueError("no message index of the trial channel there")
     if records_length % 16 or records_length + 6 != length:
         raise ValueError("a message index of the wrong length")
+    budget.parsed(records_length // 16)
     start = position + RECORD_PREFIX + 6
     pairs = np.frombuffer(data, dtype="<u8", count=records_length // 8, offset=start)
     return sorted(pairs[1::2].tolist())
@@ -189,7 +200,8 @@ def _states_identity(provenance: dict[str, str]) -> bool:
 @dataclass(frozen=True)
 class _FileReading:
     """What :func:`read_run` keeps of one file, read in a worker (:func:`_reading`): its
-    faults, its run identity (or why it has none), its trial ids, provenance and rows."""
+    faults, its run identity (or why it has none), its trial ids, provenance and rows;
+    ``unreadable`` when nothing of it could be read (``damage`` then says why)."""
 
     path: Path
     damage: list[str]
@@ -199,11 +211,25 @@ class _FileReading:
     trial_ids: list[str]
     provenance: dict[str, str] | None
     rows: list[TrialRow]
+    unreadable: bool = False
 
 
 def _reading(path: Path) -> _FileReading:
     """One file of :func:`read_run`, its records reduced to rows."""
-    contents = _read_file(path)
+    try:
+        contents = _read_file(path)
+    except UnreadableFile as error:
+        return _FileReading(
+            path=path,
+            damage=[error.reason],
+            content_faults=[],
+            salvage_warning=f"{path}: {error.reason}; passed over, nothing of it read",
+            identity=error,
+            trial_ids=[],
+            provenance=None,
+            rows=[],
+            unreadable=True,
+        )
     sound = not contents.content_faults
     try:
         identity: RunIdentity | UserError = _file_identity(contents)
@@ -215,16 +241,22 @@ def _reading(path: Path) -> _FileReading:
         content_faults=contents.content_faults,
         salvage_warning=_salvage_warning(contents) if contents.damage and sound else "",
         identity=identity,
-        trial_ids=_trial_ids(contents),
+        trial_ids=[record.trial_id for record in contents.records],
         provenance=contents.provenance,
         rows=[TrialRow.of(record) for record in contents.records] if sound else [],
     )
 
 
-def _read_file(path: Path, *, with_records: bool = True) -> _IntactFile | FileContents:
-    """Fast read of an intact file through its summary, else the record-by-record scan."""
-    intact = _intact_summary(path, with_records=with_records)
-    return intact if intact is not None else _readable(read_file_contents(path))
+def _read_file(path: Path) -> _IntactFile | FileContents:
+    """Fast read of an intact file through its summary, else the record-by-record scan.
+
+    Raises:
+        cirl_study.files.UnreadableFile: ``path`` is no regular file, or too long to read.
+        UserError: it is not an MCAP file.
+    """
+    data = read_log(path)
+    intact = _intact_summary(path, data)
+    return intact if intact is not None else _readable(contents_of(scan_data(path, data)))
 
 
 def read_run(
@@ -261,6 +293,11 @@ def read_run(
                     f"{path}: {damage}unusable ({reading.content_faults[0]}); "
                     f"`cirl-study validate {run_dir}` lists every fault"
                 )
+            if reading.unreadable and not salvage:
+                raise UserError(
+                    f"{path}: {reading.damage[0]}; move it out of {run_dir}, or analyze with "
+                    "--partial to read the rest"
+                )
             if reading.damage and not salvage:
                 raise UserError(
                     f"{path}: damaged ({reading.damage[0]}); move it out of {run_dir} "
@@ -270,6 +307,8 @@ def read_run(
             if reading.damage:
                 warnings.append(reading.salvage_warning)
                 damaged.append(path)
+            if reading.unreadable:
+                continue
             if isinstance(reading.identity, UserError):
                 raise reading.identity
             identities.setdefault(reading.identity, path)
@@ -279,7 +318,18 @@ def read_run(
             # The rows' own ids: no second string per trial.
             files.append((path, [row.trial_id for row in reading.rows]))
             rows += reading.rows
-    unfinished = temp_files(run_dir)
+    unfinished = []
+    for path in temp_files(run_dir):
+        reason = non_regular(path)
+        if reason is None:
+            unfinished.append(path)
+        elif salvage:
+            warnings.append(f"{path}: {reason}; passed over")
+        else:
+            raise UserError(
+                f"{path}: {reason}, not a temporary log file; move it out of {run_dir}, or "
+                "analyze with --partial to read the rest"
+            )
     if unfinished:
         pid = writer_pid(run_dir)
         warnings.append(
@@ -299,30 +349,70 @@ def read_run(
     )
 
 
-def logged_trials(run_dir: str | Path, identity: RunIdentity) -> set[str]:
-    """The ids of the trials already logged in complete files of ``run_dir``, for resuming.
+@dataclass(frozen=True)
+class LoggedRun:
+    """What a run directory holds, for resuming it: each complete file with the ids of the
+    trials its records decode to (:func:`logged_run`)."""
 
-    Each file is read through its metadata alone (its ``provenance`` and ``trial_index``
-    records, with the CRCs of its data section and summary checked), never decompressed: the
-    records themselves are checked by :func:`read_run` and ``validate``. An absent directory
-    has none. A damaged or faulty file, or one of another run than ``identity``'s, is
-    refused rather than guessed at, so that a resumed run neither loses nor duplicates a
-    trial, nor mixes runs.
+    run_dir: Path
+    identity: RunIdentity
+    files: list[tuple[Path, list[str]]]
+
+    @property
+    def trial_ids(self) -> set[str]:
+        """The ids of every trial logged (each in one file: :func:`logged_run` checks)."""
+        return {trial_id for _, trial_ids in self.files for trial_id in trial_ids}
+
+    def records(self, wanted: set[str]) -> list[TrialRecord]:
+        """The whole records of the ``wanted`` trials, decoding only the files that log one
+        (each checked again, and found of this run)."""
+        return _records_of(self.run_dir, self.identity, self.files, wanted)
+
+
+def logged_run(run_dir: str | Path, identity: RunIdentity) -> LoggedRun:
+    """The trials already logged in the complete files of ``run_dir``, for resuming.
+
+    What a file holds is decided from its records, never from its own index or counts: every
+    file is read as :func:`read_run` reads it (every CRC, every record decoded and checked,
+    a file per core), and only the ids come back. An absent directory has none. A damaged
+    or faulty file, an entry named like a log that is no regular file, a trial logged twice,
+    or files of another run than ``identity``'s are refused rather than guessed at, so that
+    a resumed run neither loses nor duplicates a trial, nor mixes runs.
     """
-    return _distinct_trial_ids(_indexed_files(Path(run_dir), identity))
+    run_dir = Path(run_dir)
+    if not run_dir.exists():
+        return LoggedRun(run_dir, identity, [])
+    identities: dict[RunIdentity, Path] = {}
+    first_file: dict[str, Path] = {}
+    files = []
+    with started(_reading, _complete_files(run_dir, require_any=False)) as readings:
+        for reading in readings:
+            path = reading.path
+            if reading.unreadable:
+                raise UserError(f"{path}: {reading.damage[0]}; move it out of {run_dir}")
+            faults = [*reading.damage, *reading.content_faults]
+            if faults:
+                raise UserError(
+                    f"{path} is damaged ({faults[0]}); move it out of {run_dir} "
+                    "to run its trials again"
+                )
+            if isinstance(reading.identity, UserError):
+                raise reading.identity
+            identities.setdefault(reading.identity, path)
+            _same_identity(run_dir, identities)
+            _refuse_duplicates(first_file, path, reading.trial_ids)
+            files.append((path, reading.trial_ids))
+    if files:
+        found = _same_identity(run_dir, identities)
+        if found != identity:
+            raise UserError(f"{run_dir}: {_another_run(found, identity)}")
+    return LoggedRun(run_dir, identity, files)
 
 
 def read_trials(run_dir: str | Path, identity: RunIdentity, wanted: set[str]) -> list[TrialRecord]:
-    """The records of the ``wanted`` trials, reading only the files whose index lists one.
-
-    For a resumed run's cross-validation and the report's Figure 1: every file is first read
-    through its metadata (:func:`logged_trials`' checks); only the files holding a wanted
-    trial are decoded, with :func:`read_run`'s checks of every record.
-    """
-    run_dir = Path(run_dir)
-    files = _indexed_files(run_dir, identity)
-    _distinct_trial_ids(files)
-    return _records_of(run_dir, identity, [(f.path, _trial_ids(f)) for f in files], wanted)
+    """The records of the ``wanted`` trials of the run in ``run_dir`` (of ``identity``'s run),
+    with :func:`logged_run`'s checks of every file."""
+    return logged_run(run_dir, identity).records(wanted)
 
 
 def _records_of(
@@ -330,17 +420,21 @@ def _records_of(
     identity: RunIdentity,
     files: Iterable[tuple[Path, Sequence[str]]],
     wanted: set[str],
+    salvaged: Collection[Path] = (),
 ) -> list[TrialRecord]:
     """The records of the ``wanted`` trials of ``files`` (each with the ids it logs), each
-    file that logs one decoded with :func:`read_run`'s checks and found of ``identity``'s run.
+    file that logs one decoded with :func:`read_run`'s checks and found of ``identity``'s run;
+    the files ``salvaged`` may be damaged (their intact chunks are read).
     """
     records = []
     for path, trial_ids in files:
         if not wanted.intersection(trial_ids):
             continue
         contents = _read_file(path)
-        if contents.faults:
-            raise UserError(f"{path}: unusable ({contents.faults[0]})")
+        damage = [] if path in salvaged else contents.damage
+        faults = [*damage, *contents.content_faults]
+        if faults:
+            raise UserError(f"{path}: unusable ({faults[0]})")
         found = _one_identity(run_dir, [contents])
         if found != identity:
             raise UserError(
@@ -348,30 +442,6 @@ def _records_of(
             )
         records += [record for record in contents.records if record.trial_id in wanted]
     return records
-
-
-def _indexed_files(run_dir: Path, identity: RunIdentity) -> list[_IntactFile | FileContents]:
-    """Every complete file of ``run_dir`` through its metadata, all of ``identity``'s run.
-
-    Raises:
-        UserError: a damaged or faulty file, or files of another run.
-    """
-    if not run_dir.exists():
-        return []
-    files = []
-    for path in _complete_files(run_dir, require_any=False):
-        contents = _read_file(path, with_records=False)
-        if contents.faults:
-            raise UserError(
-                f"{path} is damaged ({contents.faults[0]}); move it out of {run_dir} "
-                "to run its trials again"
-            )
-        files.append(contents)
-    if files:
-        found = _one_identity(run_dir, files)
-        if found != identity:
-            raise UserError(f"{run_dir}: {_another_run(found, identity)}")
-    return files
 
 
 def _another_run(logged: RunIdentity, asked: RunIdentity) -> str:
@@ -466,26 +536,15 @@ def _salvage_warning(contents: FileContents) -> str:
     scan = contents.scan
     announced = scan.summary_message_count(TRIAL_TOPIC)
     recovered = f"{len(contents.records)} trial(s)"
-    recovered += f" of {announced}" if announced is not None else " (how many were lost is unknown)"
+    if announced is not None and announced <= MAX_FILE_TRIALS:
+        recovered += f" of {announced}"
+    else:
+        recovered += " (how many were lost is unknown)"
     more = f" and {len(contents.damage) - 1} more fault(s)" if len(contents.damage) > 1 else ""
     return (
         f"{contents.path}: damaged ({contents.damage[0]}{more}); recovered {recovered} "
         f"from {scan.chunks - scan.damaged_chunks} intact chunk(s) of {scan.chunks} read"
     )
-
-
-def _trial_ids(contents: _IntactFile | FileContents) -> list[str]:
-    if isinstance(contents, _IntactFile):
-        return contents.trial_ids
-    return [record.trial_id for record in contents.records]
-
-
-def _distinct_trial_ids(files: list[_IntactFile | FileContents]) -> set[str]:
-    """The trial ids of ``files``; one logged in two files is refused."""
-    first_file: dict[str, Path] = {}
-    for contents in files:
-        _refuse_duplicates(first_file, contents.path, _trial_ids(contents))
-    return set(first_file)
 
 
 def _refuse_duplicates(first_file: dict[str, Path], path: Path, trial_ids: list[str]) -> None:

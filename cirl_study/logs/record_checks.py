@@ -13,6 +13,9 @@ code that logged it; the records of one grid and ``K`` in one array product). Th
 robot are registered ones (:data:`~cirl_study.core.players.HUMANS`,
 :data:`~cirl_study.core.players.ROBOTS`), ``eta`` is null exactly for a policy without a
 trade-off, and a record with a teaching human or robot has its hypothesis space (``teaching``).
+A record's grid and feature matrix are bounded (:data:`MAX_GRID_CELLS`,
+:data:`MAX_FEATURE_ENTRIES`) before anything is computed per cell; a record past a bound, or
+nested too deep to decode, has a :class:`BoundFault`.
 """
 
 from __future__ import annotations
@@ -32,6 +35,7 @@ from cirl_study.record import (
     Cell,
     DecodeError,
     Grid,
+    NestedTooDeep,
     RBFFeatures,
     TrialRecord,
     decode,
@@ -44,6 +48,37 @@ NEGATIVE_TOLERANCE = 1e-9
 L2_TOLERANCE = 1e-9
 """Relative and absolute tolerance when recomputing ``reward_l2``."""
 
+MAX_GRID_CELLS = 1 << 18
+"""Most cells a record's grid may have (262,144): checking a record computes its reward map
+over every cell. No pipeline :func:`cirl_study.study.runner.check_resources` admits has more
+than about 153,000 (its batch memory budget, at the shortest horizons and one feature)."""
+
+MAX_FEATURE_ENTRIES = 1 << 18
+"""Most entries (cells times features) of the feature matrix checking a record's
+``reward_l2`` computes (2 MiB of floats); ``check_resources`` admits at most about 195,000
+(the budget holds ``K^2`` floats per cell and step)."""
+
+_MOVE_TABLE_CELLS = 4096
+"""Grids of at most this many cells have their moves tabulated, once per grid, so a sound
+record's paths are walked through the table (:func:`_inconsistencies`); a record of a larger
+grid is checked step by step, which costs its paths' length, not its grid's size."""
+
+_CACHED_FEATURE_ENTRIES = 4096
+"""Feature matrices of at most this many entries (32 KiB) are kept for the other trials of
+their subject (:func:`_feature_matrix`); larger ones are computed for each record, so the
+cache stays within 4096 matrices of this size whatever the records claim."""
+
+_STACKED_ENTRIES = 1 << 22
+"""Most feature-matrix entries of records stacked into one array product (32 MiB of
+floats) by :func:`_reward_l2_faults`."""
+
+
+class BoundFault(str):
+    """A fault that is a bound passed (the record nests too deep, its grid is too large), not
+    an inconsistency: a reader takes such a record as damage of its file, which
+    ``--partial`` passes over, rather than as content it cannot trust. Shown as the string
+    it is."""
+
 
 class _Labelled(msgspec.Struct):
     trial_id: str
@@ -53,7 +88,7 @@ def payload_trial_id(data: bytes) -> str | None:
     """The ``trial_id`` of a payload that may not be a valid record, if it has one."""
     try:
         return msgspec.json.decode(data, type=_Labelled).trial_id
-    except msgspec.DecodeError:
+    except (msgspec.DecodeError, RecursionError):  # see cirl_study.record.decode
         return None
 
 
@@ -73,9 +108,14 @@ def decode_trials(payloads: Iterable[bytes]) -> list[tuple[TrialRecord | None, l
     records = [r for r in decoded if isinstance(r, TrialRecord)]
     faults = iter(records_faults(records))
     return [
-        (r, next(faults)) if isinstance(r, TrialRecord) else (None, [f"not a trial record: {r}"])
+        (r, next(faults)) if isinstance(r, TrialRecord) else (None, [_decode_fault(r)])
         for r in decoded
     ]
+
+
+def _decode_fault(error: DecodeError) -> str:
+    fault = f"not a trial record: {error}"
+    return BoundFault(fault) if isinstance(error, NestedTooDeep) else fault
 
 
 def record_faults(record: TrialRecord) -> list[str]:
@@ -86,10 +126,41 @@ def record_faults(record: TrialRecord) -> list[str]:
 def records_faults(records: Sequence[TrialRecord]) -> list[list[str]]:
     """:func:`record_faults` of every record; the ``reward_l2`` checks are one array
     product per grid and ``K`` (:func:`_reward_l2_faults`) instead of one per record."""
-    faults = [list(_inconsistencies(r)) for r in records]
+    faults = [_size_faults(r) or list(_inconsistencies(r)) for r in records]
     for index, fault in _reward_l2_faults(records):
         faults[index].append(fault)
     return faults
+
+
+def _size_faults(r: TrialRecord) -> list[str]:
+    """A grid or feature matrix past its bound (nothing else of such a record is checked)."""
+    cells = r.grid.width * r.grid.height
+    shape = f"{r.grid.width}x{r.grid.height}"
+    if cells > MAX_GRID_CELLS:
+        bound = f"more than the {MAX_GRID_CELLS} a record may"
+        return [BoundFault(f"grid {shape} has {cells} cells, {bound}")]
+    if cells * r.num_features > MAX_FEATURE_ENTRIES:
+        return [
+            BoundFault(
+                f"grid {shape} and {r.num_features} features make {cells * r.num_features} "
+                f"feature values, more than the {MAX_FEATURE_ENTRIES} a record may"
+            )
+        ]
+    return []
+
+
+def _walk(
+    path: Sequence[Cell], start: Cell, steps: int, moves: dict[tuple[Cell, Cell], str]
+) -> tuple[str, ...] | None:
+    """The actions of ``path`` if it is a walk of ``steps`` available moves from ``start``
+    (``steps >= 1``), else ``None`` (also for cells that are not tuples: the detailed
+    checks then decide)."""
+    if steps < 1 or len(path) != steps + 1 or path[0] != start:
+        return None
+    try:
+        return tuple(map(moves.__getitem__, zip(path, path[1:], strict=False)))
+    except (KeyError, TypeError):
+        return None
 
 
 def _inconsistencies(r: TrialRecord) -> Iterator[str]:
@@ -105,9 +176,9 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
     if len(r.theta_hat) != r.num_features:
         yield f"theta_hat has {len(r.theta_hat)} entries, num_features is {r.num_features}"
     grid = _gridworld(r.grid)
-    moves = _moves(r.grid)
+    moves = _moves(r.grid) if r.grid.width * r.grid.height <= _MOVE_TABLE_CELLS else None
     states, actions = r.demonstration.states, r.demonstration.actions
-    walked = _walk(states, r.start, r.learning_steps, moves)
+    walked = None if moves is None else _walk(states, r.start, r.learning_steps, moves)
     if walked is None:
         yield from _path_faults("demonstration.states", states, r.start, r.learning_steps, grid)
     if len(actions) != r.learning_steps:
@@ -131,7 +202,7 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
         if len(starts) != len(paths):
             yield f"deployment has {len(starts)} starts and {len(paths)} paths"
         for i, (start, path) in enumerate(zip(starts, paths, strict=False)):
-            if _walk(path, start, r.deployment_steps, moves) is None:
+            if moves is None or _walk(path, start, r.deployment_steps, moves) is None:
                 yield from _path_faults(
                     f"deployment.paths[{i}]", path, start, r.deployment_steps, grid
                 )
@@ -141,19 +212,6 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
             yield f"measures.{name} is {value} < 0"
 
 
-def _walk(
-    path: Sequence[Cell], start: Cell, steps: int, moves: dict[tuple[Cell, Cell], str]
-) -> tuple[str, ...] | None:
-    """The actions of ``path`` if it is a walk of ``steps`` available moves from ``start``
-    (``steps >= 1``), else ``None`` (also for cells that are not tuples)."""
-    if steps < 1 or len(path) != steps + 1 or path[0] != start:
-        return None
-    try:
-        return tuple(map(moves.__getitem__, zip(path, path[1:], strict=False)))
-    except (KeyError, TypeError):
-        return None
-
-
 def _sized(r: TrialRecord) -> bool:
     """Whether ``theta``, ``theta_hat`` and the centres all have ``num_features`` entries."""
     return len(r.theta) == len(r.theta_hat) == len(r.features.centers) == r.num_features
@@ -161,25 +219,34 @@ def _sized(r: TrialRecord) -> bool:
 
 def _reward_l2_faults(records: Sequence[TrialRecord]) -> Iterator[tuple[int, str]]:
     """``(index, fault)`` for every record whose ``reward_l2`` is not ``||Phi theta - Phi
-    theta_hat||_2`` recomputed (records with ``K`` weights and centres only); records of one
-    grid and ``K`` are computed together."""
+    theta_hat||_2`` recomputed (records with ``K`` weights and centres only, within the
+    bounds); records of one grid and ``K`` are computed together, :data:`_STACKED_ENTRIES`
+    feature values at a time."""
     together: dict[tuple[Grid, int], list[int]] = defaultdict(list)
     for index, r in enumerate(records):
-        if _sized(r):
+        if _sized(r) and not _size_faults(r):
             together[r.grid, r.num_features].append(index)
-    for indices in together.values():
-        chosen = [records[i] for i in indices]
-        features = np.stack([_feature_matrix(r.grid, r.features) for r in chosen])
-        theta = np.array([r.theta for r in chosen], dtype=np.float64)
-        theta_hat = np.array([r.theta_hat for r in chosen], dtype=np.float64)
-        expected = np.linalg.norm(np.einsum("bsk,bk->bs", features, theta - theta_hat), axis=1)
-        for index, r, value in zip(indices, chosen, expected.tolist(), strict=True):
-            logged = r.measures.reward_l2
-            if not math.isclose(logged, value, rel_tol=L2_TOLERANCE, abs_tol=L2_TOLERANCE):
-                yield (
-                    index,
-                    f"measures.reward_l2 is {logged} but ||Phi theta - Phi theta_hat|| = {value}",
-                )
+    for (grid, k), group in together.items():
+        step = max(1, _STACKED_ENTRIES // (grid.width * grid.height * k))
+        for start in range(0, len(group), step):
+            yield from _l2_faults(records, group[start : start + step])
+
+
+def _l2_faults(records: Sequence[TrialRecord], indices: list[int]) -> Iterator[tuple[int, str]]:
+    """:func:`_reward_l2_faults` of ``records[i]`` for ``i`` in ``indices`` (one grid and
+    ``K``), in one array product."""
+    chosen = [records[i] for i in indices]
+    features = np.stack([_feature_matrix(r.grid, r.features) for r in chosen])
+    theta = np.array([r.theta for r in chosen], dtype=np.float64)
+    theta_hat = np.array([r.theta_hat for r in chosen], dtype=np.float64)
+    expected = np.linalg.norm(np.einsum("bsk,bk->bs", features, theta - theta_hat), axis=1)
+    for index, r, value in zip(indices, chosen, expected.tolist(), strict=True):
+        logged = r.measures.reward_l2
+        if not math.isclose(logged, value, rel_tol=L2_TOLERANCE, abs_tol=L2_TOLERANCE):
+            yield (
+                index,
+                f"measures.reward_l2 is {logged} but ||Phi theta - Phi theta_hat|| = {value}",
+            )
 
 
 @functools.lru_cache(maxsize=64)
@@ -200,12 +267,21 @@ def _gridworld(grid: Grid) -> Gridworld:
     return Gridworld(grid.width, grid.height)
 
 
-@functools.lru_cache(maxsize=4096)
 def _feature_matrix(grid: Grid, features: RBFFeatures) -> NDArray[np.float64]:
-    """``Phi`` of a grid and its features, computed once for all the trials of a subject."""
+    """``Phi`` of a grid and its features, computed once for all the trials of a subject when
+    it is small (:data:`_CACHED_FEATURE_ENTRIES`)."""
+    if grid.width * grid.height * len(features.centers) > _CACHED_FEATURE_ENTRIES:
+        return _features(grid, features)
+    return _cached_features(grid, features)
+
+
+def _features(grid: Grid, features: RBFFeatures) -> NDArray[np.float64]:
     matrix = rbf_features(_gridworld(grid), features.centers, features.sigma)
     matrix.flags.writeable = False
     return matrix
+
+
+_cached_features = functools.lru_cache(maxsize=4096)(_features)
 
 
 def _path_faults(

@@ -5,7 +5,10 @@ without losing the chunks after it, and a truncated file yields everything befor
 Checked: the magic bytes at both ends; each chunk's CRC of its uncompressed data; the
 data-section CRC in the Data End record; the summary CRC in the footer; the summary's
 statistics (message counts per channel, chunk, metadata, schema and channel counts) and its
-chunk and metadata indexes against what the data section really holds.
+chunk and metadata indexes against what the data section really holds. The file is read and
+its chunks inflated within the bounds of :mod:`cirl_study.logs.bounds`: a file that cannot be
+read (not a regular file, too long) is unreadable, a chunk past a bound is damaged, and the
+walk ends at the first record past the file's record bound.
 """
 
 from __future__ import annotations
@@ -34,7 +37,9 @@ from mcap.records import (
     Schema,
     Statistics,
 )
-from mcap.stream_reader import breakup_chunk
+
+from cirl_study.files import UnreadableFile
+from cirl_study.logs.bounds import BoundExceeded, Budget, read_log
 
 MAGIC = b"\x89MCAP0\r\n"
 RECORD_PREFIX = 9
@@ -55,9 +60,6 @@ PARSE_ERRORS = (
     RuntimeError,
     MemoryError,
 )
-#: A chunk announcing more uncompressed bytes than this is taken as damaged, not decompressed
-#: (the writer closes chunks at about 1 MiB).
-MAX_CHUNK_BYTES = 1 << 30
 
 
 @dataclass
@@ -66,7 +68,8 @@ class FileScan:
 
     ``messages`` holds the messages of intact chunks only, in file order; ``faults`` lists
     every problem found (empty for a sound file); ``readable`` is false when the file is not
-    an MCAP file at all.
+    an MCAP file at all, or could not be read (not a regular file, too long); ``budget`` is
+    what reading it has spent.
     """
 
     path: Path
@@ -88,6 +91,7 @@ class FileScan:
     metadata_indexes: list[MetadataIndex] = field(default_factory=list)
     summary_schemas: dict[int, Schema] = field(default_factory=dict)
     summary_channels: dict[int, Channel] = field(default_factory=dict)
+    budget: Budget = field(default_factory=Budget)
 
     def channel_ids(self, topic: str) -> list[int]:
         """Ids of the channels of ``topic``."""
@@ -109,7 +113,16 @@ class FileScan:
 
 def scan_file(path: Path) -> FileScan:
     """Walk the file at ``path`` and check everything listed in the module docstring."""
-    data = path.read_bytes()
+    try:
+        data = read_log(path)
+    except UnreadableFile as error:
+        return FileScan(path=path, size=0, readable=False, faults=[error.reason])
+    return scan_data(path, data)
+
+
+def scan_data(path: Path, data: bytes) -> FileScan:
+    """:func:`scan_file` of ``data``, the content of the file ``path`` (read by
+    :func:`~cirl_study.logs.bounds.read_log`)."""
     scan = FileScan(path=path, size=len(data))
     if data[: len(MAGIC)] != MAGIC:
         scan.readable = False
@@ -128,6 +141,11 @@ def _walk(data: bytes, scan: FileScan) -> None:
     while True:
         if position + RECORD_PREFIX > len(data):
             scan.faults.append(f"truncated: the file ends at byte {len(data)} without a footer")
+            return
+        try:
+            scan.budget.parsed()
+        except BoundExceeded as error:
+            scan.faults.append(f"unread past byte {position}: {error}")
             return
         opcode, length = struct.unpack_from("<BQ", data, position)
         end = position + RECORD_PREFIX + length
@@ -200,8 +218,7 @@ def _chunk(scan: FileScan, chunk: Chunk, position: int) -> None:
     if chunk.uncompressed_crc == 0:
         scan.faults.append(f"chunk at byte {position} carries no CRC")
     try:
-        _check_chunk_size(chunk)
-        records = breakup_chunk(chunk, validate_crc=True)
+        records = _chunk_records(scan.budget, scan.budget.inflate(chunk))
     except PARSE_ERRORS as error:
         scan.damaged_chunks += 1
         scan.faults.append(f"damaged chunk at byte {position}: {error}")
@@ -211,46 +228,35 @@ def _chunk(scan: FileScan, chunk: Chunk, position: int) -> None:
             scan.schemas[record.id] = record
         elif isinstance(record, Channel):
             scan.channels[record.id] = record
-        elif isinstance(record, Message):
+        else:
             scan.messages.append(record)
 
 
-def _check_chunk_size(chunk: Chunk) -> None:
-    """Refuse to decompress a chunk whose announced sizes are implausible or disagree.
-
-    Neither the chunk's ``uncompressed_size`` nor a zstd frame's content size is covered by the
-    chunk CRC; a damaged one could make the decompressor allocate gigabytes.
-    """
-    if chunk.uncompressed_size > MAX_CHUNK_BYTES:
-        raise ValueError(f"implausible uncompressed size {chunk.uncompressed_size}")
-    if chunk.compression == "zstd":
-        frame_size = zstandard.frame_content_size(chunk.data)  # -1: not recorded in the frame
-        if frame_size not in (-1, chunk.uncompressed_size):
-            raise ValueError(
-                f"zstd frame holds {frame_size} bytes, the chunk announces "
-                f"{chunk.uncompressed_size}"
-            )
-
-
-def decompressed_chunk(chunk: Chunk) -> bytes:
-    """A chunk's records, decompressed (zstd or none) with its uncompressed CRC checked.
+def _chunk_records(budget: Budget, raw: bytes) -> list[Schema | Channel | Message]:
+    """The schemas, channels and messages of a chunk's decompressed records, in order (other
+    records, which MCAP allows in a chunk, are skipped); each counts in ``budget``.
 
     Raises:
-        ValueError: implausible sizes (:func:`_check_chunk_size`), another compression, or a
-            CRC mismatch.
+        BoundExceeded: the file's records pass their bound.
+        ValueError: a record runs past the end of the chunk.
     """
-    _check_chunk_size(chunk)
-    if chunk.compression == "zstd":
-        raw = zstandard.ZstdDecompressor().decompress(
-            chunk.data, max_output_size=chunk.uncompressed_size
-        )
-    elif chunk.compression == "":
-        raw = chunk.data
-    else:
-        raise ValueError(f"unsupported chunk compression {chunk.compression!r}")
-    if len(raw) != chunk.uncompressed_size or zlib.crc32(raw) != chunk.uncompressed_crc:
-        raise ValueError("chunk CRC mismatch")
-    return raw
+    records: list[Schema | Channel | Message] = []
+    position = 0
+    while position < len(raw):
+        budget.parsed()
+        opcode, length = struct.unpack_from("<BQ", raw, position)
+        end = position + RECORD_PREFIX + length
+        if end > len(raw):
+            raise ValueError(f"a record at byte {position} of the chunk runs past its end")
+        body = raw[position + RECORD_PREFIX : end]
+        if opcode == Opcode.SCHEMA:
+            records.append(Schema.read(_stream(body)))
+        elif opcode == Opcode.CHANNEL:
+            records.append(Channel.read(_stream(body)))
+        elif opcode == Opcode.MESSAGE:
+            records.append(Message.read(_stream(body), length))
+        position = end
+    return records
 
 
 def _data_section_crc_holds(data: bytes, data_end_position: int, stored: int) -> bool:

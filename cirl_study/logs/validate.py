@@ -3,8 +3,9 @@
 A file is OK when :func:`~cirl_study.logs.scan.scan_file` finds no storage fault (magic,
 framing, chunk / data-section / summary CRCs, summary counts and indexes) and
 :func:`~cirl_study.logs.contents.read_file_contents` no content fault (provenance, schemas and
-encodings, every record complete and consistent, time layout, replay counts). The run is OK
-when every file is, no unfinished temporary file is left,
+encodings, every record complete and consistent, time layout, replay counts); an entry named
+like a log that is no regular file, or a file past a bound of :mod:`cirl_study.logs.bounds`,
+fails with what it is. The run is OK when every file is, no temporary file is left,
 :func:`~cirl_study.logs.run_checks.run_faults` finds nothing. Whether the logs hold exactly
 the trials the run's pipeline plans is the study's question
 (:func:`cirl_study.study.audit.plan_faults`); ``cirl-study validate`` asks both.
@@ -15,6 +16,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from cirl_study.escape import terminal
+from cirl_study.files import non_regular
 from cirl_study.logs.contents import read_file_contents
 from cirl_study.logs.format import log_files, temp_files
 from cirl_study.logs.lock import writer_pid
@@ -89,7 +92,13 @@ def validate_run(run_dir: str | Path) -> RunVerdict:
         verdicts.append(verdict)
         files.append((verdict.path, rows, provenance))
     faults = run_faults(files) if verdicts else ["no complete log files (*.mcap)"]
-    unfinished = temp_files(run_dir)
+    unfinished = []
+    for path in temp_files(run_dir):
+        reason = non_regular(path)
+        if reason is None:
+            unfinished.append(path)
+        else:
+            faults.append(f"{terminal(path)}: {reason}, not a temporary log file")
     pid = writer_pid(run_dir) if unfinished else None
     if pid is not None:
         faults.append(

@@ -9,11 +9,13 @@ the trials it plans are listed (a run's plan is held in memory).
 from __future__ import annotations
 
 from cirl_study.errors import UserError
+from cirl_study.logs.bounds import MAX_FILE_RECORDS, MAX_FILE_TRIALS
 from cirl_study.study.plan import trial_counts
 from cirl_study.study.spec import Pipeline
 
-MAX_BATCH = 250
-"""Most trials sent to a worker at once (and logged in one file)."""
+MAX_BATCH = MAX_FILE_TRIALS
+"""Most trials sent to a worker at once (and logged in one file): what a reader takes of a
+file (:data:`cirl_study.logs.bounds.MAX_FILE_TRIALS`)."""
 
 MAX_TRIALS = 2_000_000
 """Most trials a pipeline may plan: the plan holds every trial's spec in memory (about 1 KB
@@ -56,13 +58,24 @@ def batch_memory(pipeline: Pipeline) -> int:
     return trials + repeated + ENUMERATION_BYTES_PER_PATH * teaching.learning_paths
 
 
+def batch_messages(pipeline: Pipeline) -> int:
+    """Messages of the log file of one batch of :data:`MAX_BATCH` trials: per trial its
+    record, two reward maps and a message per step of the demonstration and of the
+    deployment (:func:`cirl_study.logs.episode.replay_counts`)."""
+    game = pipeline.game
+    return MAX_BATCH * (3 + game.learning_steps + 1 + game.deployment_steps + 1)
+
+
 def check_resources(pipeline: Pipeline, label: str) -> None:
-    """Refuse a pipeline that cannot fit the machine, in one line beginning with ``label``
-    (the file it was read from).
+    """Refuse a pipeline that cannot fit the machine, or whose log files its readers would
+    refuse, in one line beginning with ``label`` (the file it was read from).
 
     Raises:
-        UserError: more than :data:`MAX_TRIALS` trials, or a batch over
-            :data:`BATCH_MEMORY_BUDGET` (:func:`batch_memory`).
+        UserError: more than :data:`MAX_TRIALS` trials, a batch over
+            :data:`BATCH_MEMORY_BUDGET` (:func:`batch_memory`), or a batch's log file of
+            more than half the records a reader takes of a file
+            (:data:`~cirl_study.logs.bounds.MAX_FILE_RECORDS`; the other records of a file,
+            its chunks and indexes, are far fewer than its messages).
     """
     total = sum(trial_counts(pipeline).values())
     if total > MAX_TRIALS:
@@ -76,4 +89,10 @@ def check_resources(pipeline: Pipeline, label: str) -> None:
             f"{label}: one batch of trials would need about {need / 2**30:.3g} GiB, "
             f"more than the {BATCH_MEMORY_BUDGET / 2**30:g} GiB budget; shrink the grid, "
             "the horizons or the largest feature level"
+        )
+    messages = batch_messages(pipeline)
+    if messages > MAX_FILE_RECORDS // 2:
+        raise UserError(
+            f"{label}: one batch's log file would hold {messages} messages, more than "
+            f"the {MAX_FILE_RECORDS // 2} a log file may; shorten the horizons"
         )

@@ -5,7 +5,8 @@ and holds complete MCAP files only: each batch of trials is written by this proc
 own file under a temporary name and renamed when complete
 (:class:`~cirl_study.logs.TrialLogWriter`). A run killed at any moment therefore loses at
 most the batches in flight. Started again, it deletes the temporary files, skips every
-trial whose id is already in a complete file and plays the rest; since a trial's record
+trial whose record a complete file holds (decoded and checked, never taken from the file's
+own index) and plays the rest; since a trial's record
 depends only on its identity (:mod:`cirl_study.study.plan`), the finished directory holds the
 same records as an uninterrupted run, each exactly once.
 
@@ -29,10 +30,11 @@ from pathlib import Path
 import msgspec
 
 from cirl_study.errors import UserError
+from cirl_study.files import non_regular, remove_file
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
 from cirl_study.logs.lock import writer_lock
 from cirl_study.logs.provenance import RunIdentity, collect_provenance
-from cirl_study.logs.reader import logged_trials, read_trials
+from cirl_study.logs.reader import LoggedRun, logged_run
 from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.engines import Engine
@@ -142,17 +144,26 @@ def run_identity(pipeline: Pipeline) -> RunIdentity:
     return RunIdentity(pipeline.run_id, pipeline.name, path_argument(pipeline.path), pipeline.text)
 
 
-def prepare_run_directory(out_dir: Path, identity: RunIdentity) -> set[str]:
-    """Make ``out_dir`` ready for this run; return the ids of the trials it holds.
+def prepare_run_directory(out_dir: Path, identity: RunIdentity) -> LoggedRun:
+    """Make ``out_dir`` ready for this run; return what it holds.
 
     Refuses damaged log files and log files of another run (another pipeline file, or
     another version of it), since a run's records must all come from one specification
-    (:func:`~cirl_study.logs.logged_trials`); then deletes the temporary files of an
-    interrupted run, which only this process, holding the writer lock, may own.
+    (:func:`~cirl_study.logs.reader.logged_run`); then deletes the temporary files of an
+    interrupted run, which only this process, holding the writer lock, may own. An entry
+    named like a temporary file that is no regular file (a link, a FIFO, a directory) was not
+    made by a run: it is refused, not deleted.
     """
-    logged = logged_trials(out_dir, identity)
-    for path in temp_files(out_dir):
-        path.unlink()
+    logged = logged_run(out_dir, identity)
+    temporaries = temp_files(out_dir)
+    for path in temporaries:
+        reason = non_regular(path)
+        if reason is not None:
+            raise UserError(
+                f"{path}: {reason}, not a temporary log file of a run; move it out of {out_dir}"
+            )
+    for path in temporaries:
+        remove_file(path)
     return logged
 
 
@@ -164,6 +175,8 @@ class _Session:
     out_dir: Path
     provenance: dict[str, str]
     progress: ProgressHooks
+    logged: LoggedRun
+    """What the directory held before this call."""
     done: set[str]
     play_seconds: float = 0.0
     """Seconds the workers spent playing the batches of this call, summed over workers."""
@@ -204,15 +217,15 @@ def _cross_validate(
 ) -> dict[tuple[str | None, str, int], EtaChoice]:
     """Play block ``eta_cv`` and choose eta from its records.
 
-    The records of trials logged before this call are read back from the logs; those played
-    now are taken as they were logged (the log holds them byte for byte, and JSON keeps every
-    float exactly), which spares reading the files just written.
+    The records of trials logged before this call are read back from the logs (the files
+    read when the run was prepared); those played now are taken as they were logged (the log
+    holds them byte for byte, and JSON keeps every float exactly), which spares reading the
+    files just written.
     """
     logged_before = {trial.trial_id for trial in trials} & session.done
     rows: dict[str, TrialRow] = {}
     if logged_before:
-        identity = RunIdentity.of(session.provenance)
-        logged = read_trials(session.out_dir, identity, logged_before)
+        logged = session.logged.records(logged_before)
         rows = {record.trial_id: TrialRow.of(record) for record in logged}
     for batch in session.play(trials):
         rows.update((record.trial_id, TrialRow.of(record)) for record in batch)
@@ -271,13 +284,14 @@ def _run_locked(
     """:func:`run_pipeline` once this process holds the directory's writer lock."""
     identity = run_identity(pipeline)
     provenance = collect_provenance(identity, out_dir)
-    done = prepare_run_directory(out_dir, identity)
+    logged = prepare_run_directory(out_dir, identity)
+    done = logged.trial_ids
     resumed = len(done)
     total = sum(trial_counts(pipeline).values())
     if resumed < total:
         hooks.note("preparing the numerical kernels (compiled on a first run, then cached)")
         warm_up(pipeline)
-    session = _Session(engine, out_dir, provenance, hooks, done)
+    session = _Session(engine, out_dir, provenance, hooks, logged, done)
     with engine:
         hooks.start(total, resumed)
         play_began = time.perf_counter()

@@ -85,6 +85,12 @@ PIPELINES_DIRECTORY = "pipelines"
 MAX_PIPELINE_BYTES = 1 << 20
 """Largest pipeline file read: every log file of a run carries the whole text."""
 
+MAX_PIPELINE_NESTING = 8
+"""Most levels of tables and arrays a pipeline nests, its top table counting one. A valid
+pipeline nests at most four (a multiverse axis: the file, ``[multiverse]``, ``cross`` and the
+axis's list of levels); the bound leaves room for new keys and keeps every check of a value
+far from the interpreter's recursion limit (the parser itself recurses at about 500 levels)."""
+
 _NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
@@ -521,6 +527,24 @@ def _is_positive_number(value: Any) -> bool:
     )
 
 
+def _too_deep(data: dict[str, Any]) -> str | None:
+    """The key of ``data`` (a parsed TOML document) whose value nests past
+    :data:`MAX_PIPELINE_NESTING` levels, if any (found without recursion)."""
+    pending: list[tuple[object, int, str]] = [(data, 1, "")]
+    while pending:
+        value, depth, key = pending.pop()
+        if isinstance(value, dict):
+            children = [(f"{key}.{k}" if key else k, v) for k, v in value.items()]
+        elif isinstance(value, list):
+            children = [(key, v) for v in value]
+        else:
+            continue
+        if depth > MAX_PIPELINE_NESTING:
+            return key
+        pending += [(child, depth + 1, name) for name, child in children]
+    return None
+
+
 def _display_path(path: Path) -> str:
     """``path`` relative to the current directory when it lies below it, else as given."""
     try:
@@ -551,11 +575,18 @@ def parse_pipeline(text: str, path: Path, *, label: str | None = None) -> Pipeli
     Every error is one line beginning with ``label``, by default ``path`` as the user sees it.
     """
     label = _display_path(path) if label is None else label
-    _check_size(label, len(text.encode()))
+    # A character is at least one byte: a text of too many is not encoded to be measured.
+    _check_size(label, len(text) if len(text) > MAX_PIPELINE_BYTES else len(text.encode()))
+    nested = f"nests deeper than {MAX_PIPELINE_NESTING} levels of tables and arrays"
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as error:
         raise UserError(f"{label}: not valid TOML: {error}") from None
+    except RecursionError:
+        raise UserError(f"{label}: {nested}") from None
+    deep = _too_deep(data)
+    if deep is not None:
+        raise UserError(f"{label}: {deep} {nested}")
     top = _Table(
         label,
         "",
