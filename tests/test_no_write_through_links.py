@@ -10,6 +10,7 @@ import os
 from pathlib import Path
 
 import pytest
+from cli_results import one_line_error
 from test_logs_helpers import provenance_for
 from typer.testing import CliRunner
 
@@ -26,14 +27,6 @@ def victim(tmp_path: Path) -> Path:
     path = tmp_path / "victim.txt"
     path.write_text(VICTIM)
     return path
-
-
-def one_line_error(result, *fragments: str) -> None:
-    assert result.exit_code == 2, result.output
-    message = result.output.strip()
-    assert message.startswith("error: ") and len(message.splitlines()) == 1, message
-    for fragment in fragments:
-        assert fragment in message, message
 
 
 def test_a_link_in_place_of_the_lock_file_is_refused(tmp_path: Path) -> None:

@@ -14,6 +14,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from cli_results import one_line_error
 from typer.testing import CliRunner
 
 from cirl_study.analysis import output, replacement
@@ -39,15 +40,6 @@ def snapshot(directory: Path) -> dict[str, bytes | str]:
 
 def temporaries(report: Path) -> list[Path]:
     return sorted(report.parent.glob(f".{report.name}.tmp-*"))
-
-
-def one_line_error(result, *fragments: str) -> str:
-    assert result.exit_code == 2, result.output
-    message = result.output.strip()
-    assert message.startswith("error: ") and len(message.splitlines()) == 1, message
-    for fragment in fragments:
-        assert fragment in message, message
-    return message
 
 
 def analyze(run: Path, report: Path, *options: str):
