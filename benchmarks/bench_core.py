@@ -6,7 +6,7 @@ Usage::
                                     [--rationalities 1 100 1000]
 
 Plays ``--trials`` trials (10x10 grid, start [5, 5], 9 + 9 steps, sigma and lambda
-from ``pipelines/paper.toml`` or the given ``--rationalities``, centres and theta drawn as
+from ``pipelines/paper.toml`` or the given ``--rationalities``, centers and theta drawn as
 the pipeline draws them) for K = 3 and K = 10 in one process on one core, ``--repeats``
 times, and prints the median wall time per trial of each stage and of the whole
 best-response and expert trial (:func:`cirl_study.core.trial.play_trials`). The first

@@ -6,7 +6,7 @@ Usage::
         [--rationalities 1e-4 ... 1e3] [--budget 2048]
 
 Draws ``--trials`` trials of the paper's game (``pipelines/paper.toml``: 10x10 grid, 9 steps
-from [5, 5], RBF sigma 1.5, centres uniform over the grid, theta ~ U[-1, 1]^K), the expert's
+from [5, 5], RBF sigma 1.5, centers uniform over the grid, theta ~ U[-1, 1]^K), the expert's
 demonstrations, and runs :func:`cirl_study.core.posterior.posterior_mean_estimate` on each
 trial alone, on one core (BLAS and OpenMP limited to one thread), ``--repeats`` times. Per
 ``K`` and lambda it prints, over the trials: the median and the largest time per trial (each

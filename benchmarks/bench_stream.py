@@ -42,7 +42,7 @@ learning_steps = 2
 deployment_steps = 2
 sigma = 1.0
 feature_levels = [2, 3]
-centres = "per_draw"
+centers = "per_draw"
 demonstrator_stays = true
 deployment_start = "uniform"
 

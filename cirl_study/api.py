@@ -65,11 +65,11 @@ def run(pipeline: str | os.PathLike[str], out: str | os.PathLike[str], workers: 
 
 def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
     """The tidy trial table of a run: one row per trial, its identity, its measures and
-    whether its robot certified the estimate.
+    whether its robot's estimate met its stopping rule.
 
     The columns are those of ``trials.csv`` (``docs/pipelines.md``, *The trial table*):
     ``trial_id, run_id, universe, block, subject, policy, robot, num_features, rationality,
-    eta, seed, regret, kl, reward_l2, certified``; rows in a fixed order whatever the order of
+    eta, seed, regret, kl, reward_l2, converged``; rows in a fixed order whatever the order of
     the logs. The run may be incomplete: it holds what the logs hold.
     """
     from cirl_study.analysis.table import trial_table

@@ -50,7 +50,7 @@ PAPER_POLICIES: tuple[str, ...] = (EXPERT, BEST_RESPONSE)
 MAP, POSTERIOR_MEAN = "map", "posterior_mean"
 """The robots: the paper's MAP estimate of MaxEnt IRL, and the Bayes-optimal posterior mean."""
 
-LITERAL_ROBOT, PRAGMATIC = "literal", "pragmatic"
+LITERAL_OBSERVER, PRAGMATIC = "literal_observer", "pragmatic"
 """The robots of a hypothesis space: Bayes with the literal likelihood, and Bayes assuming the
 pedagogic human (Fisac et al. 2017; :mod:`cirl_study.core.teaching`)."""
 
@@ -209,10 +209,10 @@ class TrialRecord(TrialSpec, **_STRUCT):
 class TrialRow(msgspec.Struct, **_STRUCT):
     """What the analysis and the run's checks keep of a record: one row of the trial table.
 
-    A record is ~15 KB in memory (its paths, rollouts and reward draw); a row is a few hundred
-    bytes, so a run of a million trials is read one file at a time into rows
-    (:meth:`of`) and analysed in memory. ``certified``: the robot certified its estimate
-    (``irl.converged``; a record without a fit report counts as certified). ``draw``: a
+    A record holds its paths, rollouts and reward draw, a row a dozen numbers and names, so a
+    run of a million trials is read one file at a time into rows (:meth:`of`) and analysed in
+    memory. ``converged``: the robot's estimate met its stopping rule (``irl.converged``; a
+    record without a fit report counts as converged). ``draw``: a
     digest of the subject's reward draw (``num_features``, ``theta``, the features, the grid
     and the start cell), equal for two records exactly when their draws are (up to a
     BLAKE2b collision), so one subject's trials can be checked to share one draw.
@@ -230,7 +230,7 @@ class TrialRow(msgspec.Struct, **_STRUCT):
     eta: float | None
     seed: int
     measures: Measures
-    certified: bool
+    converged: bool
     draw: str
 
     @classmethod
@@ -249,14 +249,14 @@ class TrialRow(msgspec.Struct, **_STRUCT):
             eta=record.eta,
             seed=record.seed,
             measures=record.measures,
-            certified=record.irl is None or record.irl.converged,
+            converged=record.irl is None or record.irl.converged,
             draw=draw_digest(record),
         )
 
 
 def setting_faults(spec: TrialSpec) -> list[str]:
     """Every way ``spec``'s settings break the rules their types cannot state: ``theta`` and
-    the RBF centres have ``num_features`` entries each, and the start ``s_0`` lies on the grid
+    the RBF centers have ``num_features`` entries each, and the start ``s_0`` lies on the grid
     (empty for a sound spec). A record (a :class:`TrialSpec` too) is checked by the same
     rules before it is believed (:mod:`cirl_study.logs.record_checks`).
 

@@ -40,7 +40,7 @@ def _walk(rng: np.random.Generator) -> dict[str, list]:
 
 
 def _centers(rng: np.random.Generator, count: int) -> list[list[float]]:
-    """``count`` RBF centres drawn uniformly over the grid."""
+    """``count`` RBF centers drawn uniformly over the grid."""
     return [
         [float(rng.uniform(0, WIDTH - 1)), float(rng.uniform(0, HEIGHT - 1))] for _ in range(count)
     ]

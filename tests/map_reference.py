@@ -37,7 +37,7 @@ At ``lambda`` of 100 and more the weights span thousands of orders of magnitude:
 ``lambda = 1e4`` a path ``0.1`` worse than the best weighs ``exp(-1000)`` relative to it,
 below the smallest double (``exp(-745)``). In double precision the gradient and Hessian then
 underflow to exactly zero long before the estimate is pinned down, and the MAP cannot be
-located, let alone certified. ``mpmath`` numbers carry an unbounded exponent, so
+located, let alone converged. ``mpmath`` numbers carry an unbounded exponent, so
 ``exp(-1e4)`` is an ordinary number; with ``dps`` (default 60) significant digits every
 weight, gradient and Hessian entry keeps its relative accuracy. The evaluation is written
 so that it does: all weights are taken relative to a reference group (the heaviest at the
@@ -71,7 +71,7 @@ Inputs, and what double precision can ask of the answer
 Counts are taken as given in double precision (they are inputs): each multiset of visited
 cells gets one exactly rounded count vector, and count vectors equal to ``1e-12`` (relative)
 are merged, so that reorderings of the demonstration's cells get ``Delta = 0`` exactly.
-Some instances have a unique, certified MAP that double-precision inputs nevertheless do not
+Some instances have a unique, converged MAP that double-precision inputs nevertheless do not
 pin down: when the LP limit is not unique, ``L`` can be flat to ``1e-18`` along a direction
 at ``lambda = 1e4``, and two ulps in the counts move the MAP by ``1e-3``.
 ``Certificate.input_sensitivity`` estimates that motion; the cases of
@@ -122,7 +122,7 @@ MAX_FEATURES = 8
 
 
 class MapNotDetermined(ArithmeticError):
-    """The MAP could not be certified: not unique, or not resolvable at this precision."""
+    """The MAP could not be converged: not unique, or not resolvable at this precision."""
 
 
 # --------------------------------------------------------------------------------------------
@@ -307,11 +307,11 @@ class _LogSumExp:
             self.lam * (abs(self.delta[r][i]) + mp.fsum(w[j] * abs(rel[j][i]) for j in others))
             for i in range(k)
         ]
-        centred = [[x - m for x, m in zip(row, mean, strict=True)] for row in rel]
+        centered = [[x - m for x, m in zip(row, mean, strict=True)] for row in rel]
         hess = mp.matrix(k, k)
         for a in range(k):
             for b in range(a, k):
-                c = mp.fsum(w[j] * centred[j][a] * centred[j][b] for j in range(g))
+                c = mp.fsum(w[j] * centered[j][a] * centered[j][b] for j in range(g))
                 hess[a, b] = hess[b, a] = self.lam**2 * c
         return grad, hess, spread
 
@@ -647,7 +647,7 @@ def _slope_search(obj: _LogSumExp, theta, direction, slope):
 
 
 def _projected_newton(obj: _LogSumExp, tol, max_iter: int):
-    """Minimise ``obj`` over the box from ``theta = 0``; return the certified point.
+    """Minimise ``obj`` over the box from ``theta = 0``; return the converged point.
 
     Each step minimises the quadratic model exactly over the box (:func:`_box_newton_step`),
     which finds the optimal face at once, then backtracks (Armijo) along that step, which
@@ -682,7 +682,7 @@ def _projected_newton(obj: _LogSumExp, tol, max_iter: int):
         if accepted is None:
             raise _not_determined("no descent", theta, cert)
         theta = accepted
-    raise MapNotDetermined(f"not certified after {max_iter} Newton steps, at {_fmt(theta)}")
+    raise MapNotDetermined(f"not converged after {max_iter} Newton steps, at {_fmt(theta)}")
 
 
 def reference_map_details(
@@ -713,7 +713,7 @@ def reference_map_details(
         grad, hess, spread = full.derivatives(theta, r)
         cert = _certify(full, theta, grad, hess, spread, tol_mp)
         if not cert.ok:
-            raise _not_determined("not certified on L", theta, cert)
+            raise _not_determined("not converged on L", theta, cert)
         log_lik = -full.value(theta)
     return ReferenceResult(
         theta=np.array([float(t) for t in theta]),
@@ -738,10 +738,10 @@ def reference_map(
     dps: int = 60,
     tol: float = 1e-12,
 ) -> np.ndarray:
-    """The certified MAP ``argmax_{theta in [-1, 1]^K} L(theta)`` as a float64 ``(K,)`` array.
+    """The converged MAP ``argmax_{theta in [-1, 1]^K} L(theta)`` as a float64 ``(K,)`` array.
 
     Accurate to about ``tol`` in every coordinate (plus the final rounding to double). Raises
-    :class:`MapNotDetermined` when the maximiser cannot be certified to be unique at ``dps``
+    :class:`MapNotDetermined` when the maximiser cannot be converged to be unique at ``dps``
     digits.
     """
     return reference_map_details(
@@ -891,7 +891,7 @@ def reference_case_details(name: str) -> ReferenceResult:
 
 @functools.cache
 def reference_theta(name: str) -> np.ndarray:
-    """The certified reference MAP of the named case, read-only (computed once, then cached)."""
+    """The converged reference MAP of the named case, read-only (computed once, then cached)."""
     theta = reference_case_details(name).theta.copy()
     theta.setflags(write=False)
     return theta

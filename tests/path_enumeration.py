@@ -223,10 +223,10 @@ def feature_covariance(
 ) -> np.ndarray:
     """``(K, K)`` ``Cov[phi(tau) | theta, lambda]`` by summing over the enumerated paths."""
     p = np.exp(path_log_probs(counts, theta, rationality))
-    centred = counts - expected_features(counts, theta, rationality)
+    centered = counts - expected_features(counts, theta, rationality)
     k = counts.shape[1]
     return np.array(
-        [[math.fsum(p * centred[:, i] * centred[:, j]) for j in range(k)] for i in range(k)]
+        [[math.fsum(p * centered[:, i] * centered[:, j]) for j in range(k)] for i in range(k)]
     )
 
 
@@ -537,7 +537,7 @@ def random_game(
 ) -> tuple[np.random.Generator, np.ndarray, np.ndarray, np.ndarray]:
     """A seeded random game: ``(rng, features (S, K), every path (N, T + 1), their counts)``.
 
-    Centres uniform over the grid's extent, ``sigma`` uniform on ``[0.8, 2]``; ``rng`` is
+    Centers uniform over the grid's extent, ``sigma`` uniform on ``[0.8, 2]``; ``rng`` is
     left where the draw ended, for the caller's further draws.
     """
     rng = np.random.default_rng(seed)

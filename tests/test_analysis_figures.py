@@ -178,7 +178,7 @@ def test_figure1_explains_its_step_labels_and_shading(pair):
 @pytest.mark.parametrize("humans", [5, 8])
 def test_the_cell_figure_labels_its_axes_and_its_human_names_do_not_collide(humans):
     names = [f"human_number_{i}" for i in range(humans)]
-    robots = ["map", "literal", "pragmatic"]
+    robots = ["map", "literal_observer", "pragmatic"]
     cells = pd.DataFrame(
         [
             {"measure": m, "num_features": k, "policy": h, "robot": r, "mean": 1.0,

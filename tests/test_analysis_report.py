@@ -76,7 +76,7 @@ def test_results_json_holds_every_section_at_full_precision(reports, records):
     results = json.loads((first / "results.json").read_text(encoding="utf-8"))
     assert {"anova", "cells", "lambda_sweep", "eta_cv", "claims", "paper"} <= set(results)
     paper = results["paper"]
-    assert {"raw", "standardized", "ci95", "rows"} <= set(paper["cronbach_alpha"])
+    assert {"raw", "standardised", "ci95", "rows"} <= set(paper["cronbach_alpha"])
     assert "main block" in paper["cronbach_alpha"]["rows"]
     effects = ("num_features", "policy", "policy:num_features")
     for anova in (results["anova"], paper["anova"]):

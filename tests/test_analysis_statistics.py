@@ -347,7 +347,7 @@ def test_cronbach_alpha_closed_forms(seed, rows, k):
     mean_r = correlations[np.triu_indices(k, 1)].mean()
     alpha = statistics.cronbach_alpha(items)
     assert alpha["raw"] == pytest.approx(raw, rel=1e-9, abs=1e-12)
-    assert alpha["standardized"] == pytest.approx(
+    assert alpha["standardised"] == pytest.approx(
         k * mean_r / (1 + (k - 1) * mean_r), rel=1e-9, abs=1e-12
     )
     low, high = alpha["ci95"]

@@ -248,13 +248,13 @@ def test_the_report_calls_take_few_outer_nodes(monkeypatch):
 def _tukey_frame() -> pd.DataFrame:
     """Feature levels 3 and 10 (30 subjects each), two policies, one far-apart pair."""
     rng = np.random.default_rng(7)
-    centres = {(3, "best_response"): 0.0, (3, "expert"): 0.3, (10, "best_response"): 0.5}
+    centers = {(3, "best_response"): 0.0, (3, "expert"): 0.3, (10, "best_response"): 0.5}
     rows = []
     for level in (3, 10):
         for index in range(30):
             for policy in ("best_response", "expert"):
-                centre = centres.get((level, policy), 3.5)
-                rows.append((f"{level}-{index}", level, policy, rng.normal(centre, 1.0)))
+                center = centers.get((level, policy), 3.5)
+                rows.append((f"{level}-{index}", level, policy, rng.normal(center, 1.0)))
     frame = pd.DataFrame(rows, columns=["subject", "num_features", "policy", "regret"])
     frame.loc[5, "regret"] = np.nan  # pingouin drops it: N = 119, df = 115
     return frame

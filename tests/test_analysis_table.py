@@ -150,7 +150,7 @@ def test_a_row_keeps_the_identity_measures_and_a_digest_of_the_draw():
     row = TrialRow.of(first)
     for name in ("trial_id", "run_id", "block", "subject", "policy", "robot", "eta", "seed"):
         assert getattr(row, name) == getattr(first, name)
-    assert row.measures == first.measures and row.certified
+    assert row.measures == first.measures and row.converged
     same_draw = msgspec.structs.replace(first, trial_id="other", theta_hat=second.theta_hat)
     assert TrialRow.of(same_draw).draw == row.draw
     for change in (

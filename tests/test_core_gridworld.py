@@ -128,7 +128,7 @@ def test_rbf_features_batch_matches_one_at_a_time():
         np.testing.assert_allclose(got[b], bf.rbf_features(5, 4, centers[b], 1.7), rtol=1e-13)
 
 
-def test_rbf_feature_is_one_at_its_centre_and_decays():
+def test_rbf_feature_is_one_at_its_center_and_decays():
     phi = rbf_features(Gridworld(5, 5), [[2.0, 3.0]], 1.0)[:, 0]
     assert phi[bf.cell(5, 2, 3)] == 1.0
     assert phi[bf.cell(5, 3, 3)] == pytest.approx(np.exp(-0.5), rel=1e-15)
@@ -194,7 +194,7 @@ def test_reference_enumerations_agree(width, height, start, horizon):
 
 
 def test_reference_path_count_at_the_paper_size():
-    # 10 x 10, 9 steps from the centre [5, 5]: fewer than 5^9 because of the border.
+    # 10 x 10, 9 steps from the center [5, 5]: fewer than 5^9 because of the border.
     assert bf.count_paths(10, 10, bf.cell(10, 5, 5), 9) == 1_910_313 < 5**9
     assert bf.count_paths(10, 10, bf.cell(10, 5, 5), 4) == 5**4
 

@@ -293,7 +293,7 @@ def make_game(
     batch: int = 2,
     seed: int = 0,
 ) -> Game:
-    """A seeded game: RBF features with random centres per trial, hypotheses in ``[-1, 1]^K``."""
+    """A seeded game: RBF features with random centers per trial, hypotheses in ``[-1, 1]^K``."""
     rng = np.random.default_rng(seed)
     grid = Gridworld(width, height)
     features = np.stack(
@@ -311,7 +311,7 @@ def make_game(
 
 
 GAMES: dict[str, tuple[int, int, tuple[int, int], int, bool]] = {
-    "3x3-centre-3-stay": (3, 3, (1, 1), 3, True),
+    "3x3-center-3-stay": (3, 3, (1, 1), 3, True),
     "3x3-corner-4-nostay": (3, 3, (0, 0), 4, False),
     "4x3-4-stay": (4, 3, (1, 2), 4, True),
     "4x3-3-nostay": (4, 3, (3, 0), 3, False),
@@ -326,9 +326,9 @@ def test_the_reference_moves_follow_the_engine_s_action_order() -> None:
     """The reference's hard-coded move order is the documented one (stay, N, S, E, W)."""
     assert ACTIONS == ("stay", "N", "S", "E", "W")
     grid = Gridworld(3, 3)
-    centre = grid.index(1, 1)
+    center = grid.index(1, 1)
     for a, (dx, dy) in enumerate(STEPS):
-        assert grid.successors[centre, a] == grid.index(1 + dx, 1 + dy)
+        assert grid.successors[center, a] == grid.index(1 + dx, 1 + dy)
 
 
 @pytest.mark.parametrize(
@@ -377,7 +377,7 @@ def test_visit_classes_group_exactly_the_listed_paths(
     first = classes.representative(everything)
     np.testing.assert_array_equal(first, np.array([listed[members_of[k][0]] for k in class_keys]))
 
-    # path_in: uniforms at the centres of n equal bins pick each of a class's n paths once.
+    # path_in: uniforms at the centers of n equal bins pick each of a class's n paths once.
     rng = np.random.default_rng(1)
     for m in rng.choice(classes.size, size=min(classes.size, 40), replace=False):
         n = int(classes.multiplicity[m])
@@ -397,7 +397,7 @@ def test_visit_classes_group_exactly_the_listed_paths(
 
 
 @pytest.mark.parametrize("rationality", [0.3, 4.0])
-@pytest.mark.parametrize("name", ["3x3-centre-3-stay", "3x3-corner-4-nostay", "4x3-3-nostay"])
+@pytest.mark.parametrize("name", ["3x3-center-3-stay", "3x3-corner-4-nostay", "4x3-3-nostay"])
 def test_log_partition_and_literal_posterior_follow_bayes_rule_path_by_path(
     name: str, rationality: float
 ) -> None:
@@ -426,7 +426,7 @@ def test_log_partition_and_literal_posterior_follow_bayes_rule_path_by_path(
 
 
 @pytest.mark.parametrize("alpha", [0.5, 1.0, 3.0])
-@pytest.mark.parametrize("name", ["3x3-centre-3-stay", "4x3-4-stay", "3x3-corner-4-nostay"])
+@pytest.mark.parametrize("name", ["3x3-center-3-stay", "4x3-4-stay", "3x3-corner-4-nostay"])
 def test_pedagogic_normaliser_and_posterior_sum_over_every_path(name: str, alpha: float) -> None:
     """``pedagogic_log_normaliser`` is ``log sum_tau P_L(h | tau)^alpha`` over the listed
     paths (alpha = 1 is the kernel's special case); ``pedagogic_posterior`` at every path is
@@ -451,7 +451,7 @@ def test_pedagogic_normaliser_and_posterior_sum_over_every_path(name: str, alpha
 
 def test_the_pragmatic_observer_is_not_the_literal_one() -> None:
     """The check above can fail: with alpha != 1 the two posteriors differ at some path."""
-    game = make_game(*GAMES["3x3-centre-3-stay"], rationality=2.0, seed=5)
+    game = make_game(*GAMES["3x3-center-3-stay"], rationality=2.0, seed=5)
     space = game.space(3.0)
     counts = game.counts()
     gaps = [np.abs(space.pedagogic_posterior(c) - space.literal_posterior(c)).max() for c in counts]
@@ -513,7 +513,7 @@ def test_a_normaliser_below_the_floor_is_summed_in_log_space(
     ``sum_tau P_L(h | tau)^alpha`` falls below ``SUM_FLOOR`` (the reference's float64 sum
     confirms it, and for some it underflows to 0 outright). ``log N_h``, the pragmatic
     posterior and the teaching weights still equal the 40-digit references."""
-    width, height, start, horizon, stay = GAMES["3x3-centre-3-stay"]
+    width, height, start, horizon, stay = GAMES["3x3-center-3-stay"]
     rng = np.random.default_rng(21)
     game = make_game(width, height, start, horizon, stay, rationality=rationality, batch=1)
     base = rng.uniform(-1, 1, size=3)

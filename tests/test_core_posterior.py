@@ -27,17 +27,17 @@ from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.players import ROBOTS
 from cirl_study.core.posterior import posterior_mean_estimate
 
-# The tiny game: a 3 x 3 grid, 3 steps from the centre (81 paths), RBF width 1.
+# The tiny game: a 3 x 3 grid, 3 steps from the center (81 paths), RBF width 1.
 WIDTH, HEIGHT, START, HORIZON, SIGMA = 3, 3, 4, 3, 1.0
-CENTRES = ((0.2, 1.8), (2.0, 0.4), (1.6, 1.9))
+CENTERS = ((0.2, 1.8), (2.0, 0.4), (1.6, 1.9))
 THETA = (0.7, -0.4, 0.5)  # the expert's reward (its first K components)
 REFERENCE_TOL = 1e-6  # bound on a reference's own error, checked by refining it
 SIGMAS = 4.0  # allowed error in reported standard errors
 
 
-def _game(k, theta=THETA, centres=CENTRES):
+def _game(k, theta=THETA, centers=CENTERS):
     """Features (S, K), every path's counts (P, K), and the expert's path and its counts."""
-    features = bf.rbf_features(WIDTH, HEIGHT, centres[:k], SIGMA)
+    features = bf.rbf_features(WIDTH, HEIGHT, centers[:k], SIGMA)
     paths = np.array(bf.enumerate_paths(WIDTH, HEIGHT, START, HORIZON))
     counts = bf.feature_counts(paths, features)
     best, _ = bf.expert(counts, theta[:k])
@@ -180,9 +180,9 @@ def _mixed_batch(rationality):
     rng = np.random.default_rng(3)
     features, paths = [], []
     for _ in range(4):
-        centres = rng.uniform(0, 2, size=(3, 2))
+        centers = rng.uniform(0, 2, size=(3, 2))
         theta = rng.uniform(-1, 1, size=3)
-        phi, _, path, _ = _game(3, tuple(theta), tuple(map(tuple, centres)))
+        phi, _, path, _ = _game(3, tuple(theta), tuple(map(tuple, centers)))
         features.append(phi)
         paths.append(path)
     return _model(np.stack(features), rationality), np.stack(paths)

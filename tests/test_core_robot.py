@@ -43,15 +43,15 @@ def _projected_slope(theta_hat, demo_counts, counts, rationality):
     return np.where(outward, 0.0, slope)
 
 
-def _check_map(fit, b, demo, counts, rationality, rng, *, certified=True):
+def _check_map(fit, b, demo, counts, rationality, rng, *, converged=True):
     """theta_hat in the box, KKT, reported LL exact, LL >= random box points and neighbours.
 
     By concavity, L(x) <= L(theta_hat) + grad L . (x - theta_hat) <= L(theta_hat) + gap for every
     x in the box, where gap = 2 lambda ||projected slope||_1: the certificate the fit must meet.
-    ``certified``: the fit must also have certified its estimate (``converged``).
+    ``converged``: the fit must also have converged its estimate (``converged``).
     """
     theta_hat = fit.theta_hat[b]
-    assert fit.converged[b] or not certified
+    assert fit.converged[b] or not converged
     assert np.all((theta_hat >= -1.0) & (theta_hat <= 1.0))
     slope = _projected_slope(theta_hat, demo, counts, rationality)
     assert np.abs(slope).max() <= KKT_TOL
@@ -76,7 +76,7 @@ def test_fit_is_the_box_map_for_random_and_expert_demos(rationality):
     # At large lambda a random path's MAP can lie where the likelihood is flat to rounding
     # (test_map_reference checks those estimates against the high-precision MAP).
     for b, index in enumerate(chosen):
-        _check_map(fit, b, counts[index], counts, rationality, rng, certified=rationality < 100)
+        _check_map(fit, b, counts[index], counts, rationality, rng, converged=rationality < 100)
 
 
 def test_an_interior_map_matches_the_moments():
@@ -151,14 +151,14 @@ def test_fit_is_the_box_map_on_random_instances(instance, data):
         instance.rationality,
     )
     rng = np.random.default_rng(path)
-    # The MAP is unique, and can be certified in double precision, where the count
-    # differences span R^K with room to spare (nearly equal centres leave a direction the
+    # The MAP is unique, and can be converged in double precision, where the count
+    # differences span R^K with room to spare (nearly equal centers leave a direction the
     # likelihood barely sees) and the likelihood is not flat to rounding (lambda < 100 here;
     # larger ones: test_map_reference).
     singular = np.linalg.svd(instance.counts - demo, compute_uv=False)
     spans = len(singular) == len(demo) and singular[-1] > 1e-6 * singular[0]
-    certified = spans and instance.rationality <= 10
-    _check_map(fit, 0, demo, instance.counts, instance.rationality, rng, certified=certified)
+    converged = spans and instance.rationality <= 10
+    _check_map(fit, 0, demo, instance.counts, instance.rationality, rng, converged=converged)
 
 
 def test_fit_at_large_lambda_with_nearly_collinear_features():
@@ -253,11 +253,11 @@ def test_fit_is_the_box_map_at_the_paper_size(case):
     width = height = 10
     start, horizon = bf.cell(10, 5, 5), 9
     if case in _HARD_CASES:
-        rationality, centres, theta = _HARD_CASES[case]
+        rationality, centers, theta = _HARD_CASES[case]
     else:
         rng = np.random.default_rng(int(case[-1]))
-        rationality, centres, theta = 1.0, rng.uniform(0, 9, size=(10, 2)), rng.uniform(-1, 1, 10)
-    features = bf.rbf_features(width, height, centres, 2.0)
+        rationality, centers, theta = 1.0, rng.uniform(0, 9, size=(10, 2)), rng.uniform(-1, 1, 10)
+    features = bf.rbf_features(width, height, centers, 2.0)
     counts = bf.feature_counts_fast(width, height, start, horizon, features)
     expert = bf.expert_fast(counts, theta)[0]
     demo = counts[expert]
@@ -278,7 +278,7 @@ def test_fit_is_the_box_map_at_the_paper_size(case):
 
 @pytest.mark.parametrize(("name", "case"), map_reference.reference_cases())
 def test_fit_equals_the_high_precision_map(name, case):
-    # The certified MAP of map_reference (mpmath, every path enumerated) at lambda from 1e-2 to
+    # The converged MAP of map_reference (mpmath, every path enumerated) at lambda from 1e-2 to
     # 1e4: the fit must certify its estimate and be within its tolerance, 1e-6, of it.
     fit = _fit(
         np.array(case["demo_states"]),
@@ -367,9 +367,9 @@ def test_converged_is_the_certificate_at_the_returned_point_and_the_likelihood_i
     start, horizon = bf.cell(10, 5, 5), 9
     rng = np.random.default_rng(110)
     rows = 24
-    centres = rng.uniform(0, 9, size=(rows, 10, 2))
+    centers = rng.uniform(0, 9, size=(rows, 10, 2))
     theta = rng.uniform(-1, 1, size=(rows, 10))
-    features = np.stack([bf.rbf_features(width, height, c, 1.0) for c in centres])
+    features = np.stack([bf.rbf_features(width, height, c, 1.0) for c in centers])
     phase = Phase(bf.move_table(width, height), start, horizon)
     for rationality, cap in ((1e3, 200), (1.0, 3)):
         model = MaxEnt(phase, features, rationality)

@@ -126,10 +126,10 @@ class Setting:
         return Phase(self.grid.successors, None, self.deployment)
 
     def features(self, seed: int, k: int) -> FloatArray:
-        """``(S, K)`` RBF features with seeded random centres and width."""
+        """``(S, K)`` RBF features with seeded random centers and width."""
         rng = np.random.default_rng(seed)
-        centres = rng.uniform([0, 0], [self.width - 1, self.height - 1], size=(k, 2))
-        return rbf_features(self.grid, centres, rng.uniform(0.7, 2.0))
+        centers = rng.uniform([0, 0], [self.width - 1, self.height - 1], size=(k, 2))
+        return rbf_features(self.grid, centers, rng.uniform(0.7, 2.0))
 
     def game(
         self,
@@ -241,11 +241,11 @@ def chi_square_p(paths: NDArray[np.int64], listed: list[Path], probability: Floa
     return float(p)
 
 
-CENTRE3 = Setting(3, 3, (1, 1), 3, True)
+CENTER3 = Setting(3, 3, (1, 1), 3, True)
 """81 paths in 47 visit classes."""
 
 SETTINGS: dict[str, Setting] = {
-    "3x3-centre-3-stay": CENTRE3,
+    "3x3-center-3-stay": CENTER3,
     "3x3-corner-4-nostay": Setting(3, 3, (0, 0), 4, False, deployment=4),
     "4x3-3-nostay": Setting(4, 3, (1, 2), 3, False, deployment=4),
     "4x3-4-stay": Setting(4, 3, (1, 2), 4, True),
@@ -281,7 +281,7 @@ def test_pedagogic_draws_follow_the_pedagogic_distribution_over_every_path(
     paths whose counts match ``P_P(tau | theta) ∝ P_L(theta | tau)^alpha`` computed path by path
     over the demonstrator's space (chi-square, p > 1e-3); the reference is far from the literal
     distribution, which the same test rejects."""
-    setting, rationality = CENTRE3, 2.0
+    setting, rationality = CENTER3, 2.0
     features = setting.features(5, 2)
     rng = np.random.default_rng(11)
     theta = rng.uniform(-1, 1, size=2)
@@ -309,7 +309,7 @@ def test_a_pedagogic_draw_inverts_the_class_weights_then_picks_within_the_class(
     visit class (by inverting the cumulative class weights ``sum_{tau in m} P_P(tau | theta)``,
     summed path by path, in the engine's class order) and the path within it (the
     ``floor(u n_m)``-th in move order): 300 seeds reproduced exactly."""
-    setting, rationality, alpha, batch = CENTRE3, 2.0, 2.0, 300
+    setting, rationality, alpha, batch = CENTER3, 2.0, 2.0, 300
     features = setting.features(5, 2)
     space = np.random.default_rng(12).uniform(-1, 1, size=(4, 2))
     settings = settings_of(4, alpha=alpha)
@@ -339,7 +339,7 @@ def test_leaving_the_truth_out_changes_the_pedagogic_distribution() -> None:
     """The check above can tell the two spaces apart: the demonstrator's distribution over
     ``[theta] + space`` is far from the one over ``space`` with the truth in place of its
     first hypothesis."""
-    setting, rationality, alpha = CENTRE3, 2.0, 4.0
+    setting, rationality, alpha = CENTER3, 2.0, 4.0
     features = setting.features(5, 2)
     rng = np.random.default_rng(11)
     theta = rng.uniform(-1, 1, size=2)
@@ -384,7 +384,7 @@ def test_a_pedagogic_path_depends_on_its_seed_alone() -> None:
 
 @pytest.mark.parametrize("alpha", [0.5, 3.0])
 @pytest.mark.parametrize("includes_truth", [True, False])
-@pytest.mark.parametrize("name", ["3x3-centre-3-stay", "4x3-4-stay", "3x3-corner-4-nostay"])
+@pytest.mark.parametrize("name", ["3x3-center-3-stay", "4x3-4-stay", "3x3-corner-4-nostay"])
 def test_the_pedagogic_mode_is_the_first_path_most_telling_of_the_truth(
     name: str, includes_truth: bool, alpha: float
 ) -> None:
@@ -438,11 +438,11 @@ class TiedModes:
 
 
 def tied_modes() -> TiedModes:
-    """40 trials on :data:`CENTRE3` with the integer feature ``phi(s) = x`` and three hypotheses
+    """40 trials on :data:`CENTER3` with the integer feature ``phi(s) = x`` and three hypotheses
     in quarters: every score is exact, so classes with equal counts (e.g. {5, 5, 5} and {2, 5,
     8}) tie bit for bit. Trials where another count vector comes within 1e-9 of the maximum
     ``P_L(theta | tau)`` are left out."""
-    setting, batch = CENTRE3, 40
+    setting, batch = CENTER3, 40
     features = setting.grid.cell_coordinates()[:, :1]
     thetas = np.random.default_rng(0).integers(-4, 5, size=(batch, 3, 1)) / 4.0
     game = setting.game(
@@ -478,7 +478,7 @@ def test_under_exact_ties_the_pedagogic_mode_is_the_first_maximiser_in_move_orde
     path is not in the lowest-numbered class among the maximisers, so a rule by class would
     fail here."""
     found = tied_modes()
-    numbers = class_numbers(CENTRE3)
+    numbers = class_numbers(CENTER3)
     differ = 0
     for best in found.maximisers:
         first = min({visits(p) for p in best}, key=numbers.__getitem__)
@@ -491,7 +491,7 @@ def test_under_exact_ties_the_pedagogic_mode_is_the_first_maximiser_in_move_orde
 # ---- 2. the regret-optimal human --------------------------------------------------------------
 
 
-@pytest.mark.parametrize("name", ["3x3-centre-3-stay", "4x3-3-nostay", "3x3-corner-4-nostay"])
+@pytest.mark.parametrize("name", ["3x3-center-3-stay", "4x3-3-nostay", "3x3-corner-4-nostay"])
 def test_regret_optimal_on_a_small_phase_is_the_minimum_over_every_path(name: str) -> None:
     """A phase of at most ``EXHAUSTIVE_CLASSES`` classes: each trial's demonstration has the
     least MAP-robot regret of every listed path (each fitted by a call of its own), and among
@@ -717,7 +717,7 @@ def assert_posterior_mean(
 
 
 @pytest.mark.parametrize("alpha", [0.5, 3.0])
-@pytest.mark.parametrize("name", ["3x3-centre-3-stay", "4x3-4-stay", "3x3-corner-4-nostay"])
+@pytest.mark.parametrize("name", ["3x3-center-3-stay", "4x3-4-stay", "3x3-corner-4-nostay"])
 def test_the_robots_posterior_means_are_bayes_rule_at_every_path(name: str, alpha: float) -> None:
     """``literal_estimate`` and ``pragmatic_estimate`` at every listed path of two trials: the
     posterior mean with weights ``∝ P_L(tau | theta_h)`` and ``∝ P_L(theta_h | tau)^alpha /
@@ -764,7 +764,7 @@ def test_the_pragmatic_robot_reads_its_own_space_after_the_human_has_taught(
 
 def test_the_teaching_players_need_a_hypothesis_space() -> None:
     """A game without hypotheses: both robots and the pedagogic human raise ``ValueError``."""
-    setting = CENTRE3
+    setting = CENTER3
     features = batch_of(setting.features(0, 2), 2)
     demos = np.array(setting.paths[:2], dtype=np.int64)
     game = setting.game(features, 1.0, None, settings_of(3))

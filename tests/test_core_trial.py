@@ -282,7 +282,7 @@ UNPLAYABLE = {
         lambda: msgspec.structs.replace(_best_response(), num_features=2),
         "num_features",
     ),
-    "a centre too many": (
+    "a center too many": (
         lambda: msgspec.structs.replace(
             _expert(), features=RBFFeatures(centers=(*CENTERS, (1.0, 1.0)), sigma=SIGMA)
         ),

@@ -60,7 +60,7 @@ def _walk(rng: random.Random, start: list[int], steps: int, width: int, height: 
 
 
 def brute_force_reward(features: dict[str, Any], theta: list[float], x: int, y: int) -> float:
-    """``theta . phi([x, y])`` from the definition, one centre at a time."""
+    """``theta . phi([x, y])`` from the definition, one center at a time."""
     sigma = features["sigma"]
     return math.fsum(
         w * math.exp(-((x - cx) ** 2 + (y - cy) ** 2) / (2 * sigma**2))

@@ -287,7 +287,7 @@ def test_raises_when_the_map_is_not_unique():
 
 def test_warns_of_a_map_that_double_precision_inputs_do_not_determine():
     # A random demonstration at lambda = 1e4 whose LP limit is not unique: the MAP is unique
-    # and certified, but one direction of L is so flat (curvature ~1e-10) that perturbing the
+    # and converged, but one direction of L is so flat (curvature ~1e-10) that perturbing the
     # demo counts by two ulps moves the MAP by ~1e-3. No double-precision robot can be held
     # to 1e-6 there; the certificate's input_sensitivity says so.
     width, height, start, horizon = 4, 4, 5, 4

@@ -1,7 +1,7 @@
 """The multiverse (cirl_study.study.multiverse and cirl_study.analysis.multiverse).
 
 Expansion of ``[multiverse]`` into universes, their ids and trials, the open settings each
-axis varies (centre placement, a demonstrator who may not stay, the deployment start), the
+axis varies (center placement, a demonstrator who may not stay, the deployment start), the
 base universe against the single study, resuming mid-multiverse, the joint sign-flip test
 against exact enumeration, and the report end to end.
 """
@@ -40,7 +40,7 @@ from cirl_study.study.multiverse import cv_universe, universe_pipeline
 from cirl_study.study.plan import (
     draw_reward,
     eta_cv_trials,
-    lattice_centres,
+    lattice_centers,
     study_trials,
     subject_id,
     trial_counts,
@@ -53,7 +53,7 @@ SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 MULTIVERSE = """
 [multiverse.cross]
 sigma = [0.75, 1.5]
-centres = ["per_draw", "lattice"]
+centers = ["per_draw", "lattice"]
 
 [multiverse.alone]
 demonstrator_stays = [false]
@@ -91,9 +91,9 @@ def test_the_universes_are_the_base_the_cross_product_the_alone_levels_and_the_l
     universes = pipeline.multiverse.universes
     base = pipeline.multiverse.base
     assert universes[0] == base and base.id == (
-        "sigma=0.75,centres=per_draw,stays=yes,steps=4,lambda=1,robot=map,start=uniform"
+        "sigma=0.75,centers=per_draw,stays=yes,steps=4,lambda=1,robot=map,start=uniform"
     )
-    crossed = {(u.sigma, u.centres) for u in universes[:4]}
+    crossed = {(u.sigma, u.centers) for u in universes[:4]}
     assert crossed == set(itertools.product((0.75, 1.5), ("per_draw", "lattice")))
     assert len(universes) == 1 + 4 - 1 + 3 + 1  # the base is in the cross product once
     assert universes[-1].steps == 3 and universes[-1].sigma == 1.5
@@ -127,7 +127,7 @@ def test_universe_ids_tell_close_numbers_apart():
         ("[multiverse.cross]\nsigma = [0.75, 0.75]\n", "multiverse.cross.sigma must not repeat"),
         ("[multiverse.cross]\nsigma = [0.001]\n", "multiverse.cross.sigma must be a non-empty"),
         ('[multiverse.alone]\nrobot = ["oracle"]\n', "multiverse.alone.robot must be a non"),
-        ("[multiverse.alone]\ncentres = [\"random\"]\n", "centres must be a non-empty list"),
+        ("[multiverse.alone]\ncenters = [\"random\"]\n", "centers must be a non-empty list"),
         ("[multiverse.alone]\nsteps = [0]\n", "multiverse.alone.steps must be a non-empty list"),
         ("[multiverse.alone]\ncolour = [1]\n", "multiverse.alone.colour is not a known key"),
         ("[[multiverse.universes]]\nrationality = 1e9\n",
@@ -151,7 +151,7 @@ def test_a_multiverse_has_one_robot_and_one_horizon():
 
 def test_adding_a_level_changes_no_existing_universe_or_trial(tmp_path: Path):
     small = load_pipeline(multiverse(tmp_path, "[multiverse.cross]\nsigma = [0.75, 1.5]\n", "a"))
-    more = '[multiverse.cross]\nsigma = [0.75, 1.5, 3.0]\ncentres = ["per_draw", "shared"]\n'
+    more = '[multiverse.cross]\nsigma = [0.75, 1.5, 3.0]\ncenters = ["per_draw", "shared"]\n'
     large = load_pipeline(multiverse(tmp_path, more, "a"))
 
     def by_id(trials):
@@ -208,10 +208,10 @@ def test_the_base_universe_plays_the_single_study_and_reports_its_numbers(
 # ---- the open settings ---------------------------------------------------------------------
 
 
-def test_centres_shared_by_every_draw_or_on_a_lattice_keep_each_draws_theta():
+def test_centers_shared_by_every_draw_or_on_a_lattice_keep_each_draws_theta():
     pipeline = parse_pipeline(multiverse_text(), Path("mv.toml"))
     per_draw, shared, lattice = (
-        universe_pipeline(pipeline, replace(pipeline.multiverse.base, centres=c))
+        universe_pipeline(pipeline, replace(pipeline.multiverse.base, centers=c))
         for c in ("per_draw", "shared", "lattice")
     )
     rewards = {
@@ -223,8 +223,8 @@ def test_centres_shared_by_every_draw_or_on_a_lattice_keep_each_draws_theta():
     assert len({features.centers for features, _ in rewards["per_draw"]}) == 4
     assert len({features.centers for features, _ in rewards["shared"]}) == 1
     assert rewards["shared"][0][0].centers != rewards["per_draw"][0][0].centers
-    (centres,) = {features.centers for features, _ in rewards["lattice"]}
-    assert np.allclose(centres, [(2 / 3, 2), (2, 2), (10 / 3, 2)])  # 5 x 5 grid, 1 x 3 lattice
+    (centers,) = {features.centers for features, _ in rewards["lattice"]}
+    assert np.allclose(centers, [(2 / 3, 2), (2, 2), (10 / 3, 2)])  # 5 x 5 grid, 1 x 3 lattice
 
 
 @pytest.mark.parametrize(
@@ -232,17 +232,17 @@ def test_centres_shared_by_every_draw_or_on_a_lattice_keep_each_draws_theta():
     [(10, 10, 10, (2, 5)), (10, 10, 3, (1, 3)), (10, 10, 4, (2, 2)), (10, 5, 8, (2, 4)),
      (5, 10, 8, (4, 2)), (10, 10, 7, (1, 7))],
 )  # fmt: skip
-def test_lattice_centres_are_the_cells_of_the_closest_to_square_factorisation(
+def test_lattice_centers_are_the_cells_of_the_closest_to_square_factorisation(
     width, height, count, shape
 ):
-    centres = lattice_centres(width, height, count)
+    centers = lattice_centers(width, height, count)
     rows, columns = shape
-    assert centres.shape == (count, 2)
-    assert len(set(centres[:, 0])) == columns and len(set(centres[:, 1])) == rows
+    assert centers.shape == (count, 2)
+    assert len(set(centers[:, 0])) == columns and len(set(centers[:, 1])) == rows
     assert np.allclose(
-        np.sort(np.unique(centres[:, 0])), (width - 1) * (np.arange(columns) + 0.5) / columns
+        np.sort(np.unique(centers[:, 0])), (width - 1) * (np.arange(columns) + 0.5) / columns
     )
-    assert centres[:, 0].min() > 0 and centres[:, 0].max() < width - 1
+    assert centers[:, 0].min() > 0 and centers[:, 0].max() < width - 1
 
 
 def test_a_demonstrator_who_may_not_stay_never_stays_and_the_robot_knows_it(tmp_path: Path):

@@ -61,7 +61,7 @@ def test_paper_pipeline_is_the_study_of_the_issue() -> None:
     assert paper.lambda_sweep.subjects == 500
     assert paper.lambda_sweep.rationalities == tuple(10.0**e for e in range(-4, 4))
     assert trial_counts(paper) == {"eta_cv": 1800, "main": 2000, "lambda_sweep": 16000}
-    assert (game.centres, game.demonstrator_stays, game.deployment_start) == (
+    assert (game.centers, game.demonstrator_stays, game.deployment_start) == (
         "per_draw",
         True,
         "uniform",
@@ -131,8 +131,8 @@ BAD_VALUES = [
     ("game.feature_levels", [3.5], "game.feature_levels must be a non-empty list"),
     ("game.feature_levels", 3, "game.feature_levels must be a non-empty list"),
     ("game.feature_levels", [3, 3], "game.feature_levels must not repeat a value"),
-    ("game.centres", "random", "game.centres must be one of per_draw, shared, lattice"),
-    ("game.centres", _DELETE, "game.centres is missing"),
+    ("game.centers", "random", "game.centers must be one of per_draw, shared, lattice"),
+    ("game.centers", _DELETE, "game.centers is missing"),
     ("game.demonstrator_stays", 1, "game.demonstrator_stays must be true or false, got 1"),
     ("game.deployment_start", "corner", "game.deployment_start must be one of uniform, demo"),
     ("eta_cv.subjects", 0, "eta_cv.subjects must be a positive integer, got 0"),

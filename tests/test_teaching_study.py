@@ -1,7 +1,7 @@
 """A teaching study end to end: its ``[teaching]`` table, a run, its report and its verdicts.
 
 A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human, the
-``literal`` or ``pragmatic`` robot) declares their hypothesis space in ``[teaching]``
+``literal_observer`` or ``pragmatic`` robot) declares their hypothesis space in ``[teaching]``
 (:mod:`cirl_study.study.spec`); every trial carries it (:mod:`cirl_study.study.plan`); the run
 is analysed by :mod:`cirl_study.analysis.study` into the report of
 :mod:`cirl_study.analysis.study_report`.
@@ -54,7 +54,7 @@ steps = [5]
 """A valid ``[multiverse]`` table for the smoke pipeline (one robot, equal horizons)."""
 
 POLICIES = '["expert", "best_response", "literal", "pedagogic", "regret_optimal"]'
-ROBOTS = '["map", "literal", "pragmatic"]'
+ROBOTS = '["map", "literal_observer", "pragmatic"]'
 
 
 def smoke_text(
@@ -141,9 +141,9 @@ REFUSALS: list[tuple[str, Callable[[], str], str]] = [
         "teaching is missing (pragmatic need a hypothesis space)",
     ),
     (
-        "the literal robot without [teaching]",
-        lambda: smoke_text(robots='["literal"]'),
-        "teaching is missing (literal need a hypothesis space)",
+        "the literal observer without [teaching]",
+        lambda: smoke_text(robots='["literal_observer"]'),
+        "teaching is missing (literal_observer need a hypothesis space)",
     ),
     (
         "[teaching] with [lambda_sweep]",
@@ -227,21 +227,21 @@ def test_a_valid_teaching_pipeline_parses_into_its_spec(tmp_path: Path) -> None:
     """``[teaching]`` becomes ``pipeline.teaching``, and the study has no lambda sweep."""
     text = smoke_text(
         policies='["expert", "pedagogic"]',
-        robots='["map", "literal", "pragmatic"]',
+        robots='["map", "literal_observer", "pragmatic"]',
         sweep=False,
         extra=teaching_text(
             hypotheses="12", includes_truth="false", alpha="2.5", demonstration='"mode"'
         ),
     )
     pipeline = parse_pipeline(text, tmp_path / "teach.toml")
-    # 569 paths of 4 moves from the centre of the 5 x 5 grid (5^4 = 625 less those that leave it).
+    # 569 paths of 4 moves from the center of the 5 x 5 grid (5^4 = 625 less those that leave it).
     assert pipeline.teaching == TeachingSpec(
         hypotheses=12, includes_truth=False, alpha=2.5, demonstration="mode", learning_paths=569
     )
     assert isinstance(pipeline.teaching.alpha, float)
     assert pipeline.lambda_sweep.subjects == 0 and pipeline.lambda_sweep.rationalities == ()
     assert pipeline.multiverse is None
-    assert pipeline.main.robots == ("map", "literal", "pragmatic")
+    assert pipeline.main.robots == ("map", "literal_observer", "pragmatic")
 
 
 def test_a_pipeline_without_teaching_players_has_no_teaching(tmp_path: Path) -> None:
@@ -353,7 +353,9 @@ def test_every_robot_watches_the_same_demonstration(teaching_runs: TeachingRuns)
         shown[key][record.robot] = encode(record.demonstration)
     main = {key: by_robot for key, by_robot in shown.items() if key[0] == MAIN}
     assert len(main) == 2 * 3 * 5
-    assert all(set(by_robot) == {"map", "literal", "pragmatic"} for by_robot in main.values())
+    assert all(
+        set(by_robot) == {"map", "literal_observer", "pragmatic"} for by_robot in main.values()
+    )
     differing = {
         key: sorted(by_robot) for key, by_robot in shown.items() if len(set(by_robot.values())) != 1
     }
@@ -461,7 +463,7 @@ def test_no_demonstration_beats_the_regret_optimal_one(teaching_report: tuple[Pa
 # 4. The verdicts of Milli & Dragan's 2 x 2, on synthetic rows
 
 SYNTHETIC_HUMANS = ("expert", "literal", "pedagogic")
-SYNTHETIC_ROBOTS = ("map", "literal", "pragmatic")
+SYNTHETIC_ROBOTS = ("map", "literal_observer", "pragmatic")
 
 
 def synthetic_pipeline(tmp_path: Path) -> Pipeline:
@@ -486,7 +488,7 @@ def synthetic_rows(
     Every human with every robot on ``subjects`` draws at K = 3 and at K = 10. Every measure of
     a trial is the subject's level (around 1) plus small noise, plus
     ``pragmatic_with_pedagogic`` (resp. ``pragmatic_with_literal``) for the pragmatic robot
-    watching the pedagogic (resp. literal) human: the robot effect ``pragmatic - literal``
+    watching the pedagogic (resp. literal) human: the robot effect ``pragmatic - literal_observer``
     under each human of the 2 x 2.
     """
     rng = np.random.default_rng(seed)
@@ -518,7 +520,7 @@ def synthetic_rows(
                             eta=None,
                             seed=int(rng.integers(0, 2**53)),
                             measures=Measures(**measures),
-                            certified=True,
+                            converged=True,
                             draw=f"draw-of-{subject}",
                         )
                     )
@@ -537,7 +539,7 @@ def questions_of(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
 
 
 def robot_effects(results: dict[str, Any], measure: str) -> dict[str, float]:
-    """The pooled simple effect ``pragmatic - literal`` robot of ``measure``, by human."""
+    """The pooled simple effect ``pragmatic - literal_observer`` robot of ``measure``, by human."""
     return {
         row["policy"]: row["mean_diff"]
         for row in results["milli_dragan"]["robot_effect"]
@@ -549,7 +551,7 @@ def test_a_crossover_whose_loss_exceeds_its_gain_is_crossover_and_robustness(
     tmp_path: Path,
 ) -> None:
     """The pragmatic robot gains 0.3 with the pedagogic human and loses 0.6 with the literal
-    one: Milli & Dragan's crossover and the literal robot's robustness both hold."""
+    one: Milli & Dragan's crossover and the literal observer's robustness both hold."""
     results = analysed(synthetic_rows(-0.3, 0.6), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
     assert {q for q, claim in questions.items() if claim["tested"]} == {
@@ -588,7 +590,7 @@ def test_a_pragmatic_robot_better_under_both_humans_is_no_crossover(tmp_path: Pa
 
 def test_a_crossover_whose_gain_exceeds_its_loss_is_not_robustness(tmp_path: Path) -> None:
     """The pragmatic robot gains 0.6 with the pedagogic human and loses only 0.3 with the
-    literal one: the crossover holds, but the literal robot is not the more robust choice."""
+    literal one: the crossover holds, but the literal observer is not the more robust choice."""
     results = analysed(synthetic_rows(-0.6, 0.3), synthetic_pipeline(tmp_path))
     questions = questions_of(results)
     assert questions["milli_dragan_crossover"]["reproduced"] is True

@@ -78,9 +78,10 @@ PAPER = Cells(humans=record.PAPER_POLICIES)
 watched by the reference robot."""
 
 MILLI_DRAGAN = Cells(
-    humans=(record.LITERAL, record.PEDAGOGIC), robots=(record.LITERAL_ROBOT, record.PRAGMATIC)
+    humans=(record.LITERAL, record.PEDAGOGIC), robots=(record.LITERAL_OBSERVER, record.PRAGMATIC)
 )
-"""Milli & Dragan's (2019) 2 x 2: literal or pedagogic human, literal or pragmatic robot."""
+"""Milli & Dragan's (2019) 2 x 2: literal or pedagogic human, literal observer or pragmatic
+robot."""
 
 VERSUS_PEDAGOGIC = Cells(humans=(record.BEST_RESPONSE, record.PEDAGOGIC))
 """The paper's best response against the pedagogic human of Ho et al. (2016)."""

@@ -34,10 +34,10 @@ and the best response) unless they say otherwise:
    the expert baseline (``against_baseline``) is significant (Holm) and negative on every
    measure and feature level.
 8. ``milli_dragan_crossover``: on every measure, the pragmatic robot's simple effect against
-   the literal robot, pooled over the feature levels, is significantly negative with the
+   the literal observer, pooled over the feature levels, is significantly negative with the
    pedagogic human and significantly positive with the literal one (Holm).
 9. ``milli_dragan_robustness``: on every measure, the robot main effect of the 2 x 2 ANOVA
-   has ``p < .05`` and the mean of the two simple effects is positive (the literal robot
+   has ``p < .05`` and the mean of the two simple effects is positive (the literal observer
    ahead).
 10. ``best_response_vs_pedagogic`` and ``regret_optimal_gap``: questions, answered by the
     measurement without a verdict.
@@ -208,8 +208,8 @@ def _cronbach(results: StudyResults) -> Verdict:
     low, high = alpha.ci95
     return Verdict(
         f"raw alpha {_num(alpha.raw)} [{_num(low)}, {_num(high)}], standardised "
-        f"{_num(alpha.standardized)}, over {alpha.n_rows} main-block trials",
-        {"raw": alpha.raw, "ci95": [low, high], "standardized": alpha.standardized},
+        f"{_num(alpha.standardised)}, over {alpha.n_rows} main-block trials",
+        {"raw": alpha.raw, "ci95": [low, high], "standardised": alpha.standardised},
         low <= PAPER_ALPHA <= high,
     )
 
@@ -319,7 +319,7 @@ def _crossover(results: StudyResults) -> Verdict:
         with_pedagogic, with_literal = _robot_effects(results, m)
         crossover[m] = _signed(with_pedagogic, -1) and _signed(with_literal, 1)
         measured.append(
-            f"{MEASURE_NAMES[m]}: pragmatic - literal robot {_num(with_pedagogic.mean_diff)} "
+            f"{MEASURE_NAMES[m]}: pragmatic - literal_observer {_num(with_pedagogic.mean_diff)} "
             f"(p_holm {p_value(with_pedagogic.p_holm)}) with a pedagogic human, "
             f"{_num(with_literal.mean_diff)} (p_holm {p_value(with_literal.p_holm)}) with a "
             "literal one"
@@ -335,7 +335,7 @@ def _robustness(results: StudyResults) -> Verdict:
         mean_effect = (with_pedagogic.mean_diff + with_literal.mean_diff) / 2
         robust[m] = anova.p is not None and bool(anova.p < SIGNIFICANCE and mean_effect > 0)
         measured.append(
-            f"{MEASURE_NAMES[m]}: mean pragmatic - literal {_num(mean_effect)}, robot "
+            f"{MEASURE_NAMES[m]}: mean pragmatic - literal_observer {_num(mean_effect)}, robot "
             f"F({anova.df1}, {anova.df2}) = {_num(anova.F)}, p = {p_value(anova.p)}"
         )
     return Verdict("; ".join(measured), {"by_measure": robust}, all(robust.values()))
@@ -451,11 +451,11 @@ CLAIMS: tuple[Claim, ...] = (
     Claim(
         "milli_dragan_crossover",
         MILLI_DRAGAN_2019,
-        "The pragmatic robot does better than the literal one with a pedagogic human and "
+        "The pragmatic robot does better than the literal observer with a pedagogic human and "
         "worse with a literal human.",
-        "every measure: the robot's simple effect (pragmatic - literal, pooled over the feature "
-        f"levels) negative with the pedagogic human and positive with the literal one, each "
-        f"Holm p < {SIGNIFICANCE:g}",
+        "every measure: the robot's simple effect (pragmatic - literal_observer, pooled over "
+        "the feature levels) negative with the pedagogic human and positive with the literal "
+        f"one, each Holm p < {SIGNIFICANCE:g}",
         MILLI_DRAGAN,
         ("milli_dragan",),
         _crossover,
@@ -463,10 +463,10 @@ CLAIMS: tuple[Claim, ...] = (
     Claim(
         "milli_dragan_robustness",
         MILLI_DRAGAN_2019,
-        "The literal robot is the more robust choice: the pragmatic robot loses more with a "
+        "The literal observer is the more robust choice: the pragmatic robot loses more with a "
         "literal human than it gains with a pedagogic one.",
         f"every measure: the 2 x 2 ANOVA's robot effect p < {SIGNIFICANCE:g} and the mean of "
-        "the two simple effects positive (literal ahead)",
+        "the two simple effects positive (the literal observer ahead)",
         MILLI_DRAGAN,
         ("milli_dragan",),
         _robustness,

@@ -177,7 +177,7 @@ class RewardScene:
 
     ``features`` is the record's ``(width * height, K)`` RBF matrix ``Phi``
     (:meth:`~cirl_study.record.TrialSpec.feature_matrix`), ``centers`` its ``(K, 2)``
-    centres and ``states`` the ``(T + 1, 2)`` cells of the demonstration.
+    centers and ``states`` the ``(T + 1, 2)`` cells of the demonstration.
     """
 
     width: int
@@ -192,7 +192,7 @@ class RewardScene:
     def from_record(cls, record: TrialRecord) -> RewardScene:
         """The grid, features, parameters and demonstration of a trial record.
 
-        The record is taken as consistent (``theta``, ``theta_hat`` and the centres of one
+        The record is taken as consistent (``theta``, ``theta_hat`` and the centers of one
         length), as :func:`cirl_study.logs.record_checks.record_faults` checks when logs are
         read.
         """
@@ -289,7 +289,7 @@ MAP_SIZE = 2.5
 FIGURE1_KEY = (
     "Demonstration: white dot = start, white square = end; arrows shade from light (first "
     "step) to dark (last); a ring is a stay.\nNumbers: the steps at which the demonstration "
-    "is on the cell (3-4: steps 3 to 4; 2,5: steps 2 and 5). Crosses: RBF centres."
+    "is on the cell (3-4: steps 3 to 4; 2,5: steps 2 and 5). Crosses: RBF centers."
 )
 """The key printed under Figure 1's panels."""
 
@@ -307,7 +307,7 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
     (2 sigma^2))``; the three panels share one symmetric colour scale. The demonstration
     runs from the white dot (step 0) to the white square, every step drawn and numbered, in
     shades from light (first) to dark (last), a stay as a ring; the crosses are the RBF
-    centres. The number beside a cell lists the steps at which the demonstration is there
+    centers. The number beside a cell lists the steps at which the demonstration is there
     (``3-4``: steps 3 to 4; ``2,5``: steps 2 and 5). Each demonstration panel names its
     regret, and a legend line under the panels says how to read them.
 

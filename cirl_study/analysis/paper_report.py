@@ -131,8 +131,8 @@ def cronbach(results: StudyResults) -> list[str]:
         ["raw", md.number(alpha.raw), md.interval(*alpha.ci95)],
         [
             "standardised",
-            md.number(alpha.standardized),
-            md.interval(*alpha.ci95_standardized),
+            md.number(alpha.standardised),
+            md.interval(*alpha.ci95_standardised),
         ],
     ]
     return [
@@ -159,7 +159,7 @@ def figure1(results: StudyResults) -> list[str]:
         f"demonstration, {md.number(chosen.regret_best_response)} after the best response's. "
         "Left: the true reward of each cell; middle and right: each demonstration (from the "
         "white dot to the white square) over the MAP reward the robot inferred from it; crosses: "
-        "RBF centres.",
+        "RBF centers.",
     ]
 
 

@@ -195,9 +195,9 @@ class WilcoxonRow(msgspec.Struct, **_ROW):
 
 class CronbachAlpha(msgspec.Struct, **_ROW):
     raw: Number
-    standardized: Number
+    standardised: Number
     ci95: list[Number]
-    ci95_standardized: list[Number]
+    ci95_standardised: list[Number]
     n_rows: int
     n_items: int
     items: list[str]
@@ -281,12 +281,12 @@ class EtaCrossValidation(msgspec.Struct, **_ROW):
     main_block: list[EtaMainBlock]
 
 
-class Certified(msgspec.Struct, **_ROW):
+class Converged(msgspec.Struct, **_ROW):
     robot: str
     block: str
     rationality: float
     trials: int
-    certified: int
+    converged: int
 
 
 class MilliDragan(msgspec.Struct, **_ROW):
@@ -372,7 +372,7 @@ class StudyResults(msgspec.Struct, **_ROW):
     pairwise: list[PairedComparison]
     against_baseline: list[PairedDifference]
     lambda_sweep: list[CellMean]
-    certified: list[Certified]
+    converged: list[Converged]
     eta_cv: EtaCrossValidation
     paper: PaperSection | None
     robots: RobotComparison | None

@@ -27,8 +27,8 @@ The sections, by key:
   paired (:func:`cirl_study.analysis.statistics.paired_differences`, Holm per measure);
 * ``lambda_sweep``: the means of the sweep per rationality, human, robot and feature level;
 * ``eta_cv``: the cross-validation of the best response's eta (:func:`eta_cv`);
-* ``certified``: per robot, block and rationality, the trials whose estimate the robot
-  certified;
+* ``converged``: per robot, block and rationality, the trials whose estimate met
+  the robot's stopping rule;
 * ``paper``, where the run has the paper's humans (:data:`~cirl_study.analysis.cells.PAPER`):
   the paper's analyses on the reference robot's trials of the expert and the best response:
   its mixed ANOVA, the simple effects of policy, Tukey HSD as the paper ran it, Wilcoxon
@@ -188,17 +188,18 @@ def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> dict[str, Any]:
     }
 
 
-def _certified(table: pd.DataFrame) -> list[dict[str, Any]]:
-    """Per robot, block and rationality: trials, and those whose estimate the robot certified."""
+def _converged(table: pd.DataFrame) -> list[dict[str, Any]]:
+    """Per robot, block and rationality: trials, and those whose estimate met the robot's
+    stopping rule."""
     keys = ["robot", "block", "rationality"]
-    counts = table.groupby(keys, sort=True)["certified"].agg(["size", "sum"])
+    counts = table.groupby(keys, sort=True)["converged"].agg(["size", "sum"])
     return [
         {
             "robot": str(robot),
             "block": str(block),
             "rationality": float(rationality),
             "trials": int(n),
-            "certified": int(k),
+            "converged": int(k),
         }
         for (robot, block, rationality), (n, k) in counts.iterrows()
     ]
@@ -235,7 +236,7 @@ RESULT_KEYS: tuple[str, ...] = (
     "pairwise",
     "against_baseline",
     "lambda_sweep",
-    "certified",
+    "converged",
     "eta_cv",
     "paper",
     "robots",
@@ -272,7 +273,7 @@ def paper_main_block(everything: pd.DataFrame, design: Design) -> pd.DataFrame:
 def estimates(trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline: Pipeline) -> Results:
     """What the trials measured, with confidence intervals: everything the figures draw.
 
-    The keys ``pipeline, trials, design, cells, lambda_sweep, certified, eta_cv, robots`` of
+    The keys ``pipeline, trials, design, cells, lambda_sweep, converged, eta_cv, robots`` of
     :func:`analyse` and, where the run has the paper's humans, ``paper.figure1``, from the
     rows and their table ``everything`` (:func:`~cirl_study.analysis.table.trial_table`).
     """
@@ -291,7 +292,7 @@ def estimates(trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline: Pi
         )
         if not sweep.empty
         else [],
-        "certified": _certified(everything),
+        "converged": _converged(everything),
         "eta_cv": eta_cv(trials, everything[everything["robot"] == reference]),
         "paper": None
         if PAPER.lacking(design)

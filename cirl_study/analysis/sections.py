@@ -23,7 +23,7 @@ HEADINGS = {
     "eta_cv": "Eta cross-validation",
     "paper.figure1": "Figure 1",
     "robots": "Robots",
-    "milli_dragan": "Milli & Dragan's 2 x 2: literal or pedagogic human and robot",
+    "milli_dragan": "Milli & Dragan's 2 x 2: literal or pedagogic human, the robot reading each",
     "best_response_vs_pedagogic": "The paper's best response against the pedagogic human",
     "regret_optimal": "How far from the regret-optimal demonstration",
     "rules": "How the verdicts are decided",

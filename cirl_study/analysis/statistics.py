@@ -225,10 +225,10 @@ def bootstrap_mean_d_z(differences: np.ndarray) -> dict[str, tuple[float, float]
         batch_means, batch_d_zs = _resampled_mean_and_d_z(d, indices)
         means.append(batch_means)
         d_zs.append(batch_d_zs)
-    mean, centred = d.mean(), d - d.mean()
+    mean, centered = d.mean(), d - d.mean()
     with np.errstate(divide="ignore", invalid="ignore"):
-        leave_one_out_mean = mean - centred / (n - 1)
-        squares = np.sum(centred**2) - centred**2 * n / (n - 1)
+        leave_one_out_mean = mean - centered / (n - 1)
+        squares = np.sum(centered**2) - centered**2 * n / (n - 1)
         leave_one_out_d_z = leave_one_out_mean / np.sqrt(squares / (n - 2))
     return {
         "mean": _bca(np.concatenate(means), float(mean), leave_one_out_mean),
@@ -252,8 +252,8 @@ def _resampled_mean_and_d_z(d: np.ndarray, indices: np.ndarray) -> tuple[np.ndar
     for start in range(0, len(indices), rows):
         block = d[indices[start : start + rows]]
         mean = np.add.reduce(block, axis=-1) / n
-        centred = np.subtract(block, mean[:, None], out=block)
-        squares = np.add.reduce(np.multiply(centred, centred, out=centred), axis=-1)
+        centered = np.subtract(block, mean[:, None], out=block)
+        squares = np.add.reduce(np.multiply(centered, centered, out=centered), axis=-1)
         with np.errstate(divide="ignore", invalid="ignore"):
             d_zs[start : start + rows] = mean / np.sqrt(squares / (n - 1))
         means[start : start + rows] = mean
@@ -570,7 +570,7 @@ def cronbach_alpha(items: pd.DataFrame) -> dict[str, float | int | list[float]]:
         ``pingouin.cronbach_alpha`` (checked against R ``psych::alpha``).
 
     Returns:
-        ``raw, standardized, ci95, ci95_standardized, n_rows, n_items``.
+        ``raw, standardised, ci95, ci95_standardised, n_rows, n_items``.
     """
     n, k = items.shape
     raw = float(pg.cronbach_alpha(data=items)[0])
@@ -578,9 +578,9 @@ def cronbach_alpha(items: pd.DataFrame) -> dict[str, float | int | list[float]]:
     standardised = float(pg.cronbach_alpha(data=standardised_items)[0])
     return {
         "raw": raw,
-        "standardized": standardised,
+        "standardised": standardised,
         "ci95": list(feldt_ci(raw, n, k)),
-        "ci95_standardized": list(feldt_ci(standardised, n, k)),
+        "ci95_standardised": list(feldt_ci(standardised, n, k)),
         "n_rows": int(n),
         "n_items": int(k),
     }

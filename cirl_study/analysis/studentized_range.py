@@ -25,7 +25,7 @@ _LOG_TINY = math.log(np.finfo(np.float64).tiny)
 _HALF_LOG_2PI = 0.5 * math.log(2 * math.pi)
 
 _INNER_HALF_WIDTH = 10.0
-"""Half width of the window of the inner integral, centred on ``z = -w/2``."""
+"""Half width of the window of the inner integral, centered on ``z = -w/2``."""
 
 _INNER_STEP = 0.1
 """Step of the trapezoidal rule of the inner integral."""
@@ -106,10 +106,10 @@ def _peak(
     starts at ``width`` and moves geometrically towards each new estimate), each move at
     most ``2 sigma``. An estimate is enough: the outer rule checks its own error.
     """
-    centre, sigma = guess, width
+    center, sigma = guess, width
     for _ in range(_NEWTON_STEPS):
         step = sigma / 2
-        low, middle, high = log_g(centre + step * np.array([-1.0, 0.0, 1.0]))
+        low, middle, high = log_g(center + step * np.array([-1.0, 0.0, 1.0]))
         if not math.isfinite(low + high):
             sigma /= 4  # a node past u = 300, where log g = -inf
             continue
@@ -118,11 +118,11 @@ def _peak(
         estimate = 1 / math.sqrt(-curvature) if curvature < 0 else 4 * sigma
         move = -slope / curvature if curvature < 0 else math.copysign(math.inf, slope)
         move = min(max(move, -4 * step), 4 * step)
-        centre += move
+        center += move
         if abs(move) < 0.1 * estimate and 0.5 < estimate / sigma < 2:
-            return centre, estimate
+            return center, estimate
         sigma = math.sqrt(sigma * min(max(estimate, sigma / 16), 16 * sigma))
-    return centre, sigma
+    return center, sigma
 
 
 def _log_sf(q: float, k: int, df: float) -> float:
@@ -146,13 +146,13 @@ def _log_sf(q: float, k: int, df: float) -> float:
     # P(R > w) ~ e^(-w^2/4) against s^df e^(-df s^2/2) puts the peak near s^2 = df / (df +
     # q^2/2), with a width about 1 / sqrt(2 df + q^2) in s, 1 / sqrt(2 df) in u.
     guess = -math.log(math.hypot(1.0, q / math.sqrt(2 * df)))
-    centre, sigma = _peak(log_g, guess, 1 / math.sqrt(2 * df))
+    center, sigma = _peak(log_g, guess, 1 / math.sqrt(2 * df))
     # The left tail turns from Gaussian to e^(df u) about df sigma^2 from the peak.
     lam = max(1.0, df * sigma)
 
     def log_integrand(t: np.ndarray) -> np.ndarray:
         # log of g(u) du/dt, u = u* + sigma (t + lam (1 - e^(-t/lam))).
-        u = centre + sigma * (t - lam * np.expm1(-t / lam))
+        u = center + sigma * (t - lam * np.expm1(-t / lam))
         return log_g(u) + math.log(sigma) + np.logaddexp(0.0, -t / lam)
 
     h = _OUTER_STEP

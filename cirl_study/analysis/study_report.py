@@ -265,16 +265,16 @@ def lambda_sweep(results: StudyResults) -> list[str]:
 def _certification(results: StudyResults) -> str:
     """One sentence: at which lambdas the reference robot could not certify every estimate."""
     short = [
-        f"{row.certified} of {row.trials} at λ = {number(row.rationality)}"
-        for row in results.certified
+        f"{row.converged} of {row.trials} at λ = {number(row.rationality)}"
+        for row in results.converged
         if row.block == LAMBDA_SWEEP
         and row.robot == results.design.reference_robot
-        and row.certified < row.trials
+        and row.converged < row.trials
     ]
     if not short:
-        return "Every estimate of the sweep is certified within 1e-6 of the MAP."
+        return "Every estimate of the sweep converged to within 1e-6 of the MAP."
     return (
-        "Estimates certified within 1e-6 of the MAP (the others lie where the likelihood is "
+        "Estimates converged to within 1e-6 of the MAP (the others lie where the likelihood is "
         "flat to double-precision rounding in some direction, and stay where the robot "
         f"stopped): {'; '.join(short)}; every other λ: all."
     )

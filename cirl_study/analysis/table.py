@@ -34,11 +34,11 @@ COLUMNS: tuple[str, ...] = (
     "eta",
     "seed",
     *MEASURES,
-    "certified",
+    "converged",
 )
 """Columns of the trial table, in order. ``universe``: the trial's multiverse universe (empty
-in a single study). ``certified``: the robot certified its estimate
-(``irl.converged``; a record without a fit report counts as certified)."""
+in a single study). ``converged``: the robot's estimate met its stopping rule
+(``irl.converged``; a record without a fit report counts as converged)."""
 
 SORT_KEYS: tuple[str, ...] = (
     "universe",

@@ -4,11 +4,11 @@ Each section is computed where the run has its cells (:mod:`cirl_study.analysis.
 is ``None`` otherwise; every measure is a loss (lower is better):
 
 * ``milli_dragan`` (:data:`~cirl_study.analysis.cells.MILLI_DRAGAN`): the 2 x 2 of Milli &
-  Dragan (2019), human {literal, pedagogic} x robot {literal, pragmatic}: the repeated-measures
-  ANOVA with both within subjects and the feature level between
+  Dragan (2019), human {literal, pedagogic} x robot {literal_observer, pragmatic}: the
+  repeated-measures ANOVA with both within subjects and the feature level between
   (:func:`cirl_study.analysis.anova.repeated_measures_anova`), and the simple effect of the
-  robot, ``pragmatic - literal``, under each human, pooled over the feature levels and at each
-  (paired t, Holm per measure);
+  robot, ``pragmatic - literal_observer``, under each human, pooled over the feature levels and
+  at each (paired t, Holm per measure);
 * ``best_response_vs_pedagogic`` (:data:`~cirl_study.analysis.cells.VERSUS_PEDAGOGIC`): per
   robot and feature level, ``best_response - pedagogic``, paired (Holm per measure);
 * ``regret_optimal`` (:data:`~cirl_study.analysis.cells.REGRET_OPTIMAL_GAP`): with the MAP
@@ -32,7 +32,7 @@ from cirl_study.analysis.measure_rows import anova_rows, paired_rows, plain
 from cirl_study.record import (
     BEST_RESPONSE,
     LITERAL,
-    LITERAL_ROBOT,
+    LITERAL_OBSERVER,
     MAP,
     PEDAGOGIC,
     PRAGMATIC,
@@ -57,15 +57,15 @@ def sections(main: pd.DataFrame, design: Design) -> dict[str, Any]:
     def milli_dragan() -> dict[str, Any]:
         square = main[
             main["policy"].isin([LITERAL, PEDAGOGIC])
-            & main["robot"].isin([LITERAL_ROBOT, PRAGMATIC])
+            & main["robot"].isin([LITERAL_OBSERVER, PRAGMATIC])
         ]
         return {
             "anova": anova_rows(square, ["policy", "robot"]),
             "robot_effect": paired_rows(
-                square.assign(pooled="all"), "robot", LITERAL_ROBOT, ["policy", "pooled"]
+                square.assign(pooled="all"), "robot", LITERAL_OBSERVER, ["policy", "pooled"]
             ),
             "robot_effect_by_level": paired_rows(
-                square, "robot", LITERAL_ROBOT, ["policy", "num_features"]
+                square, "robot", LITERAL_OBSERVER, ["policy", "num_features"]
             ),
         }
 

@@ -13,7 +13,7 @@ from cirl_study.analysis.study_report import anova_table, paired_table
 
 
 def milli_dragan(results: StudyResults) -> list[str]:
-    """The 2 x 2 of human {literal, pedagogic} x robot {literal, pragmatic}."""
+    """The 2 x 2 of human {literal, pedagogic} x robot {literal_observer, pragmatic}."""
     square = results.milli_dragan
     if square is None:
         return []
@@ -21,12 +21,12 @@ def milli_dragan(results: StudyResults) -> list[str]:
         heading(2, "milli_dragan"),
         "",
         "Repeated-measures ANOVA per measure: human (`literal`, `pedagogic`) and robot "
-        "(`literal`, `pragmatic`) within subjects, the number of features between.",
+        "(`literal_observer`, `pragmatic`) within subjects, the number of features between.",
         "",
         anova_table(square.anova),
         "",
-        "The robot's simple effect, `pragmatic - literal`, under each human (negative: the "
-        "pragmatic robot does better), pooled over the feature levels and at each:",
+        "The robot's simple effect, `pragmatic - literal_observer`, under each human (negative: "
+        "the pragmatic robot does better), pooled over the feature levels and at each:",
         "",
         paired_table([*square.robot_effect, *square.robot_effect_by_level], "policy", "robot"),
     ]

@@ -6,7 +6,7 @@ index is ``y * width + x``. The actions are ``stay``, ``N`` (y+1), ``S`` (y-1),
 grid is *unavailable* in that cell (it is not turned into ``stay``), so an
 action sequence and a state path determine each other.
 
-Rewards are linear in radial-basis features whose centres ``c_k`` and width
+Rewards are linear in radial-basis features whose centers ``c_k`` and width
 ``sigma`` are common knowledge:
 
 .. math::
@@ -111,7 +111,7 @@ def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[n
 
     Args:
         grid: the gridworld.
-        centers: ``(K, 2)`` centres, or ``(B, K, 2)`` for a batch of feature sets.
+        centers: ``(K, 2)`` centers, or ``(B, K, 2)`` for a batch of feature sets.
         sigma: the common width ``sigma > 0``.
 
     Returns:

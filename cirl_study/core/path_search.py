@@ -39,7 +39,7 @@ trial's at a time in a table reused trial after trial.
 
 Worst case: when no bound ever prunes, every one of the (at most ``5^T``) paths is
 visited: time ``O(5^T K)``. At the paper's size (10x10 grid, 9 steps from the
-centre, K <= 10) the bounds typically leave a few thousand of the 1.9 million paths.
+center, K <= 10) the bounds typically leave a few thousand of the 1.9 million paths.
 """
 
 from __future__ import annotations
@@ -96,9 +96,9 @@ def _orthonormal_basis(first_axis: FloatArray) -> FloatArray:
 
 
 def _principal_axes(features: FloatArray) -> FloatArray:
-    """``(B, K, K)`` principal axes (rows) of each trial's centred cell features."""
-    centred = features - features.mean(axis=1, keepdims=True)
-    _, vectors = np.linalg.eigh(np.matmul(centred.transpose(0, 2, 1), centred))
+    """``(B, K, K)`` principal axes (rows) of each trial's centered cell features."""
+    centered = features - features.mean(axis=1, keepdims=True)
+    _, vectors = np.linalg.eigh(np.matmul(centered.transpose(0, 2, 1), centered))
     return vectors.transpose(0, 2, 1)
 
 

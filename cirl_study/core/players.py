@@ -17,7 +17,7 @@ add a player for the process.
 
 Each registered player imports its module when it first plays: reading, checking and
 analysing logs need only the players' names and what they imply for a record
-(:attr:`Human.takes_eta`, ``teaches``), and so never load the numerical core (numba and
+(:attr:`Human.takes_eta`, ``needs_hypotheses``), and so never load the numerical core (numba and
 scipy) at their start.
 """
 
@@ -32,7 +32,7 @@ from cirl_study.record import (
     BEST_RESPONSE,
     EXPERT,
     LITERAL,
-    LITERAL_ROBOT,
+    LITERAL_OBSERVER,
     MAP,
     PEDAGOGIC,
     POSTERIOR_MEAN,
@@ -56,12 +56,13 @@ class Human:
             trials' seeds.
         takes_eta: whether the policy has the trade-off :math:`\\eta`, chosen by
             cross-validation before the test trials (docs/design.md §3).
-        teaches: whether she needs the trials' hypothesis space (a pipeline's ``[teaching]``).
+        needs_hypotheses: whether she needs the trials' hypothesis space (a pipeline's
+            ``[teaching]``).
     """
 
     demonstrate: Callable[[Apprenticeship, FloatArray, FloatArray | None, IntArray], IntArray]
     takes_eta: bool
-    teaches: bool = False
+    needs_hypotheses: bool = False
 
 
 @dataclass(frozen=True)
@@ -69,7 +70,7 @@ class Robot:
     """A robot: its estimator, and whether it needs the trials' hypothesis space."""
 
     estimate: Estimator
-    teaches: bool = False
+    needs_hypotheses: bool = False
 
 
 ENTRY_POINTS = "cirl_study.players"
@@ -168,7 +169,7 @@ def player_faults(policy: str, robot: str, eta: float | None, has_teaching: bool
     """What a trial's players make wrong in it, each named (empty when nothing): the human
     and the robot must be registered, ``eta`` given exactly for a human with a trade-off
     (:attr:`Human.takes_eta`), and a hypothesis space (``teaching``) for a player that
-    teaches. The one statement of these rules, for a trial about to be played
+    needs one. The one statement of these rules, for a trial about to be played
     (:func:`cirl_study.core.trial.check_playable`) and a record read back
     (:mod:`cirl_study.logs.record_checks`).
 
@@ -188,11 +189,10 @@ def player_faults(policy: str, robot: str, eta: float | None, has_teaching: bool
         )
     if machine is None:
         faults.append(f"robot {robot!r} is not a known robot ({', '.join(ROBOTS)})")
-    teaches = [
-        name for name, player in ((policy, human), (robot, machine)) if player and player.teaches
-    ]
-    if teaches and not has_teaching:
-        faults.append(f"{' and '.join(teaches)} need a hypothesis space, and teaching is null")
+    players = ((policy, human), (robot, machine))
+    needing = [name for name, player in players if player and player.needs_hypotheses]
+    if needing and not has_teaching:
+        faults.append(f"{' and '.join(needing)} need a hypothesis space, and teaching is null")
     return faults
 
 
@@ -255,7 +255,7 @@ def _posterior_mean(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> E
     return posterior_mean_estimate(game.learning, demos, seeds)
 
 
-def _literal_robot(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estimate:
+def _literal_observer(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estimate:
     from cirl_study.core.teaching import literal_estimate
 
     return literal_estimate(game, demos, seeds)
@@ -270,10 +270,10 @@ def _pragmatic(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estima
 register_human(EXPERT, Human(_expert, takes_eta=False))
 register_human(BEST_RESPONSE, Human(_best_response, takes_eta=True))
 register_human(LITERAL, Human(_literal, takes_eta=False))
-register_human(PEDAGOGIC, Human(_pedagogic, takes_eta=False, teaches=True))
-register_human(REGRET_OPTIMAL, Human(_regret_optimal, takes_eta=False, teaches=True))
+register_human(PEDAGOGIC, Human(_pedagogic, takes_eta=False, needs_hypotheses=True))
+register_human(REGRET_OPTIMAL, Human(_regret_optimal, takes_eta=False, needs_hypotheses=True))
 
 register_robot(MAP, Robot(_map))
 register_robot(POSTERIOR_MEAN, Robot(_posterior_mean))
-register_robot(LITERAL_ROBOT, Robot(_literal_robot, teaches=True))
-register_robot(PRAGMATIC, Robot(_pragmatic, teaches=True))
+register_robot(LITERAL_OBSERVER, Robot(_literal_observer, needs_hypotheses=True))
+register_robot(PRAGMATIC, Robot(_pragmatic, needs_hypotheses=True))

@@ -283,8 +283,8 @@ class _Sampler:
         weights = self._weights(self.beta)
         weights /= weights.sum()
         mean = weights @ self.u
-        centred = self.u - mean
-        covariance = (weights[:, None] * centred).T @ centred
+        centered = self.u - mean
+        covariance = (weights[:, None] * centered).T @ centered
         covariance = options.inflation * covariance + 1e-6 * np.eye(self.k)
         return _Gaussian(mean, covariance)
 

@@ -27,7 +27,7 @@ Armijo backtracking search follows the step (and doubles along the projection ar
 Newton's steps stay short in exponentially flat valleys), and a Levenberg-Marquardt ridge
 keeps it robust where the covariance is nearly singular. It stops
 on the estimate, not on the gradient: once the undamped step is within the tolerance, that
-step is taken and the result certified by the same step at the new point (``converged``).
+step is taken and the result converged by the same step at the new point (``converged``).
 Every linear solve is compiled, so no BLAS or LAPACK kernel enters the estimate: it is the
 same on every CPU.
 """
@@ -314,7 +314,7 @@ def _line_search_step(
         at_full_step.gradient,
     )
     # An objective that no longer rises above its own rounding: the data cannot place the
-    # estimate any closer, and the fit stops where it is (certified only if it passes there).
+    # estimate any closer, and the fit stops where it is (converged only if it passes there).
     resolution = RESOLUTION * np.maximum(1.0, np.abs(objective.value))
     stalls[rows] = np.where(
         accepted & (reached - objective.value <= resolution), stalls[rows] + 1, 0
@@ -360,8 +360,8 @@ def map_estimate(
     Iteration stops on the estimate, not on the gradient: once the undamped Newton step on
     the box of :func:`_undamped_step` (the error estimate) is at most ``tolerance``, that last
     step is taken and the estimate is within about ``size^2`` of the MAP. ``converged`` says
-    whether the returned point is certified, by the same step from there, however the fit
-    stopped (certified, out of ``max_iterations``, or with no ascent left at the objective's
+    whether the returned point is converged, by the same step from there, however the fit
+    stopped (converged, out of ``max_iterations``, or with no ascent left at the objective's
     rounding).
 
     Args:
@@ -436,7 +436,7 @@ def map_estimate(
                 ),
             )
         # A fit that stops uncertified (out of iterations, or no ascent left at the objective's
-        # rounding) may still have stopped within the tolerance: its last point is certified
+        # rounding) may still have stopped within the tolerance: its last point is converged
         # as any other.
         done = converged[running] | stuck[running] | (iterations[running] >= max_iterations)
         stopped = done & ~converged[running]

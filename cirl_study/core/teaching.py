@@ -16,7 +16,7 @@ Robots (levels of ``robot``), each acting on its posterior-mean reward
 :math:`\\hat\\theta = \\sum_h P(\\theta_h \\mid \\tau)\\, \\theta_h`, which is optimal for its
 belief with linear rewards (the paper's Theorem 2):
 
-* ``literal``: Bayes over the hypotheses with the literal likelihood,
+* ``literal_observer``: Bayes over the hypotheses with the literal likelihood,
   :math:`P(\\theta_h \\mid \\tau) \\propto P_L(\\tau \\mid \\theta_h)`;
 * ``pragmatic`` (Fisac et al. 2017, "Pragmatic-pedagogic value alignment"): Bayes assuming
   the pedagogic human, :math:`P(\\theta_h \\mid \\tau) \\propto P_P(\\tau \\mid \\theta_h)`,
@@ -189,7 +189,7 @@ def _best_of(
 
 
 def literal_estimate(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estimate:
-    """The literal robot: the posterior mean under :math:`P(\\theta_h \\mid \\tau) \\propto
+    """The literal observer: the posterior mean under :math:`P(\\theta_h \\mid \\tau) \\propto
     P_L(\\tau \\mid \\theta_h)`, exact over the hypotheses."""
     space = game.space()
     counts = game.learning.path_counts(demos)

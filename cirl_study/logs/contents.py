@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import json
 from collections import Counter
-from collections.abc import Iterable
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,6 +28,7 @@ from cirl_study.logs.bounds import MAX_FILE_TRIALS
 from cirl_study.logs.episode import replay_counts
 from cirl_study.logs.format import (
     GRID_SCHEMA_NAME,
+    LOG_FORMAT_KEY,
     MESSAGE_ENCODING,
     PROVENANCE_METADATA_NAME,
     SCHEMA_ENCODING,
@@ -40,6 +41,7 @@ from cirl_study.logs.format import (
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.record_checks import BoundFault, decode_trials, payload_trial_id
 from cirl_study.logs.scan import FileScan, scan_file
+from cirl_study.logs.versions import LOG_FORMAT, record_payload, trial_id
 from cirl_study.record import TrialRecord, encode
 
 
@@ -92,12 +94,12 @@ def contents_of(scan: FileScan) -> FileContents:
         )
         trial_messages = trial_messages[:MAX_FILE_TRIALS]
     seen: set[str] = set()
-    decoded = decode_trials(message.data for message in trial_messages)
-    for index, (message, (record, problems)) in enumerate(
-        zip(trial_messages, decoded, strict=True)
-    ):
+    log_format = (contents.provenance or {}).get(LOG_FORMAT_KEY, LOG_FORMAT)
+    payloads = [record_payload(message.data, log_format) for message in trial_messages]
+    decoded = decode_trials(payloads)
+    for index, (payload, (record, problems)) in enumerate(zip(payloads, decoded, strict=True)):
         # An undecodable payload may still name its trial.
-        trial_id = payload_trial_id(message.data) if record is None else record.trial_id
+        trial_id = payload_trial_id(payload) if record is None else record.trial_id
         label = f"trial message {index}" if trial_id is None else f"trial {terminal(trial_id)}"
         past = [problem for problem in problems if isinstance(problem, BoundFault)]
         if past:  # damage: the record is passed over, like a damaged chunk
@@ -106,7 +108,7 @@ def contents_of(scan: FileScan) -> FileContents:
         faults.extend(f"{label}: {problem}" for problem in problems)
         if record is None or problems:
             continue
-        if encode(record) != message.data:
+        if encode(record) != payload:
             faults.append(f"{label}: payload is not canonical JSON")
         if record.trial_id in seen:
             faults.append(f"{label}: logged twice in this file")
@@ -118,8 +120,9 @@ def contents_of(scan: FileScan) -> FileContents:
     return contents
 
 
-def trial_index(metadata: Iterable[Metadata]) -> list[str] | None:
-    """The trial ids a file's ``trial_index`` record lists, ``None`` without exactly one or
+def trial_index(metadata: Sequence[Metadata]) -> list[str] | None:
+    """The trial ids a file's ``trial_index`` record lists (in the current names, see
+    :mod:`cirl_study.logs.versions`), ``None`` without exactly one or
     when it lists more than :data:`~cirl_study.logs.bounds.MAX_FILE_TRIALS` (not split: a
     record of newlines alone would be millions of strings)."""
     records = [m for m in metadata if m.name == TRIAL_INDEX_METADATA_NAME]
@@ -128,7 +131,9 @@ def trial_index(metadata: Iterable[Metadata]) -> list[str] | None:
     text = records[0].metadata[TRIAL_INDEX_KEY]
     if text.count("\n") >= MAX_FILE_TRIALS:
         return None
-    return text.split("\n") if text else []
+    provenance = [m.metadata for m in metadata if m.name == PROVENANCE_METADATA_NAME]
+    log_format = provenance[0].get(LOG_FORMAT_KEY, LOG_FORMAT) if provenance else LOG_FORMAT
+    return [trial_id(logged, log_format) for logged in text.split("\n")] if text else []
 
 
 def _index_faults(scan: FileScan, records: list[TrialRecord]) -> list[str]:

@@ -26,7 +26,7 @@ from cirl_study.logs.schemas import FLOAT32, DemonstrationStep, DeploymentStep
 from cirl_study.record import TrialRecord
 
 GRID_FRAME = "grid"
-"""Frame of reference of the reward maps: cell [x, y] is centred on the point (x, y)."""
+"""Frame of reference of the reward maps: cell [x, y] is centered on the point (x, y)."""
 
 
 @dataclass(frozen=True)
@@ -95,8 +95,8 @@ def reward_grid(
     ``features`` is ``Phi`` (:func:`~cirl_study.core.gridworld.feature_matrix`); the values
     are float32, by flat index ``y * width + x``, i.e. rows from ``y = 0`` upwards.
 
-    The grid's corner is placed at ``(-0.5, -0.5)`` so that cell ``[x, y]`` is centred on the
-    point ``(x, y)`` of the ``grid`` frame, the coordinates the RBF centres use.
+    The grid's corner is placed at ``(-0.5, -0.5)`` so that cell ``[x, y]`` is centered on the
+    point ``(x, y)`` of the ``grid`` frame, the coordinates the RBF centers use.
     """
     width = record.grid.width
     values = (features @ np.asarray(weights, dtype=float)).astype("<f4")

@@ -55,6 +55,7 @@ RUN_ID_KEY = "run_id"
 PIPELINE_FILE_KEY = "pipeline_file"
 PIPELINE_TEXT_KEY = "pipeline_toml"
 PIPELINE_SHA_KEY = "pipeline_sha256"
+LOG_FORMAT_KEY = "log_format"
 IDENTITY_KEYS = (
     RUN_ID_KEY,
     PIPELINE_NAME_KEY,

@@ -25,12 +25,14 @@ from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.logs.format import (
     IDENTITY_KEYS,
+    LOG_FORMAT_KEY,
     PIPELINE_FILE_KEY,
     PIPELINE_NAME_KEY,
     PIPELINE_SHA_KEY,
     PIPELINE_TEXT_KEY,
     RUN_ID_KEY,
 )
+from cirl_study.logs.versions import LOG_FORMAT, READABLE, pipeline_table, readable
 from cirl_study.study.spec import Pipeline, parse_pipeline
 
 KEY_PACKAGES: tuple[str, ...] = (
@@ -49,10 +51,6 @@ KEY_PACKAGES: tuple[str, ...] = (
 )
 """Distributions whose versions can change the numbers or the files a run or report holds."""
 
-LOG_FORMAT_VERSION = "5"
-"""Version of the log format: 3 names the run (``run_id``) and holds its pipeline file
-(``pipeline_toml``) in every file's provenance; 2 introduced the typed record."""
-
 
 @dataclass(frozen=True)
 class RunIdentity:
@@ -62,12 +60,15 @@ class RunIdentity:
     exactly when their identities are equal, which the file's path does not enter (the same
     pipeline copied under another name is the same run). ``pipeline_file`` is where the run
     found the file (:func:`cirl_study.study.spec.path_argument`), only for advice.
+    ``log_format`` is the format the file was written in (:mod:`cirl_study.logs.versions`),
+    in which its pipeline text is read.
     """
 
     run_id: str
     pipeline_name: str
     pipeline_file: str = field(compare=False)
     pipeline_text: str
+    log_format: str = field(default=LOG_FORMAT, compare=False)
 
     @property
     def pipeline_sha256(self) -> str:
@@ -80,7 +81,7 @@ class RunIdentity:
         Raises:
             UserError: the text is not a valid pipeline for this version of cirl-study.
         """
-        return _pipeline(self.pipeline_text, self.pipeline_file)
+        return _pipeline(self.pipeline_text, self.pipeline_file, self.log_format)
 
     def provenance(self) -> dict[str, str]:
         """The identity's entries of a ``provenance`` metadata record."""
@@ -90,6 +91,7 @@ class RunIdentity:
             PIPELINE_FILE_KEY: self.pipeline_file,
             PIPELINE_TEXT_KEY: self.pipeline_text,
             PIPELINE_SHA_KEY: self.pipeline_sha256,
+            LOG_FORMAT_KEY: self.log_format,
         }
 
     @classmethod
@@ -110,11 +112,18 @@ class RunIdentity:
         missing = [key for key in IDENTITY_KEYS if key not in provenance]
         if missing:
             raise ValueError(f"provenance lacks {', '.join(missing)} (log format < 3?)")
+        log_format = provenance.get(LOG_FORMAT_KEY, "")
+        if not readable(log_format):
+            raise ValueError(
+                f"log format '{terminal(log_format[:20])}' is not one this version reads "
+                f"({', '.join(READABLE)})"
+            )
         identity = cls(
             run_id=provenance[RUN_ID_KEY],
             pipeline_name=provenance[PIPELINE_NAME_KEY],
             pipeline_file=provenance[PIPELINE_FILE_KEY],
             pipeline_text=provenance[PIPELINE_TEXT_KEY],
+            log_format=log_format,
         )
         if identity.pipeline_sha256 != provenance[PIPELINE_SHA_KEY]:
             raise ValueError(
@@ -139,22 +148,22 @@ class RunIdentity:
 
 
 @functools.lru_cache(maxsize=4)
-def _pipeline(text: str, file: str) -> Pipeline:
+def _pipeline(text: str, file: str, log_format: str) -> Pipeline:
     """:attr:`RunIdentity.pipeline`, parsed once per process (every file of a run carries the
     same text, and each is checked by several readers)."""
-    return parse_pipeline(text, Path(file), label=PIPELINE_TEXT_KEY)
+    rename = functools.partial(pipeline_table, log_format=log_format)
+    return parse_pipeline(text, Path(file), label=PIPELINE_TEXT_KEY, rename=rename)
 
 
 def collect_provenance(identity: RunIdentity, run_dir: Path | None = None) -> dict[str, str]:
     """Provenance of the log files of a run, as a string-to-string map.
 
-    The entries of :meth:`RunIdentity.provenance`, ``log_format``, then those of
+    The entries of :meth:`RunIdentity.provenance` (``log_format`` among them), then those of
     :func:`machine_provenance` (``git_dirty`` judged without the run directory ``run_dir``).
     Nothing depends on the clock, so every file of a run carries the same record.
     """
     return {
         **identity.provenance(),
-        "log_format": LOG_FORMAT_VERSION,
         **machine_provenance(outputs=() if run_dir is None else (run_dir,)),
     }
 
@@ -172,7 +181,7 @@ def machine_provenance(outputs: Iterable[Path] = ()) -> dict[str, str]:
     the environment variables that steer OpenBLAS's kernel choice are named when set) and
     ``<package>_version`` for each of :data:`KEY_PACKAGES`.
     """
-    # Loaded here, not with the reader and every command that imports this module (20 ms).
+    # Loaded here, not with the reader and every command that imports this module.
     from importlib.metadata import PackageNotFoundError, version
 
     provenance = {

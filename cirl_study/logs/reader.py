@@ -41,6 +41,7 @@ from cirl_study.files import UnreadableFile, non_regular
 from cirl_study.logs.bounds import MAX_FILE_TRIALS, Budget, framed_records, read_log
 from cirl_study.logs.contents import FileContents, contents_of, trial_index
 from cirl_study.logs.format import (
+    LOG_FORMAT_KEY,
     PROVENANCE_METADATA_NAME,
     TRIAL_TOPIC,
     log_files,
@@ -50,6 +51,7 @@ from cirl_study.logs.lock import writer_pid
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.record_checks import decode_trials
 from cirl_study.logs.scan import MESSAGE_HEADER, RECORD_PREFIX, scan_data, section_crcs_hold
+from cirl_study.logs.versions import record_payload
 from cirl_study.record import TrialRecord, TrialRow
 from cirl_study.workers import started
 
@@ -117,10 +119,12 @@ def _intact_summary(path: Path, data: bytes) -> _IntactFile | None:
         announced = sum(counts.get(c, 0) for c in trial_channels)
         if announced > MAX_FILE_TRIALS:
             return None
-        decoded = decode_trials(_trial_payloads(data, summary, budget))
+        provenance = [m for m in metadata if m.name == PROVENANCE_METADATA_NAME]
+        log_format = provenance[0].metadata.get(LOG_FORMAT_KEY, "") if provenance else ""
+        payloads = _trial_payloads(data, summary, budget)
+        decoded = decode_trials(record_payload(payload, log_format) for payload in payloads)
     except Exception:  # any damage: the record-by-record scan will say what and salvage
         return None
-    provenance = [m for m in metadata if m.name == PROVENANCE_METADATA_NAME]
     index = trial_index(metadata)
     records = [record for record, faults in decoded if record is not None and not faults]
     sound = (
@@ -142,9 +146,8 @@ def _trial_payloads(data: bytes, summary: Summary, budget: Budget) -> list[bytes
     decompressed within ``budget`` (:meth:`~cirl_study.logs.bounds.Budget.inflate`) and its
     uncompressed CRC checked; the trial channel's message index, which
     the chunk index points to, gives each trial message's offset in the chunk, so no other
-    message is parsed (the replay topics are most of a file). The mcap package's reader
-    parses every message of a chunk in pure Python: at the paper's size this is about five
-    times faster.
+    message is parsed (the replay topics are most of a file), where the mcap package's reader
+    parses every message of a chunk in pure Python (``benchmarks/README.md`` compares them).
 
     Raises:
         ValueError: anything does not match (the caller then scans the file record by
@@ -267,7 +270,7 @@ def read_run(
     Files are read on every core, each whole in one worker process
     (:func:`~cirl_study.workers.started`), and each record comes back only as its
     row, so memory grows with the run's trial count by a row (a few hundred bytes), not a
-    record (~15 KB), per trial; :func:`read_trials` fetches whole records by id. Files are
+    record, per trial; :func:`read_trials` fetches whole records by id. Files are
     judged in their order, so the first fault found is the one reading in order would find.
 
     Args:

@@ -2,7 +2,7 @@
 
 Types and ranges are checked by decoding into :class:`~cirl_study.record.TrialRecord`
 (:func:`decode_trial`). Consistency, in docs/design.md's notation: ``len(theta) =
-len(theta_hat) = K`` = number of RBF centres; the start cell ``s_0`` lies on the grid; the
+len(theta_hat) = K`` = number of RBF centers; the start cell ``s_0`` lies on the grid; the
 demonstration is a path ``(s_0, ..., s_T_learn)`` of available moves from ``s_0`` with
 ``T_learn`` actions, each the move between consecutive cells, none of them ``stay`` unless
 ``demonstrator_stays``; every deployment rollout is such a path of ``T_deploy`` moves from its
@@ -213,13 +213,13 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
 
 
 def _sized(r: TrialRecord) -> bool:
-    """Whether ``theta``, ``theta_hat`` and the centres all have ``num_features`` entries."""
+    """Whether ``theta``, ``theta_hat`` and the centers all have ``num_features`` entries."""
     return len(r.theta) == len(r.theta_hat) == len(r.features.centers) == r.num_features
 
 
 def _reward_l2_faults(records: Sequence[TrialRecord]) -> Iterator[tuple[int, str]]:
     """``(index, fault)`` for every record whose ``reward_l2`` is not ``||Phi theta - Phi
-    theta_hat||_2`` recomputed (records with ``K`` weights and centres only, within the
+    theta_hat||_2`` recomputed (records with ``K`` weights and centers only, within the
     bounds); records of one grid and ``K`` are computed together, :data:`_STACKED_ENTRIES`
     feature values at a time."""
     together: dict[tuple[Grid, int], list[int]] = defaultdict(list)

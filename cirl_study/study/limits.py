@@ -18,8 +18,8 @@ MAX_BATCH = MAX_FILE_TRIALS
 file (:data:`cirl_study.logs.bounds.MAX_FILE_TRIALS`)."""
 
 MAX_TRIALS = 2_000_000
-"""Most trials a pipeline may plan: the plan holds every trial's spec in memory (about 1 KB
-each), so this keeps it within about 2 GB."""
+"""Most trials a pipeline may plan: the plan holds every trial's spec in memory (of the order
+of a kilobyte each), so this keeps it within a few gigabytes."""
 
 BATCH_MEMORY_BUDGET = 4 * 2**30
 """Bytes a worker may need to play one batch (:func:`batch_memory`): the 2-core, 24 GiB
@@ -28,8 +28,8 @@ machine this study is sized for runs two workers beside the parent with room to 
 
 ENUMERATION_BYTES_PER_PATH = 200
 """Peak bytes per learning path of enumerating a teaching study's visit classes
-(:class:`cirl_study.core.hypotheses.VisitClasses`): measured 160 at the paper's 1,910,313
-paths (305 MB above the interpreter)."""
+(:class:`cirl_study.core.hypotheses.VisitClasses`), an upper bound of the peak at the paper's
+1,910,313 paths (``benchmarks/README.md``, *Memory of a batch*)."""
 
 
 def batch_memory(pipeline: Pipeline) -> int:
@@ -39,9 +39,9 @@ def batch_memory(pipeline: Pipeline) -> int:
     float per action (5), per feature (``K``) and per pair of features (``K^2``, the
     covariance of the feature counts), so a batch needs at most about
     ``MAX_BATCH (T + 1) S (5 + K + K^2) 8`` bytes with ``T`` the longer horizon, ``S`` the
-    cells and ``K`` the largest feature level. An upper bound: measured peaks of a batch of
-    250 best-response trials at ``K = 10``, ``T = 9`` are 0.17 GB on 10 x 10 cells (bound
-    0.23) and 2.0 GB on 40 x 40 (bound 3.7). A teaching study adds the enumeration of its
+    cells and ``K`` the largest feature level: an upper bound of the peak
+    (``benchmarks/README.md``, *Memory of a batch*, holds it against measured peaks). A teaching
+    study adds the enumeration of its
     learning phase's paths (:data:`ENUMERATION_BYTES_PER_PATH` each) and, for the
     hypotheses' log-partitions, each trial's features once per hypothesis
     (``MAX_BATCH H S K 8`` bytes).

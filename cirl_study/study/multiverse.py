@@ -10,7 +10,7 @@ every *universe*, one choice of every setting (Steegen, Tuerlinckx, Gelman & Van
 
 A universe's pipeline (:func:`universe_pipeline`) is the multiverse's with the universe's
 settings: the same root seed, the same run, the same subjects. A subject's stream draws its
-centres and then ``theta`` whatever the placement (:func:`cirl_study.study.plan.draw_reward`),
+centers and then ``theta`` whatever the placement (:func:`cirl_study.study.plan.draw_reward`),
 so every universe sees the same ``theta`` for a subject, and the universes are compared on
 common random numbers; a trial's seed is that of its id without the universe, so the base
 universe's trials are those of the pipeline played as a single study.
@@ -47,7 +47,7 @@ def _multiverse(pipeline: Pipeline) -> MultiverseSpec:
 
 def universe_pipeline(pipeline: Pipeline, universe: Universe) -> Pipeline:
     """The single study of ``universe``: ``pipeline`` with its settings, each set by its axis
-    (:attr:`~cirl_study.study.spec.Axis.apply`: ``sigma``, ``centres``,
+    (:attr:`~cirl_study.study.spec.Axis.apply`: ``sigma``, ``centers``,
     ``demonstrator_stays`` and ``deployment_start`` in ``game``, ``steps`` both horizons,
     ``rationality`` in ``main`` and ``eta_cv``, ``robot`` as ``main.robots``), and no
     multiverse; the run id stays the multiverse's, and ``universe`` is set.

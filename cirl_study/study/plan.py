@@ -12,18 +12,18 @@ pipeline watches the same subjects under the same policies: the robot is a withi
 factor of the ``main`` and ``lambda_sweep`` blocks, and the eta cross-validation is played by
 the reference robot alone (:attr:`cirl_study.study.spec.MainSpec.reference_robot`). In a
 multiverse (:mod:`cirl_study.study.multiverse`) a trial's id ends with ``@`` and its universe's
-id, e.g. ``main:main-k03-s0001:expert:lambda=1.0:robot=map@sigma=2.5,centres=per_draw,...``.
+id, e.g. ``main:main-k03-s0001:expert:lambda=1.0:robot=map@sigma=2.5,centers=per_draw,...``.
 
 Randomness. Every stream is a :class:`numpy.random.SeedSequence` with the pipeline's root
 seed as entropy and, as spawn key, the BLAKE2b hash of the identity string
 (``subject:<subject id>`` or ``trial:<trial id>``). Nothing depends on the order in which
 trials are planned, batched or played. A subject's stream draws, in this order, ``K`` RBF
-centres uniformly over the continuous extent ``[0, width-1] x [0, height-1]`` and then
+centers uniformly over the continuous extent ``[0, width-1] x [0, height-1]`` and then
 ``theta ~ Uniform[-1, 1]^K``; every trial of the subject (both policies, every lambda) sees
-the same centres and ``theta``. The centres drawn are the subject's own when
-``game.centres = "per_draw"``; with ``"shared"`` every subject at ``K`` features uses the
-centres of the stream ``centres:k<K>`` (drawn the same way), with ``"lattice"`` those of
-:func:`lattice_centres`, and ``theta`` is the same draw under every placement. A trial's
+the same centers and ``theta``. The centers drawn are the subject's own when
+``game.centers = "per_draw"``; with ``"shared"`` every subject at ``K`` features uses the
+centers of the stream ``centers:k<K>`` (drawn the same way), with ``"lattice"`` those of
+:func:`lattice_centers`, and ``theta`` is the same draw under every placement. A trial's
 ``seed`` is the first 53 bits of the stream of its *demonstration's* id: the trial id without
 the robot and the universe (:func:`demonstration_id`; an integer that every JSON reader holds
 exactly). So every robot watches the same demonstration, drawn once from that seed, also from
@@ -148,36 +148,36 @@ class Subject:
 def draw_reward(
     pipeline: Pipeline, subject: str, num_features: int
 ) -> tuple[RBFFeatures, tuple[float, ...]]:
-    """Draw the reward of ``subject``: centres ``c_k`` then ``theta``, from its own stream; the
-    centres are replaced by the shared or lattice ones when ``game.centres`` says so."""
+    """Draw the reward of ``subject``: centers ``c_k`` then ``theta``, from its own stream; the
+    centers are replaced by the shared or lattice ones when ``game.centers`` says so."""
     game = pipeline.game
     rng = np.random.default_rng(random_stream(pipeline.seed, f"subject:{subject}"))
-    centers = _uniform_centres(rng, game, num_features)
+    centers = _uniform_centers(rng, game, num_features)
     theta = rng.uniform(-1.0, 1.0, size=num_features)
-    if game.centres == "shared":
-        shared = np.random.default_rng(random_stream(pipeline.seed, f"centres:k{num_features:02d}"))
-        centers = _uniform_centres(shared, game, num_features)
-    elif game.centres == "lattice":
-        centers = lattice_centres(game.width, game.height, num_features)
+    if game.centers == "shared":
+        shared = np.random.default_rng(random_stream(pipeline.seed, f"centers:k{num_features:02d}"))
+        centers = _uniform_centers(shared, game, num_features)
+    elif game.centers == "lattice":
+        centers = lattice_centers(game.width, game.height, num_features)
     features = RBFFeatures(
         centers=tuple((float(x), float(y)) for x, y in centers), sigma=game.sigma
     )
     return features, tuple(float(t) for t in theta)
 
 
-def _uniform_centres(rng: np.random.Generator, game: GameSpec, count: int) -> np.ndarray:
-    """``count`` centres uniform over ``[0, width-1] x [0, height-1]``, ``(count, 2)``."""
+def _uniform_centers(rng: np.random.Generator, game: GameSpec, count: int) -> np.ndarray:
+    """``count`` centers uniform over ``[0, width-1] x [0, height-1]``, ``(count, 2)``."""
     return rng.uniform((0.0, 0.0), (game.width - 1, game.height - 1), size=(count, 2))
 
 
-def lattice_centres(width: int, height: int, count: int) -> np.ndarray:
-    """``count`` centres on a regular ``rows x columns`` lattice, ``(count, 2)``, row by row.
+def lattice_centers(width: int, height: int, count: int) -> np.ndarray:
+    """``count`` centers on a regular ``rows x columns`` lattice, ``(count, 2)``, row by row.
 
     ``rows x columns = count``, with the factor pair whose aspect ``columns / rows`` is
     closest (in log ratio) to the grid's ``width / height``, the wider of a tie (a prime
     ``count`` is one row).
-    Each lattice cell's centre: ``x = (width - 1)(i + 1/2) / columns``, ``y = (height - 1)(j +
-    1/2) / rows``, so e.g. 10 centres on the paper's 10 x 10 grid lie on a 2 x 5 lattice.
+    Each lattice cell's center: ``x = (width - 1)(i + 1/2) / columns``, ``y = (height - 1)(j +
+    1/2) / rows``, so e.g. 10 centers on the paper's 10 x 10 grid lie on a 2 x 5 lattice.
     """
     pairs = [(rows, count // rows) for rows in range(1, count + 1) if count % rows == 0]
 

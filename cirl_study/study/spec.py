@@ -16,7 +16,7 @@ shape, with every key required::
     deployment_steps = 9      # T_deploy
     sigma = 1.5               # RBF width, in cells
     feature_levels = [3, 10]  # K, the between-subjects factor
-    centres = "per_draw"      # RBF centres: per_draw, shared or lattice (CENTRE_PLACEMENTS)
+    centers = "per_draw"      # RBF centers: per_draw, shared or lattice (CENTER_PLACEMENTS)
     demonstrator_stays = true # may the human stay put during the demonstration?
     deployment_start = "uniform"  # the robot's start: uniform or demonstration
 
@@ -36,8 +36,8 @@ shape, with every key required::
     rationalities = [1e-4, ..., 1e3]
 
 A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human, the
-``literal`` or ``pragmatic`` robot; :mod:`cirl_study.core.teaching`) declares their hypothesis
-space in ``[teaching]``, and then has no ``[lambda_sweep]``::
+``literal_observer`` or ``pragmatic`` robot; :mod:`cirl_study.core.teaching`) declares their
+hypothesis space in ``[teaching]``, and then has no ``[lambda_sweep]``::
 
     [teaching]
     hypotheses = 64           # reward hypotheses per reward draw (at least 2)
@@ -51,7 +51,7 @@ played in many *universes*, each a choice of the open settings :data:`AXES`
 
     [multiverse.cross]        # the full factorial of these axes ...
     sigma = [1.0, 1.5, 2.5, 4.0]
-    centres = ["per_draw", "shared", "lattice"]
+    centers = ["per_draw", "shared", "lattice"]
     [multiverse.alone]        # ... plus each of these levels varied alone ...
     steps = [7, 11]
     [[multiverse.universes]]  # ... plus these universes; unnamed settings as in the file
@@ -94,8 +94,8 @@ far from the interpreter's recursion limit (the parser itself recurses at about 
 _NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
-CENTRE_PLACEMENTS: tuple[str, ...] = ("per_draw", "shared", "lattice")
-"""Where the ``K`` RBF centres lie (:func:`cirl_study.study.plan.draw_reward`): drawn uniformly
+CENTER_PLACEMENTS: tuple[str, ...] = ("per_draw", "shared", "lattice")
+"""Where the ``K`` RBF centers lie (:func:`cirl_study.study.plan.draw_reward`): drawn uniformly
 with each reward draw (the paper's reading), drawn once per feature level and shared by every
 reward draw, or on a regular lattice."""
 
@@ -108,7 +108,7 @@ cell; the paper), or the demonstration's start cell."""
 class GameSpec:
     """The gridworld, horizons, RBF features and the feature levels (docs/design.md §1).
 
-    ``centres`` is one of :data:`CENTRE_PLACEMENTS`; ``demonstrator_stays`` whether the human
+    ``centers`` is one of :data:`CENTER_PLACEMENTS`; ``demonstrator_stays`` whether the human
     may take the ``stay`` action during the demonstration (the robot always may); and
     ``deployment_start`` one of :data:`DEPLOYMENT_STARTS`.
     """
@@ -120,7 +120,7 @@ class GameSpec:
     deployment_steps: int
     sigma: float
     feature_levels: tuple[int, ...]
-    centres: str
+    centers: str
     demonstrator_stays: bool
     deployment_start: str
 
@@ -198,7 +198,7 @@ class Universe:
     a field per axis, in the order of :data:`AXES`."""
 
     sigma: float
-    centres: str
+    centers: str
     demonstrator_stays: bool
     steps: int
     rationality: float
@@ -207,7 +207,7 @@ class Universe:
 
     @property
     def id(self) -> str:
-        """A readable id spelling out every choice, e.g. ``sigma=1.5,centres=per_draw,stays=yes,
+        """A readable id spelling out every choice, e.g. ``sigma=1.5,centers=per_draw,stays=yes,
         steps=9,lambda=1,robot=map,start=uniform``: a function of the choices alone, so adding
         a level to an axis never renames an existing universe."""
         return ",".join(
@@ -291,7 +291,7 @@ def _game_axis(
 
 AXES: dict[str, Axis] = {
     "sigma": _game_axis("sigma", "sigma", shortest_number, _sigmas, convert=float),
-    "centres": _game_axis("centres", "centres", str, _one_of(CENTRE_PLACEMENTS)),
+    "centers": _game_axis("centers", "centers", str, _one_of(CENTER_PLACEMENTS)),
     "demonstrator_stays": _game_axis(
         "demonstrator_stays",
         "stays",
@@ -326,7 +326,7 @@ AXES: dict[str, Axis] = {
     "deployment_start": _game_axis("deployment_start", "start", str, _one_of(DEPLOYMENT_STARTS)),
 }
 """The open settings a multiverse varies, each declared once (:class:`Axis`), by the key of
-``[multiverse.*]`` tables and of :class:`Universe`: ``game.sigma``, ``game.centres``,
+``[multiverse.*]`` tables and of :class:`Universe`: ``game.sigma``, ``game.centers``,
 ``game.demonstrator_stays``, ``steps`` (``game.learning_steps = game.deployment_steps``),
 ``rationality`` (``main.rationality = eta_cv.rationality``), ``robot`` (the one robot of
 ``main.robots``) and ``game.deployment_start``. A new axis is one entry here and one field
@@ -405,7 +405,7 @@ farther than any path's counts reach (at most ``T_learn + 1`` per feature for an
 this study can afford): either way the demonstration is that of the limit."""
 
 SIGMA_LOW = 0.02
-"""Least RBF width: a centre lies within ``sqrt(2)/2`` of a cell, and ``exp(-d^2 / (2
+"""Least RBF width: a center lies within ``sqrt(2)/2`` of a cell, and ``exp(-d^2 / (2
 sigma^2))`` underflows to 0 beyond ``d ~ 38.6 sigma``, so ``sigma >= 0.02`` keeps every
 feature non-zero on at least one cell (a feature that is zero everywhere would leave its
 weight unidentifiable by construction)."""
@@ -568,11 +568,19 @@ def path_argument(path: Path) -> str:
     return shown if "/" in shown and not shown.startswith("-") else f"./{shown}"
 
 
-def parse_pipeline(text: str, path: Path, *, label: str | None = None) -> Pipeline:
+def parse_pipeline(
+    text: str,
+    path: Path,
+    *,
+    label: str | None = None,
+    rename: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
+) -> Pipeline:
     """Validate the TOML ``text`` of the pipeline file ``path``, and what it plans against the
     limits of one run (:func:`cirl_study.study.limits.check_resources`).
 
     Every error is one line beginning with ``label``, by default ``path`` as the user sees it.
+    ``rename`` maps the parsed table to the current names before it is read: how the text a
+    log of an earlier format carries is read (:func:`cirl_study.logs.versions.pipeline_table`).
     """
     label = _display_path(path) if label is None else label
     # A character is at least one byte: a text of too many is not encoded to be measured.
@@ -587,6 +595,8 @@ def parse_pipeline(text: str, path: Path, *, label: str | None = None) -> Pipeli
     deep = _too_deep(data)
     if deep is not None:
         raise UserError(f"{label}: {deep} {nested}")
+    if rename is not None:
+        data = rename(data)
     top = _Table(
         label,
         "",
@@ -635,7 +645,7 @@ def _game(top: _Table) -> GameSpec:
             "deployment_steps",
             "sigma",
             "feature_levels",
-            "centres",
+            "centers",
             "demonstrator_stays",
             "deployment_start",
         ),
@@ -663,7 +673,7 @@ def _game(top: _Table) -> GameSpec:
         deployment_steps=game.integer("deployment_steps", 1, "a positive integer"),
         sigma=game.number_in("sigma", _sigma_limits(width, height)),
         feature_levels=_feature_levels(game, width * height),
-        centres=game.choice("centres", CENTRE_PLACEMENTS),
+        centers=game.choice("centers", CENTER_PLACEMENTS),
         demonstrator_stays=game.boolean("demonstrator_stays"),
         deployment_start=game.choice("deployment_start", DEPLOYMENT_STARTS),
     )
@@ -729,11 +739,11 @@ the paths, at 1e3 all but certain to be the most telling path (``demonstration =
 
 
 def _teaching(top: _Table, game: GameSpec, main: MainSpec) -> TeachingSpec | None:
-    """The ``[teaching]`` table: required exactly when a human or robot of ``main`` teaches."""
+    """The ``[teaching]`` table: required exactly when a human or robot of ``main`` needs one."""
     from cirl_study.core.players import HUMANS, ROBOTS
 
-    teaching = [p for p in main.policies if HUMANS[p].teaches]
-    teaching += [r for r in main.robots if ROBOTS[r].teaches]
+    teaching = [p for p in main.policies if HUMANS[p].needs_hypotheses]
+    teaching += [r for r in main.robots if ROBOTS[r].needs_hypotheses]
     if "teaching" not in top.data:
         if teaching:
             top.fail("teaching", f"is missing ({', '.join(teaching)} need a hypothesis space)")

@@ -1,0 +1,129 @@
+"""The log formats this version reads, and how a log of an earlier one is read as the current.
+
+A log file states its format in its provenance (``log_format``). This version reads each format
+of :data:`READABLE` by renaming what a file holds to the current names before anything is
+checked or decoded: the pipeline's table (the TOML as parsed), each trial record's JSON and
+the trial ids of the file's index. The hashes and the run id stay those of the text as it was
+logged, so a run keeps its identity.
+
+Format 6 gave each concept one name where format 5 had two; a log of format 5 is renamed so:
+
+===================================== ========================== ==========================
+what                                  format 5                   format 6
+===================================== ========================== ==========================
+the robot of the literal likelihood   ``literal``                ``literal_observer``
+pipeline key, multiverse axis         ``centres``                ``centers``
+universe id (and a trial id's end)    ``...,centres=shared,...`` ``...,centers=shared,...``
+===================================== ========================== ==========================
+
+``literal`` stays the name of the Boltzmann-rational human. A run of format 5 is read,
+validated and analysed; it is resumed only by the version that wrote it (its pipeline text is
+of that version).
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import msgspec
+
+LOG_FORMAT = "6"
+"""The format this version writes: 6 one name per concept (see the module docstring); 5 the
+record's ``teaching`` (hypothesis space), and ``seed`` shared by the robots of one
+demonstration; 4 the record's ``demonstrator_stays``, ``deployment_start`` and ``universe``;
+3 the run's identity and pipeline text in every file; 2 the typed record."""
+
+READABLE = ("5", LOG_FORMAT)
+"""The formats this version reads."""
+
+_ROBOTS = {"literal": "literal_observer"}
+_AXES = {"centres": "centers"}
+
+_SORTED = msgspec.json.Encoder(order="sorted")
+"""The records' canonical JSON (:func:`cirl_study.record.encode`): keys sorted, no spaces."""
+
+
+def readable(log_format: str) -> bool:
+    """Whether this version reads logs of ``log_format``."""
+    return log_format in READABLE
+
+
+def pipeline_table(data: dict[str, Any], log_format: str) -> dict[str, Any]:
+    """The parsed pipeline ``data`` of a log of ``log_format``, in the current names.
+
+    >>> pipeline_table({"game": {"centres": "shared"}, "main": {"robots": ["literal"]}}, "5")
+    {'game': {'centers': 'shared'}, 'main': {'robots': ['literal_observer']}}
+    """
+    if log_format == LOG_FORMAT:
+        return data
+    return {key: _pipeline_value(key, value) for key, value in data.items()}
+
+
+def _pipeline_value(key: str, value: Any) -> Any:
+    """``value`` of the pipeline key ``key`` (at any depth), renamed."""
+    if key in ("robots", "robot"):
+        if isinstance(value, str):
+            return _ROBOTS.get(value, value)
+        if isinstance(value, list):
+            return [_ROBOTS.get(v, v) if isinstance(v, str) else v for v in value]
+    if isinstance(value, dict):
+        return {_AXES.get(k, k): _pipeline_value(k, v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_pipeline_value(key, v) for v in value]
+    return value
+
+
+def record_payload(data: bytes, log_format: str) -> bytes:
+    """The JSON ``data`` of a trial record of a log of ``log_format``, in the current names
+    and canonical (keys sorted). Bytes that are not a JSON object are returned as they are,
+    for the decoder to report.
+
+    >>> record_payload(b'{"robot":"literal","universe":"sigma=1.5,centres=shared"}', "5")
+    b'{"robot":"literal_observer","universe":"sigma=1.5,centers=shared"}'
+    """
+    if log_format == LOG_FORMAT:
+        return data
+    try:
+        record = msgspec.json.decode(data)
+    except (msgspec.DecodeError, RecursionError):
+        return data
+    if not isinstance(record, dict):
+        return data
+    renamed = dict(record)
+    for key, rename in (("trial_id", trial_id), ("universe", _universe), ("robot", _robot)):
+        if isinstance(renamed.get(key), str):
+            renamed[key] = rename(renamed[key], log_format)
+    return _SORTED.encode(renamed)
+
+
+def trial_id(logged: str, log_format: str) -> str:
+    """The trial id ``logged`` in a log of ``log_format``, in the current names: in format 5,
+    ``block:subject:human:lambda=...:robot=...@universe`` with the robot and the universe
+    renamed.
+
+    >>> trial_id("main:main-k03-s0001:literal:lambda=1.0:robot=literal@centres=shared", "5")
+    'main:main-k03-s0001:literal:lambda=1.0:robot=literal_observer@centers=shared'
+    """
+    if log_format == LOG_FORMAT:
+        return logged
+    trial, at, universe = logged.partition("@")
+    parts = [
+        "robot=" + _robot(p[len("robot=") :], log_format) if p.startswith("robot=") else p
+        for p in trial.split(":")
+    ]
+    return ":".join(parts) + at + _universe(universe, log_format)
+
+
+def _robot(name: str, log_format: str) -> str:
+    return name if log_format == LOG_FORMAT else _ROBOTS.get(name, name)
+
+
+def _universe(universe: str, log_format: str) -> str:
+    """A universe id ``axis=level,...`` with its axes and robots renamed."""
+    if log_format == LOG_FORMAT or not universe:
+        return universe
+    choices = [choice.partition("=") for choice in universe.split(",")]
+    return ",".join(
+        _AXES.get(axis, axis) + eq + (_robot(level, log_format) if axis == "robot" else level)
+        for axis, eq, level in choices
+    )

@@ -1,0 +1,111 @@
+"""Logs of every format this version reads are read as the current one
+(:mod:`cirl_study.logs.versions`).
+
+``tests/fixtures/logs/format-5-*`` are runs written by the last version of log format 5 (their
+pipeline files beside them), with the trial table that version's ``analyze`` wrote
+(``trials-format-5.csv``): read now, they must validate, and give that table in the current
+names, number for number.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pandas as pd
+import pytest
+from typer.testing import CliRunner
+
+import cirl_study
+from cirl_study.cli import app
+from cirl_study.logs import versions
+from cirl_study.logs.reader import read_run
+from tests.cli_results import one_line_error
+
+FIXTURES = Path(__file__).parent / "fixtures" / "logs"
+FORMAT_5 = sorted(FIXTURES.glob("format-5-*"))
+
+
+def _in_current_names(table: pd.DataFrame) -> pd.DataFrame:
+    """A format-5 trial table as the current version names it."""
+    table = table.rename(columns={"certified": "converged"})
+    table["robot"] = table["robot"].replace({"literal": "literal_observer"})
+    table["trial_id"] = [versions.trial_id(t, "5") for t in table["trial_id"]]
+    return table
+
+
+def test_there_are_runs_of_format_5() -> None:
+    assert [path.name for path in FORMAT_5] == ["format-5-sweep", "format-5-teaching"]
+
+
+@pytest.mark.parametrize("run", FORMAT_5, ids=lambda path: path.name)
+def test_a_run_of_format_5_validates(run: Path) -> None:
+    result = CliRunner().invoke(app, ["validate", str(run)])
+    assert result.exit_code == 0, result.output
+    assert result.output.strip().splitlines()[-1].endswith("design complete")
+
+
+@pytest.mark.parametrize("run", FORMAT_5, ids=lambda path: path.name)
+def test_a_run_of_format_5_gives_its_trial_table_in_the_current_names(run: Path) -> None:
+    logged = pd.read_csv(run / "trials-format-5.csv", keep_default_na=False, na_values=[""])
+    want = _in_current_names(logged).sort_values("trial_id").reset_index(drop=True)
+    got = cirl_study.load_trials(run).sort_values("trial_id").reset_index(drop=True)
+    assert list(got.columns) == list(want.columns)
+    assert set(got["robot"]) <= {"map", "literal_observer"}
+    for column in want.columns:
+        if column in ("regret", "kl", "reward_l2", "eta", "rationality"):
+            pd.testing.assert_series_equal(
+                got[column].astype(float), want[column].astype(float), rtol=1e-15
+            )
+        elif column == "universe":
+            assert got[column].isna().all() and want[column].isna().all()
+        else:
+            assert got[column].astype(str).tolist() == want[column].astype(str).tolist(), column
+
+
+def test_a_run_of_format_5_is_analysed() -> None:
+    results = cirl_study.analyze(FIXTURES / "format-5-teaching")
+    assert results.design.humans == ["expert", "best_response", "literal", "pedagogic"]
+    assert results.design.robots == ["map", "literal_observer"]
+
+
+def test_a_run_of_format_5_is_not_resumed(tmp_path: Path) -> None:
+    """Its trials were seeded from its own ids: a run is resumed by the version that wrote it.
+    Its pipeline file is not one of this version, and the current spelling of it is another
+    run."""
+    run = tmp_path / "run"
+    shutil.copytree(FIXTURES / "format-5-sweep", run)
+    before = sorted(path.name for path in run.glob("*.mcap"))
+    result = CliRunner().invoke(app, ["run", str(run / "pipeline.toml"), "--out", str(run)])
+    assert "game.centres is not a known key" in one_line_error(result)
+    renamed = run / "renamed.toml"
+    text = (run / "pipeline.toml").read_text()
+    renamed.write_text(text.replace("centres =", "centers ="))
+    result = CliRunner().invoke(app, ["run", str(renamed), "--out", str(run)])
+    assert "made from another text" in one_line_error(result)
+    assert sorted(path.name for path in run.glob("*.mcap")) == before  # nothing written
+
+
+def test_a_log_of_an_unknown_format_is_refused_in_one_line(tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(FIXTURES / "format-5-sweep", run)
+    first = sorted(run.glob("*.mcap"))[0]
+    data = first.read_bytes()
+    assert data.count(b"log_format") == 1
+    # The same length, so only the provenance's value changes (its CRCs no longer hold).
+    first.write_bytes(data.replace(b"log_format\x01\x00\x00\x005", b"log_format\x01\x00\x00\x009"))
+    result = CliRunner().invoke(app, ["validate", str(run)])
+    assert result.exit_code == 1
+    assert "Traceback" not in result.output
+    assert first.name in result.output
+
+
+def test_every_readable_format_is_named_and_the_current_one_is_written() -> None:
+    assert versions.READABLE[-1] == versions.LOG_FORMAT == "6"
+    assert versions.readable("5") and not versions.readable("4") and not versions.readable("")
+
+
+def test_read_run_renames_every_record_of_format_5() -> None:
+    run = read_run(FIXTURES / "format-5-teaching")
+    assert {row.robot for row in run.rows} == {"map", "literal_observer"}
+    assert all(not row.trial_id.endswith("robot=literal") for row in run.rows)
