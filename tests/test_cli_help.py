@@ -1,16 +1,24 @@
 """Every ``--help`` renders cleanly at 80 columns: no line too long, paragraphs reflowed,
-flags shown without a value, argument names in capitals."""
+flags shown without a value, arguments in the usage line as click writes them (``RUN``,
+``[PIPELINE]``); every value an option does not take is refused in one plain line."""
 
 from __future__ import annotations
 
-import re
-
 import pytest
+import typer.main
 from typer.testing import CliRunner
 
 from cirl_study.cli import app
 
-COMMANDS = ["run", "validate", "analyze", "reproduce", "compare", "office-supplies"]
+USAGES = {
+    "run": "[OPTIONS] [PIPELINE]",
+    "validate": "[OPTIONS] RUN",
+    "analyze": "[OPTIONS] RUN",
+    "reproduce": "[OPTIONS] [PIPELINE]",
+    "compare": "[OPTIONS] EXPECTED GOT",
+    "office-supplies": "[OPTIONS]",
+}
+COMMANDS = list(USAGES)
 
 
 def _help(*command: str) -> str:
@@ -26,8 +34,10 @@ def test_help_renders_at_80_columns(command: list[str]) -> None:
     assert all(len(line) <= 80 for line in lines), max(lines, key=len)
     assert "<bool>" not in text
     usage = lines[0]
-    assert usage.startswith(f"Usage: cirl-study {' '.join(command)}".rstrip())
-    assert not re.search(r"\{[a-z]", usage), usage  # arguments by capital names
+    if command:
+        assert usage == f"Usage: cirl-study {command[0]} {USAGES[command[0]]}"
+    else:
+        assert usage == "Usage: cirl-study [OPTIONS] COMMAND [ARGS]..."
     # Reflowed paragraphs: a description line never breaks far short of the width while
     # its paragraph goes on (a hard-wrapped docstring leaves short orphan lines).
     description = text.split("\n\n")[1:]
@@ -37,6 +47,71 @@ def test_help_renders_at_80_columns(command: list[str]) -> None:
         for line, following in zip(body, body[1:], strict=False):
             if following.strip() and not line.rstrip().endswith((":", ".")):
                 assert len(line) > 50, f"{line!r} then {following!r}"
+
+
+def test_the_usage_line_of_an_error_names_the_arguments_alike() -> None:
+    result = CliRunner().invoke(app, ["compare", "only-one"])
+    assert result.exit_code == 2
+    assert result.stderr.startswith(f"Usage: cirl-study compare {USAGES['compare']}\n")
+    assert result.stderr.rstrip().endswith("Error: Missing argument 'GOT'.")
+
+
+def _options_taking_a_value() -> list[tuple[str, str]]:
+    group = typer.main.get_command(app)
+    return [
+        (name, param.opts[0])
+        for name, command in group.commands.items()
+        for param in command.params
+        if param.param_type_name == "option" and not param.is_flag
+    ]
+
+
+FAILING_ARGUMENTS = {
+    "run": ["no/such.toml"],
+    "reproduce": ["no/such.toml"],
+    "validate": ["no/such/run"],
+    "analyze": ["no/such/run"],
+    "compare": ["no/such/a", "no/such/b"],
+}
+"""Arguments each command refuses, once its options are parsed, before doing anything."""
+
+BAD_VALUES = {
+    ("run", "--engine"): ("foo", "'foo' is not one of: local, dask."),
+    ("reproduce", "--engine"): ("DASK", "'DASK' is not one of: local, dask."),
+    ("run", "--workers"): ("2.5", "'2.5' is not an integer."),
+    ("reproduce", "--workers"): ("many", "'many' is not an integer."),
+    ("compare", "--rtol"): ("-1e-9", "'-1e-9' is not a number >= 0."),
+    ("compare", "--atol"): ("nan", "'nan' is not a number >= 0."),
+}
+"""The options whose value is checked as it is parsed, each with a value it refuses."""
+
+
+def test_every_option_taking_a_value_is_tried() -> None:
+    assert set(BAD_VALUES) <= set(_options_taking_a_value())
+    assert {name for name, _ in _options_taking_a_value()} <= set(FAILING_ARGUMENTS)
+
+
+@pytest.mark.parametrize(("command", "option"), _options_taking_a_value())
+def test_a_value_an_option_does_not_take_is_one_plain_line(
+    command: str, option: str, tmp_path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Checked options refuse a bad value in click's one line, in plain words, the value
+    escaped; the others take any text, and the command then refuses its arguments."""
+    monkeypatch.chdir(tmp_path)
+    value, message = BAD_VALUES.get((command, option), ("any\x1b[2J\r", None))
+    for tried, said in ((value, message), (f"{value}\x1b[2J\r", None)):
+        result = CliRunner().invoke(app, [command, *FAILING_ARGUMENTS[command], option, tried])
+        assert result.exit_code == 2, result.output
+        assert all(line.isprintable() for line in result.stderr.splitlines()), result.stderr
+        last = result.stderr.splitlines()[-1]
+        assert "Value error" not in last and "Input should" not in last, last
+        if (command, option) not in BAD_VALUES:
+            assert last.startswith("error: "), last  # the value was taken
+        elif said is not None:
+            assert last == f"Error: Invalid value for '{option}': {said}"
+        else:
+            assert last.startswith(f"Error: Invalid value for '{option}': '{value}\\x1b[2J\\r'")
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize(

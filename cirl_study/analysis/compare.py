@@ -16,6 +16,12 @@ the CPU's and the BLAS kernels' rounding. :func:`compare_reports` compares
   byte by byte).
 
 ``provenance.json`` says what made the report: it differs by design and is not compared.
+
+Either directory may come from someone else. Every name and value a difference quotes from
+them (a file name, a key, a column, a row's id, a cell, a line of text) is escaped and bounded
+by :func:`~cirl_study.escape.terminal`, so the differences print as they are; a file that
+cannot be read as what it should be (JSON, UTF-8 CSV or text, PNG) is a
+:class:`~cirl_study.errors.UserError`, never a traceback.
 """
 
 from __future__ import annotations
@@ -31,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from cirl_study.errors import UserError
+from cirl_study.escape import terminal
 
 RELATIVE_TOLERANCE = 1e-9
 """Default ``rtol``: far above the rounding of one CPU's run against another's where the
@@ -90,7 +97,7 @@ def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = Non
     for figure in sorted(expected.glob("*.png")):
         differences += _figure_differences(figure, got / figure.name)
     differences += [
-        f"{vector.name}: missing"
+        f"{terminal(vector.name)}: missing"
         for vector in sorted(expected.glob("*.svg"))
         if not (got / vector.name).is_file()
     ]
@@ -100,17 +107,43 @@ def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = Non
 def _load_json(directory: Path) -> Any:
     path = directory / "results.json"
     try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as error:
-        raise UserError(f"{path}: cannot read: {error}") from None
+        return json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError, RecursionError) as error:
+        raise UserError(f"{path}: cannot read: {_reason(error)}") from None
 
 
 def _load_csv(path: Path) -> list[dict[str, str]]:
+    """The rows of a table; a ragged row's missing cells are ``None``, its extra ones a list
+    under the key ``None`` (:class:`csv.DictReader`)."""
     try:
-        with path.open(newline="") as stream:
+        with path.open(newline="", encoding="utf-8") as stream:
             return list(csv.DictReader(stream))
-    except OSError as error:
-        raise UserError(f"{path}: cannot read: {error.strerror}") from None
+    except (OSError, ValueError, csv.Error) as error:
+        raise UserError(f"{path}: cannot read: {_reason(error)}") from None
+
+
+def _read_lines(path: Path) -> list[str]:
+    try:
+        return path.read_text(encoding="utf-8").splitlines()
+    except (OSError, ValueError) as error:
+        raise UserError(f"{path}: cannot read: {_reason(error)}") from None
+
+
+def _reason(error: BaseException) -> str:
+    """Why a file could not be read: an OS error's reason, else the error's message."""
+    return (error.strerror if isinstance(error, OSError) else None) or str(error)
+
+
+def _shown(value: Any) -> str:
+    """A value of a report as a difference quotes it: its ``repr``, bounded."""
+    return terminal(repr(value))
+
+
+def _numbers_agree(a: float, b: float, tolerance: Tolerance) -> bool:
+    try:
+        return tolerance.agree(float(a), float(b))
+    except OverflowError:  # an integer beyond every float
+        return a == b
 
 
 def _is_number(value: Any) -> bool:
@@ -118,30 +151,34 @@ def _is_number(value: Any) -> bool:
 
 
 def _json_differences(a: Any, b: Any, where: str, tolerance: Tolerance) -> Iterator[str]:
+    """The differences between the JSON values ``a`` and ``b`` at ``where`` (the path of keys
+    and indices to them, raw: it is escaped where a difference quotes it)."""
     if _is_number(a) and _is_number(b):
-        if not tolerance.agree(float(a), float(b)):
-            yield f"{where}: {a!r} != {b!r}"
+        if not _numbers_agree(a, b, tolerance):
+            yield f"{terminal(where)}: {_shown(a)} != {_shown(b)}"
     elif isinstance(a, dict) and isinstance(b, dict):
         if set(a) != set(b):
-            yield f"{where}: keys {sorted(set(a) ^ set(b))} are in only one report"
+            only = _shown(sorted(set(a) ^ set(b)))
+            yield f"{terminal(where)}: keys {only} are in only one report"
         for key in sorted(set(a) & set(b)):
             yield from _json_differences(a[key], b[key], f"{where}.{key}", tolerance)
     elif isinstance(a, list) and isinstance(b, list):
         if len(a) != len(b):
-            yield f"{where}: {len(a)} items != {len(b)} items"
+            yield f"{terminal(where)}: {len(a)} items != {len(b)} items"
         for index, (x, y) in enumerate(zip(a, b, strict=False)):
             yield from _json_differences(x, y, f"{where}[{index}]", tolerance)
     elif a != b or type(a) is not type(b):
-        yield f"{where}: {a!r} != {b!r}"
+        yield f"{terminal(where)}: {_shown(a)} != {_shown(b)}"
 
 
 def _table_differences(
     name: str, a: list[dict[str, str]], b: list[dict[str, str]], tolerance: Tolerance
 ) -> Iterator[str]:
     if len(a) != len(b):
-        yield f"{name}: {len(a)} rows != {len(b)} rows"
+        yield f"{terminal(name)}: {len(a)} rows != {len(b)} rows"
     for index, (x, y) in enumerate(zip(a, b, strict=False)):
-        where = f"{name} row {index + 2} ({x.get('trial_id', x.get('universe'))})"
+        row = terminal(x.get("trial_id", x.get("universe")))
+        where = f"{terminal(name)} row {index + 2} ({row})"
         if list(x) != list(y):
             yield f"{where}: columns differ"
             continue
@@ -149,10 +186,10 @@ def _table_differences(
             other = y[column]
             try:
                 same = tolerance.agree(float(value), float(other))
-            except ValueError:
+            except (TypeError, ValueError):  # text, or a ragged row's None or list
                 same = value == other
             if not same:
-                yield f"{where}: {column} {value} != {other}"
+                yield f"{where}: {terminal(column)} {terminal(value)} != {terminal(other)}"
 
 
 def _text_differences(expected: Path, got: Path) -> list[str]:
@@ -160,25 +197,35 @@ def _text_differences(expected: Path, got: Path) -> list[str]:
         return [f"{expected.name}: missing from the expected report"]
     if not got.exists():
         return [f"{got.name}: missing"]
-    lines = expected.read_text(encoding="utf-8").splitlines()
-    others = got.read_text(encoding="utf-8").splitlines()
+    lines, others = _read_lines(expected), _read_lines(got)
     for number, (line, other) in enumerate(zip(lines, others, strict=False), start=1):
         if line != other:
-            return [f"{got.name} line {number}: {line[:80]!r} != {other[:80]!r}"]
+            return [f"{got.name} line {number}: {_shown(line[:80])} != {_shown(other[:80])}"]
     if len(lines) != len(others):
         return [f"{got.name}: {len(lines)} lines != {len(others)} lines"]
     return []
 
 
 def _figure_differences(expected: Path, got: Path) -> list[str]:
-    from matplotlib.image import imread
-
+    name = terminal(got.name)
     if not got.exists():
-        return [f"{got.name}: missing"]
-    a, b = imread(expected), imread(got)
+        return [f"{name}: missing"]
+    a, b = _read_image(expected), _read_image(got)
     if a.shape != b.shape:
-        return [f"{got.name}: {a.shape} pixels != {b.shape}"]
+        return [f"{name}: {a.shape} pixels != {b.shape}"]
     share = float((np.abs(a - b) > PIXEL_TOLERANCE).any(axis=-1).mean())
     if share > PIXEL_SHARE:
-        return [f"{got.name}: {share:.2%} of the pixels differ (at most {PIXEL_SHARE:.2%})"]
+        return [f"{name}: {share:.2%} of the pixels differ (at most {PIXEL_SHARE:.2%})"]
     return []
+
+
+def _read_image(path: Path) -> np.ndarray:
+    """A PNG's pixels; Pillow, which reads it, reports a file that is not one as a syntax
+    error and an image too large to decode safely as a decompression bomb."""
+    from matplotlib.image import imread
+    from PIL.Image import DecompressionBombError
+
+    try:
+        return imread(path)
+    except (OSError, ValueError, SyntaxError, DecompressionBombError) as error:
+        raise UserError(f"{path}: cannot read: {_reason(error)}") from None

@@ -12,6 +12,7 @@ from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from cirl_study.commands.parameters import Command
 from cirl_study.escape import terminal
 
 if TYPE_CHECKING:
@@ -61,7 +62,7 @@ PartialOption = Annotated[
 ]
 
 
-@app.command()
+@app.command(cls=Command)
 def analyze(
     run: RunArgument,
     out: ReportDirectoryOption = None,

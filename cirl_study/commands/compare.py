@@ -8,6 +8,8 @@ from typing import Annotated
 import typer
 
 from cirl_study.analysis.compare import ABSOLUTE_TOLERANCE, RELATIVE_TOLERANCE, Tolerance
+from cirl_study.commands.parameters import Command, number
+from cirl_study.escape import terminal
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``compare`` command, merged into :data:`cirl_study.cli.app`."""
@@ -16,7 +18,10 @@ SHOWN = 20
 """Differences printed before the rest are only counted."""
 
 
-@app.command()
+_tolerance = number(float, "a number >= 0", minimum=0.0)
+
+
+@app.command(cls=Command)
 def compare(
     expected: Annotated[
         Path,
@@ -26,16 +31,23 @@ def compare(
     ],
     got: Annotated[Path, typer.Argument(metavar="GOT", help="Report directory to check.")],
     rtol: Annotated[
-        float, typer.Option(help="Relative tolerance: |a - b| <= atol + rtol |a|.", min=0.0)
+        float,
+        typer.Option(
+            help="Relative tolerance (>= 0): |a - b| <= atol + rtol |a|, a expected.",
+            parser=_tolerance,
+        ),
     ] = RELATIVE_TOLERANCE,
-    atol: Annotated[float, typer.Option(help="Absolute tolerance.", min=0.0)] = ABSOLUTE_TOLERANCE,
+    atol: Annotated[
+        float, typer.Option(help="Absolute tolerance (>= 0).", parser=_tolerance)
+    ] = ABSOLUTE_TOLERANCE,
 ) -> None:
-    """Compare two report directories: every number of results.json and of each table
-    (trials.csv, a multiverse's universes.csv) within the tolerance, the text of report.md,
-    each figure within an image tolerance, and that every SVG exists.
+    """Compare the report directory GOT with EXPECTED: every number of results.json and of
+    each table (trials.csv, a multiverse's universes.csv) within the tolerance, the text of
+    report.md, each figure within an image tolerance, and that every SVG exists.
 
-    Exit code 0 when every number agrees within the tolerance and everything else is equal,
-    1 otherwise (the differences are listed), 2 when a report cannot be read.
+    Each difference names EXPECTED's value first, then GOT's. Exit code 0 when every number
+    agrees within the tolerance and everything else is equal, 1 otherwise (the differences
+    are listed), 2 when a report cannot be read.
     """
     from cirl_study.analysis.compare import compare_reports
 
@@ -45,6 +57,7 @@ def compare(
     if len(differences) > SHOWN:
         typer.echo(f"... and {len(differences) - SHOWN} more")
     verdict = "the same" if not differences else f"different ({len(differences)} differences)"
-    typer.echo(f"{expected} vs {got}: {verdict} at rtol={rtol:g}, atol={atol:g}")
+    reports = f"{terminal(expected)} vs {terminal(got)}"
+    typer.echo(f"{reports}: {verdict} at rtol={rtol:g}, atol={atol:g}")
     if differences:
         raise typer.Exit(code=1)

@@ -7,11 +7,13 @@ from typing import Annotated
 
 import typer
 
+from cirl_study.commands.parameters import Command
+
 app = typer.Typer(rich_markup_mode=None)
 """The ``office-supplies`` command, merged into :data:`cirl_study.cli.app`."""
 
 
-@app.command("office-supplies")
+@app.command("office-supplies", cls=Command)
 def office_supplies(
     as_json: Annotated[
         bool, typer.Option("--json", help="Print the results as JSON (exact fractions as strings).")

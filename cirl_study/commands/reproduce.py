@@ -9,6 +9,7 @@ from typing import Annotated
 import typer
 
 from cirl_study.commands.analyze import ForceOption, report_run
+from cirl_study.commands.parameters import Command
 from cirl_study.commands.run import (
     EngineName,
     EngineOption,
@@ -18,6 +19,7 @@ from cirl_study.commands.run import (
     WorkersOption,
     run,
 )
+from cirl_study.escape import terminal
 
 ReportOption = Annotated[
     Path | None,
@@ -40,7 +42,7 @@ app = typer.Typer(rich_markup_mode=None)
 """The ``reproduce`` command, merged into :data:`cirl_study.cli.app`."""
 
 
-@app.command()
+@app.command(cls=Command)
 def reproduce(
     pipeline: PipelineArgument = "paper",
     out: RunDirectoryOption = None,
@@ -74,13 +76,13 @@ def reproduce(
     replacement = report_run(run_directory, target, force=force, keep_if_equal=True)
     analysed = time.perf_counter() - began
     typer.echo(f"run {played:.1f} s, analysis {analysed:.1f} s ({analysed / played:.2f} x the run)")
-    differences = replacement.differences
+    differences, shown = replacement.differences, terminal(target)
     if differences is None:
-        typer.echo(f"{target}: a new report (there was none to compare with)")
+        typer.echo(f"{shown}: a new report (there was none to compare with)")
     elif differences:
         typer.echo(
-            f"{target}: DIFFERS from the report it replaced in {len(differences)} place(s), "
+            f"{shown}: DIFFERS from the report it replaced in {len(differences)} place(s), "
             f"e.g. {differences[0]}"
         )
     else:
-        typer.echo(f"{target}: equals the report there, number by number; its files are kept")
+        typer.echo(f"{shown}: equals the report there, number by number; its files are kept")

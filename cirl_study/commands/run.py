@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
+from cirl_study.commands.parameters import Command, choice, number
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.study.spec import load_pipeline, resolve_pipeline
@@ -84,6 +85,7 @@ WorkersOption = Annotated[
     typer.Option(
         "--workers",
         metavar="N",
+        parser=number(int, "an integer"),
         help="Trials played at once: worker processes of the local pool, or workers of "
         "the local Dask cluster; 1 plays in this process. Results do not depend on it.",
         show_default="all cores",
@@ -94,6 +96,7 @@ EngineOption = Annotated[
     EngineName,
     typer.Option(
         "--engine",
+        parser=choice(EngineName),
         help="Where trials are played: 'local' (a process pool on this machine) or "
         "'dask' (Dask distributed; needs the dask extra: pip install -e '.[dask]' in a "
         "checkout, pip install 'cirl-study[dask]' otherwise). "
@@ -113,7 +116,7 @@ SchedulerOption = Annotated[
 ]
 
 
-@app.command()
+@app.command(cls=Command)
 def run(
     pipeline: PipelineArgument = "paper",
     out: RunDirectoryOption = None,

@@ -8,11 +8,13 @@ from typing import Annotated
 
 import typer
 
+from cirl_study.commands.parameters import Command
+
 app = typer.Typer(rich_markup_mode=None)
 """The ``validate`` command, merged into :data:`cirl_study.cli.app`."""
 
 
-@app.command()
+@app.command(cls=Command)
 def validate(
     run: Annotated[
         Path,
