@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import json
+import math
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -11,6 +13,7 @@ from typer.testing import CliRunner
 
 from cirl_study.analysis.compare import Tolerance, compare_reports
 from cirl_study.cli import app
+from cirl_study.escape import terminal
 
 RESULTS = {
     "pipeline": "paper",
@@ -132,3 +135,113 @@ def test_figures_agree_within_the_image_tolerance(tmp_path: Path) -> None:
     assert difference.startswith("figure.png: ") and "% of the pixels differ" in difference
     (b / "figure.png").unlink()
     assert compare_reports(a, b) == ["figure.png: missing"]
+
+
+def compare(expected: Path, got: Path):
+    return CliRunner().invoke(app, ["compare", str(expected), str(got)])
+
+
+def shown_as_is(text: str) -> None:
+    """Nothing a terminal would obey rather than show: line breaks only end lines."""
+    assert all(line.isprintable() for line in text.splitlines()), repr(text[:500])
+    assert "\r" not in text and "\x1b" not in text
+
+
+def test_the_help_says_what_is_compared_with_what_in_the_order_given() -> None:
+    text = " ".join(CliRunner().invoke(app, ["compare", "--help"]).stdout.split())
+    assert "Compare the report directory GOT with EXPECTED: every number of results.json" in text
+    assert "Each difference names EXPECTED's value first, then GOT's." in text
+
+
+def test_an_expected_report_without_its_text_differs_on_the_command_line(tmp_path: Path) -> None:
+    a, b = report(tmp_path / "a"), report(tmp_path / "b")
+    (a / "report.md").unlink()
+    result = compare(a, b)
+    assert result.exit_code == 1
+    assert result.stdout.splitlines() == [
+        "report.md: missing from the expected report",
+        f"{a} vs {b}: different (1 differences) at rtol=1e-09, atol=1e-12",
+    ]
+
+
+def test_equal_infinities_agree_and_opposite_ones_differ(tmp_path: Path) -> None:
+    extremes = {**RESULTS, "F": [math.inf, -math.inf, math.nan], "big": 10**400}
+    trials = "trial_id,regret\nmain:a,inf\nmain:b,-inf\nmain:c,nan\n"
+    a = report(tmp_path / "a", extremes, trials)
+    b = report(tmp_path / "b", extremes, trials)
+    assert compare_reports(a, b) == []
+    same = compare(a, b)
+    assert same.exit_code == 0 and "the same" in same.stdout
+    flipped = {**extremes, "F": [-math.inf, -math.inf, math.nan], "big": 10**400 + 1}
+    c = report(tmp_path / "c", flipped, trials.replace(",inf", ",-inf"))
+    assert compare_reports(a, c) == [
+        "results.json.F[0]: inf != -inf",
+        f"results.json.big: {terminal(repr(10**400))} != {terminal(repr(10**400 + 1))}",
+        "trials.csv row 2 (main:a): regret inf != -inf",
+    ]
+    assert compare(a, c).exit_code == 1
+
+
+HOSTILE = "reg\x1b[2J\rret"
+"""A name that, printed raw, clears the screen and goes back to the line's start."""
+
+
+def hostile_report(directory: Path, cell: str) -> Path:
+    """A report whose every name and value a difference quotes holds control characters;
+    its values vary with ``cell``."""
+    report(
+        directory,
+        {**RESULTS, HOSTILE: f"{cell}\r\x1b[2KOK"},
+        f'trial_id,"{HOSTILE}"\n"main:\x1b[31m\r",{cell}\n',
+    )
+    (directory / "tri\nals.csv").write_text(f"universe,text\nu\x07,{f'{cell}x' * 50_000}\n")
+    (directory / "report.md").write_text(f"# Report\n\n\x1b]0;{cell}\x07\n")
+    return directory
+
+
+def test_a_hostile_report_is_quoted_escaped_and_bounded(tmp_path: Path) -> None:
+    a = hostile_report(tmp_path / "a\x1b[2J", "1")
+    b = hostile_report(tmp_path / "b\r", "2")
+    (a / "fig\r\x1b[2Jure.png").write_bytes(b"not looked at: it is missing from GOT")
+    (a / "fig\nure.svg").write_text("<svg/>")
+    result = compare(a, b)
+    assert result.exit_code == 1, result.output
+    shown_as_is(result.output)
+    assert len(result.output) < 5_000
+    lines = result.stdout.splitlines()
+    verdict = "different (6 differences) at rtol=1e-09, atol=1e-12"
+    assert lines[-1] == f"{terminal(a)} vs {terminal(b)}: {verdict}"
+    for escaped in [
+        "results.json.reg\\x1b[2J\\rret: '1\\r\\x1b[2KOK' != '2\\r\\x1b[2KOK'",
+        "trials.csv row 2 (main:\\x1b[31m\\r): reg\\x1b[2J\\rret 1 != 2",
+        "tri\\nals.csv row 2 (u\\x07): text " + "1x" * 100 + "... (100000 characters)",
+        "report.md line 3: '\\x1b]0;1\\x07' != '\\x1b]0;2\\x07'",
+        "fig\\r\\x1b[2Jure.png: missing",
+        "fig\\nure.svg: missing",
+    ]:
+        assert any(line.startswith(escaped) for line in lines), (escaped, lines)
+
+
+@pytest.mark.parametrize(
+    ("spoil", "says"),
+    [
+        (lambda d: (d / "tri\nals.csv").unlink(), "tri\\nals.csv: cannot read: No such file"),
+        (lambda d: (d / "trials.csv").write_bytes(b"trial_id\n\xff\xfe\n"), "can't decode"),
+        (lambda d: (d / "trials.csv").write_text("a\n" + "x" * 200_000), "field limit"),
+        (lambda d: (d / "report.md").write_bytes(b"\xff"), "report.md: cannot read: "),
+        (lambda d: (d / "results.json").write_text("[" * 100_000), "results.json: cannot read"),
+        (lambda d: (d / "results.json").write_bytes(b'{"\xff": 1}'), "results.json: cannot"),
+        (lambda d: (d / "f\r.png").write_bytes(b"\x89PNG\r\n\x1a\n"), "f\\r.png: cannot read: "),
+    ],
+)
+def test_a_report_that_cannot_be_read_is_one_line(tmp_path: Path, spoil, says: str) -> None:
+    a = hostile_report(tmp_path / "a", "1")
+    (a / "f\r.png").write_bytes(b"not a PNG file")
+    b = hostile_report(tmp_path / "b", "1")
+    shutil.copy(a / "f\r.png", b / "f\r.png")
+    spoil(b)
+    result = compare(a, b)
+    assert result.exit_code == 2, result.output
+    assert result.stderr.startswith("error: ") and result.stderr.count("\n") == 1, result.stderr
+    assert says in result.stderr, result.stderr
+    shown_as_is(result.output)
