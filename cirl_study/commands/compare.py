@@ -33,7 +33,8 @@ def compare(
     rtol: Annotated[
         float,
         typer.Option(
-            help="Relative tolerance (>= 0): |a - b| <= atol + rtol |a|, a expected.",
+            help="Relative tolerance (>= 0): a number a of EXPECTED and b of GOT agree "
+            "when |a - b| <= atol + rtol |a|.",
             parser=_tolerance,
         ),
     ] = RELATIVE_TOLERANCE,

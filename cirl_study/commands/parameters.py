@@ -48,8 +48,6 @@ def choice(kind: type[Choice]) -> Callable[[Any], Choice]:
     values = ", ".join(str(member.value) for member in kind)
 
     def parse(value: Any) -> Choice:
-        if isinstance(value, kind):
-            return value
         try:
             return kind(value)
         except ValueError:

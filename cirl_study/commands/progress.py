@@ -1,6 +1,6 @@
 """The progress of ``cirl-study run`` on stderr, imported only when a run starts: a live bar
-(rich) at a terminal, plain lines elsewhere (a log, CI), at least every
-:data:`LINE_SECONDS` while trials play."""
+(rich) at a terminal, plain lines elsewhere (a log, CI), one each time trials are logged
+:data:`LINE_SECONDS` or more after the last line, and one when the last trial is."""
 
 from __future__ import annotations
 
@@ -38,7 +38,8 @@ class RateColumn(ProgressColumn):
 
 
 LINE_SECONDS = 10.0
-"""Longest time between two plain progress lines while trials play."""
+"""Shortest time between two plain progress lines while trials play: a line is written when
+a batch of trials is logged that long or longer after the last one."""
 
 
 @contextmanager
