@@ -4,11 +4,14 @@ flags shown without a value, arguments in the usage line as click writes them (`
 
 from __future__ import annotations
 
+from typing import Annotated
+
 import pytest
-import typer.main
+import typer
 from typer.testing import CliRunner
 
 from cirl_study.cli import app
+from cirl_study.commands.parameters import Command
 
 USAGES = {
     "run": "[OPTIONS] [PIPELINE]",
@@ -133,3 +136,18 @@ def test_the_engine_help_names_commands_that_work_as_printed() -> None:
     text = " ".join(_help("run").split())
     assert "\\[" not in text
     assert "pip install -e '.[dask]' in a checkout" in text and "'cirl-study[dask]'" in text
+
+
+def test_the_usage_line_marks_optional_and_repeated_arguments_as_click_does() -> None:
+    sample = typer.Typer(rich_markup_mode=None)
+
+    @sample.command(cls=Command)
+    def main(
+        first: Annotated[str, typer.Argument(metavar="FIRST")],
+        files: Annotated[list[str], typer.Argument()],
+        last: Annotated[str, typer.Argument(metavar="LAST")] = "x",
+    ) -> None:
+        """A command of three arguments."""
+
+    usage = CliRunner().invoke(sample, ["--help"]).output.splitlines()[0]
+    assert usage == "Usage: main [OPTIONS] FIRST FILES... [LAST]"
