@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import shutil
 from pathlib import Path
 
@@ -222,6 +223,12 @@ def test_a_hostile_report_is_quoted_escaped_and_bounded(tmp_path: Path) -> None:
         assert any(line.startswith(escaped) for line in lines), (escaped, lines)
 
 
+def _replaced(path: Path, make) -> None:
+    """``path`` replaced by what ``make(path)`` makes there: a FIFO, a link, a directory."""
+    path.unlink()
+    make(path)
+
+
 @pytest.mark.parametrize(
     ("spoil", "says"),
     [
@@ -232,6 +239,9 @@ def test_a_hostile_report_is_quoted_escaped_and_bounded(tmp_path: Path) -> None:
         (lambda d: (d / "results.json").write_text("[" * 100_000), "results.json: cannot read"),
         (lambda d: (d / "results.json").write_bytes(b'{"\xff": 1}'), "results.json: cannot"),
         (lambda d: (d / "f\r.png").write_bytes(b"\x89PNG\r\n\x1a\n"), "f\\r.png: cannot read: "),
+        (lambda d: _replaced(d / "trials.csv", os.mkfifo), "trials.csv: is a FIFO"),
+        (lambda d: _replaced(d / "report.md", lambda p: p.symlink_to("/dev/zero")), "symbolic link"),
+        (lambda d: _replaced(d / "results.json", os.mkdir), "results.json: is a directory"),
     ],
 )
 def test_a_report_that_cannot_be_read_is_one_line(tmp_path: Path, spoil, says: str) -> None:

@@ -27,6 +27,7 @@ cannot be read as what it should be (JSON, UTF-8 CSV or text, PNG) is a
 from __future__ import annotations
 
 import csv
+import io
 import json
 import math
 from collections.abc import Iterator
@@ -38,6 +39,7 @@ import numpy as np
 
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
+from cirl_study.files import UnreadableFile, read_regular_file
 
 RELATIVE_TOLERANCE = 1e-9
 """Default ``rtol``: far above the rounding of one CPU's run against another's where the
@@ -51,6 +53,10 @@ PIXEL_TOLERANCE = 8 / 255
 
 PIXEL_SHARE = 1e-3
 """Largest share of a figure's pixels that may differ beyond :data:`PIXEL_TOLERANCE`."""
+
+MAX_REPORT_FILE_BYTES = 1 << 30
+"""Largest file of a report read (1 GiB): a trial table of a few million trials; a report
+directory may come from someone else, and each file is read whole."""
 
 
 @dataclass(frozen=True)
@@ -104,11 +110,20 @@ def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = Non
     return differences
 
 
+def _read(path: Path) -> bytes:
+    """The bytes of a report's file, which must be a regular file (not a link, a FIFO or a
+    device) of at most :data:`MAX_REPORT_FILE_BYTES`."""
+    try:
+        return read_regular_file(path, MAX_REPORT_FILE_BYTES)
+    except UnreadableFile as error:
+        raise UserError(str(error)) from None
+
+
 def _load_json(directory: Path) -> Any:
     path = directory / "results.json"
     try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError, RecursionError) as error:
+        return json.loads(_read(path).decode("utf-8"))
+    except (ValueError, RecursionError) as error:
         raise UserError(f"{path}: cannot read: {_reason(error)}") from None
 
 
@@ -116,16 +131,16 @@ def _load_csv(path: Path) -> list[dict[str, str]]:
     """The rows of a table; a ragged row's missing cells are ``None``, its extra ones a list
     under the key ``None`` (:class:`csv.DictReader`)."""
     try:
-        with path.open(newline="", encoding="utf-8") as stream:
-            return list(csv.DictReader(stream))
-    except (OSError, ValueError, csv.Error) as error:
+        text = _read(path).decode("utf-8")
+        return list(csv.DictReader(io.StringIO(text, newline="")))
+    except (ValueError, csv.Error) as error:
         raise UserError(f"{path}: cannot read: {_reason(error)}") from None
 
 
 def _read_lines(path: Path) -> list[str]:
     try:
-        return path.read_text(encoding="utf-8").splitlines()
-    except (OSError, ValueError) as error:
+        return _read(path).decode("utf-8").splitlines()
+    except ValueError as error:
         raise UserError(f"{path}: cannot read: {_reason(error)}") from None
 
 
@@ -225,7 +240,8 @@ def _read_image(path: Path) -> np.ndarray:
     from matplotlib.image import imread
     from PIL.Image import DecompressionBombError
 
+    data = _read(path)
     try:
-        return imread(path)
+        return imread(io.BytesIO(data), format="png")
     except (OSError, ValueError, SyntaxError, DecompressionBombError) as error:
         raise UserError(f"{path}: cannot read: {_reason(error)}") from None
