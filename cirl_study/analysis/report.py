@@ -16,14 +16,13 @@ from pathlib import Path
 from typing import Any
 
 import msgspec
-import pandas as pd
 
 from cirl_study import escape
 from cirl_study.analysis import figures, paper_report, study_report, teaching_report
 from cirl_study.analysis.cells import papers_own
 from cirl_study.analysis.markdown import document, number, svg_name, table
 from cirl_study.analysis.output import csv_file, write_report_directory
-from cirl_study.analysis.result_types import ClaimRow, Results, StudyResults, Teaching
+from cirl_study.analysis.result_types import ClaimRow, Estimates, StudyResults, Teaching, frame
 from cirl_study.analysis.results import combined, estimates, tests, with_claims
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
@@ -196,20 +195,19 @@ def _figure1_records(
 def _drawings(
     trials: Sequence[TrialRow],
     records_of: Callable[[set[str]], Sequence[TrialRecord]],
-    estimated: Results,
+    estimated: Estimates,
 ) -> dict[str, Call]:
     """The drawing of every figure the estimates (:func:`~cirl_study.analysis.results.estimates`)
     support, by PNG name. Figure 1 draws two whole records, fetched by trial id with
     ``records_of``."""
-    design = estimated["design"]
-    reference = design["reference_robot"]
-    cells = pd.DataFrame(estimated["cells"])
+    design = estimated.design
+    reference = design.reference_robot
+    cells = frame(estimated.cells)
     drawings: dict[str, Call] = {}
-    paper = estimated["paper"]
-    if paper is not None:
-        chosen = paper["figure1"]
-        pair = _figure1_records(trials, records_of, chosen["subject"], chosen["robot"])
-        title = f"Reward draw {chosen['subject']} ({chosen['num_features']} features)"
+    chosen = estimated.figure1
+    if chosen is not None:
+        pair = _figure1_records(trials, records_of, chosen.subject, chosen.robot)
+        title = f"Reward draw {chosen.subject} ({chosen.num_features} features)"
         drawings[FIGURES["figure1"][0]] = (
             figures.reward_maps,
             (pair[EXPERT], pair[BEST_RESPONSE], title),
@@ -219,36 +217,33 @@ def _drawings(
             figures.measure_bars,
             (cells[of_paper].drop(columns="robot").reset_index(drop=True),),
         )
-        if estimated["lambda_sweep"]:
-            sweep = pd.DataFrame(estimated["lambda_sweep"])
+        if estimated.lambda_sweep:
+            sweep = frame(estimated.lambda_sweep)
             of_paper = (sweep["robot"] == reference) & sweep["policy"].isin(PAPER_POLICIES)
             drawings[FIGURES["figure2_lambda"][0]] = (
                 figures.lambda_curve,
                 (sweep[of_paper].drop(columns="robot").reset_index(drop=True),),
             )
-    if not papers_own(design["humans"], design["robots"]):
+    if not papers_own(design.humans, design.robots):
         drawings[FIGURES["cell_means"][0]] = (
             figures.cell_bars,
-            (cells, design["humans"], design["robots"]),
+            (cells, design.humans, design.robots),
         )
-    if estimated["eta_cv"]["means"]:
+    if estimated.eta_cv.means:
         drawings[FIGURES["eta_cv_curve"][0]] = (
             figures.eta_curve,
-            (
-                pd.DataFrame(estimated["eta_cv"]["means"]),
-                pd.DataFrame(estimated["eta_cv"]["uncertainty"]),
-            ),
+            (frame(estimated.eta_cv.means), frame(estimated.eta_cv.uncertainty)),
         )
-    robots = estimated["robots"]
+    robots = estimated.robots
     if (
         robots is not None
-        and robots["lambda_sweep"]
-        and len(robots["others"]) == 1
-        and tuple(design["humans"]) == PAPER_POLICIES
+        and robots.lambda_sweep
+        and len(robots.others) == 1
+        and tuple(design.humans) == PAPER_POLICIES
     ):
         drawings[FIGURES["robots"][0]] = (
             figures.robot_difference_curve,
-            (pd.DataFrame(robots["lambda_sweep"]), reference, robots["others"][0]),
+            (frame(robots.lambda_sweep), reference, robots.others[0]),
         )
     return drawings
 

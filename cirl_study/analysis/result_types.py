@@ -360,6 +360,23 @@ class Partial(msgspec.Struct, **_ROW):
     main_subjects_left_out: int
 
 
+class Estimates(msgspec.Struct, **_ROW):
+    """What a study's trials measured, with confidence intervals
+    (:func:`cirl_study.analysis.results.estimates`): everything its figures draw, and the part
+    of :class:`StudyResults` known before any test. ``figure1`` is the paper's Figure 1 reward
+    draw, where the run has the paper's humans (``None`` otherwise)."""
+
+    pipeline: str
+    trials: dict[str, int]
+    design: StudyDesign
+    cells: list[CellMean]
+    lambda_sweep: list[CellMean]
+    converged: list[Converged]
+    eta_cv: EtaCrossValidation
+    figure1: Figure1 | None
+    robots: RobotComparison | None
+
+
 class StudyResults(msgspec.Struct, **_ROW):
     """``results.json`` of a study (:func:`cirl_study.analysis.results.analyse`, with the
     report's ``run_id``, ``partial``, ``claims`` and ``theory``)."""

@@ -49,7 +49,7 @@ import pandas as pd
 from cirl_study.analysis import statistics, teaching
 from cirl_study.analysis.cells import PAPER, Design
 from cirl_study.analysis.measure_rows import anova_rows, paired_rows, pairwise_rows, plain, rows
-from cirl_study.analysis.result_types import Results, StudyResults, checked
+from cirl_study.analysis.result_types import Estimates, Results, StudyResults, checked
 from cirl_study.analysis.table import trial_table
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
@@ -270,19 +270,22 @@ def paper_main_block(everything: pd.DataFrame, design: Design) -> pd.DataFrame:
     return main[(main["robot"] == reference) & main["policy"].isin(PAPER_POLICIES)]
 
 
-def estimates(trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline: Pipeline) -> Results:
+def estimates(
+    trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline: Pipeline
+) -> Estimates:
     """What the trials measured, with confidence intervals: everything the figures draw.
 
-    The keys ``pipeline, trials, design, cells, lambda_sweep, converged, eta_cv, robots`` of
-    :func:`analyse` and, where the run has the paper's humans, ``paper.figure1``, from the
-    rows and their table ``everything`` (:func:`~cirl_study.analysis.table.trial_table`).
+    The sections ``pipeline, trials, design, cells, lambda_sweep, converged, eta_cv, robots``
+    of :func:`analyse` and, where the run has the paper's humans, the paper's ``figure1``,
+    from the rows and their table ``everything``
+    (:func:`~cirl_study.analysis.table.trial_table`).
     """
     design = design_of(everything, pipeline)
     reference = reference_robot(design.robots)
     main = everything[everything["block"] == MAIN]
     sweep = everything[everything["block"] == LAMBDA_SWEEP]
     by_cell = ["num_features", "policy", "robot"]
-    return {
+    estimated = {
         "pipeline": pipeline.name,
         "trials": _trial_counts(everything),
         "design": _design(main, design, pipeline),
@@ -294,13 +297,12 @@ def estimates(trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline: Pi
         else [],
         "converged": _converged(everything),
         "eta_cv": eta_cv(trials, everything[everything["robot"] == reference]),
-        "paper": None
+        "figure1": None
         if PAPER.lacking(design)
-        else {
-            "figure1": {**figure1_subject(paper_main_block(everything, design)), "robot": reference}
-        },
+        else {**figure1_subject(paper_main_block(everything, design)), "robot": reference},
         "robots": robot_comparison(everything, reference) if len(design.robots) > 1 else None,
     }
+    return checked(estimated, Estimates)
 
 
 def tests(everything: pd.DataFrame, pipeline: Pipeline) -> Results:
@@ -346,13 +348,13 @@ def paper_tests(paper_main: pd.DataFrame) -> Results:
     }
 
 
-def combined(estimated: Results, tested: Results) -> Results:
+def combined(estimated: Estimates, tested: Results) -> Results:
     """:func:`estimates` and :func:`tests` as :func:`analyse` returns them: the paper's
     figure reward draw beside its tests."""
-    paper = None
-    if tested["paper"] is not None:
-        paper = {**tested["paper"], **estimated["paper"]}
-    both = {**estimated, **tested, "paper": paper}
+    measured = msgspec.to_builtins(estimated)
+    figure1 = measured.pop("figure1")
+    paper = None if tested["paper"] is None else {**tested["paper"], "figure1": figure1}
+    both = {**measured, **tested, "paper": paper}
     return {key: both[key] for key in RESULT_KEYS}
 
 
