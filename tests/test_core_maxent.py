@@ -87,6 +87,45 @@ def test_log_partition_and_log_likelihood_agree_with_the_moments():
     )
 
 
+@pytest.mark.parametrize("rationality", [1e-4, 1.0, 1e3])
+def test_log_likelihood_at_equals_enumeration(rationality):
+    width, height, start, horizon = 4, 4, 5, 5
+    rng, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=8)
+    thetas = rng.uniform(-1, 1, size=(2, 6, 3))
+    demos = counts[rng.integers(len(paths), size=2)]
+    got = _model(features, width, height, start, horizon, rationality, 2).log_likelihood_at(
+        thetas, demos
+    )
+    for b in range(2):
+        for n in range(6):
+            want = bf.log_likelihood(demos[b], counts, thetas[b, n], rationality)
+            assert got[b, n] == pytest.approx(want, rel=1e-12, abs=1e-11 * max(1.0, rationality))
+
+
+@pytest.mark.parametrize("rationality", [1e-4, 1.0, 10.0, 30.0, 100.0, 1e3, 1e5])
+def test_log_likelihood_at_equals_the_one_at_a_time_recursion(rationality):
+    # log_likelihood_at scores points in linear space, switching to log space where masses
+    # fall below 2^-500 (on this game: never up to lambda = 30, part-way for most points at
+    # 100, from the first step at 1e3 and 1e5); either way it matches the soft value
+    # iteration of log_partition to rounding. The rounding is of the terms summed, about
+    # T * lambda * max|theta . phi|, not of log Z itself.
+    width, height, start, horizon, k = 10, 10, 55, 9, 10
+    rng = np.random.default_rng(9)
+    centres = rng.uniform(0, 9, size=(k, 2))
+    features = bf.rbf_features(width, height, centres, 1.5)
+    thetas = rng.uniform(-1, 1, size=(64, k))
+    demo = features[rng.integers(width * height, size=horizon)].sum(axis=0)
+    model = _model(features, width, height, start, horizon, rationality, batch=64)
+    one_at_a_time = model.log_likelihood(thetas, np.broadcast_to(demo, (64, k)))
+    batched = model.take([0]).log_likelihood_at(thetas[None], demo[None])[0]
+    scale = 1.0 + horizon * rationality * np.abs(thetas @ features.T).max(axis=1)
+    np.testing.assert_array_less(np.abs(batched - one_at_a_time), 1e-12 * scale)
+    # Each point is scored on its own: the same bits alone as among the others.
+    for n in (0, 17, 63):
+        alone = model.take([0]).log_likelihood_at(thetas[None, [n]], demo[None])[0, 0]
+        assert alone == batched[n]
+
+
 @pytest.mark.parametrize("rationality", [1e-2, 1.0, 20.0, 1e3])
 def test_gradient_and_hessian_equal_finite_differences(rationality):
     width, height, start, horizon = 4, 4, 6, 4

@@ -39,6 +39,7 @@ The compiled kernels take plain arrays; this module unpacks the objects at their
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cached_property
 
@@ -230,12 +231,15 @@ class MaxEnt:
         """``(B, N)`` log-likelihoods :math:`L(\\theta_{b,n})` of ``N`` weight vectors per trial.
 
         ``thetas`` is ``(B, N, K)``: for trial ``b``, the points ``thetas[b]`` at which its
-        demonstration's ``demo_counts[b]`` is scored (e.g. samples of a posterior).
+        demonstration's ``demo_counts[b]`` is scored (e.g. samples of a posterior). The
+        log-partitions come from :func:`_log_partitions`, which agrees with
+        :meth:`log_partition` to rounding (a few ulps of :math:`\\log Z`), and scores each
+        point on its own: a point's value does not depend on the others scored with it.
         """
         phase = self.phase
         batch, points, _ = thetas.shape
         scaled = self.rationality * np.einsum("bsk,bnk->bns", self.features, thetas)
-        log_z = _log_partition(
+        log_z = _log_partitions(
             np.ascontiguousarray(scaled.reshape(batch * points, -1)),
             phase.successors,
             phase.start_cell,
@@ -364,6 +368,115 @@ def _log_partition(scaled, successors, start, horizon, needed):  # pragma: no co
     log_z = np.empty(batch)
     for b in range(batch):
         soft_backup(scaled[b], successors, horizon, values, log_policy, policy, needed)
+        log_z[b] = values[0, start]
+    return log_z
+
+
+FLOOR_EXPONENT = -500
+"""Binary exponent that bounds the linear recursion of :func:`_log_partitions`: weights in
+``[2^-500, 2^500]`` times masses in ``[2^-500, 5]`` are normal doubles, so nothing there
+underflows or overflows."""
+
+SKIP_BELOW = -40.0
+"""Terms :math:`e^{d}` with :math:`d` below it (about ``4e-18``) are left out of a log-space
+``logsumexp`` whose largest term is 1: four of them change the sum by less than half an ulp."""
+
+
+@njit(cache=True)
+def _log_partitions(scaled, successors, start, horizon, needed):  # pragma: no cover - compiled
+    """``(N,)`` :math:`\\log Z` of ``N`` scaled rewards ``(N, S)``, each scored on its own.
+
+    In linear space first: with :math:`w(s) = e^{\\lambda r(s) - c}`, ``c`` the midpoint of
+    the scaled rewards of the cells ever entered, :math:`z_T = 1` and
+    :math:`z_t(s) = 2^{-e_t} \\sum_a w(s') z_{t+1}(s')` (``e_t`` the binary exponent of the
+    step's largest sum, so the rescaling is exact),
+    :math:`Z_t(s) = z_t(s)\\, e^{(T - t) c}\\, 2^{\\sum_{u \\ge t} e_u}`: multiply-adds, and
+    one exponential per cell rather than per move. Every operand there is a normal double,
+    rounded only, while every :math:`w` lies in ``2^(+-FLOOR_EXPONENT)`` and every rescaled
+    :math:`z` (at most 5) is at least ``2^FLOOR_EXPONENT``. From the first step where a
+    :math:`z` is not (large :math:`\\lambda`: cells whose mass is negligible next to
+    others'; from the start if a :math:`w` is not), the recursion goes on in log space from
+    :math:`V_{t+1} = \\log Z_{t+1}`: :math:`V_t(s) = m + \\log \\sum_a e^{Q(s, a) - m}`,
+    :math:`m = \\max_a Q(s, a)`, leaving out the terms below ``e^SKIP_BELOW``, which do not
+    change the sum.
+    """
+    batch, cells = scaled.shape
+    actions = successors.shape[1]
+    entered = np.zeros(cells, dtype=np.bool_)
+    for t in range(1, horizon + 1):
+        for s in range(cells):
+            entered[s] |= needed[t, s]
+    weight = np.empty(cells)
+    current = np.empty(cells)
+    following = np.empty(cells)
+    values = np.empty((horizon + 1, cells))
+    floor = math.ldexp(1.0, FLOOR_EXPONENT)
+    reach = -FLOOR_EXPONENT * np.log(2.0)
+    log_z = np.empty(batch)
+    for b in range(batch):
+        row = scaled[b]
+        high, low = -np.inf, np.inf
+        for s in range(cells):
+            if entered[s]:
+                high, low = max(high, row[s]), min(low, row[s])
+        centre = 0.5 * (high + low)
+        t = horizon  # the linear recursion holds z_t in ``following``
+        exponents = 0
+        if high - centre <= reach:
+            for s in range(cells):
+                if entered[s]:
+                    weight[s] = np.exp(row[s] - centre)
+            following[:] = 1.0
+            while t > 0:
+                biggest = 0.0
+                for s in range(cells):
+                    if needed[t - 1, s]:
+                        total = 0.0
+                        for a in range(actions):
+                            nxt = successors[s, a]
+                            if nxt >= 0:
+                                total += weight[nxt] * following[nxt]
+                        current[s] = total
+                        biggest = max(biggest, total)
+                _, e = math.frexp(biggest)
+                scale = math.ldexp(1.0, -e)
+                lowest = np.inf
+                for s in range(cells):
+                    if needed[t - 1, s]:
+                        current[s] *= scale
+                        lowest = min(lowest, current[s])
+                if lowest < floor:
+                    break
+                following, current = current, following
+                exponents += e
+                t -= 1
+        if t == 0:
+            log_z[b] = np.log(following[start]) + horizon * centre + exponents * np.log(2.0)
+            continue
+        if t == horizon:
+            values[horizon, :] = 0.0
+        else:
+            offset = (horizon - t) * centre + exponents * np.log(2.0)
+            for s in range(cells):
+                if needed[t, s]:
+                    values[t, s] = np.log(following[s]) + offset
+        for u in range(t - 1, -1, -1):
+            for s in range(cells):
+                if not needed[u, s]:
+                    continue
+                best = -np.inf
+                for a in range(actions):
+                    nxt = successors[s, a]
+                    if nxt >= 0:
+                        best = max(best, row[nxt] + values[u + 1, nxt])
+                total = 0.0
+                for a in range(actions):
+                    nxt = successors[s, a]
+                    if nxt >= 0:
+                        d = row[nxt] + values[u + 1, nxt] - best
+                        if d >= SKIP_BELOW:
+                            total += np.exp(d)
+                values[u, s] = best if total == 1.0 else best + np.log(total)
         log_z[b] = values[0, start]
     return log_z
 
