@@ -232,21 +232,23 @@ class MaxEnt:
 
         ``thetas`` is ``(B, N, K)``: for trial ``b``, the points ``thetas[b]`` at which its
         demonstration's ``demo_counts[b]`` is scored (e.g. samples of a posterior). The
-        log-partitions come from :func:`_log_partitions`, which agrees with
-        :meth:`log_partition` to rounding (a few ulps of :math:`\\log Z`), and scores each
-        point on its own: a point's value does not depend on the others scored with it.
+        log-partitions come from :func:`_log_likelihoods`, which agrees with
+        :meth:`log_partition` to the rounding of the terms it adds (about
+        :math:`T \\lambda \\max_s |\\theta^\\top \\phi(s)|` times the machine epsilon), and
+        scores each point on its own: a point's value does not depend on the others scored
+        with it, nor on the CPU beyond the last bits of ``exp`` and ``log``.
         """
         phase = self.phase
-        batch, points, _ = thetas.shape
-        scaled = self.rationality * np.einsum("bsk,bnk->bns", self.features, thetas)
-        log_z = _log_partitions(
-            np.ascontiguousarray(scaled.reshape(batch * points, -1)),
+        return _log_likelihoods(
+            self.rationality,
+            np.ascontiguousarray(thetas, dtype=np.float64),
+            np.ascontiguousarray(demo_counts, dtype=np.float64),
+            self.features,
             phase.successors,
             phase.start_cell,
             phase.horizon,
             phase.reachable,
-        ).reshape(batch, points)
-        return self.rationality * np.einsum("bnk,bk->bn", thetas, demo_counts) - log_z
+        )
 
     def demonstration_classes(self, demos: IntArray) -> DemonstrationClass:
         """The count class of each trial's demonstration path ``demos[b]`` ``(B, T + 1)``.
@@ -373,7 +375,7 @@ def _log_partition(scaled, successors, start, horizon, needed):  # pragma: no co
 
 
 FLOOR_EXPONENT = -500
-"""Binary exponent that bounds the linear recursion of :func:`_log_partitions`: weights in
+"""Binary exponent that bounds the linear recursion of :func:`_log_likelihoods`: weights in
 ``[2^-500, 2^500]`` times masses in ``[2^-500, 5]`` are normal doubles, so nothing there
 underflows or overflows."""
 
@@ -383,11 +385,16 @@ SKIP_BELOW = -40.0
 
 
 @njit(cache=True)
-def _log_partitions(scaled, successors, start, horizon, needed):  # pragma: no cover - compiled
-    """``(N,)`` :math:`\\log Z` of ``N`` scaled rewards ``(N, S)``, each scored on its own.
+def _log_likelihoods(
+    rationality, thetas, demo_counts, features, successors, start, horizon, needed
+):  # pragma: no cover - compiled
+    """``(B, N)`` :math:`L = \\lambda \\theta^\\top \\phi(\\tau_{demo}) - \\log Z(\\theta)` of
+    the ``N`` points ``thetas[b]`` of each trial, each scored on its own, every sum a loop in
+    a fixed order.
 
-    In linear space first: with :math:`w(s) = e^{\\lambda r(s) - c}`, ``c`` the midpoint of
-    the scaled rewards of the cells ever entered, :math:`z_T = 1` and
+    :math:`\\log Z` is computed in linear space first: with
+    :math:`w(s) = e^{\\lambda r(s) - c}`, ``c`` the midpoint of the scaled rewards of the
+    cells ever entered, :math:`z_T = 1` and
     :math:`z_t(s) = 2^{-e_t} \\sum_a w(s') z_{t+1}(s')` (``e_t`` the binary exponent of the
     step's largest sum, so the rescaling is exact),
     :math:`Z_t(s) = z_t(s)\\, e^{(T - t) c}\\, 2^{\\sum_{u \\ge t} e_u}`: multiply-adds, and
@@ -400,7 +407,8 @@ def _log_partitions(scaled, successors, start, horizon, needed):  # pragma: no c
     :math:`m = \\max_a Q(s, a)`, leaving out the terms below ``e^SKIP_BELOW``, which do not
     change the sum.
     """
-    batch, cells = scaled.shape
+    batch, points, k = thetas.shape
+    cells = features.shape[1]
     actions = successors.shape[1]
     entered = np.zeros(cells, dtype=np.bool_)
     for t in range(1, horizon + 1):
@@ -412,9 +420,20 @@ def _log_partitions(scaled, successors, start, horizon, needed):  # pragma: no c
     values = np.empty((horizon + 1, cells))
     floor = math.ldexp(1.0, FLOOR_EXPONENT)
     reach = -FLOOR_EXPONENT * np.log(2.0)
-    log_z = np.empty(batch)
-    for b in range(batch):
-        row = scaled[b]
+    row = np.empty(cells)
+    log_likelihood = np.empty((batch, points))
+    for b, n in np.ndindex(batch, points):
+        theta, phi = thetas[b, n], features[b]
+        for s in range(cells):
+            if entered[s]:
+                total = 0.0
+                for i in range(k):
+                    total += phi[s, i] * theta[i]
+                row[s] = rationality * total
+        demo = 0.0
+        for i in range(k):
+            demo += theta[i] * demo_counts[b, i]
+        demo *= rationality
         high, low = -np.inf, np.inf
         for s in range(cells):
             if entered[s]:
@@ -451,7 +470,8 @@ def _log_partitions(scaled, successors, start, horizon, needed):  # pragma: no c
                 exponents += e
                 t -= 1
         if t == 0:
-            log_z[b] = np.log(following[start]) + horizon * centre + exponents * np.log(2.0)
+            log_z = np.log(following[start]) + horizon * centre + exponents * np.log(2.0)
+            log_likelihood[b, n] = demo - log_z
             continue
         if t == horizon:
             values[horizon, :] = 0.0
@@ -462,23 +482,28 @@ def _log_partitions(scaled, successors, start, horizon, needed):  # pragma: no c
                     values[t, s] = np.log(following[s]) + offset
         for u in range(t - 1, -1, -1):
             for s in range(cells):
+                if needed[u + 1, s]:
+                    current[s] = row[s] + values[u + 1, s]  # Q of every move into s
+            for s in range(cells):
                 if not needed[u, s]:
                     continue
                 best = -np.inf
                 for a in range(actions):
                     nxt = successors[s, a]
                     if nxt >= 0:
-                        best = max(best, row[nxt] + values[u + 1, nxt])
+                        best = max(best, current[nxt])
                 total = 0.0
                 for a in range(actions):
                     nxt = successors[s, a]
                     if nxt >= 0:
-                        d = row[nxt] + values[u + 1, nxt] - best
-                        if d >= SKIP_BELOW:
+                        d = current[nxt] - best
+                        if d == 0.0:
+                            total += 1.0
+                        elif d >= SKIP_BELOW:
                             total += np.exp(d)
                 values[u, s] = best if total == 1.0 else best + np.log(total)
-        log_z[b] = values[0, start]
-    return log_z
+        log_likelihood[b, n] = demo - values[0, start]
+    return log_likelihood
 
 
 @njit(cache=True)
