@@ -170,10 +170,12 @@ class _Sampler:
         self.u = np.empty((0, k))
         self.log_lik = np.empty(0)
         self.log_prior = np.empty(0)
-        # Per component: its draws so far and its log density at every point.
+        # Per component: its draws so far; component 0 is the prior. At every point, the log
+        # of sum_c n_c q_c over the fitted components c >= 1 (the prior's share changes
+        # every round, theirs is fixed when they are drawn from).
         self.components: list[_Gaussian] = [self.prior]
         self.counts: list[int] = [0]
-        self.log_q: list[FloatArray] = [np.empty(0)]
+        self.log_fitted = np.empty(0)
         self.beta = 0.0
         self.pending: FloatArray | None = None
         self.result: _Result | None = None
@@ -200,10 +202,11 @@ class _Sampler:
             # Heavy-tailed weights (few points carry the round): add the wide component.
             wide_share = options.wide_share if self.round_quality < options.wide_below else 0.0
             n_wide = int(round(wide_share * size))
-            draws = {0: n_prior, self._component_index(fitted): size - n_prior - n_wide}
+            n_fitted = size - n_prior - n_wide
+            draws = {0: n_prior, self._component_index(fitted, n_fitted): n_fitted}
             if n_wide > 0:
                 wide = _Gaussian(fitted.mean, options.wide_scale * fitted.covariance)
-                draws[self._component_index(wide)] = n_wide
+                draws[self._component_index(wide, n_wide)] = n_wide
         new = np.concatenate(
             [self.components[c].draw(self.rng, n) for c, n in draws.items() if n > 0]
         )
@@ -212,10 +215,11 @@ class _Sampler:
         self.pending = new
         return new
 
-    def _component_index(self, component: _Gaussian) -> int:
+    def _component_index(self, component: _Gaussian, draws: int) -> int:
+        """Add a fitted component that ``draws`` points of the next round come from."""
         self.components.append(component)
         self.counts.append(0)
-        self.log_q.append(component.log_pdf(self.u))
+        self.log_fitted = np.logaddexp(self.log_fitted, np.log(draws) + component.log_pdf(self.u))
         return len(self.components) - 1
 
     def _next_round_size(self) -> int:
@@ -239,13 +243,17 @@ class _Sampler:
         new = self.pending
         assert new is not None
         self.pending = None
-        for c, component in enumerate(self.components):
-            self.log_q[c] = np.concatenate([self.log_q[c], component.log_pdf(new)])
+        fitted = [
+            np.log(n) + component.log_pdf(new)
+            for component, n in zip(self.components[1:], self.counts[1:], strict=True)
+        ]
+        log_fitted = logsumexp(np.stack(fitted), axis=0) if fitted else np.full(len(new), -np.inf)
         theta = theta_of(new)
         self.u = np.concatenate([self.u, new])
         self.theta = np.concatenate([self.theta, theta])
         self.log_lik = np.concatenate([self.log_lik, log_lik])
-        self.log_prior = self.log_q[0]
+        self.log_prior = np.concatenate([self.log_prior, self.prior.log_pdf(new)])
+        self.log_fitted = np.concatenate([self.log_fitted, log_fitted])
         self._grow_design(new, theta)
         self.log_mixture = self._log_mixture()
         self.result = self._estimate()
@@ -255,11 +263,10 @@ class _Sampler:
     # -- weights, tempering and fitting ------------------------------------------------------
 
     def _log_mixture(self) -> FloatArray:
-        n_total = len(self.u)
-        counts = np.asarray(self.counts, dtype=np.float64)
-        used = counts > 0
-        terms = np.stack([self.log_q[c] for c in np.flatnonzero(used)], axis=1)
-        return logsumexp(terms + np.log(counts[used] / n_total), axis=1)
+        """:math:`\\log Q` at every point, :math:`Q = \\sum_c (n_c / N) q_c`."""
+        return np.logaddexp(np.log(self.counts[0]) + self.log_prior, self.log_fitted) - np.log(
+            len(self.u)
+        )
 
     def _weights(self, beta: float) -> FloatArray:
         """Weights for the tempered target :math:`\\pi_\\beta`, up to a common factor."""
