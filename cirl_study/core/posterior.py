@@ -70,11 +70,13 @@ measured in ``benchmarks/README.md`` (*The posterior-mean robot*);
 **Determinism.** Each trial draws from its own generator,
 :func:`cirl_study.core.estimate.robot_generator` of its seed, in an order fixed by its own
 data; a trial's points are scored by :meth:`cirl_study.core.maxent.MaxEnt.log_likelihood_at`
-row by row, so its estimate does not depend on the other trials of its batch, their order or
-``chunk`` (bitwise; trials that ask for rounds of the same size are scored in one call). The
-proposals' moments and the regression use numpy's linear algebra, whose BLAS kernels differ by
-CPU and split their longest sums among the BLAS library's threads, so with another CPU or
-thread count the last bits can differ, and rarely a stopping decision with them, which moves
+point by point, in loops of a fixed order, so its estimate does not depend on the other trials
+of its batch, their order or ``chunk`` (bitwise; trials that ask for rounds of the same size
+are scored in one call), and on another CPU at most through the last bit of ``exp`` and
+``log``. The proposals' moments and the regression use numpy's linear algebra, whose BLAS
+kernels differ by CPU and split their longest sums among the BLAS library's threads, so with
+another CPU or thread count the last bits can differ, and rarely a stopping decision with them,
+which moves
 the estimate by about its standard error (measured: ``benchmarks/README.md``). The command
 line computes on one thread whatever the machine (:mod:`cirl_study.__main__`), so its results
 do not depend on the number of cores.
