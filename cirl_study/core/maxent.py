@@ -376,8 +376,8 @@ def _log_partition(scaled, successors, start, horizon, needed):  # pragma: no co
 
 FLOOR_EXPONENT = -500
 """Binary exponent that bounds the linear recursion of :func:`_log_likelihoods`: weights in
-``[2^-500, 2^500]`` times masses in ``[2^-500, 5]`` are normal doubles, so nothing there
-underflows or overflows."""
+``[2^-500, 2^500]`` times masses in ``[2^-500, 1)``, and sums of five such products, are
+normal doubles, so nothing there underflows or overflows."""
 
 SKIP_BELOW = -40.0
 """Terms :math:`e^{d}` with :math:`d` below it (about ``4e-18``) are left out of a log-space
@@ -400,7 +400,7 @@ def _log_likelihoods(
     :math:`Z_t(s) = z_t(s)\\, e^{(T - t) c}\\, 2^{\\sum_{u \\ge t} e_u}`: multiply-adds, and
     one exponential per cell rather than per move. Every operand there is a normal double,
     rounded only, while every :math:`w` lies in ``2^(+-FLOOR_EXPONENT)`` and every rescaled
-    :math:`z` (at most 5) is at least ``2^FLOOR_EXPONENT``. From the first step where a
+    :math:`z` (below 1) is at least ``2^FLOOR_EXPONENT``. From the first step where a
     :math:`z` is not (large :math:`\\lambda`: cells whose mass is negligible next to
     others'; from the start if a :math:`w` is not), the recursion goes on in log space from
     :math:`V_{t+1} = \\log Z_{t+1}`: :math:`V_t(s) = m + \\log \\sum_a e^{Q(s, a) - m}`,
