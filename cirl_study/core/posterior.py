@@ -179,7 +179,7 @@ class _Sampler:
         self.counts: list[int] = [0]
         self.log_fitted = np.empty(0)
         self.beta = 0.0
-        self.pending: FloatArray | None = None
+        self.pending: tuple[FloatArray, FloatArray] | None = None  # next round's (u, theta)
         self.result: _Result | None = None
         self.finished = False
         self.round_quality = 1.0  # ESS fraction of the last round's own points
@@ -192,7 +192,7 @@ class _Sampler:
     # -- the rounds --------------------------------------------------------------------------
 
     def propose(self) -> FloatArray:
-        """Draw the next round's points (probit space) and record the proposal."""
+        """Draw the next round's points and record the proposal; returns them in the box."""
         n_total = len(self.u)
         options = self.options
         if n_total == 0:
@@ -214,8 +214,8 @@ class _Sampler:
         )
         for c, n in draws.items():
             self.counts[c] += n
-        self.pending = new
-        return new
+        self.pending = (new, theta_of(new))
+        return self.pending[1]
 
     def _component_index(self, component: _Gaussian, draws: int) -> int:
         """Add a fitted component that ``draws`` points of the next round come from."""
@@ -242,15 +242,14 @@ class _Sampler:
 
     def ingest(self, log_lik: FloatArray) -> None:
         """Add the scored round and re-estimate; :attr:`finished` says whether to stop."""
-        new = self.pending
-        assert new is not None
+        assert self.pending is not None
+        new, theta = self.pending
         self.pending = None
         fitted = [
             np.log(n) + component.log_pdf(new)
             for component, n in zip(self.components[1:], self.counts[1:], strict=True)
         ]
         log_fitted = logsumexp(np.stack(fitted), axis=0) if fitted else np.full(len(new), -np.inf)
-        theta = theta_of(new)
         self.u = np.concatenate([self.u, new])
         self.theta = np.concatenate([self.theta, theta])
         self.log_lik = np.concatenate([self.log_lik, log_lik])
@@ -416,7 +415,7 @@ def posterior_mean_estimate(
             for b in running:
                 by_size[len(samplers[b].propose())].append(b)
             for size, group in by_size.items():
-                points = np.stack([theta_of(samplers[b].pending) for b in group])
+                points = np.stack([samplers[b].pending[1] for b in group])
                 log_lik = model.take(np.asarray(group)).log_likelihood_at(
                     points.reshape(len(group), size, k), demo_counts[group]
                 )
