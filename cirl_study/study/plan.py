@@ -22,8 +22,9 @@ centers uniformly over the continuous extent ``[0, width-1] x [0, height-1]`` an
 ``theta ~ Uniform[-1, 1]^K``; every trial of the subject (both policies, every lambda) sees
 the same centers and ``theta``. The centers drawn are the subject's own when
 ``game.centers = "per_draw"``; with ``"shared"`` every subject at ``K`` features uses the
-centers of the stream ``centers:k<K>`` (drawn the same way), with ``"lattice"`` those of
-:func:`lattice_centers`, and ``theta`` is the same draw under every placement. A trial's
+centers of the stream ``centres:k<K>`` (drawn the same way; the stream keeps its first name
+so that no draw moves), with ``"lattice"`` those of :func:`lattice_centers`, and ``theta``
+is the same draw under every placement. A trial's
 ``seed`` is the first 53 bits of the stream of its *demonstration's* id: the trial id without
 the robot and the universe (:func:`demonstration_id`; an integer that every JSON reader holds
 exactly). So every robot watches the same demonstration, drawn once from that seed, also from
@@ -155,7 +156,7 @@ def draw_reward(
     centers = _uniform_centers(rng, game, num_features)
     theta = rng.uniform(-1.0, 1.0, size=num_features)
     if game.centers == "shared":
-        shared = np.random.default_rng(random_stream(pipeline.seed, f"centers:k{num_features:02d}"))
+        shared = np.random.default_rng(random_stream(pipeline.seed, f"centres:k{num_features:02d}"))
         centers = _uniform_centers(shared, game, num_features)
     elif game.centers == "lattice":
         centers = lattice_centers(game.width, game.height, num_features)
