@@ -32,8 +32,8 @@ from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.robot import map_estimate
 from cirl_study.core.trial import play_trials
 from cirl_study.record import MAIN
+from cirl_study.study.pipeline_file import load_pipeline
 from cirl_study.study.plan import study_trials
-from cirl_study.study.spec import load_pipeline
 
 TEACHING = Path(__file__).resolve().parents[1] / "pipelines" / "teaching.toml"
 

@@ -55,8 +55,8 @@ def run(pipeline: str | os.PathLike[str], out: str | os.PathLike[str], workers: 
         ``out``, as a path.
     """
     from cirl_study.study.engines import LocalEngine
+    from cirl_study.study.pipeline_file import load_pipeline, resolve_pipeline
     from cirl_study.study.runner import run_pipeline
-    from cirl_study.study.spec import load_pipeline, resolve_pipeline
 
     target = Path(out)
     run_pipeline(load_pipeline(resolve_pipeline(os.fspath(pipeline))), target, LocalEngine(workers))

@@ -18,7 +18,8 @@ import numpy as np
 
 from cirl_study.core.gridworld import Gridworld, rbf_features
 from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord, TrialRow, from_builtins
-from cirl_study.study.spec import Pipeline, parse_pipeline
+from cirl_study.study.pipeline_file import parse_pipeline
+from cirl_study.study.spec import Pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 

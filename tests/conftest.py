@@ -29,8 +29,8 @@ def smoke_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     Read-only: a test that changes a run copies it first (``shutil.copytree``).
     """
     from cirl_study.study.engines import LocalEngine
+    from cirl_study.study.pipeline_file import load_pipeline
     from cirl_study.study.runner import run_pipeline
-    from cirl_study.study.spec import load_pipeline
 
     out = tmp_path_factory.mktemp("smoke") / "run"
     run_pipeline(load_pipeline(SMOKE), out, LocalEngine(2))

@@ -29,9 +29,9 @@ from cirl_study.analysis.table import check_design
 from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.record import ETA_CV, MAIN, MAP, POSTERIOR_MEAN
 from cirl_study.study.engines import LocalEngine
+from cirl_study.study.pipeline_file import load_pipeline
 from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
 from cirl_study.study.runner import run_pipeline
-from cirl_study.study.spec import load_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 ROBOTS_PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "robots.toml"

@@ -16,7 +16,7 @@ from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.logs.record_checks import record_faults
 from cirl_study.record import TrialRecord, from_builtins
-from cirl_study.study.spec import parse_pipeline
+from cirl_study.study.pipeline_file import parse_pipeline
 
 
 def run_records(run: Path) -> list[TrialRecord]:

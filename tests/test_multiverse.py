@@ -37,6 +37,7 @@ from cirl_study.logs.validate import validate_run
 from cirl_study.record import MAIN, encode
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.multiverse import cv_universe, universe_pipeline
+from cirl_study.study.pipeline_file import load_pipeline, parse_pipeline
 from cirl_study.study.plan import (
     draw_reward,
     eta_cv_trials,
@@ -46,7 +47,6 @@ from cirl_study.study.plan import (
     trial_counts,
 )
 from cirl_study.study.runner import run_pipeline
-from cirl_study.study.spec import load_pipeline, parse_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -98,7 +98,7 @@ def test_the_universes_are_the_base_the_cross_product_the_alone_levels_and_the_l
     assert len(universes) == 1 + 4 - 1 + 3 + 1  # the base is in the cross product once
     assert universes[-1].steps == 3 and universes[-1].sigma == 1.5
     assert len({u.id for u in universes}) == len(universes)
-    assert pipeline.lambda_sweep.rationalities == ()
+    assert pipeline.lambda_sweep is None
     counts = trial_counts(pipeline)
     # cross-validation shared by the posterior-mean universe and the base
     assert counts == {"eta_cv": 18 * (len(universes) - 1), "main": 16 * len(universes),

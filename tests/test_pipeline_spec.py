@@ -13,8 +13,8 @@ from typing import Any
 import pytest
 
 from cirl_study.errors import UserError
+from cirl_study.study.pipeline_file import load_pipeline, parse_pipeline, resolve_pipeline
 from cirl_study.study.plan import trial_counts
-from cirl_study.study.spec import load_pipeline, parse_pipeline, resolve_pipeline
 
 REPO = Path(__file__).resolve().parent.parent
 SMOKE = REPO / "pipelines" / "smoke.toml"

@@ -17,7 +17,7 @@ import pytest
 from cirl_study.core import players
 from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot
 from cirl_study.errors import UserError
-from cirl_study.study.spec import parse_pipeline
+from cirl_study.study.pipeline_file import parse_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 

@@ -12,9 +12,10 @@ from mcap.reader import make_reader
 from cirl_study.errors import UserError
 from cirl_study.logs.format import TRIAL_TOPIC
 from cirl_study.study.engines import DaskEngine, LocalEngine
+from cirl_study.study.pipeline_file import load_pipeline
 from cirl_study.study.plan import eta_cv_trials, study_trials
 from cirl_study.study.runner import RunResult, batch_size, run_pipeline, split_batches
-from cirl_study.study.spec import Pipeline, load_pipeline
+from cirl_study.study.spec import Pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 

@@ -13,6 +13,7 @@ import pytest
 
 from cirl_study.record import Demonstration, Measures, TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.eta_cv import choose_etas
+from cirl_study.study.pipeline_file import load_pipeline
 from cirl_study.study.plan import (
     draw_reward,
     eta_cv_trial_ids,
@@ -24,7 +25,7 @@ from cirl_study.study.plan import (
     trial_id,
     trial_seed,
 )
-from cirl_study.study.spec import Pipeline, load_pipeline
+from cirl_study.study.spec import Pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 ETAS = {(None, "best_response", 3): 0.1, (None, "best_response", 10): 10.0}

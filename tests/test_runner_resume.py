@@ -13,8 +13,8 @@ import pytest
 from test_runner_engines import trial_payloads
 
 from cirl_study.study.engines import LocalEngine
+from cirl_study.study.pipeline_file import load_pipeline
 from cirl_study.study.runner import run_pipeline
-from cirl_study.study.spec import load_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 

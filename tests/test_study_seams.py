@@ -15,8 +15,8 @@ from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot, register_human
 from cirl_study.errors import UserError
 from cirl_study.logs.validate import validate_run
 from cirl_study.study.engines import LocalEngine
+from cirl_study.study.pipeline_file import load_pipeline, parse_pipeline
 from cirl_study.study.runner import run_pipeline
-from cirl_study.study.spec import load_pipeline, parse_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 

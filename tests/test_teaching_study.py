@@ -33,8 +33,9 @@ from cirl_study.errors import UserError
 from cirl_study.logs.validate import validate_run
 from cirl_study.record import MAIN, MEASURES, Measures, TrialRecord, TrialRow, encode
 from cirl_study.study.engines import LocalEngine
+from cirl_study.study.pipeline_file import parse_pipeline
 from cirl_study.study.runner import run_pipeline
-from cirl_study.study.spec import Pipeline, TeachingSpec, parse_pipeline
+from cirl_study.study.spec import Pipeline, TeachingSpec
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -239,7 +240,7 @@ def test_a_valid_teaching_pipeline_parses_into_its_spec(tmp_path: Path) -> None:
         hypotheses=12, includes_truth=False, alpha=2.5, demonstration="mode", learning_paths=569
     )
     assert isinstance(pipeline.teaching.alpha, float)
-    assert pipeline.lambda_sweep.subjects == 0 and pipeline.lambda_sweep.rationalities == ()
+    assert pipeline.lambda_sweep is None
     assert pipeline.multiverse is None
     assert pipeline.main.robots == ("map", "literal_observer", "pragmatic")
 
@@ -247,7 +248,8 @@ def test_a_valid_teaching_pipeline_parses_into_its_spec(tmp_path: Path) -> None:
 def test_a_pipeline_without_teaching_players_has_no_teaching(tmp_path: Path) -> None:
     """The smoke pipeline needs no hypothesis space and keeps its sweep."""
     pipeline = parse_pipeline(smoke_text(), tmp_path / "smoke.toml")
-    assert pipeline.teaching is None and pipeline.lambda_sweep.subjects == 4
+    assert pipeline.teaching is None
+    assert pipeline.lambda_sweep is not None and pipeline.lambda_sweep.subjects == 4
 
 
 # ---------------------------------------------------------------------------------------------

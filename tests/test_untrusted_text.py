@@ -33,8 +33,8 @@ from cirl_study.logs.lock import LOCK_NAME, writer_lock, writer_pid
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord
+from cirl_study.study.pipeline_file import load_pipeline, parse_pipeline, resolve_pipeline
 from cirl_study.study.runner import run_identity
-from cirl_study.study.spec import load_pipeline, parse_pipeline, resolve_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 SMOKE_RUN_ID = load_pipeline(SMOKE).run_id

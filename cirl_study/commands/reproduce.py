@@ -61,8 +61,8 @@ def reproduce(
     run is refused (before the run) unless --force.
     """
     from cirl_study.analysis.replacement import refuse_another_runs_report
+    from cirl_study.study.pipeline_file import load_pipeline, resolve_pipeline
     from cirl_study.study.runner import default_out_dir
-    from cirl_study.study.spec import load_pipeline, resolve_pipeline
 
     spec = load_pipeline(resolve_pipeline(pipeline))
     run_directory = out or default_out_dir(spec)

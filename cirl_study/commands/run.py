@@ -11,7 +11,7 @@ import typer
 from cirl_study.commands.parameters import Command, choice, number
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
-from cirl_study.study.spec import load_pipeline, resolve_pipeline
+from cirl_study.study.pipeline_file import load_pipeline, resolve_pipeline
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``run`` command, merged into :data:`cirl_study.cli.app`."""

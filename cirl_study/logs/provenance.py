@@ -33,7 +33,8 @@ from cirl_study.logs.format import (
     RUN_ID_KEY,
 )
 from cirl_study.logs.versions import LOG_FORMAT, READABLE, pipeline_table, readable
-from cirl_study.study.spec import Pipeline, parse_pipeline
+from cirl_study.study.pipeline_file import parse_pipeline
+from cirl_study.study.spec import Pipeline
 
 KEY_PACKAGES: tuple[str, ...] = (
     "numpy",
@@ -59,7 +60,7 @@ class RunIdentity:
     ``pipeline_sha256`` is the SHA-256 of the file's UTF-8 text: two files belong to one run
     exactly when their identities are equal, which the file's path does not enter (the same
     pipeline copied under another name is the same run). ``pipeline_file`` is where the run
-    found the file (:func:`cirl_study.study.spec.path_argument`), only for advice.
+    found the file (:func:`cirl_study.study.pipeline_file.path_argument`), only for advice.
     ``log_format`` is the format the file was written in (:mod:`cirl_study.logs.versions`),
     in which its pipeline text is read.
     """

@@ -31,13 +31,9 @@ from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.run_checks import complete_main_subjects
 from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
+from cirl_study.study.pipeline_file import MAX_PIPELINE_BYTES, path_argument, pipeline_search_path
 from cirl_study.study.plan import eta_cv_trial_ids, study_trial_ids, trial_counts
-from cirl_study.study.spec import (
-    MAX_PIPELINE_BYTES,
-    Pipeline,
-    path_argument,
-    pipeline_search_path,
-)
+from cirl_study.study.spec import Pipeline
 
 if TYPE_CHECKING:
     from cirl_study.logs.reader import RunContents
@@ -163,7 +159,7 @@ def resume_advice(identity: RunIdentity, run_dir: Path) -> str:
     """How to complete the run in ``run_dir``: that a run is writing to it, while one is
     (:func:`~cirl_study.logs.lock.writer_pid`); else ``resume with `<command>```, each argument
     of the command a shell word (:func:`~cirl_study.escape.shell`) naming its path as
-    :func:`~cirl_study.study.spec.path_argument` does.
+    :func:`~cirl_study.study.pipeline_file.path_argument` does.
 
     The command's pipeline is a file that holds the run's pipeline text now
     (:func:`_pipeline_file`); when none does, the command says ``PIPELINE`` and what it must be.
@@ -184,10 +180,10 @@ def resume_advice(identity: RunIdentity, run_dir: Path) -> str:
 
 
 def _pipeline_file(identity: RunIdentity) -> str | None:
-    """A file that holds the run's pipeline text, as :func:`~cirl_study.study.spec.path_argument`
-    names it: the file the run was made from, where the run recorded it, else the pipeline of
-    the run's name in :func:`~cirl_study.study.spec.pipeline_search_path`; ``None`` if neither
-    does."""
+    """A file that holds the run's pipeline text, as
+    :func:`~cirl_study.study.pipeline_file.path_argument` names it: the file the run was made
+    from, where the run recorded it, else the pipeline of the run's name in
+    :func:`~cirl_study.study.pipeline_file.pipeline_search_path`; ``None`` if neither does."""
     candidates = [identity.pipeline_file] + [
         str(directory / f"{identity.pipeline_name}.toml") for directory in pipeline_search_path()
     ]

@@ -1,5 +1,5 @@
 """What one run may plan: the limits every pipeline is held to, read from its file or from a
-run's logs (:func:`cirl_study.study.spec.parse_pipeline` applies :func:`check_resources`).
+run's logs (:func:`cirl_study.study.pipeline_file.parse_pipeline` applies :func:`check_resources`).
 
 A pipeline that passes them plays on the machine this study is sized for; one that does not
 is refused before anything is written, and a run's logs that carry one are refused before

@@ -352,6 +352,8 @@ def _single_study_plan(
         for policy in main.policies
         for robot in main.robots
     ]
+    if sweep is None:
+        return main_block
     sweep_block = [
         planned(
             pipeline, Cell(LAMBDA_SWEEP, subject, policy, rationality, eta_of(policy, k), robot)
@@ -382,7 +384,9 @@ def trial_counts(pipeline: Pipeline) -> dict[str, int]:
     return {
         ETA_CV: levels * cv.subjects * len(cv.etas) * len(pipeline.policies_with_eta),
         MAIN: levels * pipeline.main.subjects * policies,
-        LAMBDA_SWEEP: levels * sweep.subjects * len(sweep.rationalities) * policies,
+        LAMBDA_SWEEP: 0
+        if sweep is None
+        else levels * sweep.subjects * len(sweep.rationalities) * policies,
     }
 
 

@@ -40,8 +40,9 @@ from cirl_study.record import TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.engines import Engine
 from cirl_study.study.eta_cv import EtaChoice, choose_etas
 from cirl_study.study.limits import MAX_BATCH
+from cirl_study.study.pipeline_file import path_argument
 from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
-from cirl_study.study.spec import Pipeline, path_argument
+from cirl_study.study.spec import Pipeline
 
 BATCHES_PER_WORKER = 4
 """A block is cut into at least this many batches per worker, so that workers finish together."""
@@ -243,8 +244,8 @@ def run_pipeline(
 ) -> RunResult:
     """Run (or resume) ``pipeline`` into ``out_dir`` on ``engine`` (not yet entered).
 
-    ``pipeline`` is as :func:`~cirl_study.study.spec.parse_pipeline` validates it, within the
-    limits of :mod:`cirl_study.study.limits`.
+    ``pipeline`` is as :func:`~cirl_study.study.pipeline_file.parse_pipeline` validates it,
+    within the limits of :mod:`cirl_study.study.limits`.
     """
     hooks = progress or ProgressHooks()
     began = time.perf_counter()

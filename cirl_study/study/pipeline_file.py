@@ -1,0 +1,326 @@
+"""Reading a pipeline file: its text into the typed specs of :mod:`cirl_study.study.spec`.
+
+:func:`load_pipeline` reads a file, :func:`parse_pipeline` a text (a file's, or the one a run's
+logs carry); both check the text's size, its TOML and nesting, every setting against the
+constraint its spec declares beside the field (:mod:`cirl_study.study.settings`), the rules
+that join tables (which tables a study has; a multiverse's axes), and what the pipeline plans
+against the limits of one run (:func:`cirl_study.study.limits.check_resources`). Every problem
+is one :class:`~cirl_study.errors.UserError` line naming the file and the key.
+:func:`resolve_pipeline` says which file a ``cirl-study run PIPELINE`` argument means.
+"""
+
+from __future__ import annotations
+
+import codecs
+import hashlib
+import itertools
+import tomllib
+from collections import ChainMap
+from collections.abc import Callable
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+from cirl_study.errors import UserError
+from cirl_study.study.limits import check_resources
+from cirl_study.study.settings import Table, shown
+from cirl_study.study.spec import (
+    AXES,
+    EtaCVSpec,
+    GameSpec,
+    LambdaSweepSpec,
+    MainSpec,
+    MultiverseSpec,
+    Pipeline,
+    TeachingSpec,
+    Universe,
+)
+
+PIPELINES_DIRECTORY = "pipelines"
+"""Name of the directory that holds the pipeline files, at the repository root."""
+
+MAX_PIPELINE_BYTES = 1 << 20
+"""Largest pipeline file read: every log file of a run carries the whole text."""
+
+MAX_PIPELINE_NESTING = 8
+"""Most levels of tables and arrays a pipeline nests, its top table counting one. A valid
+pipeline nests at most four (a multiverse axis: the file, ``[multiverse]``, ``cross`` and the
+axis's list of levels); the bound leaves room for new keys and keeps every check of a value
+far from the interpreter's recursion limit (the parser itself recurses at about 500 levels)."""
+
+TOP_KEYS = (
+    "name", "description", "seed", "game", "eta_cv", "main", "lambda_sweep", "multiverse",
+    "teaching",
+)  # fmt: skip
+"""The keys of a pipeline's top table, in the order they are checked."""
+
+
+def parse_pipeline(
+    text: str,
+    path: Path,
+    *,
+    label: str | None = None,
+    rename: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
+) -> Pipeline:
+    """Validate the TOML ``text`` of the pipeline file ``path``, and what it plans against the
+    limits of one run (:func:`cirl_study.study.limits.check_resources`).
+
+    Every error is one line beginning with ``label``, by default ``path`` as the user sees it.
+    ``rename`` maps the parsed table to the current names before it is read: how the text a
+    log of an earlier format carries is read (:func:`cirl_study.logs.versions.pipeline_table`).
+    """
+    label = _display_path(path) if label is None else label
+    # A character is at least one byte: a text of too many is not encoded to be measured.
+    _check_size(label, len(text) if len(text) > MAX_PIPELINE_BYTES else len(text.encode()))
+    nested = f"nests deeper than {MAX_PIPELINE_NESTING} levels of tables and arrays"
+    try:
+        data = tomllib.loads(text)
+    except tomllib.TOMLDecodeError as error:
+        raise UserError(f"{label}: not valid TOML: {error}") from None
+    except RecursionError:
+        raise UserError(f"{label}: {nested}") from None
+    deep = _too_deep(data)
+    if deep is not None:
+        raise UserError(f"{label}: {deep} {nested}")
+    if rename is not None:
+        data = rename(data)
+    top = Table(label, "", data, TOP_KEYS)
+    # Keyword arguments are evaluated in order: the file is checked top to bottom.
+    pipeline = Pipeline(
+        name=top.setting(Pipeline, "name"),
+        description=top.setting(Pipeline, "description"),
+        seed=top.setting(Pipeline, "seed"),
+        game=(game := top.spec("game", GameSpec)),
+        eta_cv=(eta_cv := top.spec("eta_cv", EtaCVSpec)),
+        main=(main := top.spec("main", MainSpec)),
+        lambda_sweep=_lambda_sweep(top, main),
+        multiverse=_multiverse(top, game, eta_cv, main) if "multiverse" in top.data else None,
+        teaching=_teaching(top, game, main),
+        path=path,
+        text=text,
+        sha256=hashlib.sha256(text.encode()).hexdigest(),
+    )
+    check_resources(pipeline, label)
+    return pipeline
+
+
+def _lambda_sweep(top: Table, main: MainSpec) -> LambdaSweepSpec | None:
+    """``[lambda_sweep]``: required in a single study without a hypothesis space, refused in
+    the others (:class:`~cirl_study.study.spec.Pipeline`)."""
+    if "multiverse" in top.data:
+        if "lambda_sweep" in top.data:
+            top.fail(
+                "lambda_sweep",
+                "must not be given with [multiverse] (lambda is one of its axes: rationality)",
+            )
+        return None
+    if "teaching" in top.data:
+        if "lambda_sweep" in top.data:
+            top.fail("lambda_sweep", "must not be given with [teaching] (its study has no sweep)")
+        return None
+    return top.spec("lambda_sweep", LambdaSweepSpec, ChainMap({"main": main}))
+
+
+def _teaching(top: Table, game: GameSpec, main: MainSpec) -> TeachingSpec | None:
+    """The ``[teaching]`` table: required exactly when a human or robot of ``main`` needs one."""
+    from cirl_study.core.players import HUMANS, ROBOTS
+
+    teaching = [p for p in main.policies if HUMANS[p].needs_hypotheses]
+    teaching += [r for r in main.robots if ROBOTS[r].needs_hypotheses]
+    if "teaching" not in top.data:
+        if teaching:
+            top.fail("teaching", f"is missing ({', '.join(teaching)} need a hypothesis space)")
+        return None
+    if "multiverse" in top.data:
+        top.fail("teaching", "must not be given with [multiverse]")
+    from cirl_study.core.hypotheses import MAX_PATHS
+
+    spec = top.spec("teaching", TeachingSpec, ChainMap({"game": game}))
+    if spec.learning_paths > MAX_PATHS:
+        top.fail(
+            "game.learning_steps",
+            f"gives {spec.learning_paths:,} learning paths, more than the {MAX_PATHS:,} a "
+            "hypothesis space enumerates",
+        )
+    return spec
+
+
+def _multiverse(top: Table, game: GameSpec, eta_cv: EtaCVSpec, main: MainSpec) -> MultiverseSpec:
+    """The universes of ``[multiverse]``: the file's own (the base) first, then those of
+    ``cross`` (a full factorial), ``alone`` (one level varied at a time) and ``universes``
+    (listed), each once, in that order."""
+    if len(main.robots) != 1:
+        top.fail("main.robots", "must name one robot in a multiverse (robot is one of its axes)")
+    if game.learning_steps != game.deployment_steps:
+        top.fail(
+            "game.deployment_steps",
+            "must equal game.learning_steps in a multiverse (one axis, steps, sets both)",
+        )
+    if eta_cv.rationality != main.rationality:
+        top.fail(
+            "eta_cv.rationality",
+            "must equal main.rationality in a multiverse (one axis, rationality, sets both)",
+        )
+    base = Universe(**{name: axis.read(game, main) for name, axis in AXES.items()})
+    block = top.table("multiverse", ("cross", "alone", "universes"))
+    levels = _AxisLevels(game)
+    universes = [base]
+    if "cross" in block.data:
+        cross = block.table("cross", tuple(AXES))
+        axes = {axis: levels.of(cross, axis) for axis in AXES if axis in cross.data}
+        universes += [
+            replace(base, **dict(zip(axes, chosen, strict=True)))
+            for chosen in itertools.product(*axes.values())
+        ]
+    if "alone" in block.data:
+        alone = block.table("alone", tuple(AXES))
+        universes += [
+            replace(base, **{axis: level})
+            for axis in AXES
+            if axis in alone.data
+            for level in levels.of(alone, axis)
+        ]
+    if "universes" in block.data:
+        listed = block.value("universes")
+        if not isinstance(listed, list) or not all(isinstance(u, dict) for u in listed):
+            block.fail("universes", f"must be an array of tables, got {shown(listed)}")
+        for position, entry in enumerate(listed):
+            table = Table(top.label, f"multiverse.universes[{position}].", entry, tuple(AXES))
+            universes.append(
+                replace(base, **{axis: levels.one(table, axis) for axis in AXES if axis in entry})
+            )
+    return MultiverseSpec(base, tuple(dict.fromkeys(universes)))
+
+
+class _AxisLevels:
+    """Validation of an axis's levels: the range the same setting has in ``[game]``/``[main]``
+    (:attr:`Axis.levels`)."""
+
+    def __init__(self, game: GameSpec):
+        self.checks = {name: axis.levels(game) for name, axis in AXES.items()}
+
+    def of(self, table: Table, axis: str) -> list[Any]:
+        """The distinct levels ``table[axis]`` lists."""
+        ok, what = self.checks[axis]
+        value = table.value(axis)
+        if not isinstance(value, list) or not value or not all(ok(v) for v in value):
+            table.fail(axis, f"must be a non-empty list of {what}, got {shown(value)}")
+        if len(set(value)) != len(value):
+            table.fail(axis, f"must not repeat a level, got {shown(value)}")
+        return [AXES[axis].convert(v) for v in value]
+
+    def one(self, table: Table, axis: str) -> Any:
+        """The one level ``table[axis]`` names."""
+        ok, what = self.checks[axis]
+        value = table.value(axis)
+        if not ok(value):
+            table.fail(axis, f"must be one of {what}, got {shown(value)}")
+        return AXES[axis].convert(value)
+
+
+def _too_deep(data: dict[str, Any]) -> str | None:
+    """The key of ``data`` (a parsed TOML document) whose value nests past
+    :data:`MAX_PIPELINE_NESTING` levels, if any (found without recursion)."""
+    pending: list[tuple[object, int, str]] = [(data, 1, "")]
+    while pending:
+        value, depth, key = pending.pop()
+        if isinstance(value, dict):
+            children = [(f"{key}.{k}" if key else k, v) for k, v in value.items()]
+        elif isinstance(value, list):
+            children = [(key, v) for v in value]
+        else:
+            continue
+        if depth > MAX_PIPELINE_NESTING:
+            return key
+        pending += [(child, depth + 1, name) for name, child in children]
+    return None
+
+
+def _display_path(path: Path) -> str:
+    """``path`` relative to the current directory when it lies below it, else as given."""
+    try:
+        return str(path.resolve().relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(path)
+
+
+def path_argument(path: Path) -> str:
+    """``path`` as a command the user is told to run names it, and as a run records where it
+    found its pipeline file: relative to the current directory when it lies below it, else
+    absolute. It never reads as a pipeline's name, which ``cirl-study run`` would look up among
+    the shipped pipelines (:func:`resolve_pipeline`), nor as an option: a file of the current
+    directory itself is ``./name``, as is a relative path that starts with ``-``.
+    """
+    resolved = path.resolve()
+    try:
+        shown = str(resolved.relative_to(Path.cwd().resolve()))
+    except ValueError:
+        return str(resolved)
+    return shown if "/" in shown and not shown.startswith("-") else f"./{shown}"
+
+
+def _check_size(label: str, size: int) -> None:
+    """Refuse a pipeline of more than :data:`MAX_PIPELINE_BYTES` (its text, or as much of its
+    file as was read)."""
+    if size > MAX_PIPELINE_BYTES:
+        raise UserError(
+            f"{label}: more than {MAX_PIPELINE_BYTES} bytes, too large for a pipeline file"
+        )
+
+
+def load_pipeline(path: Path) -> Pipeline:
+    """Read and validate the pipeline file at ``path``."""
+    try:
+        with path.open("rb") as stream:
+            raw = stream.read(MAX_PIPELINE_BYTES + 1)
+    except OSError as error:
+        raise UserError(f"{_display_path(path)}: cannot read: {error.strerror}") from None
+    _check_size(_display_path(path), len(raw))
+    if raw.startswith(codecs.BOM_UTF8):
+        raise UserError(
+            f"{_display_path(path)}: starts with a UTF-8 byte-order mark; save it as plain "
+            "UTF-8 without one (TOML)"
+        )
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError:
+        raise UserError(f"{_display_path(path)}: not valid TOML: not UTF-8 text") from None
+    return parse_pipeline(text, path)
+
+
+def pipeline_search_path() -> tuple[Path, ...]:
+    """Directories searched for a pipeline given by name, in order.
+
+    ``./pipelines`` (the current directory's), then the ``pipelines`` directory at the
+    root of the source tree this package is imported from (an editable install).
+    """
+    here = Path.cwd() / PIPELINES_DIRECTORY
+    repository = Path(__file__).resolve().parents[2] / PIPELINES_DIRECTORY
+    return (here,) if here.resolve() == repository else (here, repository)
+
+
+def resolve_pipeline(name_or_path: str) -> Path:
+    """The file a ``cirl-study run PIPELINE`` argument means.
+
+    An existing file is taken as it is; otherwise a bare name ``x`` (or ``x.toml``)
+    is looked up as ``x.toml`` in :func:`pipeline_search_path`.
+    """
+    given = Path(name_or_path)
+    if given.is_file():
+        return given
+    if given.is_dir():
+        raise UserError(f"{name_or_path}: is a directory, not a pipeline file")
+    if given.name == name_or_path:
+        file_name = name_or_path if name_or_path.endswith(".toml") else f"{name_or_path}.toml"
+        for directory in pipeline_search_path():
+            candidate = directory / file_name
+            if candidate.is_file():
+                return candidate
+        available = sorted(
+            {p.stem for d in pipeline_search_path() if d.is_dir() for p in d.glob("*.toml")}
+        )
+        known = f"known pipelines: {', '.join(available)}" if available else "none shipped"
+        if name_or_path.endswith(".toml"):
+            raise UserError(f"{name_or_path}: no such file, nor a shipped pipeline ({known})")
+        raise UserError(f"no pipeline named {name_or_path!r} ({known})")
+    raise UserError(f"{name_or_path}: no such pipeline file")

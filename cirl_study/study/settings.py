@@ -1,0 +1,254 @@
+"""The constraints a pipeline's settings obey, written beside the fields they constrain.
+
+A field of a spec (:mod:`cirl_study.study.spec`) is declared with :func:`setting`, which
+names the :data:`Check` its value in the file must pass, or with :func:`derived`, which
+computes it from settings already read. :meth:`Table.spec` reads a TOML table into a spec
+by its fields alone, in their order: the keys the table may have, what each must be, and the
+order in which the file is checked are all read from the spec's declaration. Every failure is
+one :class:`~cirl_study.errors.UserError` line naming the file and the key::
+
+    pipelines/x.toml: main.subjects must be a positive integer, got 0
+
+A check returns the value as the spec stores it, or raises :class:`Invalid` with what the
+value must be; it sees the settings read so far (:data:`Known`), so a setting may be
+constrained by an earlier one (a start cell by the grid's size).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections import ChainMap
+from collections.abc import Callable, Collection, Mapping
+from dataclasses import dataclass, field, fields
+from types import MappingProxyType
+from typing import Any, NoReturn, TypeVar
+
+from cirl_study.errors import UserError
+
+Known = Mapping[str, Any]
+"""The settings read before the one being checked: the earlier fields of its table by name,
+then the specs of the tables read before it (``known["main"]`` is the parsed ``[main]``)."""
+
+NOTHING_KNOWN: Known = MappingProxyType({})
+"""What is known before the first setting of a file is read."""
+
+Check = Callable[[Any, Known], Any]
+"""Checks one value of a pipeline file: returns it as the spec stores it, or raises
+:class:`Invalid`."""
+
+Spec = TypeVar("Spec")
+
+
+class Invalid(Exception):
+    """A setting's value breaks its constraint: ``must`` is what it must be (``must be a
+    positive integer``), ``got`` what it is, as shown after ``, got`` (by default the value,
+    :func:`shown`)."""
+
+    def __init__(self, must: str, got: str | None = None):
+        super().__init__(must)
+        self.must = must
+        self.got = got
+
+
+def setting(check: Check) -> Any:
+    """A spec field read from the file's key of the field's name, and held to ``check``."""
+    return field(metadata={"check": check})
+
+
+def derived(compute: Callable[[Known], Any]) -> Any:
+    """A spec field not in the file: ``compute`` makes it from the settings read before it
+    (it may raise :class:`UserError` naming the setting that makes it impossible)."""
+    return field(metadata={"derive": compute})
+
+
+@dataclass(frozen=True)
+class Limits:
+    """A closed range ``[low, high]`` of a setting, and why the engine needs it."""
+
+    low: float
+    high: float
+    reason: str
+
+    def __str__(self) -> str:
+        return f"[{self.low:g}, {self.high:g}] ({self.reason})"
+
+
+def shown(value: Any) -> str:
+    """A TOML value as it was probably written, shortened to one short line."""
+    if isinstance(value, dict):
+        return "a table"
+    text = json.dumps(value, default=str)
+    return text if len(text) <= 60 else text[:57] + "..."
+
+
+def is_integer(value: Any) -> bool:
+    """An integer of TOML (not a boolean, which Python counts as one)."""
+    return isinstance(value, int) and not isinstance(value, bool)
+
+
+def is_positive_number(value: Any) -> bool:
+    """A finite number above 0 (TOML integer or float)."""
+    return (
+        isinstance(value, int | float)
+        and not isinstance(value, bool)
+        and math.isfinite(value)
+        and value > 0
+    )
+
+
+class Table:
+    """One TOML table being read; every failure names ``label: prefix.key``."""
+
+    def __init__(self, label: str, prefix: str, data: dict[str, Any], keys: Collection[str]):
+        self.label = label
+        self.prefix = prefix
+        self.data = data
+        unknown = sorted(set(data) - set(keys))
+        if unknown:
+            self.fail(unknown[0], f"is not a known key (expected one of: {', '.join(keys)})")
+
+    def fail(self, key: str, message: str) -> NoReturn:
+        raise UserError(f"{self.label}: {self.prefix}{key} {message}")
+
+    def value(self, key: str) -> Any:
+        if key not in self.data:
+            self.fail(key, "is missing")
+        return self.data[key]
+
+    def checked(self, key: str, check: Check, known: Known = NOTHING_KNOWN) -> Any:
+        """``table[key]`` held to ``check``."""
+        value = self.value(key)
+        try:
+            return check(value, known)
+        except Invalid as invalid:
+            got = shown(value) if invalid.got is None else invalid.got
+            self.fail(key, f"{invalid.must}, got {got}")
+
+    def setting(self, kind: type, key: str, known: Known = NOTHING_KNOWN) -> Any:
+        """``table[key]`` held to the constraint of the field ``key`` of the spec ``kind``."""
+        (declared,) = (f for f in fields(kind) if f.name == key)
+        return self.checked(key, declared.metadata["check"], known)
+
+    def table(self, key: str, keys: Collection[str]) -> Table:
+        value = self.value(key)
+        if not isinstance(value, dict):
+            self.fail(key, f"must be a table ([{self.prefix}{key}]), got {shown(value)}")
+        return Table(self.label, f"{self.prefix}{key}.", value, keys)
+
+    def spec(self, key: str, kind: type[Spec], known: Known = NOTHING_KNOWN) -> Spec:
+        """The table ``key`` read into a ``kind`` by its fields (:func:`setting`,
+        :func:`derived`), in their order; ``known`` holds the specs read before it."""
+        declared = fields(kind)  # type: ignore[arg-type]
+        table = self.table(key, [f.name for f in declared if "check" in f.metadata])
+        read: dict[str, Any] = {}
+        seen = ChainMap(read, known)
+        for f in declared:
+            if "check" in f.metadata:
+                read[f.name] = table.checked(f.name, f.metadata["check"], seen)
+            else:
+                read[f.name] = f.metadata["derive"](seen)
+        return kind(**read)
+
+
+def integer_at_least(minimum: int, what: str) -> Check:
+    """An integer ``>= minimum``, ``what`` in words (``a positive integer``)."""
+
+    def check(value: Any, _known: Known) -> int:
+        if not is_integer(value) or value < minimum:
+            raise Invalid(f"must be {what}")
+        return value
+
+    return check
+
+
+POSITIVE_INTEGER = integer_at_least(1, "a positive integer")
+
+
+def string(value: Any, _known: Known) -> str:
+    """Any string."""
+    if not isinstance(value, str):
+        raise Invalid("must be a string")
+    return value
+
+
+def boolean(value: Any, _known: Known) -> bool:
+    """``true`` or ``false``."""
+    if not isinstance(value, bool):
+        raise Invalid("must be true or false")
+    return value
+
+
+def one_of(choices: tuple[str, ...]) -> Check:
+    """One of the names ``choices``."""
+
+    def check(value: Any, _known: Known) -> str:
+        if value not in choices:
+            raise Invalid(f"must be one of {', '.join(choices)}")
+        return value
+
+    return check
+
+
+def number_in(limits: Limits | Callable[[Known], Limits]) -> Check:
+    """A positive number within ``limits`` (or within the limits the earlier settings give)."""
+
+    def check(value: Any, known: Known) -> float:
+        bounds = limits(known) if callable(limits) else limits
+        if not (is_positive_number(value) and bounds.low <= value <= bounds.high):
+            raise Invalid(f"must be a number in {bounds}")
+        return float(value)
+
+    return check
+
+
+def _distinct(item_ok: Callable[[Any], bool], what: str) -> Callable[[Any], list[Any]]:
+    """A non-empty list of distinct values, each passing ``item_ok``."""
+
+    def check(value: Any) -> list[Any]:
+        if not isinstance(value, list) or not value or not all(item_ok(v) for v in value):
+            raise Invalid(f"must be a non-empty list of {what}")
+        if len({float(v) for v in value}) != len(value):
+            raise Invalid("must not repeat a value")
+        return value
+
+    return check
+
+
+def positive_integers(value: Any, _known: Known) -> tuple[int, ...]:
+    """A non-empty list of distinct positive integers."""
+    listed = _distinct(lambda v: is_integer(v) and v > 0, "positive integers")(value)
+    return tuple(listed)
+
+
+def numbers_in(limits: Limits) -> Check:
+    """A non-empty list of distinct positive numbers within ``limits``."""
+    items = _distinct(
+        lambda v: is_positive_number(v) and limits.low <= v <= limits.high,
+        f"numbers in {limits}",
+    )
+
+    def check(value: Any, _known: Known) -> tuple[float, ...]:
+        return tuple(float(v) for v in items(value))
+
+    return check
+
+
+def names(known_names: Callable[[], Collection[str]], what: str) -> Check:
+    """A non-empty list of distinct names from ``known_names()`` (looked up when checked:
+    the players' registries load with the first pipeline read)."""
+
+    def check(value: Any, _known: Known) -> tuple[str, ...]:
+        choices = known_names()
+        if (
+            not isinstance(value, list)
+            or not value
+            or not all(isinstance(v, str) and v in choices for v in value)
+            or len(set(value)) != len(value)
+        ):
+            raise Invalid(
+                f"must be a non-empty list of distinct known {what} ({', '.join(choices)})"
+            )
+        return tuple(value)
+
+    return check
