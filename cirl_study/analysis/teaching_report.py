@@ -12,24 +12,29 @@ from cirl_study.analysis.sections import heading
 from cirl_study.analysis.study_report import anova_table, paired_table
 
 
+def _section(key: str, *blocks: str) -> list[str]:
+    """The section of ``key``: its heading, then ``blocks`` (paragraphs, tables), a blank line
+    between each."""
+    lines = [heading(2, key)]
+    for block in blocks:
+        lines += ["", block]
+    return lines
+
+
 def milli_dragan(results: StudyResults) -> list[str]:
     """The 2 x 2 of human {literal, pedagogic} x robot {literal_observer, pragmatic}."""
     square = results.milli_dragan
     if square is None:
         return []
-    return [
-        heading(2, "milli_dragan"),
-        "",
+    return _section(
+        "milli_dragan",
         "Repeated-measures ANOVA per measure: human (`literal`, `pedagogic`) and robot "
         "(`literal_observer`, `pragmatic`) within subjects, the number of features between.",
-        "",
         anova_table(square.anova),
-        "",
         "The robot's simple effect, `pragmatic - literal_observer`, under each human (negative: "
         "the pragmatic robot does better), pooled over the feature levels and at each:",
-        "",
         paired_table([*square.robot_effect, *square.robot_effect_by_level], "policy", "robot"),
-    ]
+    )
 
 
 def versus(results: StudyResults) -> list[str]:
@@ -37,14 +42,12 @@ def versus(results: StudyResults) -> list[str]:
     versus = results.best_response_vs_pedagogic
     if versus is None:
         return []
-    return [
-        heading(2, "best_response_vs_pedagogic"),
-        "",
+    return _section(
+        "best_response_vs_pedagogic",
         "Paired by reward draw: `best_response - pedagogic` (negative: the best response "
         "teaches better), per robot and number of features.",
-        "",
         paired_table(versus, "robot", "human"),
-    ]
+    )
 
 
 def regret_optimal(results: StudyResults) -> list[str]:
@@ -52,16 +55,14 @@ def regret_optimal(results: StudyResults) -> list[str]:
     optimal = results.regret_optimal
     if optimal is None:
         return []
-    return [
-        heading(2, "regret_optimal"),
-        "",
+    return _section(
+        "regret_optimal",
         "With the MAP robot, each human's regret minus that of the best demonstration the "
         "regret-optimal search found for the same reward draw (`regret_optimal`, "
         "cirl_study.core.teaching). The search starts from the expert's path, the best "
         "response at every eta of the cross-validation grid and the pedagogic human's most "
         "telling paths, then improves by single-move changes; so the gap is a lower bound on "
         "the distance to the true optimum, never negative for the expert or the best response.",
-        "",
         table(
             ["K", "human", "n", "mean regret", "regret-optimal", "gap", "95% CI", "p",
              "smallest gap", "as good as the best found"],
@@ -75,4 +76,4 @@ def regret_optimal(results: StudyResults) -> list[str]:
             ),
             [True, False, True, True, True, True, True, True, True, True],
         ),
-    ]  # fmt: skip
+    )  # fmt: skip
