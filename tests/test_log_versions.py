@@ -115,8 +115,13 @@ def test_a_log_of_an_unknown_format_is_refused_in_one_line(tmp_path: Path) -> No
 
 
 def test_every_readable_format_is_named_and_the_current_one_is_written() -> None:
-    assert versions.READABLE[-1] == versions.LOG_FORMAT == "6"
-    assert versions.readable("5") and not versions.readable("4") and not versions.readable("")
+    assert versions.READABLE[-1] == versions.LOG_FORMAT == "7"
+    assert (
+        versions.readable("5")
+        and versions.readable("6")
+        and not versions.readable("4")
+        and not versions.readable("")
+    )
 
 
 def test_read_run_renames_every_record_of_format_5() -> None:

@@ -45,6 +45,14 @@ hypothesis space in ``[teaching]``, and then has no ``[lambda_sweep]``::
     alpha = 1.0               # the pedagogic exponent
     demonstration = "draw"    # the pedagogic human draws her path, or shows its mode
 
+A pipeline whose robots (``main.robots``, or a multiverse's ``robot`` levels) include
+``gradient_ascent`` (:mod:`cirl_study.core.gradient_ascent`) sets its step budget and step
+size in ``[gradient_ascent]``, and only then has one::
+
+    [gradient_ascent]
+    steps = 30                # gradient steps N from theta = 0 (at most 100000)
+    learning_rate = 0.1       # the step size alpha, in [1e-12, 100]
+
 A pipeline may instead declare a ``[multiverse]`` (and then no ``[lambda_sweep]``): the study
 played in many *universes*, each a choice of the open settings :data:`AXES`
 (:mod:`cirl_study.study.multiverse`)::
@@ -176,6 +184,15 @@ class TeachingSpec:
     demonstration: str
     learning_paths: int
     """Paths of the learning phase, which a worker enumerates once (its memory estimate)."""
+
+
+@dataclass(frozen=True)
+class GradientAscentSpec:
+    """The ``gradient_ascent`` robot's settings (:mod:`cirl_study.core.gradient_ascent`):
+    ``steps`` gradient steps of size ``learning_rate`` from :math:`\\theta = 0`."""
+
+    steps: int
+    learning_rate: float
 
 
 @dataclass(frozen=True)
@@ -364,6 +381,7 @@ class Pipeline:
     multiverse: MultiverseSpec | None = None
     universe: Universe | None = None
     teaching: TeachingSpec | None = None
+    gradient_ascent: GradientAscentSpec | None = None
 
     @property
     def policies_with_eta(self) -> tuple[str, ...]:
@@ -603,7 +621,7 @@ def parse_pipeline(
         data,
         (
             "name", "description", "seed", "game", "eta_cv", "main", "lambda_sweep",
-            "multiverse", "teaching",
+            "multiverse", "teaching", "gradient_ascent",
         ),
     )  # fmt: skip
     name = top.string("name")
@@ -621,8 +639,11 @@ def parse_pipeline(
         eta_cv=(eta_cv := _eta_cv(top)),
         main=(main := _main(top)),
         lambda_sweep=_lambda_sweep(top, main) if _has_sweep(top) else NO_SWEEP,
-        multiverse=_multiverse(top, game, eta_cv, main) if "multiverse" in top.data else None,
+        multiverse=(
+            multiverse := _multiverse(top, game, eta_cv, main) if "multiverse" in top.data else None
+        ),
         teaching=_teaching(top, game, main),
+        gradient_ascent=_gradient_ascent(top, main, multiverse),
         path=path,
         text=text,
         sha256=hashlib.sha256(text.encode()).hexdigest(),
@@ -776,6 +797,45 @@ def _teaching(top: _Table, game: GameSpec, main: MainSpec) -> TeachingSpec | Non
         alpha=block.number_in("alpha", PEDAGOGIC_ALPHA),
         demonstration=block.choice("demonstration", PEDAGOGIC_CHOICES),
         learning_paths=paths,
+    )
+
+
+MAX_ASCENT_STEPS = 100_000
+"""Most gradient steps of the ``gradient_ascent`` robot: each costs a soft value iteration of
+the learning phase per trial, so a budget past this would make its trials the run's whole cost."""
+
+LEARNING_RATE = Limits(
+    1e-12, 1e2, "from steps that ascend at every lambda to one far past the prior's box"
+)
+"""alpha: a step moves each weight by at most ``alpha lambda T_learn`` (a feature lies in
+``(0, 1]``), so at 100 one step at ``lambda = 1`` can move it a hundred times past the prior's
+box; every step is an ascent below ``8 / (lambda^2 K T_learn^2)``
+(:mod:`cirl_study.core.gradient_ascent`), which the lower end admits at ``lambda = 1e4`` up to
+``K T_learn^2 = 80000`` (the paper's game has 810)."""
+
+
+def _gradient_ascent(
+    top: _Table, main: MainSpec, multiverse: MultiverseSpec | None
+) -> GradientAscentSpec | None:
+    """The ``[gradient_ascent]`` table: required exactly when the ``gradient_ascent`` robot
+    plays, in ``main.robots`` or as a multiverse's ``robot`` level."""
+    from cirl_study.record import GRADIENT_ASCENT
+
+    universes = () if multiverse is None else multiverse.universes
+    plays = GRADIENT_ASCENT in main.robots or any(u.robot == GRADIENT_ASCENT for u in universes)
+    if "gradient_ascent" not in top.data:
+        if plays:
+            top.fail("gradient_ascent", f"is missing (robot {GRADIENT_ASCENT} needs its settings)")
+        return None
+    if not plays:
+        top.fail("gradient_ascent", f"is given, but robot {GRADIENT_ASCENT} does not play")
+    block = top.table("gradient_ascent", ("steps", "learning_rate"))
+    within = f"an integer in [1, {MAX_ASCENT_STEPS}]"
+    steps = block.integer("steps", 1, within)
+    if steps > MAX_ASCENT_STEPS:
+        block.fail("steps", f"must be {within} (each step is a soft value iteration), got {steps}")
+    return GradientAscentSpec(
+        steps=steps, learning_rate=block.number_in("learning_rate", LEARNING_RATE)
     )
 
 
