@@ -60,7 +60,12 @@ LITERAL_OBSERVER, PRAGMATIC = "literal_observer", "pragmatic"
 pedagogic human (Fisac et al. 2017; :mod:`cirl_study.core.teaching`)."""
 
 MEASURES: tuple[str, ...] = ("regret", "kl", "reward_l2")
-"""The three dependent measures of docs/design.md §4, in the paper's order."""
+"""The three dependent measures of docs/design.md §4, in the paper's order: those the analysis
+tests."""
+
+LOGGED_MEASURES: tuple[str, ...] = (*MEASURES, "regret_under_estimate")
+"""Every measure a record logs (:class:`Measures`) and the trial table holds: the paper's three
+and the second reading of regret."""
 
 Block = Literal["main", "eta_cv", "lambda_sweep"]
 DeploymentStart = Literal["uniform", "demonstration"]
@@ -105,16 +110,23 @@ class Demonstration(msgspec.Struct, **_STRUCT):
 
 
 class Measures(msgspec.Struct, **_STRUCT):
-    """The trial's dependent measures (docs/design.md §4); all finite."""
+    """The trial's dependent measures (docs/design.md §4); all finite.
+
+    ``regret`` is :math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta` (values under the true
+    reward), ``regret_under_estimate`` the paper's other reading,
+    :math:`V^*_{\\hat\\theta} - V^{\\pi_\\theta}_{\\hat\\theta}` (both under the estimate);
+    ``null`` in a record of a format that did not log it (before 7,
+    :mod:`cirl_study.logs.versions`).
+    """
 
     regret: float
     kl: float
     reward_l2: Annotated[float, msgspec.Meta(ge=0.0)]
+    regret_under_estimate: float | None
 
     def __post_init__(self) -> None:
-        if not (
-            math.isfinite(self.regret) and math.isfinite(self.kl) and math.isfinite(self.reward_l2)
-        ):
+        values = (self.regret, self.kl, self.reward_l2, self.regret_under_estimate)
+        if not all(value is None or math.isfinite(value) for value in values):
             raise ValueError("every measure must be a finite number")
 
 

@@ -133,7 +133,11 @@ def test_every_missing_field_is_a_fault(field: str) -> None:
         ("block", "warmup", "Invalid enum value 'warmup'"),
         ("rationality", 0.0, "Expected `float` > 0.0"),
         ("gradient_ascent", {"steps": 0, "learning_rate": 0.1}, "Expected `int` >= 1"),
-        ("measures", {"regret": 1.0, "kl": 1.0, "reward_l2": -1.0}, "Expected `float` >= 0.0"),
+        (
+            "measures",
+            {"regret": 1.0, "kl": 1.0, "reward_l2": -1.0, "regret_under_estimate": 1.0},
+            "Expected `float` >= 0.0",
+        ),
         ("demonstration", {"states": [[2, 2]], "actions": ["up"]}, "Invalid enum value 'up'"),
         ("num_features", True, "Expected `int`, got `bool`"),
     ],
@@ -243,6 +247,10 @@ INCONSISTENT = {
     "deployment reversed": (_reverse_deploy, "deployment.paths[0] starts at"),
     "negative regret": (_set("measures.regret", -0.1), "measures.regret is -0.1 < 0"),
     "negative kl": (_set("measures.kl", -1e-6), "measures.kl is -1e-06 < 0"),
+    "negative regret_under_estimate": (
+        _set("measures.regret_under_estimate", -0.5),
+        "measures.regret_under_estimate is -0.5 < 0",
+    ),
     "reward_l2 off": (_set("measures.reward_l2", 1.0), "measures.reward_l2 is 1.0 but"),
     "a stay the game forbids": (_stay_while_stays_are_off, "demonstrator_stays is false"),
     "rollouts away from the start": (

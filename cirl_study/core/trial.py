@@ -177,6 +177,7 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
         "regret": regret(deployment, theta, theta_hat),
         "kl": trajectory_kl(deployment, theta, theta_hat),
         "reward_l2": reward_l2(features, theta, theta_hat),
+        "regret_under_estimate": regret(deployment, theta_hat, theta),
     }
     robot_plan = optimal_plan(
         deployment.cell_rewards(theta_hat), grid.successors, first.deployment_steps

@@ -8,8 +8,8 @@ must have, its settings (``gradient_ascent``); the start cell ``s_0`` lies on th
 demonstration is a path ``(s_0, ..., s_T_learn)`` of available moves from ``s_0`` with
 ``T_learn`` actions, each the move between consecutive cells, none of them ``stay`` unless
 ``demonstrator_stays``; every deployment rollout is such a path of ``T_deploy`` moves from its
-start, which is the demonstration's start when ``deployment_start`` says so; ``regret >= 0``
-and ``kl >= 0`` (up to rounding);
+start, which is the demonstration's start when ``deployment_start`` says so; ``regret >= 0``,
+``kl >= 0`` and ``regret_under_estimate >= 0`` where logged (up to rounding);
 ``reward_l2 = ||Phi theta - Phi theta_hat||_2`` recomputed from the record (here, not by the
 code that logged it; the records of one grid and ``K`` in one array product). The policy and the
 robot are registered ones (:data:`~cirl_study.core.players.HUMANS`,
@@ -217,9 +217,9 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
                 yield from _path_faults(
                     f"deployment.paths[{i}]", path, start, r.deployment_steps, grid
                 )
-    for name in ("regret", "kl"):
+    for name in ("regret", "kl", "regret_under_estimate"):
         value = getattr(r.measures, name)
-        if value < -NEGATIVE_TOLERANCE:
+        if value is not None and value < -NEGATIVE_TOLERANCE:
             yield f"measures.{name} is {value} < 0"
 
 

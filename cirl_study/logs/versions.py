@@ -21,7 +21,10 @@ universe id (and a trial id's end)    ``...,centres=shared,...`` ``...,centers=s
 Format 7 added fields, renaming none: the robot ``gradient_ascent``, whose record carries its
 settings (``gradient_ascent``: ``steps``, ``learning_rate``) and whose ``theta_hat`` may leave
 the box, so the schema no longer bounds ``theta_hat`` (the record checks do, for every other
-robot). A record of format 5 or 6 has no ``gradient_ascent``, which reads as ``null``.
+robot); and the second reading of regret, ``measures.regret_under_estimate``. A record of
+format 5 or 6 has neither: ``gradient_ascent`` reads as ``null``, and so does
+``regret_under_estimate``, marked missing rather than recomputed (:data:`_ADDED_MEASURES`):
+the trial table shows it as NaN.
 
 A run of format 5 is read, validated and analysed; it is resumed only by the version that wrote
 it (its pipeline text is of that version).
@@ -34,8 +37,8 @@ from typing import Any
 import msgspec
 
 LOG_FORMAT = "7"
-"""The format this version writes: 7 the ``gradient_ascent`` robot and its settings; 6 one name
-per concept (see the module docstring); 5 the
+"""The format this version writes: 7 the ``gradient_ascent`` robot and its settings, and
+``measures.regret_under_estimate``; 6 one name per concept (see the module docstring); 5 the
 record's ``teaching`` (hypothesis space), and ``seed`` shared by the robots of one
 demonstration; 4 the record's ``demonstrator_stays``, ``deployment_start`` and ``universe``;
 3 the run's identity and pipeline text in every file; 2 the typed record."""
@@ -86,14 +89,23 @@ def _pipeline_value(key: str, value: Any) -> Any:
 _ADDED: dict[str, Any] = {"gradient_ascent": None}
 """The record's fields that format 7 added, as a record of an earlier format reads them."""
 
+_ADDED_MEASURES: dict[str, Any] = {"regret_under_estimate": None}
+"""The measures that format 7 added, as a record of an earlier format reads them: missing
+(``null``), not recomputed. Recomputing would plan the deployment under both rewards for
+every record read, where the record checks recompute only what is linear in the record
+(``reward_l2``), and would load the numerical core into every reader."""
+
 
 def record_payload(data: bytes, log_format: str) -> bytes:
     """The JSON ``data`` of a trial record of a log of ``log_format``, in the current names,
-    with the fields added since (:data:`_ADDED`), and canonical (keys sorted). Bytes that are
-    not a JSON object are returned as they are, for the decoder to report.
+    with the fields and measures added since (:data:`_ADDED`, :data:`_ADDED_MEASURES`), and
+    canonical (keys sorted). Bytes that are not a JSON object are returned as they are, for
+    the decoder to report.
 
     >>> record_payload(b'{"robot":"literal","universe":"sigma=1.5,centres=shared"}', "5")
     b'{"gradient_ascent":null,"robot":"literal_observer","universe":"sigma=1.5,centers=shared"}'
+    >>> record_payload(b'{"measures":{"regret":0.25}}', "6")
+    b'{"gradient_ascent":null,"measures":{"regret":0.25,"regret_under_estimate":null}}'
     """
     if log_format == LOG_FORMAT:
         return data
@@ -104,6 +116,8 @@ def record_payload(data: bytes, log_format: str) -> bytes:
     if not isinstance(record, dict):
         return data
     renamed = {**_ADDED, **record}
+    if isinstance(record.get("measures"), dict):
+        renamed["measures"] = {**_ADDED_MEASURES, **record["measures"]}
     for key, rename in (("trial_id", trial_id), ("universe", _universe), ("robot", _robot)):
         if isinstance(renamed.get(key), str):
             renamed[key] = rename(renamed[key], log_format)
