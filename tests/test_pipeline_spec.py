@@ -262,3 +262,10 @@ def test_the_gradient_ascent_settings_reach_its_trials_alone(tmp_path: Path) -> 
     settings = {(t.robot, t.gradient_ascent) for t in trials}
     ascent = GradientAscent(steps=12, learning_rate=2.0)
     assert settings == {("map", None), ("gradient_ascent", ascent)}
+
+
+def test_the_shipped_gradient_ascent_pipeline_watches_with_both_robots() -> None:
+    pipeline = load_pipeline(REPO / "pipelines" / "gradient-ascent.toml")
+    assert pipeline.main.robots == ("map", "gradient_ascent")
+    assert (pipeline.gradient_ascent.steps, pipeline.gradient_ascent.learning_rate) == (30, 0.1)
+    assert trial_counts(pipeline) == {"eta_cv": 1800, "main": 800, "lambda_sweep": 320}
