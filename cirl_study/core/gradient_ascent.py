@@ -41,12 +41,12 @@ How far rounding carries: :math:`-L` is smooth with constant :math:`\\lambda^2 \
 lies in ``[0, T]``), so for :math:`\\alpha < 8 / (\\lambda^2 K T^2)` every step is an ascent
 and the step map :math:`\\theta \\mapsto \\theta + \\alpha \\nabla L` is non-expansive: the
 rounding of each step is not amplified by the later ones, and :math:`\\hat\\theta` is exact
-gradient ascent's to about ``N`` roundings. That bound is sufficient, not necessary (on the
-paper's game the iteration stays contractive well beyond it). Where the steps overshoot, the
-iterate may oscillate and amplify each step's rounding by the product of the step maps'
-Jacobians :math:`I - \\alpha \\lambda^2 \\mathrm{Cov}_{\\theta_i}`; it stays finite and within
-the bound above, and it is the same on every CPU (the moments are sums in a fixed order), but it
-is then only as near exact gradient ascent as that product allows.
+gradient ascent's to about ``N`` roundings. That bound is sufficient, not necessary. Where
+the steps overshoot, the iterate may oscillate and amplify each step's rounding by the product
+of the step maps' Jacobians :math:`I - \\alpha \\lambda^2 \\mathrm{Cov}_{\\theta_i}`; it stays
+finite and within the bound above, and the moments are sums in a fixed order, so it depends on
+the CPU only through the last bits of ``exp`` and ``log``, but it is then only as near exact
+gradient ascent as that product allows.
 """
 
 from __future__ import annotations
