@@ -240,7 +240,10 @@ def _replaced(path: Path, make) -> None:
         (lambda d: (d / "results.json").write_bytes(b'{"\xff": 1}'), "results.json: cannot"),
         (lambda d: (d / "f\r.png").write_bytes(b"\x89PNG\r\n\x1a\n"), "f\\r.png: cannot read: "),
         (lambda d: _replaced(d / "trials.csv", os.mkfifo), "trials.csv: is a FIFO"),
-        (lambda d: _replaced(d / "report.md", lambda p: p.symlink_to("/dev/zero")), "symbolic link"),
+        (
+            lambda d: _replaced(d / "report.md", lambda p: p.symlink_to("/dev/zero")),
+            "symbolic link",
+        ),
         (lambda d: _replaced(d / "results.json", os.mkdir), "results.json: is a directory"),
     ],
 )
