@@ -50,12 +50,22 @@ PAPER_POLICIES: tuple[str, ...] = (EXPERT, BEST_RESPONSE)
 MAP, POSTERIOR_MEAN = "map", "posterior_mean"
 """The robots: the paper's MAP estimate of MaxEnt IRL, and the Bayes-optimal posterior mean."""
 
+GRADIENT_ASCENT = "gradient_ascent"
+"""The robot of Ziebart et al.'s MaxEnt IRL as it is usually coded: a fixed number of gradient
+steps from :math:`\\theta = 0`, without the box (:mod:`cirl_study.core.gradient_ascent`); the
+one robot whose estimate may leave :math:`[-1, 1]^K`."""
+
 LITERAL_OBSERVER, PRAGMATIC = "literal_observer", "pragmatic"
 """The robots of a hypothesis space: Bayes with the literal likelihood, and Bayes assuming the
 pedagogic human (Fisac et al. 2017; :mod:`cirl_study.core.teaching`)."""
 
 MEASURES: tuple[str, ...] = ("regret", "kl", "reward_l2")
-"""The three dependent measures of docs/design.md §4, in the paper's order."""
+"""The three dependent measures of docs/design.md §4, in the paper's order: those the analysis
+tests."""
+
+LOGGED_MEASURES: tuple[str, ...] = (*MEASURES, "regret_under_estimate")
+"""Every measure a record logs (:class:`Measures`) and the trial table holds: the paper's three
+and the second reading of regret."""
 
 Block = Literal["main", "eta_cv", "lambda_sweep"]
 DeploymentStart = Literal["uniform", "demonstration"]
@@ -100,16 +110,23 @@ class Demonstration(msgspec.Struct, **_STRUCT):
 
 
 class Measures(msgspec.Struct, **_STRUCT):
-    """The trial's dependent measures (docs/design.md §4); all finite."""
+    """The trial's dependent measures (docs/design.md §4); all finite.
+
+    ``regret`` is :math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta` (values under the true
+    reward), ``regret_under_estimate`` the paper's other reading,
+    :math:`V^*_{\\hat\\theta} - V^{\\pi_\\theta}_{\\hat\\theta}` (both under the estimate);
+    ``null`` in a record of a format that did not log it (before 7,
+    :mod:`cirl_study.logs.versions`).
+    """
 
     regret: float
     kl: float
     reward_l2: Annotated[float, msgspec.Meta(ge=0.0)]
+    regret_under_estimate: float | None
 
     def __post_init__(self) -> None:
-        if not (
-            math.isfinite(self.regret) and math.isfinite(self.kl) and math.isfinite(self.reward_l2)
-        ):
+        values = (self.regret, self.kl, self.reward_l2, self.regret_under_estimate)
+        if not all(value is None or math.isfinite(value) for value in values):
             raise ValueError("every measure must be a finite number")
 
 
@@ -147,6 +164,14 @@ class Teaching(msgspec.Struct, **_STRUCT):
     search_etas: tuple[Positive, ...]
 
 
+class GradientAscent(msgspec.Struct, **_STRUCT):
+    """The settings of the ``gradient_ascent`` robot (:mod:`cirl_study.core.gradient_ascent`):
+    ``steps`` gradient steps :math:`N` of size ``learning_rate`` :math:`\\alpha`."""
+
+    steps: PositiveInt
+    learning_rate: Positive
+
+
 class TrialSpec(msgspec.Struct, **_STRUCT):
     """Identity and inputs of one trial: everything needed to play it.
 
@@ -157,7 +182,8 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
     deployment starts (``deployment_start``: every cell, uniformly, or the learning phase's
     ``start``); the subject's reward draw is ``theta``. ``seed`` seeds the trial's own
     generator. ``teaching`` is the hypothesis space of a pipeline with teaching players
-    (``None`` otherwise). ``universe`` is the id of the multiverse universe the trial belongs to
+    (``None`` otherwise); ``gradient_ascent`` the settings of the robot of that name, given
+    exactly for its trials. ``universe`` is the id of the multiverse universe the trial belongs to
     (:class:`cirl_study.study.spec.Universe`), ``None`` in a single study.
     :func:`cirl_study.core.gridworld.gridworld` and
     :func:`cirl_study.core.gridworld.feature_matrix` turn the game into arrays.
@@ -183,17 +209,20 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
     deployment_start: DeploymentStart = "uniform"
     universe: NonEmptyText | None = None
     teaching: Teaching | None = None
+    gradient_ascent: GradientAscent | None = None
 
 
 class TrialRecord(TrialSpec, **_STRUCT):
     """One played trial: its :class:`TrialSpec` and what happened (docs/design.md §7).
 
-    ``theta_hat`` is the estimate of the trial's ``robot``; a robot whose estimate is a
-    Monte-Carlo one also logs ``theta_hat_se`` (standard error per coordinate) and
-    ``effective_sample_size``; they are ``null`` otherwise.
+    ``theta_hat`` is the estimate of the trial's ``robot``, in the box :math:`[-1, 1]^K` for
+    every robot but ``gradient_ascent`` (a rule of the record checks,
+    :mod:`cirl_study.logs.record_checks`); a robot whose estimate is a Monte-Carlo one also
+    logs ``theta_hat_se`` (standard error per coordinate) and ``effective_sample_size``; they
+    are ``null`` otherwise.
     """
 
-    theta_hat: Annotated[tuple[Weight, ...], msgspec.Meta(min_length=1)]
+    theta_hat: Annotated[tuple[float, ...], msgspec.Meta(min_length=1)]
     demonstration: Demonstration
     measures: Measures
     theta_hat_se: tuple[Annotated[float, msgspec.Meta(ge=0.0)], ...] | None = None
@@ -256,9 +285,10 @@ class TrialRow(msgspec.Struct, **_STRUCT):
 
 def setting_faults(spec: TrialSpec) -> list[str]:
     """Every way ``spec``'s settings break the rules their types cannot state: ``theta`` and
-    the RBF centers have ``num_features`` entries each, and the start ``s_0`` lies on the grid
-    (empty for a sound spec). A record (a :class:`TrialSpec` too) is checked by the same
-    rules before it is believed (:mod:`cirl_study.logs.record_checks`).
+    the RBF centers have ``num_features`` entries each, the start ``s_0`` lies on the grid, and
+    ``gradient_ascent`` is given exactly for the robot of that name (empty for a sound spec).
+    A record (a :class:`TrialSpec` too) is checked by the same rules before it is believed
+    (:mod:`cirl_study.logs.record_checks`).
 
     Examples:
         >>> spec = TrialSpec(trial_id="t", run_id="r", block="main", subject="s",
@@ -277,6 +307,11 @@ def setting_faults(spec: TrialSpec) -> list[str]:
     x, y = spec.start
     if not (0 <= x < grid.width and 0 <= y < grid.height):
         faults.append(f"start {list(spec.start)} is outside the {grid.width}x{grid.height} grid")
+    if (spec.gradient_ascent is None) == (spec.robot == GRADIENT_ASCENT):
+        faults.append(
+            f"gradient_ascent is {'null' if spec.gradient_ascent is None else 'given'} for "
+            f"robot {spec.robot} (given exactly for robot {GRADIENT_ASCENT})"
+        )
     return faults
 
 

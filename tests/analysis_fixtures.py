@@ -90,9 +90,10 @@ def _record(
             "theta_hat": [float(v) for v in theta_hat],
             "demonstration": _walk(rng),
             "measures": {
-                "regret": scale * float(np.exp(rng.normal(0, 0.3))),
+                "regret": (regret := scale * float(np.exp(rng.normal(0, 0.3)))),
                 "kl": 2.7 * scale * float(np.exp(rng.normal(0, 0.3))),
                 "reward_l2": _reward_l2(np.asarray(theta), theta_hat, centers),
+                "regret_under_estimate": 1.5 * regret,
             },
         }
     )

@@ -122,6 +122,37 @@ def test_regret_ignores_the_rationality_and_averages_the_fixed_starts(rationalit
     assert (per_start >= 0).all() and (per_start.max(axis=1) > per_start.min(axis=1)).any()
 
 
+# ---- regret under the estimate ---------------------------------------------------------------
+
+
+def _regret_under_estimate_by_enumeration(features, theta, theta_hat, width, height, horizon):
+    """``mean_s V*_theta_hat(s) - V^{pi_theta}_theta_hat(s)``: the best value under
+    ``theta_hat`` by a maximum over every path from each start, minus the value under
+    ``theta_hat`` of rolling out the hard-max policy for ``theta`` (ties to the lowest action)."""
+    best = bf.optimal_values(width, height, features, theta_hat, horizon)
+    policy = bf.greedy_actions(width, height, features, theta, horizon)
+    gaps = [
+        best[s] - bf.policy_value(width, height, features, theta_hat, policy, s)
+        for s in range(width * height)
+    ]
+    return float(np.mean(gaps))
+
+
+@given(instance=small, data=st.data(), scale=st.sampled_from([1.0, 4.0, 30.0]))
+@settings(max_examples=30, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+def test_regret_under_the_estimate_equals_enumeration_and_is_non_negative(instance, data, scale):
+    """The second reading is :func:`regret` with the roles swapped, also for an estimate
+    outside the box (``scale``, as the ``gradient_ascent`` robot's may be)."""
+    theta, theta_hat = np.array(instance.theta), scale * _theta_hat(instance, data)
+    w, h, T = instance.width, instance.height, instance.horizon
+    got = _regret(theta_hat, theta, instance.features, w, h, T)
+    want = _regret_under_estimate_by_enumeration(instance.features, theta, theta_hat, w, h, T)
+    assert got == pytest.approx(want, abs=1e-12 * scale)
+    assert got >= -1e-12 * scale
+    if np.array_equal(theta_hat, theta):
+        assert got == 0.0
+
+
 # ---- KL -------------------------------------------------------------------------------------
 
 

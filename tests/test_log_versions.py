@@ -1,14 +1,15 @@
 """Logs of every format this version reads are read as the current one
 (:mod:`cirl_study.logs.versions`).
 
-``tests/fixtures/logs/format-5-*`` are runs written by the last version of log format 5 (their
-pipeline files beside them), with the trial table that version's ``analyze`` wrote
-(``trials-format-5.csv``): read now, they must validate, and give that table in the current
+``tests/fixtures/logs/format-N-*`` are runs written by the last version of log format ``N``
+(their pipeline files beside them), with the trial table that version's ``analyze`` wrote
+(``trials-format-N.csv``): read now, they must validate, and give that table in the current
 names, number for number.
 """
 
 from __future__ import annotations
 
+import math
 import shutil
 from pathlib import Path
 
@@ -24,43 +25,71 @@ from tests.cli_results import one_line_error
 
 FIXTURES = Path(__file__).parent / "fixtures" / "logs"
 FORMAT_5 = sorted(FIXTURES.glob("format-5-*"))
+OLD_RUNS = sorted(FIXTURES.glob("format-*"))
 
 
-def _in_current_names(table: pd.DataFrame) -> pd.DataFrame:
-    """A format-5 trial table as the current version names it."""
+def _log_format(run: Path) -> str:
+    """The format of a fixture run, from its name ``format-N-...``."""
+    return run.name.split("-")[1]
+
+
+def _in_current_names(table: pd.DataFrame, log_format: str) -> pd.DataFrame:
+    """A trial table of ``log_format`` as the current version names it."""
     table = table.rename(columns={"certified": "converged"})
-    table["robot"] = table["robot"].replace({"literal": "literal_observer"})
-    table["trial_id"] = [versions.trial_id(t, "5") for t in table["trial_id"]]
+    if log_format == "5":
+        table["robot"] = table["robot"].replace({"literal": "literal_observer"})
+    table["trial_id"] = [versions.trial_id(t, log_format) for t in table["trial_id"]]
+    # Format 7 logs the second reading of regret; an earlier record reads it as missing.
+    table.insert(table.columns.get_loc("reward_l2") + 1, "regret_under_estimate", math.nan)
     return table
 
 
-def test_there_are_runs_of_format_5() -> None:
-    assert [path.name for path in FORMAT_5] == ["format-5-sweep", "format-5-teaching"]
+def test_there_are_runs_of_every_earlier_format() -> None:
+    assert [path.name for path in OLD_RUNS] == [
+        "format-5-sweep",
+        "format-5-teaching",
+        "format-6-robots",
+    ]
 
 
-@pytest.mark.parametrize("run", FORMAT_5, ids=lambda path: path.name)
-def test_a_run_of_format_5_validates(run: Path) -> None:
+@pytest.mark.parametrize("run", OLD_RUNS, ids=lambda path: path.name)
+def test_a_run_of_an_earlier_format_validates(run: Path) -> None:
     result = CliRunner().invoke(app, ["validate", str(run)])
     assert result.exit_code == 0, result.output
     assert result.output.strip().splitlines()[-1].endswith("design complete")
 
 
-@pytest.mark.parametrize("run", FORMAT_5, ids=lambda path: path.name)
-def test_a_run_of_format_5_gives_its_trial_table_in_the_current_names(run: Path) -> None:
-    logged = pd.read_csv(run / "trials-format-5.csv", keep_default_na=False, na_values=[""])
-    want = _in_current_names(logged).sort_values("trial_id").reset_index(drop=True)
+@pytest.mark.parametrize("run", OLD_RUNS, ids=lambda path: path.name)
+def test_a_run_of_an_earlier_format_gives_its_trial_table_in_the_current_names(run: Path) -> None:
+    log_format = _log_format(run)
+    logged = pd.read_csv(
+        run / f"trials-format-{log_format}.csv", keep_default_na=False, na_values=[""]
+    )
+    want = _in_current_names(logged, log_format).sort_values("trial_id").reset_index(drop=True)
     got = cirl_study.load_trials(run).sort_values("trial_id").reset_index(drop=True)
     assert list(got.columns) == list(want.columns)
-    assert set(got["robot"]) <= {"map", "literal_observer"}
+    assert set(got["robot"]) <= {"map", "literal_observer", "posterior_mean"}
     for column in want.columns:
         if column in ("regret", "kl", "reward_l2", "eta", "rationality"):
             pd.testing.assert_series_equal(
                 got[column].astype(float), want[column].astype(float), rtol=1e-15
             )
-        elif column == "universe":
+        elif column in ("universe", "regret_under_estimate"):
             assert got[column].isna().all() and want[column].isna().all()
         else:
             assert got[column].astype(str).tolist() == want[column].astype(str).tolist(), column
+
+
+def test_records_of_an_earlier_format_read_the_second_regret_as_missing() -> None:
+    for run in OLD_RUNS:
+        rows = read_run(run).rows
+        assert rows and all(row.measures.regret_under_estimate is None for row in rows)
+        assert all(row.measures.regret >= 0 for row in rows)
+
+
+def test_a_run_of_format_6_is_analysed() -> None:
+    results = cirl_study.analyze(FIXTURES / "format-6-robots")
+    assert results.design.robots == ["map", "posterior_mean"]
 
 
 def test_a_run_of_format_5_is_analysed() -> None:
@@ -101,8 +130,13 @@ def test_a_log_of_an_unknown_format_is_refused_in_one_line(tmp_path: Path) -> No
 
 
 def test_every_readable_format_is_named_and_the_current_one_is_written() -> None:
-    assert versions.READABLE[-1] == versions.LOG_FORMAT == "6"
-    assert versions.readable("5") and not versions.readable("4") and not versions.readable("")
+    assert versions.READABLE[-1] == versions.LOG_FORMAT == "7"
+    assert (
+        versions.readable("5")
+        and versions.readable("6")
+        and not versions.readable("4")
+        and not versions.readable("")
+    )
 
 
 def test_read_run_renames_every_record_of_format_5() -> None:

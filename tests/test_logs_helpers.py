@@ -122,7 +122,12 @@ def make_record(
             for y in range(height)
         )
     )
-    record["measures"] = {"regret": rng.uniform(0, 2), "kl": rng.uniform(0, 3), "reward_l2": l2}
+    record["measures"] = {
+        "regret": rng.uniform(0, 2),
+        "kl": rng.uniform(0, 3),
+        "reward_l2": l2,
+        "regret_under_estimate": rng.uniform(0, 2),
+    }
     return from_builtins(record)
 
 

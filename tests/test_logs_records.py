@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -11,7 +12,7 @@ import msgspec
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from test_logs_helpers import make_record
+from test_logs_helpers import brute_force_reward, make_record
 
 from cirl_study.logs import record_checks
 from cirl_study.logs.record_checks import decode_trial, decode_trials
@@ -131,8 +132,12 @@ def test_every_missing_field_is_a_fault(field: str) -> None:
         ("policy", "", "Expected `str` of length >= 1"),
         ("block", "warmup", "Invalid enum value 'warmup'"),
         ("rationality", 0.0, "Expected `float` > 0.0"),
-        ("theta_hat", [1.5, 0.0, 0.0], "Expected `float` <= 1.0"),
-        ("measures", {"regret": 1.0, "kl": 1.0, "reward_l2": -1.0}, "Expected `float` >= 0.0"),
+        ("gradient_ascent", {"steps": 0, "learning_rate": 0.1}, "Expected `int` >= 1"),
+        (
+            "measures",
+            {"regret": 1.0, "kl": 1.0, "reward_l2": -1.0, "regret_under_estimate": 1.0},
+            "Expected `float` >= 0.0",
+        ),
         ("demonstration", {"states": [[2, 2]], "actions": ["up"]}, "Invalid enum value 'up'"),
         ("num_features", True, "Expected `int`, got `bool`"),
     ],
@@ -142,6 +147,14 @@ def test_values_out_of_range_are_faults(path: str, value: Any, message: str) -> 
     record[path] = value
     (fault,) = faults_of(record)
     assert message in fault, fault
+
+
+def test_a_theta_hat_past_the_largest_double_has_no_record() -> None:
+    record = plain_record(1)
+    record["theta_hat"][0] = 12345.0
+    text = json.dumps(record).replace("12345.0", "1e400", 1).encode()
+    (fault,) = decode_trial(text)[1]
+    assert fault == "not a trial record: Number out of range - at `$.theta_hat[0]`"
 
 
 def test_not_a_number_has_no_record() -> None:
@@ -194,6 +207,24 @@ def _deploy_from_the_start_elsewhere(record: dict[str, Any]) -> None:
     record["deployment_start"] = "demonstration"
 
 
+ASCENT = {"steps": 30, "learning_rate": 0.1}
+"""The settings of a ``gradient_ascent`` record."""
+
+
+def _estimated(record: dict[str, Any], theta_hat: list[float]) -> None:
+    """``record`` with the estimate ``theta_hat`` and its ``reward_l2``."""
+    difference = [a - b for a, b in zip(record["theta"], theta_hat, strict=True)]
+    width, height = record["grid"]["width"], record["grid"]["height"]
+    record["theta_hat"] = theta_hat
+    record["measures"]["reward_l2"] = math.sqrt(
+        math.fsum(
+            brute_force_reward(record["features"], difference, x, y) ** 2
+            for x in range(width)
+            for y in range(height)
+        )
+    )
+
+
 INCONSISTENT = {
     "unknown policy": (_set("policy", "oracle"), "policy 'oracle' is not a known human policy"),
     "unknown robot": (_set("robot", "oracle"), "robot 'oracle' is not a known robot"),
@@ -216,11 +247,27 @@ INCONSISTENT = {
     "deployment reversed": (_reverse_deploy, "deployment.paths[0] starts at"),
     "negative regret": (_set("measures.regret", -0.1), "measures.regret is -0.1 < 0"),
     "negative kl": (_set("measures.kl", -1e-6), "measures.kl is -1e-06 < 0"),
+    "negative regret_under_estimate": (
+        _set("measures.regret_under_estimate", -0.5),
+        "measures.regret_under_estimate is -0.5 < 0",
+    ),
     "reward_l2 off": (_set("measures.reward_l2", 1.0), "measures.reward_l2 is 1.0 but"),
     "a stay the game forbids": (_stay_while_stays_are_off, "demonstrator_stays is false"),
     "rollouts away from the start": (
         _deploy_from_the_start_elsewhere,
         "a deployment rollout starts away from the demonstration's start",
+    ),
+    "theta_hat outside the box": (
+        lambda r: _estimated(r, [1.5, 0.0, -0.25]),
+        "theta_hat[0] is 1.5, outside [-1, 1] (only robot gradient_ascent's estimate",
+    ),
+    "gradient_ascent settings for another robot": (
+        _set("gradient_ascent", ASCENT),
+        "gradient_ascent is given for robot map (given exactly for robot gradient_ascent)",
+    ),
+    "gradient_ascent without its settings": (
+        _set("robot", "gradient_ascent"),
+        "gradient_ascent is null for robot gradient_ascent",
     ),
 }
 
@@ -239,6 +286,16 @@ def test_a_path_that_jumps_is_a_fault() -> None:
     states = record["demonstration"]["states"]
     states[2] = [states[1][0] + 2, states[1][1]] if states[1][0] < 2 else [0, states[1][1]]
     assert any("jumps from" in fault for fault in faults_of(record))
+
+
+def test_a_gradient_ascent_estimate_may_leave_the_box() -> None:
+    record = plain_record(2)
+    record.update(robot="gradient_ascent", gradient_ascent=ASCENT)
+    _estimated(record, [3.5, -12.0, 0.25])
+    assert faults_of(record) == []
+    record["robot"] = "map"
+    del record["gradient_ascent"]
+    assert [fault.split(",")[0] for fault in faults_of(record)] == ["theta_hat[0] is 3.5"]
 
 
 def test_rounding_below_zero_is_tolerated() -> None:

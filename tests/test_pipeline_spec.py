@@ -13,8 +13,9 @@ from typing import Any
 import pytest
 
 from cirl_study.errors import UserError
+from cirl_study.record import GradientAscent
 from cirl_study.study.pipeline_file import load_pipeline, parse_pipeline, resolve_pipeline
-from cirl_study.study.plan import trial_counts
+from cirl_study.study.plan import study_trials, trial_counts
 
 REPO = Path(__file__).resolve().parent.parent
 SMOKE = REPO / "pipelines" / "smoke.toml"
@@ -205,3 +206,66 @@ def test_resolve_pipeline_by_name_and_path(tmp_path: Path, monkeypatch: pytest.M
         resolve_pipeline("nope")
     with pytest.raises(UserError, match="no such pipeline file"):
         resolve_pipeline("some/where.toml")
+
+
+ASCENT = {"steps": 30, "learning_rate": 0.1}
+
+
+def ascent_data(**table: Any) -> dict[str, Any]:
+    """The smoke pipeline watched by ``map`` and ``gradient_ascent``, with these settings."""
+    data = _set(smoke_data(), "main.robots", ["map", "gradient_ascent"])
+    data["gradient_ascent"] = {**ASCENT, **table}
+    return data
+
+
+BAD_ASCENT = [
+    (_set(ascent_data(), "gradient_ascent", _DELETE), "gradient_ascent is missing (robot gradi"),
+    (_set(smoke_data(), "gradient_ascent", ASCENT), "gradient_ascent is given, but robot gradie"),
+    (ascent_data(steps=0), "gradient_ascent.steps must be an integer in [1, 100000], got 0"),
+    (ascent_data(steps=100_001), "gradient_ascent.steps must be an integer in [1, 100000] (each"),
+    (ascent_data(steps=2.5), "gradient_ascent.steps must be an integer in [1, 100000], got 2.5"),
+    (ascent_data(learning_rate=0), "gradient_ascent.learning_rate must be a number in [1e-12, 1"),
+    (ascent_data(learning_rate=1e3), "gradient_ascent.learning_rate must be a number in [1e-12,"),
+    (ascent_data(learning_rate="0.1"), "gradient_ascent.learning_rate must be a number in [1e-1"),
+    (ascent_data(stpes=3), "gradient_ascent.stpes is not a known key (expected one of: steps, "),
+    (_set(ascent_data(), "gradient_ascent.steps", _DELETE), "gradient_ascent.steps is missing"),
+]
+
+
+@pytest.mark.parametrize(("data", "expected"), BAD_ASCENT)
+def test_a_bad_gradient_ascent_table_is_one_line(
+    data: dict[str, Any], expected: str, tmp_path: Path
+) -> None:
+    path = tmp_path / "bad.toml"
+    path.write_text(to_toml(data))
+    with pytest.raises(UserError) as caught:
+        load_pipeline(path)
+    message = str(caught.value)
+    assert message.startswith(f"{path}: ") and expected in message and "\n" not in message
+
+
+def test_a_multiverse_level_of_the_robot_needs_the_table(tmp_path: Path) -> None:
+    text = (REPO / "pipelines" / "multiverse-small.toml").read_text()
+    text += '\n[[multiverse.universes]]\nrobot = "gradient_ascent"\n'
+    with pytest.raises(UserError, match="gradient_ascent is missing"):
+        parse_pipeline(text, tmp_path / "m.toml")
+    text += "\n[gradient_ascent]\nsteps = 7\nlearning_rate = 0.5\n"
+    settings = parse_pipeline(text, tmp_path / "m.toml").gradient_ascent
+    assert (settings.steps, settings.learning_rate) == (7, 0.5)
+
+
+def test_the_gradient_ascent_settings_reach_its_trials_alone(tmp_path: Path) -> None:
+    path = tmp_path / "ascent.toml"
+    path.write_text(to_toml(ascent_data(steps=12, learning_rate=2)))
+    pipeline = load_pipeline(path)
+    trials = study_trials(pipeline, {(None, "best_response", k): 1.0 for k in (3, 10)})
+    settings = {(t.robot, t.gradient_ascent) for t in trials}
+    ascent = GradientAscent(steps=12, learning_rate=2.0)
+    assert settings == {("map", None), ("gradient_ascent", ascent)}
+
+
+def test_the_shipped_gradient_ascent_pipeline_watches_with_both_robots() -> None:
+    pipeline = load_pipeline(REPO / "pipelines" / "gradient-ascent.toml")
+    assert pipeline.main.robots == ("map", "gradient_ascent")
+    assert (pipeline.gradient_ascent.steps, pipeline.gradient_ascent.learning_rate) == (30, 0.1)
+    assert trial_counts(pipeline) == {"eta_cv": 1800, "main": 800, "lambda_sweep": 320}

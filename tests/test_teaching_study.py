@@ -521,7 +521,7 @@ def synthetic_rows(
                             rationality=1.0,
                             eta=None,
                             seed=int(rng.integers(0, 2**53)),
-                            measures=Measures(**measures),
+                            measures=Measures(**measures, regret_under_estimate=None),
                             converged=True,
                             draw=f"draw-of-{subject}",
                         )

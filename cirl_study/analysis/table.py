@@ -19,7 +19,7 @@ from cirl_study.errors import UserError
 from cirl_study.logs.run_checks import (
     design_faults,
 )
-from cirl_study.record import MAIN, MEASURES, TrialRow
+from cirl_study.record import LOGGED_MEASURES, MAIN, TrialRow
 
 COLUMNS: tuple[str, ...] = (
     "trial_id",
@@ -33,12 +33,13 @@ COLUMNS: tuple[str, ...] = (
     "rationality",
     "eta",
     "seed",
-    *MEASURES,
+    *LOGGED_MEASURES,
     "converged",
 )
 """Columns of the trial table, in order. ``universe``: the trial's multiverse universe (empty
-in a single study). ``converged``: the robot's estimate met its stopping rule
-(``irl.converged``; a record without a fit report counts as converged)."""
+in a single study). ``regret_under_estimate``: NaN for a record of a format that did not log
+it (before 7). ``converged``: the robot's estimate met its stopping rule (``irl.converged``; a
+record without a fit report counts as converged)."""
 
 SORT_KEYS: tuple[str, ...] = (
     "universe",
@@ -59,11 +60,12 @@ def _columns(rows: Sequence[TrialRow]) -> dict[str, list[Any]]:
     columns = {
         name: [getattr(row, name) for row in rows]
         for name in COLUMNS
-        if name not in MEASURES and name != "eta"
+        if name not in LOGGED_MEASURES and name != "eta"
     }
     columns["eta"] = [math.nan if row.eta is None else row.eta for row in rows]
-    for measure in MEASURES:
-        columns[measure] = [getattr(row.measures, measure) for row in rows]
+    for measure in LOGGED_MEASURES:
+        values = (getattr(row.measures, measure) for row in rows)
+        columns[measure] = [math.nan if value is None else value for value in values]
     return columns
 
 
@@ -74,7 +76,8 @@ def trial_table(rows: Sequence[TrialRow]) -> pd.DataFrame:
         rows: the trials' rows, in any order.
 
     Returns:
-        A frame with the columns :data:`COLUMNS` (``eta`` is NaN for the expert),
+        A frame with the columns :data:`COLUMNS` (``eta`` is NaN for the expert,
+        ``regret_under_estimate`` for a record that did not log it),
         sorted by :data:`SORT_KEYS` and indexed ``0 .. n-1``.
     """
     table = pd.DataFrame(_columns(rows), columns=list(COLUMNS))

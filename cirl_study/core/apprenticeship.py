@@ -6,7 +6,8 @@ exactly, for small games), here as the numerical models the gridworld study play
 One object carries what a human or a robot may read (docs/design.md §1-3): the MaxEnt model
 of the learning phase (its dynamics, the trials' features and the robot's :math:`\\lambda`),
 the model of the deployment phase (the regret-optimal human plans for it), and, in a
-pipeline with teaching players, the trials' hypothesis spaces and teaching settings.
+pipeline with teaching players, the trials' hypothesis spaces and teaching settings; the
+``gradient_ascent`` robot reads its own settings from it too.
 """
 
 from __future__ import annotations
@@ -16,7 +17,7 @@ from dataclasses import dataclass
 from cirl_study.core.hypotheses import HypothesisSpace
 from cirl_study.core.maxent import MaxEnt
 from cirl_study.core.planning import IntArray
-from cirl_study.record import Teaching
+from cirl_study.record import GradientAscent, Teaching
 
 
 @dataclass(frozen=True, eq=False)
@@ -28,12 +29,15 @@ class Apprenticeship:
         deployment: the MaxEnt model of the deployment phase, in which the robot acts alone.
         hypotheses: the trials' hypothesis spaces (``None`` without teaching players).
         teaching: the teaching settings the trials share (``None`` likewise).
+        gradient_ascent: the settings of the ``gradient_ascent`` robot, for a batch it
+            estimates (``None`` otherwise).
     """
 
     learning: MaxEnt
     deployment: MaxEnt
     hypotheses: HypothesisSpace | None = None
     teaching: Teaching | None = None
+    gradient_ascent: GradientAscent | None = None
 
     def take(self, rows: IntArray) -> Apprenticeship:
         """The game of the trials ``rows`` only (an index array)."""
@@ -42,6 +46,7 @@ class Apprenticeship:
             self.deployment.take(rows),
             None if self.hypotheses is None else self.hypotheses.take(rows),
             self.teaching,
+            self.gradient_ascent,
         )
 
     def space(self) -> HypothesisSpace:
@@ -55,3 +60,9 @@ class Apprenticeship:
         if self.teaching is None:
             raise ValueError("this game has no teaching settings: its pipeline has no [teaching]")
         return self.teaching
+
+    def ascent(self) -> GradientAscent:
+        """The ``gradient_ascent`` robot's settings; an error for a game without them."""
+        if self.gradient_ascent is None:
+            raise ValueError("this game has no gradient_ascent settings")
+        return self.gradient_ascent

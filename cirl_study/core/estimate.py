@@ -23,7 +23,8 @@ class Estimate:
     """A robot's estimates for a batch of demonstrations.
 
     Attributes:
-        theta_hat: ``(B, K)`` estimated reward weights in the box.
+        theta_hat: ``(B, K)`` estimated reward weights, in the box :math:`[-1, 1]^K` for every
+            robot but ``gradient_ascent``.
         log_likelihood: ``(B,)`` :math:`\\log P(\\tau_{demo} \\mid \\hat\\theta, \\lambda)`.
         iterations: ``(B,)`` iterations of the estimator.
         converged: ``(B,)`` whether the estimator met its stopping rule.

@@ -12,6 +12,10 @@ value at ``s``. Each takes the MaxEnt model of the deployment phase
 * ``regret``: :math:`\\frac{1}{|S|}\\sum_s V^*_\\theta(s) - V^{\\pi_{\\hat\\theta}}_\\theta(s)`,
   where :math:`\\pi_{\\hat\\theta}` is the optimal (hard-max) ``T``-step policy for
   :math:`r_{\\hat\\theta}` and values sum :math:`r_\\theta(s_t)` for ``t = 1..T``.
+* ``regret_under_estimate``: the other reading of the paper's words, both values under the
+  estimate, :math:`\\frac{1}{|S|}\\sum_s V^*_{\\hat\\theta}(s) -
+  V^{\\pi_\\theta}_{\\hat\\theta}(s)`: :func:`regret` with the roles of :math:`\\theta` and
+  :math:`\\hat\\theta` swapped, ``regret(deployment, theta_hat, theta)``.
 * ``kl``: :math:`\\frac{1}{|S|}\\sum_s KL(P(\\cdot \\mid s, \\theta, \\lambda) \\,\\|\\,
   P(\\cdot \\mid s, \\hat\\theta, \\lambda))` between the MaxEnt trajectory distributions,
   by the chain rule as the occupancy-weighted sum of per-step policy KLs,
@@ -34,7 +38,9 @@ from cirl_study.core.planning import FloatArray, evaluate_policy, optimal_plan, 
 def regret(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
     """:math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta` over the deployment's starts ``(B,)``.
 
-    The values :math:`V` sum :math:`r_\\theta(s_t)`, ``t = 1..T``, from each start.
+    The values :math:`V` sum :math:`r_\\theta(s_t)`, ``t = 1..T``, from each start. It is
+    non-negative (up to rounding) for any two weight vectors, so the call with the roles
+    swapped is the second reading, ``regret_under_estimate``.
     """
     successors, horizon = deployment.phase.successors, deployment.phase.horizon
     true_rewards = deployment.cell_rewards(theta)

@@ -31,6 +31,7 @@ from cirl_study.errors import UserError
 from cirl_study.record import (
     BEST_RESPONSE,
     EXPERT,
+    GRADIENT_ASCENT,
     LITERAL,
     LITERAL_OBSERVER,
     MAP,
@@ -255,6 +256,12 @@ def _posterior_mean(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> E
     return posterior_mean_estimate(game.learning, demos, seeds)
 
 
+def _gradient_ascent(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estimate:
+    from cirl_study.core.gradient_ascent import estimate
+
+    return estimate(game, demos, seeds)
+
+
 def _literal_observer(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estimate:
     from cirl_study.core.teaching import literal_estimate
 
@@ -275,5 +282,6 @@ register_human(REGRET_OPTIMAL, Human(_regret_optimal, takes_eta=False, needs_hyp
 
 register_robot(MAP, Robot(_map))
 register_robot(POSTERIOR_MEAN, Robot(_posterior_mean))
+register_robot(GRADIENT_ASCENT, Robot(_gradient_ascent))
 register_robot(LITERAL_OBSERVER, Robot(_literal_observer, needs_hypotheses=True))
 register_robot(PRAGMATIC, Robot(_pragmatic, needs_hypotheses=True))

@@ -23,8 +23,10 @@ never on the other trials in the batch.
 
 from __future__ import annotations
 
+import dataclasses
 from collections import defaultdict
 from collections.abc import Hashable, Sequence
+from typing import Any
 
 import numpy as np
 from msgspec.structs import replace
@@ -94,11 +96,13 @@ def play_trials(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     return records  # type: ignore[return-value]
 
 
-def _by(specs: Sequence[TrialSpec], name: str) -> dict[str, IntArray]:
-    """The positions of ``specs`` by their value of the field ``name``, in order of appearance."""
-    positions: dict[str, list[int]] = defaultdict(list)
+def _by(specs: Sequence[TrialSpec], *names: str) -> dict[Any, IntArray]:
+    """The positions of ``specs`` by their value of the field ``names[0]`` (or the tuple of
+    their values of several fields), in order of appearance."""
+    positions: dict[Any, list[int]] = defaultdict(list)
     for position, spec in enumerate(specs):
-        positions[getattr(spec, name)].append(position)
+        values = tuple(getattr(spec, name) for name in names)
+        positions[values if len(names) > 1 else values[0]].append(position)
     return {value: np.array(rows, dtype=np.int64) for value, rows in positions.items()}
 
 
@@ -132,11 +136,13 @@ def _demonstrations(
 def _estimates(
     game: Apprenticeship, specs: Sequence[TrialSpec], demos: np.ndarray, seeds: np.ndarray
 ) -> list[tuple[Estimate, int]]:
-    """Every trial's estimate by its robot, one call per robot: for each trial, in order, its
-    robot's :class:`Estimate` of the batch it watched and the trial's row in it."""
+    """Every trial's estimate by its robot, one call per robot and settings
+    (``gradient_ascent``, which its game carries): for each trial, in order, its robot's
+    :class:`Estimate` of the batch it watched and the trial's row in it."""
     fitted: list[tuple[Estimate, int] | None] = [None] * len(specs)
-    for robot, rows in _by(specs, "robot").items():
-        found = ROBOTS[robot].estimate(game.take(rows), demos[rows], seeds[rows])
+    for (robot, settings), rows in _by(specs, "robot", "gradient_ascent").items():
+        watched = dataclasses.replace(game.take(rows), gradient_ascent=settings)
+        found = ROBOTS[robot].estimate(watched, demos[rows], seeds[rows])
         for index, row in enumerate(rows):
             fitted[row] = (found, index)
     return fitted  # type: ignore[return-value]
@@ -171,6 +177,7 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
         "regret": regret(deployment, theta, theta_hat),
         "kl": trajectory_kl(deployment, theta, theta_hat),
         "reward_l2": reward_l2(features, theta, theta_hat),
+        "regret_under_estimate": regret(deployment, theta_hat, theta),
     }
     robot_plan = optimal_plan(
         deployment.cell_rewards(theta_hat), grid.successors, first.deployment_steps

@@ -2,12 +2,14 @@
 
 Types and ranges are checked by decoding into :class:`~cirl_study.record.TrialRecord`
 (:func:`decode_trial`). Consistency, in docs/design.md's notation: ``len(theta) =
-len(theta_hat) = K`` = number of RBF centers; the start cell ``s_0`` lies on the grid; the
+len(theta_hat) = K`` = number of RBF centers; ``theta_hat`` lies in the box ``[-1, 1]^K``
+unless its robot is ``gradient_ascent`` (whose estimate may leave it), which alone has, and
+must have, its settings (``gradient_ascent``); the start cell ``s_0`` lies on the grid; the
 demonstration is a path ``(s_0, ..., s_T_learn)`` of available moves from ``s_0`` with
 ``T_learn`` actions, each the move between consecutive cells, none of them ``stay`` unless
 ``demonstrator_stays``; every deployment rollout is such a path of ``T_deploy`` moves from its
-start, which is the demonstration's start when ``deployment_start`` says so; ``regret >= 0``
-and ``kl >= 0`` (up to rounding);
+start, which is the demonstration's start when ``deployment_start`` says so; ``regret >= 0``,
+``kl >= 0`` and ``regret_under_estimate >= 0`` where logged (up to rounding);
 ``reward_l2 = ||Phi theta - Phi theta_hat||_2`` recomputed from the record (here, not by the
 code that logged it; the records of one grid and ``K`` in one array product). The policy and the
 robot are registered ones (:data:`~cirl_study.core.players.HUMANS`,
@@ -32,6 +34,7 @@ from numpy.typing import NDArray
 from cirl_study.core.gridworld import ACTION_STEPS, ACTIONS, Gridworld, action_between, rbf_features
 from cirl_study.core.players import player_faults
 from cirl_study.record import (
+    GRADIENT_ASCENT,
     Cell,
     DecodeError,
     Grid,
@@ -175,6 +178,14 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
     yield from setting_faults(r)
     if len(r.theta_hat) != r.num_features:
         yield f"theta_hat has {len(r.theta_hat)} entries, num_features is {r.num_features}"
+    if r.robot != GRADIENT_ASCENT:
+        for i, value in enumerate(r.theta_hat):
+            if not -1.0 <= value <= 1.0:
+                yield (
+                    f"theta_hat[{i}] is {value}, outside [-1, 1] (only robot {GRADIENT_ASCENT}'s "
+                    "estimate may leave the box)"
+                )
+                break
     grid = _gridworld(r.grid)
     moves = _moves(r.grid) if r.grid.width * r.grid.height <= _MOVE_TABLE_CELLS else None
     states, actions = r.demonstration.states, r.demonstration.actions
@@ -206,9 +217,9 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
                 yield from _path_faults(
                     f"deployment.paths[{i}]", path, start, r.deployment_steps, grid
                 )
-    for name in ("regret", "kl"):
+    for name in ("regret", "kl", "regret_under_estimate"):
         value = getattr(r.measures, name)
-        if value < -NEGATIVE_TOLERANCE:
+        if value is not None and value < -NEGATIVE_TOLERANCE:
             yield f"measures.{name} is {value} < 0"
 
 

@@ -16,9 +16,18 @@ pipeline key, multiverse axis         ``centres``                ``centers``
 universe id (and a trial id's end)    ``...,centres=shared,...`` ``...,centers=shared,...``
 ===================================== ========================== ==========================
 
-``literal`` stays the name of the Boltzmann-rational human. A run of format 5 is read,
-validated and analysed; it is resumed only by the version that wrote it (its pipeline text is
-of that version).
+``literal`` stays the name of the Boltzmann-rational human.
+
+Format 7 added fields, renaming none: the robot ``gradient_ascent``, whose record carries its
+settings (``gradient_ascent``: ``steps``, ``learning_rate``) and whose ``theta_hat`` may leave
+the box, so the schema no longer bounds ``theta_hat`` (the record checks do, for every other
+robot); and the second reading of regret, ``measures.regret_under_estimate``. A record of
+format 5 or 6 has neither: ``gradient_ascent`` reads as ``null``, and so does
+``regret_under_estimate``, marked missing rather than recomputed (:data:`_ADDED_MEASURES`):
+the trial table shows it as NaN.
+
+A run of format 5 is read, validated and analysed; it is resumed only by the version that wrote
+it (its pipeline text is of that version).
 """
 
 from __future__ import annotations
@@ -27,14 +36,18 @@ from typing import Any
 
 import msgspec
 
-LOG_FORMAT = "6"
-"""The format this version writes: 6 one name per concept (see the module docstring); 5 the
+LOG_FORMAT = "7"
+"""The format this version writes: 7 the ``gradient_ascent`` robot and its settings, and
+``measures.regret_under_estimate``; 6 one name per concept (see the module docstring); 5 the
 record's ``teaching`` (hypothesis space), and ``seed`` shared by the robots of one
 demonstration; 4 the record's ``demonstrator_stays``, ``deployment_start`` and ``universe``;
 3 the run's identity and pipeline text in every file; 2 the typed record."""
 
-READABLE = ("5", LOG_FORMAT)
+READABLE = ("5", "6", LOG_FORMAT)
 """The formats this version reads."""
+
+_RENAMING = ("5",)
+"""The formats whose names :data:`_ROBOTS` and :data:`_AXES` rename."""
 
 _ROBOTS = {"literal": "literal_observer"}
 _AXES = {"centres": "centers"}
@@ -54,7 +67,7 @@ def pipeline_table(data: dict[str, Any], log_format: str) -> dict[str, Any]:
     >>> pipeline_table({"game": {"centres": "shared"}, "main": {"robots": ["literal"]}}, "5")
     {'game': {'centers': 'shared'}, 'main': {'robots': ['literal_observer']}}
     """
-    if log_format == LOG_FORMAT:
+    if log_format not in _RENAMING:
         return data
     return {key: _pipeline_value(key, value) for key, value in data.items()}
 
@@ -73,13 +86,26 @@ def _pipeline_value(key: str, value: Any) -> Any:
     return value
 
 
+_ADDED: dict[str, Any] = {"gradient_ascent": None}
+"""The record's fields that format 7 added, as a record of an earlier format reads them."""
+
+_ADDED_MEASURES: dict[str, Any] = {"regret_under_estimate": None}
+"""The measures that format 7 added, as a record of an earlier format reads them: missing
+(``null``), not recomputed. Recomputing would plan the deployment under both rewards for
+every record read, where the record checks recompute only what is linear in the record
+(``reward_l2``), and would load the numerical core into every reader."""
+
+
 def record_payload(data: bytes, log_format: str) -> bytes:
-    """The JSON ``data`` of a trial record of a log of ``log_format``, in the current names
-    and canonical (keys sorted). Bytes that are not a JSON object are returned as they are,
-    for the decoder to report.
+    """The JSON ``data`` of a trial record of a log of ``log_format``, in the current names,
+    with the fields and measures added since (:data:`_ADDED`, :data:`_ADDED_MEASURES`), and
+    canonical (keys sorted). Bytes that are not a JSON object are returned as they are, for
+    the decoder to report.
 
     >>> record_payload(b'{"robot":"literal","universe":"sigma=1.5,centres=shared"}', "5")
-    b'{"robot":"literal_observer","universe":"sigma=1.5,centers=shared"}'
+    b'{"gradient_ascent":null,"robot":"literal_observer","universe":"sigma=1.5,centers=shared"}'
+    >>> record_payload(b'{"measures":{"regret":0.25}}', "6")
+    b'{"gradient_ascent":null,"measures":{"regret":0.25,"regret_under_estimate":null}}'
     """
     if log_format == LOG_FORMAT:
         return data
@@ -89,7 +115,9 @@ def record_payload(data: bytes, log_format: str) -> bytes:
         return data
     if not isinstance(record, dict):
         return data
-    renamed = dict(record)
+    renamed = {**_ADDED, **record}
+    if isinstance(record.get("measures"), dict):
+        renamed["measures"] = {**_ADDED_MEASURES, **record["measures"]}
     for key, rename in (("trial_id", trial_id), ("universe", _universe), ("robot", _robot)):
         if isinstance(renamed.get(key), str):
             renamed[key] = rename(renamed[key], log_format)
@@ -104,7 +132,7 @@ def trial_id(logged: str, log_format: str) -> str:
     >>> trial_id("main:main-k03-s0001:literal:lambda=1.0:robot=literal@centres=shared", "5")
     'main:main-k03-s0001:literal:lambda=1.0:robot=literal_observer@centers=shared'
     """
-    if log_format == LOG_FORMAT:
+    if log_format not in _RENAMING:
         return logged
     trial, at, universe = logged.partition("@")
     parts = [
@@ -115,12 +143,12 @@ def trial_id(logged: str, log_format: str) -> str:
 
 
 def _robot(name: str, log_format: str) -> str:
-    return name if log_format == LOG_FORMAT else _ROBOTS.get(name, name)
+    return _ROBOTS.get(name, name) if log_format in _RENAMING else name
 
 
 def _universe(universe: str, log_format: str) -> str:
     """A universe id ``axis=level,...`` with its axes and robots renamed."""
-    if log_format == LOG_FORMAT or not universe:
+    if log_format not in _RENAMING or not universe:
         return universe
     choices = [choice.partition("=") for choice in universe.split(",")]
     return ",".join(

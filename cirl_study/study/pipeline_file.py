@@ -28,6 +28,7 @@ from cirl_study.study.spec import (
     AXES,
     EtaCVSpec,
     GameSpec,
+    GradientAscentSpec,
     LambdaSweepSpec,
     MainSpec,
     MultiverseSpec,
@@ -50,7 +51,7 @@ far from the interpreter's recursion limit (the parser itself recurses at about 
 
 TOP_KEYS = (
     "name", "description", "seed", "game", "eta_cv", "main", "lambda_sweep", "multiverse",
-    "teaching",
+    "teaching", "gradient_ascent",
 )  # fmt: skip
 """The keys of a pipeline's top table, in the order they are checked."""
 
@@ -94,8 +95,11 @@ def parse_pipeline(
         eta_cv=(eta_cv := top.spec("eta_cv", EtaCVSpec)),
         main=(main := top.spec("main", MainSpec)),
         lambda_sweep=_lambda_sweep(top, main),
-        multiverse=_multiverse(top, game, eta_cv, main) if "multiverse" in top.data else None,
+        multiverse=(
+            multiverse := _multiverse(top, game, eta_cv, main) if "multiverse" in top.data else None
+        ),
         teaching=_teaching(top, game, main),
+        gradient_ascent=_gradient_ascent(top, main, multiverse),
         path=path,
         text=text,
         sha256=hashlib.sha256(text.encode()).hexdigest(),
@@ -216,6 +220,24 @@ class _AxisLevels:
         if not ok(value):
             table.fail(axis, f"must be one of {what}, got {shown(value)}")
         return AXES[axis].convert(value)
+
+
+def _gradient_ascent(
+    top: Table, main: MainSpec, multiverse: MultiverseSpec | None
+) -> GradientAscentSpec | None:
+    """The ``[gradient_ascent]`` table: required exactly when the ``gradient_ascent`` robot
+    plays, in ``main.robots`` or as a multiverse's ``robot`` level."""
+    from cirl_study.record import GRADIENT_ASCENT
+
+    universes = () if multiverse is None else multiverse.universes
+    plays = GRADIENT_ASCENT in main.robots or any(u.robot == GRADIENT_ASCENT for u in universes)
+    if "gradient_ascent" not in top.data:
+        if plays:
+            top.fail("gradient_ascent", f"is missing (robot {GRADIENT_ASCENT} needs its settings)")
+        return None
+    if not plays:
+        top.fail("gradient_ascent", f"is given, but robot {GRADIENT_ASCENT} does not play")
+    return top.spec("gradient_ascent", GradientAscentSpec)
 
 
 def _too_deep(data: dict[str, Any]) -> str | None:

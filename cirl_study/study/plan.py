@@ -46,7 +46,17 @@ from typing import NamedTuple, TypeVar
 
 import numpy as np
 
-from cirl_study.record import ETA_CV, LAMBDA_SWEEP, MAIN, Grid, RBFFeatures, Teaching, TrialSpec
+from cirl_study.record import (
+    ETA_CV,
+    GRADIENT_ASCENT,
+    LAMBDA_SWEEP,
+    MAIN,
+    GradientAscent,
+    Grid,
+    RBFFeatures,
+    Teaching,
+    TrialSpec,
+)
 from cirl_study.study.multiverse import cv_universe, universe_pipeline, universes
 from cirl_study.study.spec import GameSpec, Pipeline, Universe
 
@@ -221,6 +231,7 @@ def _trial(pipeline: Pipeline, cell: Cell) -> TrialSpec:
         deployment_start=game.deployment_start,
         universe=None if pipeline.universe is None else pipeline.universe.id,
         teaching=_teaching(pipeline, subject),
+        gradient_ascent=gradient_ascent_settings(pipeline, robot),
     )
 
 
@@ -246,6 +257,15 @@ def _teaching(pipeline: Pipeline, subject: Subject) -> Teaching | None:
         demonstration=spec.demonstration,
         search_etas=pipeline.eta_cv.etas,
     )
+
+
+def gradient_ascent_settings(pipeline: Pipeline, robot: str) -> GradientAscent | None:
+    """The pipeline's ``gradient_ascent`` settings for a trial of ``robot``: ``None`` but for
+    the robot of that name."""
+    spec = pipeline.gradient_ascent
+    if robot != GRADIENT_ASCENT or spec is None:
+        return None
+    return GradientAscent(steps=spec.steps, learning_rate=spec.learning_rate)
 
 
 def eta_cv_trials(pipeline: Pipeline) -> list[TrialSpec]:

@@ -41,7 +41,12 @@ from cirl_study.study.engines import Engine
 from cirl_study.study.eta_cv import EtaChoice, choose_etas
 from cirl_study.study.limits import MAX_BATCH
 from cirl_study.study.pipeline_file import path_argument
-from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
+from cirl_study.study.plan import (
+    eta_cv_trials,
+    gradient_ascent_settings,
+    study_trials,
+    trial_counts,
+)
 from cirl_study.study.spec import Pipeline
 
 BATCHES_PER_WORKER = 4
@@ -98,7 +103,11 @@ def warm_up(pipeline: Pipeline) -> None:
     play_trials(
         [
             msgspec.structs.replace(
-                base, policy=policy, eta=1.0 if HUMANS[policy].takes_eta else None, robot=robot
+                base,
+                policy=policy,
+                eta=1.0 if HUMANS[policy].takes_eta else None,
+                robot=robot,
+                gradient_ascent=gradient_ascent_settings(pipeline, robot),
             )
             for policy in pipeline.main.policies
             for robot in pipeline.main.robots

@@ -45,6 +45,14 @@ hypothesis space in ``[teaching]``, and then has no ``[lambda_sweep]``::
     alpha = 1.0               # the pedagogic exponent
     demonstration = "draw"    # the pedagogic human draws her path, or shows its mode
 
+A pipeline whose robots (``main.robots``, or a multiverse's ``robot`` levels) include
+``gradient_ascent`` (:mod:`cirl_study.core.gradient_ascent`) sets its step budget and step
+size in ``[gradient_ascent]``, and only then has one::
+
+    [gradient_ascent]
+    steps = 30                # gradient steps N from theta = 0 (at most 100000)
+    learning_rate = 0.1       # the step size alpha, in [1e-12, 100]
+
 A pipeline may instead declare a ``[multiverse]`` (and then no ``[lambda_sweep]``): the study
 played in many *universes*, each a choice of the open settings :data:`AXES`
 (:mod:`cirl_study.study.multiverse`)::
@@ -276,6 +284,38 @@ class TeachingSpec:
     """Paths of the learning phase, which a worker enumerates once (its memory estimate)."""
 
 
+MAX_ASCENT_STEPS = 100_000
+"""Most gradient steps of the ``gradient_ascent`` robot: each costs a soft value iteration of
+the learning phase per trial, so a budget past this would make its trials the run's whole cost."""
+
+LEARNING_RATE = Limits(
+    1e-12, 1e2, "from steps that ascend at every lambda to one far past the prior's box"
+)
+"""alpha: a step moves each weight by at most ``alpha lambda T_learn`` (a feature lies in
+``(0, 1]``), so at 100 one step at ``lambda = 1`` can move it a hundred times past the prior's
+box; every step is an ascent below ``8 / (lambda^2 K T_learn^2)``
+(:mod:`cirl_study.core.gradient_ascent`), which the lower end admits at ``lambda = 1e4`` up to
+``K T_learn^2 = 80000`` (the paper's game has 810)."""
+
+
+def _ascent_steps(value: Any, known: Known) -> int:
+    """A step budget of 1 to :data:`MAX_ASCENT_STEPS`."""
+    within = f"an integer in [1, {MAX_ASCENT_STEPS}]"
+    steps = integer_at_least(1, within)(value, known)
+    if steps > MAX_ASCENT_STEPS:
+        raise Invalid(f"must be {within} (each step is a soft value iteration)")
+    return steps
+
+
+@dataclass(frozen=True)
+class GradientAscentSpec:
+    """The ``gradient_ascent`` robot's settings (:mod:`cirl_study.core.gradient_ascent`):
+    ``steps`` gradient steps of size ``learning_rate`` from :math:`\\theta = 0`."""
+
+    steps: int = setting(_ascent_steps)
+    learning_rate: float = setting(number_in(LEARNING_RATE))
+
+
 def _sweep_subjects(value: Any, known: Known) -> int:
     """A positive number of the main block's reward draws."""
     subjects = POSITIVE_INTEGER(value, known)
@@ -472,7 +512,8 @@ class Pipeline:
     required otherwise. ``multiverse`` is ``None`` for a single study; ``universe`` is set on
     the pipeline of one universe of a multiverse
     (:func:`cirl_study.study.multiverse.universe_pipeline`), whose trials carry its id;
-    ``teaching`` is set exactly when a player needs a hypothesis space. ``text`` is the file's
+    ``teaching`` is set exactly when a player needs a hypothesis space, and ``gradient_ascent``
+    exactly when that robot plays. ``text`` is the file's
     whole text and ``sha256`` the hash of its UTF-8 bytes: two runs are the same run exactly
     when their pipeline files hash alike.
     """
@@ -490,6 +531,7 @@ class Pipeline:
     multiverse: MultiverseSpec | None = None
     universe: Universe | None = None
     teaching: TeachingSpec | None = None
+    gradient_ascent: GradientAscentSpec | None = None
 
     @property
     def policies_with_eta(self) -> tuple[str, ...]:
