@@ -14,7 +14,15 @@ import typer
 from typer.core import TyperGroup
 
 from cirl_study import __version__
-from cirl_study.commands import analyze, compare, office_supplies, reproduce, run, validate
+from cirl_study.commands import (
+    analyze,
+    calibrate,
+    compare,
+    office_supplies,
+    reproduce,
+    run,
+    validate,
+)
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 
@@ -47,7 +55,7 @@ app = typer.Typer(
     # Plain click help: paragraphs reflowed to the terminal's width, flags without a type.
     rich_markup_mode=None,
 )
-for command in (run, validate, analyze, reproduce, compare, office_supplies):
+for command in (run, validate, analyze, calibrate, reproduce, compare, office_supplies):
     app.add_typer(command.app)
 
 

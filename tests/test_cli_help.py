@@ -74,6 +74,7 @@ FAILING_ARGUMENTS = {
     "reproduce": ["no/such.toml"],
     "validate": ["no/such/run"],
     "analyze": ["no/such/run"],
+    "calibrate": ["no/such/run", "--target", "no/such.csv"],
     "compare": ["no/such/a", "no/such/b"],
 }
 """Arguments each command refuses, once its options are parsed, before doing anything."""

@@ -361,6 +361,56 @@ def test_the_multiverse_report(tmp_path: Path, multiverse_run: Path):
     assert [cv_universe(pipeline, u) for u in robots] == [pipeline.multiverse.base]
 
 
+def test_calibrate_finds_the_universe_a_target_was_taken_from(tmp_path: Path, multiverse_run: Path):
+    from cirl_study.analysis.result_types import CalibrationResults
+    from cirl_study.api import load_trials
+
+    table = load_trials(multiverse_run)
+    pipeline = load_pipeline(multiverse_run.parent / "mv.toml")
+    source = pipeline.multiverse.universes[2]
+    main = table[(table["block"] == MAIN) & (table["universe"] == source.id)]
+    rows = ["measure,num_features,policy,value,se"]
+    for (k, policy), cell in main.groupby(["num_features", "policy"]):
+        for measure in ("regret", "kl", "reward_l2"):
+            values = cell[measure]
+            rows.append(f"{measure},{k},{policy},{float(values.mean())!r},{float(values.sem())!r}")
+    target = tmp_path / "target.csv"
+    target.write_text("\n".join(rows) + "\n")
+    out = tmp_path / "calibration"
+    command = ["calibrate", str(multiverse_run), "--target", str(target), "--out", str(out)]
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 0, result.output
+    assert f"nearest {source.id}, D = " in result.stdout
+    results = msgspec.json.decode((out / "results.json").read_bytes(), type=CalibrationResults)
+    nearest = results.universes[0]
+    assert nearest.id == source.id and nearest.mean_squared_log_ratio < 1e-28
+    others = results.universes[1:]
+    assert len(others) == len(pipeline.multiverse.universes) - 1
+    for universe in others:  # ranked farther, or not ranked for a reason
+        assert (universe.mean_squared_log_ratio or 0) > 0 or universe.missing, universe
+    assert {claim.id for claim in results.nearest_claims} <= {
+        "policy_effect", "policy_f_above_962", "interaction_kl_l2", "cronbach_alpha",
+        "tukey_br_ahead",
+    }  # fmt: skip
+    ranked = [u for u in results.universes if u.mean_squared_log_ratio is not None]
+    varied = {a for a in ("sigma", "centers", "demonstrator_stays", "deployment_start", "robot")
+              if len({u.settings[a] for u in ranked}) > 1}  # fmt: skip
+    assert {axis.axis for axis in results.axes} == varied >= {"sigma", "centers"}
+    for name in ("report.md", "universes.csv", "calibration.png", "calibration.svg"):
+        assert (out / name).is_file()
+    text = (out / "report.md").read_text()
+    assert text.startswith("# Calibration: `mv` against `target.csv`")
+    assert f"| 1 | `{source.id}` |" in text
+    # a target of a cell no universe has is refused in one line, and the report is kept
+    target.write_text("measure,num_features,policy,value\nregret,7,expert,0.5\n")
+    refused = CliRunner().invoke(app, command)
+    assert refused.exit_code == 2
+    assert refused.stderr.strip() == (
+        "error: no universe of the run measures the target's cell (regret, K=7, expert)"
+    )
+    assert (out / "report.md").read_text() == text
+
+
 def test_reproduce_compares_a_multiverse_report_with_the_one_it_replaces(
     tmp_path: Path, multiverse_run: Path
 ):

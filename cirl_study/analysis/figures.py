@@ -715,6 +715,65 @@ def specification_curve(
         return render(figure)
 
 
+def calibration_plot(points: pd.DataFrame) -> Rendered:
+    """Target against measured cell means, both on log scales, for the nearest universes.
+
+    One marker per universe (by rank, the nearest filled) and one colour per measure; the
+    diagonal is agreement, the dashed lines a factor of 2 either way.
+
+    Args:
+        points: rows ``rank, universe, measure, target, measured``.
+    """
+    with matplotlib.style.context("default"), rc_context(STYLE):
+        figure = _new_figure(5.6, 4.6)
+        (axes,) = _panels(figure, 1, 1, Margins(right=2.0, top=0.45))[0]
+        values = np.concatenate([points["target"], points["measured"]])
+        low, high = values.min() / 2.5, values.max() * 2.5
+        line = np.array([low, high])
+        axes.plot(line, line, color="black", linewidth=0.8)
+        for factor in (0.5, 2.0):
+            axes.plot(line, factor * line, color="#9e9e9e", linewidth=0.8, linestyle="--")
+        colours = dict(zip(MEASURE_LABELS, ("#1f77b4", "#ff7f0e", "#2ca02c"), strict=True))
+        for rank, universe in points.groupby("rank", sort=True)["universe"].first().items():
+            at = points[points["rank"] == rank]
+            marker = LEVEL_MARKERS[(rank - 1) % len(LEVEL_MARKERS)]
+            axes.scatter(
+                at["target"],
+                at["measured"],
+                s=28,
+                marker=marker,
+                c=[colours[m] if rank == 1 else "white" for m in at["measure"]],
+                edgecolors=[colours[m] for m in at["measure"]],
+                linewidths=1.0,
+                label=f"#{rank} {universe}" if len(universe) <= 40 else f"#{rank}",
+                zorder=3,
+            )
+        axes.set_xscale("log")
+        axes.set_yscale("log")
+        axes.set_xlim(low, high)
+        axes.set_ylim(low, high)
+        axes.set_xlabel("target cell mean")
+        axes.set_ylabel("measured cell mean")
+        keys = [
+            Line2D([], [], linestyle="none", marker="o", color=colour, label=MEASURE_LABELS[m])
+            for m, colour in colours.items()
+            if m in set(points["measure"])
+        ]
+        keys += [
+            Line2D(
+                [], [], linestyle="none", color="black", label=label,
+                marker=LEVEL_MARKERS[(rank - 1) % len(LEVEL_MARKERS)],
+                markerfacecolor="black" if rank == 1 else "white",
+            )
+            for rank, label in enumerate(axes.get_legend_handles_labels()[1], start=1)
+        ]  # fmt: skip
+        axes.legend(
+            handles=keys, frameon=False, fontsize=7, loc="upper left", bbox_to_anchor=(1.02, 1.0)
+        )
+        figure.suptitle("Calibration: target against measured (dashed: a factor of 2)")
+        return render(figure)
+
+
 def _text_width(text: str) -> float:
     """The width in inches of ``text`` set in the figures' font at their size."""
     font = FontProperties(family=STYLE["font.family"], size=STYLE["font.size"])

@@ -1,10 +1,12 @@
-"""The types of ``results.json``: a study's (:class:`StudyResults`) and a multiverse's
-(:class:`MultiverseResults`), which the claims are judged on and the reports read.
+"""The types of ``results.json``: a study's (:class:`StudyResults`), a multiverse's
+(:class:`MultiverseResults`), which the claims are judged on and the reports read, and a
+calibration's (:class:`CalibrationResults`).
 
 The analysis makes plain data (:data:`Results`); :func:`checked` gives it its type, and
 ``results.json`` is the typed record's encoding (``msgspec.to_builtins``). Their JSON Schemas,
 generated from the same declarations (:func:`json_schema`), are kept in ``docs/``
-(``results-study.schema.json``, ``results-multiverse.schema.json``) for readers in other
+(``results-study.schema.json``, ``results-multiverse.schema.json``,
+``results-calibration.schema.json``) for readers in other
 languages; a test keeps them equal. A number that is undefined (a mean of nothing, a test on
 a constant sample) is ``null``, never NaN; a field with a default is left out where it has
 its default, so a missing optional field reads as ``null``. Every p-value is beside its
@@ -488,13 +490,102 @@ class MultiverseResults(msgspec.Struct, **_ROW):
     run_id: str | None
 
 
+class TargetCell(msgspec.Struct, **_ROW):
+    """One published cell of a calibration target (:func:`cirl_study.analysis.calibration.
+    read_target`): a measure's mean in one ``num_features`` x ``policy`` cell, of ``robot``
+    (``None``: the reference robot of each universe), and its uncertainty on the log scale
+    (``log_se``: the standard error of :math:`\\ln` of the value; ``None`` when the target
+    gives none)."""
+
+    measure: str
+    num_features: int
+    policy: str
+    robot: str | None
+    value: float
+    log_se: float | None
+
+
+class CellComparison(msgspec.Struct, **_ROW):
+    """A target cell beside a universe's measurement of it: the mean over ``n`` subjects,
+    its standard error on the log scale (:math:`s / (\\bar y \\sqrt n)`) and
+    ``log_ratio`` :math:`\\ln(\\bar y / t)`."""
+
+    measure: str
+    num_features: int
+    policy: str
+    robot: str
+    target: float
+    target_log_se: float | None
+    measured: float
+    measured_log_se: Number
+    n: int
+    log_ratio: float
+
+
+class UniverseDistance(msgspec.Struct, **_ROW):
+    """One universe's distance to the target (``docs/multiverse.md``, *Calibration*):
+    ``mean_squared_log_ratio`` over every target cell, and where the target gives
+    uncertainties the chi-square on the log scale over those cells (``chi_square_df`` of
+    them) with its upper-tail ``p``. A universe that lacks a target cell, or measures a mean
+    of 0 where the log is undefined, is not ranked: ``missing`` says why."""
+
+    id: str
+    base: bool
+    settings: dict[str, Any]
+    cells: list[CellComparison]
+    mean_squared_log_ratio: Number
+    chi_square: Number
+    chi_square_df: int
+    p: Number
+    log10_p: Number
+    missing: list[str]
+
+
+class LevelDistance(msgspec.Struct, **_ROW):
+    """One level of an axis: the ranked universes at it, the nearest of them and the median
+    of their distances."""
+
+    level: Any
+    universes: int
+    nearest: str
+    nearest_distance: float
+    median_distance: float
+
+
+class AxisDistance(msgspec.Struct, **_ROW):
+    """Per axis that varies among the ranked universes: each level's distances, the level of
+    the nearest universe (``best``), and how far the nearest distance moves across levels
+    (``spread``: the largest level's nearest distance minus the smallest's)."""
+
+    axis: str
+    best: Any
+    spread: float
+    levels: list[LevelDistance]
+
+
+class CalibrationResults(msgspec.Struct, **_ROW):
+    """``results.json`` of a calibration (:func:`cirl_study.analysis.calibration.calibrate`):
+    the target, every universe's distance to it (ranked universes first, nearest first), the
+    axes, and the claims judged in the nearest universe."""
+
+    pipeline: str
+    target_file: str
+    target_sha256: str
+    target: list[TargetCell]
+    universes: list[UniverseDistance]
+    axes: list[AxisDistance]
+    nearest_claims: list[ClaimRow]
+    run_id: str | None
+
+
 SCHEMAS: dict[str, type[msgspec.Struct]] = {
     "results-study.schema.json": StudyResults,
     "results-multiverse.schema.json": MultiverseResults,
+    "results-calibration.schema.json": CalibrationResults,
 }
 """The schema files of ``docs/``, by name, and the type each is generated from."""
 
-Typed = TypeVar("Typed", StudyResults, MultiverseResults)
+Typed = TypeVar("Typed", StudyResults, MultiverseResults, CalibrationResults)
 
 
 def frame(rows: Sequence[msgspec.Struct]) -> pd.DataFrame:

@@ -120,7 +120,7 @@ def report_run(
     contents = read_run(
         run,
         salvage=partial,
-        meanwhile=lambda: report_provenance.update(_prepare_analysis(outputs=(run, target))),
+        meanwhile=lambda: report_provenance.update(prepare_analysis(outputs=(run, target))),
     )
 
     from cirl_study.analysis.replacement import replacing_report
@@ -131,13 +131,7 @@ def report_run(
     chosen = analysed_run(run, contents, partial)
     pipeline, trials, partial_run = chosen.pipeline, chosen.trials, chosen.partial
     run_id = contents.identity.run_id
-    provenance = {
-        "run": sorted(
-            {json.dumps(p, sort_keys=True): p for p in contents.provenance}.values(),
-            key=lambda p: json.dumps(p, sort_keys=True),
-        ),
-        "report": report_provenance,
-    }
+    provenance = report_provenance_of(contents.provenance, report_provenance)
     with replacing_report(
         target, run_id=run_id, force=force, keep_if_equal=keep_if_equal
     ) as replacement:
@@ -189,7 +183,15 @@ def report_run(
     return replacement
 
 
-def _prepare_analysis(outputs: tuple[Path, ...]) -> dict[str, Any]:
+def report_provenance_of(run: list[dict[str, str]], report: dict[str, Any]) -> dict[str, Any]:
+    """``provenance.json`` of a report: each distinct provenance of the run's log files
+    (``run``, in a fixed order) and the report's own (``report``, from
+    :func:`prepare_analysis`)."""
+    distinct = {json.dumps(p, sort_keys=True): p for p in run}
+    return {"run": [distinct[key] for key in sorted(distinct)], "report": report}
+
+
+def prepare_analysis(outputs: tuple[Path, ...]) -> dict[str, Any]:
     """What every report needs that the logs do not hold, prepared while they are read: the
     libraries (pandas, scipy, matplotlib, pingouin and the run's audit) and the
     report's provenance, which it returns: the date, the machine and the packages

@@ -1,0 +1,158 @@
+"""Calibration against a target table: the target's parsing, the distances by hand, and the
+recovery of a known universe from its own cell means (``cirl_study.analysis.calibration``)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from scipy import stats
+
+from cirl_study.analysis.calibration import Z_95, ranked_distances, read_target
+from cirl_study.analysis.result_types import TargetCell
+from cirl_study.errors import UserError
+
+ROOT = Path(__file__).resolve().parent.parent
+HEADER = "measure,num_features,policy,value,se\n"
+
+
+def _target(tmp_path: Path, text: str) -> Path:
+    path = tmp_path / "target.csv"
+    path.write_text(text, encoding="utf-8")
+    return path
+
+
+def test_a_target_reads_its_cells_and_their_log_scale_uncertainty(tmp_path: Path) -> None:
+    path = _target(
+        tmp_path,
+        "measure,num_features,policy,robot,value,se,ci95_low,ci95_high\n"
+        "regret,3,expert,,0.5,0.05,,\n"
+        "kl,10,best_response,map,2.0,,1.0,4.0\n"
+        "reward_l2,3,expert,,3.0,,,\n",
+    )
+    cells, sha256 = read_target(path)
+    assert len(sha256) == 64
+    assert cells[0] == TargetCell(
+        measure="regret", num_features=3, policy="expert", robot=None, value=0.5, log_se=0.1
+    )
+    assert cells[1].robot == "map"
+    assert cells[1].log_se == pytest.approx(math.log(4.0) / (2 * Z_95), rel=1e-15)
+    assert cells[2].log_se is None
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("measure,num_features,policy,value,colour\n", "column colour is not one of"),
+        ("measure,num_features,value\n", "has no column policy"),
+        (HEADER, "holds no cell"),
+        (HEADER + "regrets,3,expert,0.5,\n", "line 2: measure must be one of regret, kl"),
+        (HEADER + "regret,0,expert,0.5,\n", "line 2: num_features must be a positive integer"),
+        (HEADER + "regret,3.5,expert,0.5,\n", "num_features must be a positive integer"),
+        (HEADER + "regret,3,,0.5,\n", "line 2: policy is empty"),
+        (HEADER + "regret,3,expert,0,\n", "value must be positive (distances are on the log"),
+        (HEADER + "regret,3,expert,nan,\n", "value must be finite"),
+        (HEADER + "regret,3,expert,x,\n", "value must be a number, got x"),
+        (HEADER + "regret,3,expert,0.5,-1\n", "se must be positive"),
+        (HEADER + "regret,3,expert,0.5,\nregret,3,expert,0.7,\n", "line 3: repeats the cell"),
+        (HEADER + "regret,3,expert,0.5,,7\n", "line 2: has more fields than the header"),
+        (
+            "measure,num_features,policy,value,ci95_low,ci95_high\nkl,3,expert,2,3,4\n",
+            "the 95% interval [3, 4] must hold the value",
+        ),
+        (
+            "measure,num_features,policy,value,ci95_low\nkl,3,expert,2,1\n",
+            "needs both ci95_low and ci95_high",
+        ),
+        (
+            "measure,num_features,policy,value,se,ci95_low,ci95_high\nkl,3,expert,2,1,1,3\n",
+            "gives both se and a 95% interval",
+        ),
+    ],
+)
+def test_a_bad_target_is_one_line_naming_the_file_and_row(
+    tmp_path: Path, text: str, message: str
+) -> None:
+    with pytest.raises(UserError) as error:
+        read_target(_target(tmp_path, text))
+    assert message in str(error.value)
+    assert str(error.value).startswith(str(tmp_path / "target.csv"))
+    assert "\n" not in str(error.value)
+
+
+def test_a_target_that_is_not_a_regular_file_or_not_text_is_refused(tmp_path: Path) -> None:
+    (tmp_path / "target.csv").write_bytes(b"measure\xff\n")
+    with pytest.raises(UserError, match="not UTF-8 text"):
+        read_target(tmp_path / "target.csv")
+    (tmp_path / "link.csv").symlink_to(tmp_path / "target.csv")
+    with pytest.raises(UserError, match="symbolic link"):
+        read_target(tmp_path / "link.csv")
+
+
+def _cell(measure: str, k: int, policy: str, value: float, log_se: float | None) -> TargetCell:
+    return TargetCell(
+        measure=measure, num_features=k, policy=policy, robot=None, value=value, log_se=log_se
+    )
+
+
+def test_the_distances_equal_a_hand_computation() -> None:
+    target = [_cell("regret", 3, "expert", 1.0, 0.1), _cell("kl", 3, "expert", 4.0, None)]
+    regret, kl = ("regret", 3, "expert", "map"), ("kl", 3, "expert", "map")
+    means = {
+        "near": {regret: (4, 2.0, 2.0), kl: (4, 2.0, 1.0)},
+        "far": {regret: (4, 8.0, 0.0), kl: (4, 4.0, 1.0)},
+        "lacking": {regret: (4, 1.0, 1.0)},
+    }
+    studies = {uid: ({"sigma": 1.0}, "map") for uid in means}
+    near, far, lacking = ranked_distances(means, studies, target, base="far")
+    assert (near.id, far.id, lacking.id) == ("near", "far", "lacking")
+    # near: r = ln 2 and ln(1/2); the measured regret's log se is 2 / (2 * sqrt 4) = 0.5.
+    assert near.mean_squared_log_ratio == pytest.approx(math.log(2) ** 2, rel=1e-15)
+    chi_square = math.log(2) ** 2 / (0.1**2 + 0.5**2)
+    assert near.chi_square == pytest.approx(chi_square, rel=1e-15) and near.chi_square_df == 1
+    assert near.p == pytest.approx(stats.chi2.sf(chi_square, 1), rel=1e-12)
+    assert near.log10_p == pytest.approx(math.log10(near.p), rel=1e-12)
+    # far: r = ln 8 and 0.
+    assert far.mean_squared_log_ratio == pytest.approx(math.log(8) ** 2 / 2, rel=1e-15)
+    assert far.base and not near.base
+    assert lacking.mean_squared_log_ratio is None and lacking.missing == [
+        "lacks the cell (kl, K=3, expert)"
+    ]
+
+
+def test_a_cell_no_universe_measures_is_refused() -> None:
+    target = [_cell("regret", 5, "expert", 1.0, None)]
+    means = {"u": {("regret", 3, "expert", "map"): (4, 2.0, 2.0)}}
+    with pytest.raises(UserError, match=r"measures the target's cell \(regret, K=5, expert\)"):
+        ranked_distances(means, {"u": ({}, "map")}, target, base=None)
+
+
+NOISE = 0.05
+"""The noise on the log scale of the recovery test: every cell of the target is a
+universe's own mean times ``exp(N(0, NOISE^2))``."""
+
+
+def test_calibration_recovers_each_committed_universe_from_its_own_noisy_means() -> None:
+    results = json.loads((ROOT / "reports" / "multiverse" / "results.json").read_text())
+    universes = results["universes"]
+    assert len(universes) >= 20
+    means = {
+        u["id"]: {
+            (c["measure"], c["num_features"], c["policy"], c["robot"]): (c["n"], c["mean"], c["sd"])
+            for c in u["cells"]
+        }
+        for u in universes
+    }
+    studies = {u["id"]: (u["settings"], u["settings"]["robot"]) for u in universes}
+    rng = np.random.default_rng(29)
+    for truth in universes:
+        target = [
+            _cell(measure, k, policy, mean * math.exp(rng.normal(0.0, NOISE)), NOISE)
+            for (measure, k, policy, _), (_, mean, _) in means[truth["id"]].items()
+        ]
+        nearest = ranked_distances(means, studies, target, base=None)[0]
+        assert nearest.id == truth["id"]
+        assert nearest.mean_squared_log_ratio < 4 * NOISE**2
