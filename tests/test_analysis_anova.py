@@ -314,3 +314,22 @@ def test_pairwise_differences_are_emmeans_contrasts(design: str) -> None:
                 assert close(row.t, reference.t) and close(row.p, reference.p_unadjusted)
             checked += 1
     assert checked >= 3
+
+
+@pytest.mark.parametrize("humans", [("a", "b"), ("a", "b", "c")])
+def test_an_effect_without_any_variance_is_undefined_not_an_error(humans) -> None:
+    """A human identical to another (the best response at eta -> 0 is the expert): the
+    within effect and its error are both 0, so F and the effect sizes are 0 / 0."""
+    rows = [
+        {"subject": f"s{s}", "human": h, "group": "g1" if s < 3 else "g2", "y": float(s)}
+        for s in range(6)
+        for h in humans
+    ]
+    effects = {
+        r.effect: r for r in repeated_measures_anova(pd.DataFrame(rows), "y", ["human"], "group")
+    }
+    assert pytest.approx(13.5) == effects["group"].F and effects["group"].np2 > 0
+    for name in ("human", "human:group"):
+        row = effects[name]
+        assert math.isnan(row.F) and math.isnan(row.p) and math.isnan(row.np2)
+        assert row.SS == 0 and row.ges == 0

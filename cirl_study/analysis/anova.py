@@ -210,7 +210,14 @@ def _stratum(
     sizes: NDArray[np.float64],
     matrix: NDArray[np.float64],
 ) -> _Stratum:
-    """The sums of squares of one stratum ``z = y M_T`` (see the module docstring)."""
+    """The sums of squares of one stratum ``z = y M_T`` (see the module docstring).
+
+    A sum of squares within the rounding of ``z`` is 0: each entry of ``z`` is a sum over the
+    ``C`` cells of ``y`` times contrasts of at most 1 in size, so it is off by at most about
+    ``C eps max|y|``, and a sum of ``S d`` such squares by ``S d (C eps max|y|)^2``. Below that
+    bound (:func:`_rounding_floor`) an effect is indistinguishable from none; its F is then
+    0 / 0, undefined, not a ratio of rounding errors.
+    """
     z = y @ matrix
     group_means = np.zeros((len(sizes), z.shape[1]))
     np.add.at(group_means, groups, z)
@@ -218,13 +225,26 @@ def _stratum(
     grand = z.mean(axis=0)
     residual = z - group_means[groups]
     sscp = residual.T @ residual
+    floor = _rounding_floor(y, z.shape[1])
     return _Stratum(
         dimension=z.shape[1],
-        effect_ss=float(len(z) * grand @ grand),
-        interaction_ss=float(sizes @ np.sum((group_means - grand) ** 2, axis=1)),
-        error_ss=float(np.trace(sscp)),
+        effect_ss=_above(float(len(z) * grand @ grand), floor),
+        interaction_ss=_above(float(sizes @ np.sum((group_means - grand) ** 2, axis=1)), floor),
+        error_ss=_above(float(np.trace(sscp)), floor),
         error_sscp=sscp,
     )
+
+
+def _rounding_floor(y: NDArray[np.float64], dimension: int) -> float:
+    """The largest sum of squares of a stratum of ``dimension`` contrasts of ``y`` that rounding
+    alone can make (:func:`_stratum`), with a factor of 16 to spare."""
+    scale = y.shape[1] * np.finfo(np.float64).eps * float(np.abs(y).max(initial=0.0))
+    return 16.0 * y.shape[0] * dimension * scale * scale
+
+
+def _above(ss: float, floor: float) -> float:
+    """``ss``, or 0 where it is within rounding (``<= floor``)."""
+    return ss if ss > floor else 0.0
 
 
 def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> Sphericity:
@@ -234,9 +254,14 @@ def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> Sphericity:
     SSCP matrix is singular and Mauchly's test undefined: its ``W`` and p are NaN."""
     d = sscp.shape[0]
     trace = float(np.trace(sscp))
+    nan = Probability(p=math.nan, log10_p=math.nan)
+    if not trace > 0:  # no error variance: neither the test nor the epsilons are defined
+        return Sphericity(
+            mauchly_w=math.nan, mauchly=nan, gg_epsilon=math.nan, hf_epsilon=math.nan, gg=nan,
+            hf=nan,
+        )  # fmt: skip
     gg = trace**2 / (d * float(np.sum(sscp * sscp)))
     hf = ((n + 1) * d * gg - 2) / (d * (n - d * gg)) if n > d * gg else math.inf
-    nan = Probability(p=math.nan, log10_p=math.nan)
     sign, log_det = np.linalg.slogdet(sscp)
     if n < d or sign <= 0:
         return Sphericity(
@@ -275,7 +300,9 @@ def _effect_row(
     error_total: float,
     sphericity: Sphericity | None,
 ) -> AnovaEffect:
-    f_value = (ss / df1) / (error_ss / df2) if error_ss > 0 else math.inf
+    # Without error variance F is infinite, unless the effect has none either: 0 / 0.
+    without_error = math.inf if ss > 0 else math.nan
+    f_value = (ss / df1) / (error_ss / df2) if error_ss > 0 else without_error
     p, log10_p = f_tail(f_value, df1, df2)
     if sphericity is not None:
         corrected = {}
@@ -296,7 +323,12 @@ def _effect_row(
         F=f_value,
         p=p,
         log10_p=log10_p,
-        np2=ss / (ss + error_ss),
-        ges=ss / (ss + error_total),
+        np2=_share(ss, ss + error_ss),
+        ges=_share(ss, ss + error_total),
         sphericity=sphericity,
     )
+
+
+def _share(part: float, whole: float) -> float:
+    """``part / whole``, an effect size; undefined (NaN) where there is no variance at all."""
+    return part / whole if whole > 0 else math.nan
