@@ -147,3 +147,24 @@ def test_the_cell_figure_keeps_its_panels_readable(humans: int, robots: int, lev
     columns = levels if humans * robots > figures.WIDE_CELLS else len(MEASURES)
     assert width / figures.DPI / columns >= 3.0
     assert height / figures.DPI >= 2.9 * (len(MEASURES) if columns == levels else levels)
+
+
+def test_a_human_identical_to_another_is_analysed_without_an_error(tmp_path: Path) -> None:
+    """At eta -> 0 the best response is the expert: every difference between them is 0, so
+    their F, p and Wilcoxon test are undefined (null), their claims not reproduced, and no
+    warning reaches the user."""
+    text = SMOKE.read_text().replace("etas = [0.1, 1.0, 10.0]", "etas = [0.000001]")
+    pipeline = tmp_path / "identical.toml"
+    pipeline.write_text(text.replace('name = "smoke"', 'name = "identical"'))
+    run = tmp_path / "run"
+    assert CliRunner().invoke(app, ["run", str(pipeline), "--out", str(run)]).exit_code == 0
+    result = CliRunner().invoke(app, ["analyze", str(run)])
+    assert result.exit_code == 0, result.output
+    assert result.stderr == ""
+    results = json.loads((run / "report" / "results.json").read_text())
+    policy = [row for row in results["anova"] if row["effect"] == "policy"]
+    assert len(policy) == 3 and all(row["F"] is None and row["p"] is None for row in policy)
+    wilcoxon = results["paper"]["wilcoxon"]
+    assert len(wilcoxon) == 6 and all(row["p"] is None for row in wilcoxon)
+    verdicts = {claim["id"]: claim["reproduced"] for claim in results["claims"]}
+    assert verdicts["policy_effect"] is False and verdicts["tukey_br_ahead"] is False

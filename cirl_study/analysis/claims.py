@@ -169,7 +169,7 @@ def _policy_effect(results: StudyResults) -> Verdict:
         expert = _policy_mean(results, measure, EXPERT)
         best = _policy_mean(results, measure, BEST_RESPONSE)
         values[measure] = {"F": row.F, "p": row.p, "mean_expert": expert, "mean_br": best}
-        holds &= row.p < PAPER_P and best < expert
+        holds &= _below(row.p, PAPER_P) and best < expert
         parts.append(
             f"{MEASURE_NAMES[measure]}: best response {_num(best)} vs expert {_num(expert)}, "
             f"{_f_text(row)}"
@@ -182,7 +182,7 @@ def _policy_f(results: StudyResults) -> Verdict:
     return Verdict(
         "; ".join(f"{MEASURE_NAMES[m]}: F = {_num(f)}" for m, f in values.items()),
         values,
-        min(values.values()) > PAPER_F,
+        all(f is not None and f > PAPER_F for f in values.values()),
     )
 
 
@@ -195,7 +195,7 @@ def _interaction(results: StudyResults) -> Verdict:
         gaps = {low: _gap(results, measure, low), high: _gap(results, measure, high)}
         values[measure] = {"F": row.F, "p": row.p, **{f"gap_{k}": g for k, g in gaps.items()}}
         if measure != "regret":
-            holds &= row.p < SIGNIFICANCE and gaps[low] > gaps[high]
+            holds &= _below(row.p, SIGNIFICANCE) and gaps[low] > gaps[high]
         parts.append(
             f"{MEASURE_NAMES[measure]}: interaction {_f_text(row)}; gap {_num(gaps[low])} at "
             f"{low} vs {_num(gaps[high])} at {high} features"
@@ -210,7 +210,7 @@ def _cronbach(results: StudyResults) -> Verdict:
         f"raw alpha {_num(alpha.raw)} [{_num(low)}, {_num(high)}], standardised "
         f"{_num(alpha.standardised)}, over {alpha.n_rows} main-block trials",
         {"raw": alpha.raw, "ci95": [low, high], "standardised": alpha.standardised},
-        low <= PAPER_ALPHA <= high,
+        low is not None and high is not None and low <= PAPER_ALPHA <= high,
     )
 
 
@@ -221,7 +221,7 @@ def _tukey(results: StudyResults) -> Verdict:
         if level != row.b_num_features:
             continue
         means = {row.a_policy: row.mean_a, row.b_policy: row.mean_b}
-        holds &= means[BEST_RESPONSE] < means[EXPERT] and row.p_tukey < SIGNIFICANCE
+        holds &= means[BEST_RESPONSE] < means[EXPERT] and _below(row.p_tukey, SIGNIFICANCE)
         values[f"{row.measure}@{level}"] = {
             "diff_br_minus_expert": means[BEST_RESPONSE] - means[EXPERT],
             "p_tukey": row.p_tukey,
@@ -274,11 +274,17 @@ def _effect(rows: list[Row], measure: str, **where: Any) -> Row:
     return found[0]
 
 
+def _below(p: float | None, level: float) -> bool:
+    """Whether the p-value ``p`` is below ``level``; an undefined p (a test of no variance)
+    never is."""
+    return p is not None and p < level
+
+
 def _signed(row: PairedDifference, sign: int) -> bool:
     """Significant (Holm) with ``mean_diff`` of the given sign."""
-    if row.p_holm is None or row.mean_diff is None:
+    if row.mean_diff is None:
         return False
-    return bool(row.p_holm < SIGNIFICANCE and np.sign(row.mean_diff) == sign)
+    return bool(_below(row.p_holm, SIGNIFICANCE) and np.sign(row.mean_diff) == sign)
 
 
 def _paper_robot(results: StudyResults) -> str:
@@ -333,7 +339,7 @@ def _robustness(results: StudyResults) -> Verdict:
         with_pedagogic, with_literal = _robot_effects(results, m)
         anova = _effect(results.milli_dragan.anova, m, effect="robot")
         mean_effect = (with_pedagogic.mean_diff + with_literal.mean_diff) / 2
-        robust[m] = anova.p is not None and bool(anova.p < SIGNIFICANCE and mean_effect > 0)
+        robust[m] = bool(_below(anova.p, SIGNIFICANCE) and mean_effect > 0)
         measured.append(
             f"{MEASURE_NAMES[m]}: mean pragmatic - literal_observer {_num(mean_effect)}, robot "
             f"F({anova.df1}, {anova.df2}) = {_num(anova.F)}, p = {p_value(anova.p)}"

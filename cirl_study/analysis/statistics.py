@@ -464,16 +464,21 @@ def wilcoxon(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     for level in sorted(main["num_features"].unique()):
         paired = paired_by_subject(main, measure, level)
         best, expert = paired[BEST_RESPONSE].to_numpy(), paired[EXPERT].to_numpy()
-        test = stats.wilcoxon(best, expert, correction=True)
+        if np.any(best != expert):
+            test = stats.wilcoxon(best, expert, correction=True)
+            w, p = float(test.statistic), float(test.pvalue)
+            log10_p, rbc = wilcoxon_log10_p(best - expert, p), _rank_biserial(best - expert)
+        else:  # every difference is 0: the signed ranks are empty and the test undefined
+            w = p = log10_p = rbc = math.nan
         rows.append(
             {
                 "measure": measure,
                 "num_features": int(level),
                 "n": len(paired),
-                "W": float(test.statistic),
-                "p": float(test.pvalue),
-                "log10_p": wilcoxon_log10_p(best - expert, float(test.pvalue)),
-                "rbc": _rank_biserial(best - expert),
+                "W": w,
+                "p": p,
+                "log10_p": log10_p,
+                "rbc": rbc,
                 "cles": _common_language(best, expert),
             }
         )
