@@ -11,6 +11,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import re
 import shutil
 from dataclasses import replace
 from pathlib import Path
@@ -517,3 +518,60 @@ def test_the_shipped_multiverse_is_the_paper_study_in_53_universes():
 
     assert without_universe(eta_cv_trials(base)) == of_paper(eta_cv_trials(paper))
     assert without_universe(study_trials(base, etas)) == of_paper(study_trials(paper, etas))
+
+
+ASCENT = """
+[gradient_ascent]
+steps = 30
+learning_rate = 0.1
+
+[multiverse.cross]
+robot = ["map", "gradient_ascent"]
+ascent_steps = [30, 300]
+
+[multiverse.alone]
+learning_rate = [0.01]
+"""
+
+
+def test_the_gradient_ascent_settings_are_axes_of_that_robot_alone(tmp_path: Path):
+    pipeline = load_pipeline(multiverse(tmp_path, ASCENT))
+    ids = [u.id for u in pipeline.multiverse.universes]
+    base = "sigma=0.75,centers=per_draw,stays=yes,steps=4,lambda=1,robot=map,start=uniform"
+    ascent = base.replace("robot=map", "robot=gradient_ascent")
+    # the map universes of the cross are one (the base); learning_rate alone varies a setting
+    # the base's robot lacks, so it adds nothing
+    assert ids == [base, f"{ascent},ga_steps=30,ga_rate=0.1", f"{ascent},ga_steps=300,ga_rate=0.1"]
+    deep = pipeline.multiverse.universes[2]
+    study = universe_pipeline(pipeline, deep)
+    assert (study.gradient_ascent.steps, study.gradient_ascent.learning_rate) == (300, 0.1)
+    assert study.main.robots == ("gradient_ascent",)
+    assert cv_universe(pipeline, deep) == pipeline.multiverse.base
+    trials = study_trials(pipeline, etas_for(pipeline))
+    settings = {(t.universe, t.gradient_ascent) for t in trials if t.robot == "gradient_ascent"}
+    assert {(u, (a.steps, a.learning_rate)) for u, a in settings} == {
+        (ids[1], (30, 0.1)),
+        (ids[2], (300, 0.1)),
+    }
+
+
+@pytest.mark.parametrize(
+    ("tables", "message"),
+    [
+        (
+            '[multiverse.cross]\nrobot = ["map", "gradient_ascent"]\n',
+            "gradient_ascent is missing (robot gradient_ascent needs its settings)",
+        ),
+        (
+            ASCENT.replace("ascent_steps = [30, 300]", "ascent_steps = [0]"),
+            "multiverse.cross.ascent_steps must be a non-empty list of integers in [1, 100000]",
+        ),
+        (
+            ASCENT.replace("learning_rate = [0.01]", "learning_rate = [1000.0]"),
+            "multiverse.alone.learning_rate must be a non-empty list of numbers in [1e-12, 100]",
+        ),
+    ],
+)
+def test_a_bad_gradient_ascent_axis_is_one_line(tmp_path: Path, tables: str, message: str):
+    with pytest.raises(UserError, match=re.escape(message)):
+        load_pipeline(multiverse(tmp_path, tables))

@@ -79,7 +79,10 @@ def universe_trials(
 
 def level_label(value: Any) -> str:
     """An axis level as the report writes it: ``yes``/``no``, numbers in their shortest exact
-    form (:func:`~cirl_study.study.spec.shortest_number`), names as they are."""
+    form (:func:`~cirl_study.study.spec.shortest_number`), names as they are, and an en dash
+    for a setting the universe's robot lacks (``None``)."""
+    if value is None:
+        return "–"
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):
@@ -226,8 +229,10 @@ def _regression(
 ) -> dict[str, Any]:
     """OLS of the universes' policy effects on the axis ``levels`` (:func:`_axes`), and each
     axis's share of the effect's variance (type II SS over the total SS); ``None`` parts when
-    the universes are too few for the model (no residual degrees of freedom)."""
-    varied = [axis for axis in AXES if len(levels[axis]) > 1]
+    the universes are too few for the model (no residual degrees of freedom). A nested axis
+    (:attr:`~cirl_study.study.spec.Axis.nested`) is left out: its levels are confounded with
+    the axis it refines."""
+    varied = [axis for axis in AXES if len(levels[axis]) > 1 and not AXES[axis].nested]
     frame = effects[effects["measure"] == measure].set_index("universe")
     by_id = {u.id: u for u in universes(pipeline)}
     data = pd.DataFrame(

@@ -59,5 +59,12 @@ def universe_pipeline(pipeline: Pipeline, universe: Universe) -> Pipeline:
 
 
 def cv_universe(pipeline: Pipeline, universe: Universe) -> Universe:
-    """The universe whose cross-validation ``universe`` uses: its own, with the base robot."""
-    return replace(universe, robot=base_universe(pipeline).robot)
+    """The universe whose cross-validation ``universe`` uses: its own, with the base robot
+    and that robot's settings."""
+    base = base_universe(pipeline)
+    return replace(
+        universe,
+        robot=base.robot,
+        ascent_steps=base.ascent_steps,
+        learning_rate=base.learning_rate,
+    )

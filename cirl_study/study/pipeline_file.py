@@ -86,20 +86,27 @@ def parse_pipeline(
     if rename is not None:
         data = rename(data)
     top = Table(label, "", data, TOP_KEYS)
-    # Keyword arguments are evaluated in order: the file is checked top to bottom.
+    # The file is checked top to bottom, but for [gradient_ascent], which the universes read.
+    name = top.setting(Pipeline, "name")
+    description = top.setting(Pipeline, "description")
+    seed = top.setting(Pipeline, "seed")
+    game = top.spec("game", GameSpec)
+    eta_cv = top.spec("eta_cv", EtaCVSpec)
+    main = top.spec("main", MainSpec)
+    lambda_sweep = _lambda_sweep(top, main)
+    ascent = _ascent_table(top)
+    multiverse = _multiverse(top, game, eta_cv, main, ascent) if "multiverse" in top.data else None
     pipeline = Pipeline(
-        name=top.setting(Pipeline, "name"),
-        description=top.setting(Pipeline, "description"),
-        seed=top.setting(Pipeline, "seed"),
-        game=(game := top.spec("game", GameSpec)),
-        eta_cv=(eta_cv := top.spec("eta_cv", EtaCVSpec)),
-        main=(main := top.spec("main", MainSpec)),
-        lambda_sweep=_lambda_sweep(top, main),
-        multiverse=(
-            multiverse := _multiverse(top, game, eta_cv, main) if "multiverse" in top.data else None
-        ),
+        name=name,
+        description=description,
+        seed=seed,
+        game=game,
+        eta_cv=eta_cv,
+        main=main,
+        lambda_sweep=lambda_sweep,
+        multiverse=multiverse,
         teaching=_teaching(top, game, main),
-        gradient_ascent=_gradient_ascent(top, main, multiverse),
+        gradient_ascent=_gradient_ascent(top, main, multiverse, ascent),
         path=path,
         text=text,
         sha256=hashlib.sha256(text.encode()).hexdigest(),
@@ -149,10 +156,18 @@ def _teaching(top: Table, game: GameSpec, main: MainSpec) -> TeachingSpec | None
     return spec
 
 
-def _multiverse(top: Table, game: GameSpec, eta_cv: EtaCVSpec, main: MainSpec) -> MultiverseSpec:
+def _multiverse(
+    top: Table,
+    game: GameSpec,
+    eta_cv: EtaCVSpec,
+    main: MainSpec,
+    ascent: GradientAscentSpec | None,
+) -> MultiverseSpec:
     """The universes of ``[multiverse]``: the file's own (the base) first, then those of
     ``cross`` (a full factorial), ``alone`` (one level varied at a time) and ``universes``
-    (listed), each once, in that order."""
+    (listed), each once, in that order, each with the settings of its robot alone
+    (:meth:`~cirl_study.study.spec.Universe.fitted`: ``ascent`` the ``[gradient_ascent]``
+    table)."""
     if len(main.robots) != 1:
         top.fail("main.robots", "must name one robot in a multiverse (robot is one of its axes)")
     if game.learning_steps != game.deployment_steps:
@@ -165,7 +180,7 @@ def _multiverse(top: Table, game: GameSpec, eta_cv: EtaCVSpec, main: MainSpec) -
             "eta_cv.rationality",
             "must equal main.rationality in a multiverse (one axis, rationality, sets both)",
         )
-    base = Universe(**{name: axis.read(game, main) for name, axis in AXES.items()})
+    base = Universe(**{name: axis.read(game, main) for name, axis in AXES.items()}).fitted(ascent)
     block = top.table("multiverse", ("cross", "alone", "universes"))
     levels = _AxisLevels(game)
     universes = [base]
@@ -193,7 +208,7 @@ def _multiverse(top: Table, game: GameSpec, eta_cv: EtaCVSpec, main: MainSpec) -
             universes.append(
                 replace(base, **{axis: levels.one(table, axis) for axis in AXES if axis in entry})
             )
-    return MultiverseSpec(base, tuple(dict.fromkeys(universes)))
+    return MultiverseSpec(base, tuple(dict.fromkeys(u.fitted(ascent) for u in universes)))
 
 
 class _AxisLevels:
@@ -222,22 +237,33 @@ class _AxisLevels:
         return AXES[axis].convert(value)
 
 
+def _ascent_table(top: Table) -> GradientAscentSpec | None:
+    """``[gradient_ascent]`` as written, if it is (:func:`_gradient_ascent` says whether it
+    must be)."""
+    return (
+        top.spec("gradient_ascent", GradientAscentSpec) if "gradient_ascent" in top.data else None
+    )
+
+
 def _gradient_ascent(
-    top: Table, main: MainSpec, multiverse: MultiverseSpec | None
+    top: Table,
+    main: MainSpec,
+    multiverse: MultiverseSpec | None,
+    ascent: GradientAscentSpec | None,
 ) -> GradientAscentSpec | None:
-    """The ``[gradient_ascent]`` table: required exactly when the ``gradient_ascent`` robot
-    plays, in ``main.robots`` or as a multiverse's ``robot`` level."""
+    """The ``[gradient_ascent]`` table ``ascent``: required exactly when the
+    ``gradient_ascent`` robot plays, in ``main.robots`` or as a multiverse's ``robot`` level."""
     from cirl_study.record import GRADIENT_ASCENT
 
     universes = () if multiverse is None else multiverse.universes
     plays = GRADIENT_ASCENT in main.robots or any(u.robot == GRADIENT_ASCENT for u in universes)
-    if "gradient_ascent" not in top.data:
+    if ascent is None:
         if plays:
             top.fail("gradient_ascent", f"is missing (robot {GRADIENT_ASCENT} needs its settings)")
         return None
     if not plays:
         top.fail("gradient_ascent", f"is given, but robot {GRADIENT_ASCENT} does not play")
-    return top.spec("gradient_ascent", GradientAscentSpec)
+    return ascent
 
 
 def _too_deep(data: dict[str, Any]) -> str | None:

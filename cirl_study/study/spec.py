@@ -82,6 +82,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from cirl_study.record import GRADIENT_ASCENT
 from cirl_study.study.settings import (
     POSITIVE_INTEGER,
     Invalid,
@@ -354,14 +355,37 @@ class Universe:
     rationality: float
     robot: str
     deployment_start: str
+    ascent_steps: int | None = None
+    learning_rate: float | None = None
 
     @property
     def id(self) -> str:
-        """A readable id spelling out every choice, e.g. ``sigma=1.5,centers=per_draw,stays=yes,
-        steps=9,lambda=1,robot=map,start=uniform``: a function of the choices alone, so adding
-        a level to an axis never renames an existing universe."""
+        """A readable id spelling out every choice that applies, e.g. ``sigma=1.5,
+        centers=per_draw,stays=yes,steps=9,lambda=1,robot=map,start=uniform`` (the
+        gradient-ascent settings only for that robot, ``...,robot=gradient_ascent,
+        start=uniform,ga_steps=30,ga_rate=0.1``): a function of the choices alone, so adding a
+        level to an axis never renames an existing universe."""
         return ",".join(
-            f"{axis.label}={axis.show(getattr(self, name))}" for name, axis in AXES.items()
+            f"{axis.label}={axis.show(getattr(self, name))}"
+            for name, axis in AXES.items()
+            if getattr(self, name) is not None
+        )
+
+    def fitted(self, ascent: GradientAscentSpec | None) -> Universe:
+        """This universe with the settings of its robot alone: the gradient-ascent axes are
+        ``None`` for another robot, and for that robot default to ``ascent`` (the pipeline's
+        ``[gradient_ascent]``), so universes that differ only in a setting their robot
+        lacks are one universe."""
+        if self.robot != GRADIENT_ASCENT:
+            return replace(self, ascent_steps=None, learning_rate=None)
+        if ascent is None:
+            return self
+        return replace(
+            self,
+            ascent_steps=ascent.steps if self.ascent_steps is None else self.ascent_steps,
+            learning_rate=(
+                ascent.learning_rate if self.learning_rate is None else self.learning_rate
+            ),
         )
 
 
@@ -382,6 +406,10 @@ class Axis:
     read: Callable[[GameSpec, MainSpec], Any]
     apply: Callable[[Pipeline, Any], Pipeline]
     convert: Callable[[Any], Any] = lambda value: value
+    nested: bool = False
+    """Whether the axis refines a level of another (the gradient-ascent settings, the
+    ``gradient_ascent`` level of ``robot``): it is ``None`` in the other universes, and the
+    multiverse's regression leaves it out, its levels being confounded with that axis's."""
 
 
 def _set_game(*fields: str) -> Callable[[Pipeline, Any], Pipeline]:
@@ -403,6 +431,20 @@ def _set_rationality(pipeline: Pipeline, level: float) -> Pipeline:
 def _set_robot(pipeline: Pipeline, level: str) -> Pipeline:
     """``main.robots``: a universe's one robot."""
     return replace(pipeline, main=replace(pipeline.main, robots=(level,)))
+
+
+def _set_ascent(field: str) -> Callable[[Pipeline, Any], Pipeline]:
+    """``apply`` of a gradient-ascent axis: ``field`` of ``[gradient_ascent]``, for a universe
+    of that robot (of another, the level is ``None`` and nothing is set)."""
+
+    def apply(pipeline: Pipeline, level: Any) -> Pipeline:
+        if level is None or pipeline.gradient_ascent is None:
+            return pipeline
+        return replace(
+            pipeline, gradient_ascent=replace(pipeline.gradient_ascent, **{field: level})
+        )
+
+    return apply
 
 
 def _game_field(name: str) -> Callable[[GameSpec, MainSpec], Any]:
@@ -474,13 +516,37 @@ AXES: dict[str, Axis] = {
         apply=_set_robot,
     ),
     "deployment_start": _game_axis("deployment_start", "start", str, _one_of(DEPLOYMENT_STARTS)),
+    "ascent_steps": Axis(
+        label="ga_steps",
+        show=str,
+        levels=lambda game: (
+            lambda v: is_integer(v) and 1 <= v <= MAX_ASCENT_STEPS,
+            f"integers in [1, {MAX_ASCENT_STEPS}]",
+        ),
+        read=lambda game, main: None,
+        apply=_set_ascent("steps"),
+        nested=True,
+    ),
+    "learning_rate": Axis(
+        label="ga_rate",
+        show=shortest_number,
+        levels=lambda game: (
+            lambda v: is_positive_number(v) and LEARNING_RATE.low <= v <= LEARNING_RATE.high,
+            f"numbers in {LEARNING_RATE}",
+        ),
+        read=lambda game, main: None,
+        apply=_set_ascent("learning_rate"),
+        convert=float,
+        nested=True,
+    ),
 }
 """The open settings a multiverse varies, each declared once (:class:`Axis`), by the key of
 ``[multiverse.*]`` tables and of :class:`Universe`: ``game.sigma``, ``game.centers``,
 ``game.demonstrator_stays``, ``steps`` (``game.learning_steps = game.deployment_steps``),
 ``rationality`` (``main.rationality = eta_cv.rationality``), ``robot`` (the one robot of
-``main.robots``) and ``game.deployment_start``. A new axis is one entry here and one field
-of :class:`Universe`."""
+``main.robots``), ``game.deployment_start``, and for the ``gradient_ascent`` robot
+``ascent_steps`` and ``learning_rate`` (``[gradient_ascent]``). A new axis is one entry here
+and one field of :class:`Universe`."""
 
 
 @dataclass(frozen=True)
