@@ -245,7 +245,7 @@ def test_a_bad_gradient_ascent_table_is_one_line(
 
 
 def test_a_multiverse_level_of_the_robot_needs_the_table(tmp_path: Path) -> None:
-    text = (REPO / "pipelines" / "multiverse-small.toml").read_text()
+    text = (REPO / "pipelines" / "multiverse.toml").read_text()
     text += '\n[[multiverse.universes]]\nrobot = "gradient_ascent"\n'
     with pytest.raises(UserError, match="gradient_ascent is missing"):
         parse_pipeline(text, tmp_path / "m.toml")
