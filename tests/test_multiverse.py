@@ -575,3 +575,42 @@ def test_the_gradient_ascent_settings_are_axes_of_that_robot_alone(tmp_path: Pat
 def test_a_bad_gradient_ascent_axis_is_one_line(tmp_path: Path, tables: str, message: str):
     with pytest.raises(UserError, match=re.escape(message)):
         load_pipeline(multiverse(tmp_path, tables))
+
+
+def test_the_regret_reading_is_an_axis_that_plays_no_trial_of_its_own(tmp_path: Path):
+    tables = ASCENT.replace("ascent_steps = [30, 300]", 'regret = ["true", "estimate"]')
+    pipeline = load_pipeline(multiverse(tmp_path, tables))
+    ids = [u.id for u in pipeline.multiverse.universes]
+    base = "sigma=0.75,centers=per_draw,stays=yes,steps=4,lambda=1,robot=map,start=uniform"
+    ascent = base.replace("robot=map", "robot=gradient_ascent") + ",ga_steps=30,ga_rate=0.1"
+    assert ids == [base, f"{base},regret=estimate", ascent, f"{ascent},regret=estimate"]
+    # the two readings share their trials: the counts are those of the two played universes
+    played = load_pipeline(multiverse(tmp_path, ASCENT.replace("ascent_steps = [30, 300]", "")))
+    assert trial_counts(pipeline) == trial_counts(played)
+    planned = {t.universe for t in study_trials(pipeline, etas_for(pipeline))}
+    assert planned == {base, ascent}
+
+
+def test_a_universe_judged_by_regret_under_the_estimate_reads_it_as_regret(tmp_path: Path):
+    from cirl_study.analysis.multiverse import judged_rows
+    from cirl_study.record import Measures, TrialRow
+
+    measures = Measures(regret=0.25, kl=1.0, reward_l2=2.0, regret_under_estimate=0.75)
+    row = TrialRow(
+        trial_id="t", run_id="r", universe="u", block="main", subject="s", policy="expert",
+        robot="map", num_features=3, rationality=1.0, eta=None, seed=1, measures=measures,
+        converged=True, draw="d",
+    )  # fmt: skip
+    pipeline = load_pipeline(
+        multiverse(tmp_path, '[multiverse.alone]\nregret = ["estimate"]\n', name="r")
+    )
+    plain, estimate = pipeline.multiverse.universes
+    assert judged_rows([row], plain) == [row]
+    (judged,) = judged_rows([row], estimate)
+    assert judged.universe == estimate.id and judged.measures.regret == 0.75
+    assert judged.measures.kl == 1.0 and judged.trial_id == "t"
+    old = msgspec.structs.replace(
+        row, measures=msgspec.structs.replace(measures, regret_under_estimate=None)
+    )
+    with pytest.raises(UserError, match="judges regret under the estimate, which trial t does"):
+        judged_rows([old], estimate)

@@ -188,11 +188,13 @@ def calibrate(
         UserError: no universe of the run measures one of the target's cells, or no universe
             can be ranked.
     """
-    table = trial_table(trials)
-    base = base_universe(pipeline).id if pipeline.multiverse is not None else None
-    ranked = ranked_distances(
-        cell_means(table[table["block"] == MAIN]), _studies(pipeline), target, base
-    )
+    if pipeline.multiverse is None:
+        main, base = [r for r in trials if r.block == MAIN], None
+    else:
+        chosen = universe_trials(trials, pipeline).values()
+        main = [r for rows in chosen for r in rows if r.block == MAIN]
+        base = base_universe(pipeline).id
+    ranked = ranked_distances(cell_means(trial_table(main)), _studies(pipeline), target, base)
     return CalibrationResults(
         pipeline=pipeline.name,
         target_file=target_file,
@@ -258,8 +260,9 @@ def ranked_distances(
 
 
 def cell_means(main: pd.DataFrame) -> dict[str, dict[CellKey, Measured]]:
-    """Per universe id (``""`` in a single study), per cell of the trial table ``main``:
-    ``(n, mean, sd)`` of each measure."""
+    """Per universe id (``""`` in a single study), per cell of the trial table ``main`` (of
+    the ``main`` block, each universe's rows as it analyses them): ``(n, mean, sd)`` of each
+    measure."""
     main = main.assign(universe=main["universe"].fillna(""))
     keys = ["universe", "num_features", "policy", "robot"]
     means: dict[str, dict[CellKey, Measured]] = {}

@@ -27,6 +27,7 @@ from collections import defaultdict
 from collections.abc import Callable, Sequence
 from typing import Any
 
+import msgspec
 import numpy as np
 import pandas as pd
 import statsmodels.api as sm
@@ -63,18 +64,45 @@ does not play: lambda is one of the axes)."""
 def universe_trials(
     trials: Sequence[TrialRow], pipeline: Pipeline
 ) -> dict[Universe, list[TrialRow]]:
-    """Per universe, the rows its study is analysed on: its ``main`` trials and the
-    cross-validation trials of its cross-validation universe."""
+    """Per universe, the rows its study is analysed on: the ``main`` trials of the universe it
+    plays (:attr:`~cirl_study.study.spec.Universe.played`) as its own, read with its
+    analysis's settings (:func:`judged_rows`), and the cross-validation trials of its
+    cross-validation universe.
+
+    Raises:
+        UserError: a universe judges regret under the estimate, which its trials' records do
+            not hold (logs of a format before 7).
+    """
     by_universe: dict[str | None, list[TrialRow]] = defaultdict(list)
     for row in trials:
         by_universe[row.universe].append(row)
     chosen = {}
     for universe in universes(pipeline):
         cv = cv_universe(pipeline, universe).id
-        chosen[universe] = [r for r in by_universe[universe.id] if r.block == MAIN] + [
+        main = [r for r in by_universe[universe.played.id] if r.block == MAIN]
+        chosen[universe] = judged_rows(main, universe) + [
             r for r in by_universe[cv] if r.block == ETA_CV
         ]
     return chosen
+
+
+def judged_rows(rows: list[TrialRow], universe: Universe) -> list[TrialRow]:
+    """The ``rows`` of the universe ``universe`` plays as ``universe`` analyses them: its id,
+    and with ``regret = "estimate"`` the regret under the estimate as the measure ``regret``
+    (docs/design.md §4)."""
+    if universe == universe.played:
+        return rows
+    judged = []
+    for row in rows:
+        under_estimate = row.measures.regret_under_estimate
+        if under_estimate is None:
+            raise UserError(
+                f"universe {universe.id} judges regret under the estimate, which trial "
+                f"{row.trial_id} does not record (its log format is older than 7)"
+            )
+        measures = msgspec.structs.replace(row.measures, regret=under_estimate)
+        judged.append(msgspec.structs.replace(row, universe=universe.id, measures=measures))
+    return judged
 
 
 def level_label(value: Any) -> str:
@@ -121,7 +149,7 @@ def analyse_multiverse(
     progress("across universes")
     levels = _axes(pipeline)
     table = trial_table(trials)
-    main = table[table["block"] == MAIN]
+    main = trial_table([r for rows in chosen.values() for r in rows if r.block == MAIN])
     effects = _effects(main)
     across = {
         "pipeline": pipeline.name,

@@ -34,6 +34,12 @@ def universes(pipeline: Pipeline) -> tuple[Universe, ...]:
     return _multiverse(pipeline).universes
 
 
+def played_universes(pipeline: Pipeline) -> tuple[Universe, ...]:
+    """The universes whose trials a multiverse plays, in the order of :func:`universes`: each
+    universe's :attr:`~cirl_study.study.spec.Universe.played`, once."""
+    return tuple(dict.fromkeys(u.played for u in universes(pipeline)))
+
+
 def base_universe(pipeline: Pipeline) -> Universe:
     """The universe of a multiverse pipeline's own settings."""
     return _multiverse(pipeline).base
@@ -59,12 +65,12 @@ def universe_pipeline(pipeline: Pipeline, universe: Universe) -> Pipeline:
 
 
 def cv_universe(pipeline: Pipeline, universe: Universe) -> Universe:
-    """The universe whose cross-validation ``universe`` uses: its own, with the base robot
-    and that robot's settings."""
+    """The universe whose cross-validation ``universe`` uses: the one it plays, with the base
+    robot and that robot's settings."""
     base = base_universe(pipeline)
     return replace(
         universe,
         robot=base.robot,
         ascent_steps=base.ascent_steps,
         learning_rate=base.learning_rate,
-    )
+    ).played

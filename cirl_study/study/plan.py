@@ -57,7 +57,12 @@ from cirl_study.record import (
     Teaching,
     TrialSpec,
 )
-from cirl_study.study.multiverse import cv_universe, universe_pipeline, universes
+from cirl_study.study.multiverse import (
+    cv_universe,
+    played_universes,
+    universe_pipeline,
+    universes,
+)
 from cirl_study.study.spec import GameSpec, Pipeline, Universe
 
 CV_GROUP = "cv"
@@ -339,7 +344,7 @@ def _study_plan(
         return _single_study_plan(pipeline, None, etas, planned)
     return [
         trial
-        for universe in universes(pipeline)
+        for universe in played_universes(pipeline)
         for trial in _single_study_plan(
             universe_pipeline(pipeline, universe),
             cv_universe(pipeline, universe).id,
@@ -394,7 +399,7 @@ def trial_counts(pipeline: Pipeline) -> dict[str, int]:
         base = trial_counts(universe_pipeline(pipeline, pipeline.multiverse.base))
         return {
             ETA_CV: base[ETA_CV] * len(_cv_universes(pipeline)),
-            MAIN: base[MAIN] * len(universes(pipeline)),
+            MAIN: base[MAIN] * len(played_universes(pipeline)),
             LAMBDA_SWEEP: 0,
         }
     levels = len(pipeline.game.feature_levels)

@@ -102,6 +102,11 @@ from cirl_study.study.settings import (
     string,
 )
 
+REGRET_READINGS: tuple[str, ...] = ("true", "estimate")
+"""Which reading of the paper's regret a universe's claims judge (docs/design.md §4): ``true``,
+both values under the true reward (the record's ``regret``), or ``estimate``, both under the
+robot's estimate (``regret_under_estimate``)."""
+
 CENTER_PLACEMENTS: tuple[str, ...] = ("per_draw", "shared", "lattice")
 """Where the ``K`` RBF centers lie (:func:`cirl_study.study.plan.draw_reward`): drawn uniformly
 with each reward draw (the paper's reading), drawn once per feature level and shared by every
@@ -357,6 +362,7 @@ class Universe:
     deployment_start: str
     ascent_steps: int | None = None
     learning_rate: float | None = None
+    regret: str | None = None
 
     @property
     def id(self) -> str:
@@ -370,6 +376,13 @@ class Universe:
             for name, axis in AXES.items()
             if getattr(self, name) is not None
         )
+
+    @property
+    def played(self) -> Universe:
+        """The universe whose trials this one analyses: itself with every axis that changes
+        only the analysis (:attr:`Axis.analysis_only`) at its default, so universes that
+        differ only there share their trials."""
+        return replace(self, **{n: None for n, axis in AXES.items() if axis.analysis_only})
 
     def fitted(self, ascent: GradientAscentSpec | None) -> Universe:
         """This universe with the settings of its robot alone: the gradient-ascent axes are
@@ -410,6 +423,10 @@ class Axis:
     """Whether the axis refines a level of another (the gradient-ascent settings, the
     ``gradient_ascent`` level of ``robot``): it is ``None`` in the other universes, and the
     multiverse's regression leaves it out, its levels being confounded with that axis's."""
+    analysis_only: bool = False
+    """Whether the axis changes how the trials are analysed and not the trials (``regret``):
+    its default level is ``None``, not spelled in a universe's id, and universes that differ
+    only in it share their trials (:attr:`Universe.played`)."""
 
 
 def _set_game(*fields: str) -> Callable[[Pipeline, Any], Pipeline]:
@@ -539,14 +556,24 @@ AXES: dict[str, Axis] = {
         convert=float,
         nested=True,
     ),
+    "regret": Axis(
+        label="regret",
+        show=str,
+        levels=_one_of(REGRET_READINGS),
+        read=lambda game, main: None,
+        apply=lambda pipeline, level: pipeline,
+        convert=lambda level: None if level == REGRET_READINGS[0] else level,
+        analysis_only=True,
+    ),
 }
 """The open settings a multiverse varies, each declared once (:class:`Axis`), by the key of
 ``[multiverse.*]`` tables and of :class:`Universe`: ``game.sigma``, ``game.centers``,
 ``game.demonstrator_stays``, ``steps`` (``game.learning_steps = game.deployment_steps``),
 ``rationality`` (``main.rationality = eta_cv.rationality``), ``robot`` (the one robot of
-``main.robots``), ``game.deployment_start``, and for the ``gradient_ascent`` robot
-``ascent_steps`` and ``learning_rate`` (``[gradient_ascent]``). A new axis is one entry here
-and one field of :class:`Universe`."""
+``main.robots``), ``game.deployment_start``, for the ``gradient_ascent`` robot
+``ascent_steps`` and ``learning_rate`` (``[gradient_ascent]``), and ``regret``, the reading of
+regret the claims judge (:data:`REGRET_READINGS`; it changes no trial). A new axis is one entry
+here and one field of :class:`Universe`."""
 
 
 @dataclass(frozen=True)
