@@ -718,3 +718,22 @@ def test_a_literal_posterior_below_the_smallest_double_still_counts_at_small_alp
     pragmatic = np.exp(log_posterior - logsumexp(log_posterior))
     np.testing.assert_allclose(space.pedagogic_posterior(counts)[0], pragmatic, rtol=1e-12)
     np.testing.assert_allclose(pragmatic, [0.999876605, 1.23394576e-4], rtol=1e-8)
+
+
+def test_the_pedagogic_probabilities_are_kept_for_a_subjects_other_humans(monkeypatch) -> None:
+    """The second teaching human of a subject reads the first's pass over the classes: the
+    same values, bit for bit, as a fresh space computes; shared by the spaces ``take`` makes,
+    read-only, and the oldest dropped past the byte budget."""
+    from cirl_study.core import hypotheses
+
+    game = make_game(3, 3, (1, 1), 3, True, batch=3, hypotheses=4)
+    space = game.space(2.0)
+    theta = game.thetas[:, 0]
+    first = space.pedagogic_path_log_probability(1, theta[1])
+    again = space.take(np.array([1])).pedagogic_path_log_probability(0, theta[1])
+    assert again is first and not first.flags.writeable
+    fresh = game.space(2.0).pedagogic_path_log_probability(1, theta[1])
+    assert fresh is not first and np.array_equal(fresh, first)
+    monkeypatch.setattr(hypotheses, "TEACHING_CACHE_BYTES", first.nbytes)
+    space.pedagogic_path_log_probability(2, theta[2])
+    assert space.pedagogic_path_log_probability(1, theta[1]) is not first

@@ -179,6 +179,12 @@ def draw_hypotheses(
     return spaces
 
 
+TEACHING_CACHE_BYTES = 256 * 2**20
+"""Most bytes of pedagogic path probabilities a batch keeps for reuse
+(:meth:`HypothesisSpace.pedagogic_path_log_probability`): 8 bytes a visit class per subject,
+so at the paper's 407,677 classes about 80 subjects, more than a batch holds."""
+
+
 @dataclass(frozen=True, eq=False)
 class HypothesisSpace:
     """A batch of trials' hypothesis spaces over the learning phase.
@@ -196,12 +202,14 @@ class HypothesisSpace:
     includes_truth: bool
     alpha: float
     _normalisers: dict[bytes, FloatArray] = field(default_factory=dict, repr=False)
+    _teaching: dict[bytes, FloatArray] = field(default_factory=dict, repr=False)
 
     def take(self, rows: IntArray) -> HypothesisSpace:
-        """The spaces of the trials ``rows`` only; the normalisers computed so far are shared."""
+        """The spaces of the trials ``rows`` only; the normalisers and the pedagogic path
+        probabilities computed so far are shared (every human of a subject reads them)."""
         return HypothesisSpace(
             self.model.take(rows), self.thetas[rows], self.includes_truth, self.alpha,
-            self._normalisers,
+            self._normalisers, self._teaching,
         )  # fmt: skip
 
     @property
@@ -242,8 +250,18 @@ class HypothesisSpace:
         \\cup \\Theta`. Classes with equal feature counts get equal values, bit for bit.
         """
         space = self.thetas[b] if self.includes_truth else np.vstack([theta, self.thetas[b]])
+        key = self._key(b, space)
+        if key in self._teaching:
+            return self._teaching[key]
         log_normaliser, per_path = self.pass_over_classes(b, space, 0)
-        self._normalisers.setdefault(self._key(b, space), log_normaliser)
+        self._normalisers.setdefault(key, log_normaliser)
+        # Kept for the subject's other teaching human (the pedagogic human and the
+        # regret-optimal search teach the same truth over the same space), read-only as it is
+        # shared, the oldest dropped past TEACHING_CACHE_BYTES.
+        per_path.flags.writeable = False
+        self._teaching[key] = per_path
+        while sum(kept.nbytes for kept in self._teaching.values()) > TEACHING_CACHE_BYTES:
+            del self._teaching[next(iter(self._teaching))]
         return per_path
 
     def teaching_log_weights(self, b: int, theta: FloatArray) -> FloatArray:

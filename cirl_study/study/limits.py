@@ -42,9 +42,10 @@ def batch_memory(pipeline: Pipeline) -> int:
     cells and ``K`` the largest feature level: an upper bound of the peak
     (``benchmarks/README.md``, *Memory of a batch*, holds it against measured peaks). A teaching
     study adds the enumeration of its
-    learning phase's paths (:data:`ENUMERATION_BYTES_PER_PATH` each) and, for the
+    learning phase's paths (:data:`ENUMERATION_BYTES_PER_PATH` each), for the
     hypotheses' log-partitions, each trial's features once per hypothesis
-    (``MAX_BATCH H S K 8`` bytes).
+    (``MAX_BATCH H S K 8`` bytes), and the pedagogic path probabilities it keeps for reuse
+    (at most :data:`~cirl_study.core.hypotheses.TEACHING_CACHE_BYTES`).
     """
     game = pipeline.game
     steps = max(game.learning_steps, game.deployment_steps) + 1
@@ -55,7 +56,11 @@ def batch_memory(pipeline: Pipeline) -> int:
         return trials
     # The hypotheses' log-partitions repeat each trial's features once per hypothesis.
     repeated = MAX_BATCH * teaching.hypotheses * game.width * game.height * k * 8
-    return trials + repeated + ENUMERATION_BYTES_PER_PATH * teaching.learning_paths
+    # The numerical core is loaded already: the learning paths were counted with it.
+    from cirl_study.core.hypotheses import TEACHING_CACHE_BYTES
+
+    enumeration = ENUMERATION_BYTES_PER_PATH * teaching.learning_paths
+    return trials + repeated + enumeration + TEACHING_CACHE_BYTES
 
 
 def batch_messages(pipeline: Pipeline) -> int:
