@@ -8,10 +8,8 @@ compete with those processes for the same cores, spinning while they wait for wo
 before any numerical library loads, :data:`ONE_THREAD` is set in the environment, where each
 library reads it when it loads and every process the command starts inherits it; a value
 the user has set is kept. Dask's worker processes get the same three settings
-(distributed's ``nanny.pre-spawn-environ``). Nor do the results depend on the machine's
-number of cores: OpenBLAS splits its longest sums among its threads, which moves the last
-bits of the posterior-mean robot's estimates (:mod:`cirl_study.core.posterior`). What this
-saves is measured in ``benchmarks/README.md``.
+(distributed's ``nanny.pre-spawn-environ``). What this saves is measured in
+``benchmarks/README.md``.
 """
 
 from __future__ import annotations

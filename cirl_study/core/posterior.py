@@ -70,38 +70,86 @@ measured in ``benchmarks/README.md`` (*The posterior-mean robot*);
 **Determinism.** Each trial draws from its own generator,
 :func:`cirl_study.core.estimate.robot_generator` of its seed, in an order fixed by its own
 data; a trial's points are scored by :meth:`cirl_study.core.maxent.MaxEnt.log_likelihood_at`
-point by point, in loops of a fixed order, so its estimate does not depend on the other trials
-of its batch, their order or ``chunk`` (bitwise; trials that ask for rounds of the same size
-are scored in one call), and on another CPU at most through the last bit of ``exp`` and
-``log``. The proposals' moments and the regression use numpy's linear algebra, whose BLAS
-kernels differ by CPU and split their longest sums among the BLAS library's threads, so with
-another CPU or thread count the last bits can differ, and rarely a stopping decision with them,
-which moves
-the estimate by about its standard error (measured: ``benchmarks/README.md``). The command
-line computes on one thread whatever the machine (:mod:`cirl_study.__main__`), so its results
-do not depend on the number of cores.
+point by point, and every other floating-point reduction and solve that feeds its decisions or
+its estimate is a compiled loop in a fixed order (the kernels here and
+:mod:`cirl_study.core.linalg`, without ``fastmath``, calling the C library's ``exp``,
+``log`` and ``log1p``): the draws' transform :math:`m + L x` by the Cholesky factor
+:math:`L` of :math:`S`, the components' densities (forward substitution by :math:`L`), the
+mixture's log-sums, the weights and their ESS, the weighted moments, the Gram matrix, and the
+control-variate regression, whose :math:`\\gamma` is the minimum-norm least-squares solution
+of the normal equations with ``np.linalg.lstsq``'s cutoff
+(:func:`cirl_study.core.linalg.symmetric_lstsq`). No BLAS or LAPACK kernel and no
+SIMD-dispatched numpy loop enters the estimate: numpy's matrix products sum in the order of
+the BLAS kernel that the CPU selects, and its ``exp`` and ``log`` have AVX512 variants, and
+one last bit there can flip a stopping decision, which moves the estimate by about its
+standard error. So an estimate is bitwise the same on every x86-64 CPU, BLAS kernel and
+thread count, and does not depend on the other trials of its batch, their order or
+``chunk`` (trials that ask for rounds of the same size are scored in one call).
 """
 
 from __future__ import annotations
 
+import math
 from collections import defaultdict
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 from numpy.typing import NDArray
-from scipy.special import erf, logsumexp
+from scipy.special import erf
 
 from cirl_study.core.estimate import Estimate, robot_generator
+from cirl_study.core.linalg import cholesky, symmetric_lstsq
 from cirl_study.core.maxent import MaxEnt
 from cirl_study.core.planning import FloatArray, IntArray
 
-_SQRT2 = float(np.sqrt(2.0))
-_LOG_2PI = float(np.log(2.0 * np.pi))
+_SQRT2 = math.sqrt(2.0)
+_LOG_2PI = math.log(2.0 * math.pi)
 
 
 def theta_of(u: FloatArray) -> FloatArray:
     """The box point :math:`\\theta = 2\\Phi(u) - 1 = \\mathrm{erf}(u / \\sqrt2)` of ``u``."""
     return erf(u / _SQRT2)
+
+
+@njit(cache=True)
+def _log_pdf(u, mean, chol, log_norm):  # pragma: no cover - compiled
+    """``(N,)`` :math:`\\log N(u_i; m, L L^\\top)`: :math:`z = L^{-1}(u_i - m)` by forward
+    substitution, ``log_norm`` :math:`- \\frac12 |z|^2`, each point's sums in the order of
+    the coordinates (the loops over points are innermost, free to run in SIMD lanes)."""
+    n, k = u.shape
+    z = np.empty((k, n))
+    total = np.zeros(n)
+    for j in range(k):
+        row = z[j]
+        for i in range(n):
+            row[i] = u[i, j] - mean[j]
+        for m in range(j):
+            factor, previous = chol[j, m], z[m]
+            for i in range(n):
+                row[i] -= factor * previous[i]
+        pivot = chol[j, j]
+        for i in range(n):
+            row[i] /= pivot
+            total[i] += row[i] * row[i]
+    out = np.empty(n)
+    for i in range(n):
+        out[i] = log_norm - 0.5 * total[i]
+    return out
+
+
+@njit(cache=True)
+def _transform(normals, mean, chol):  # pragma: no cover - compiled
+    """``(N, K)`` points :math:`m + L x_i` of standard normal draws :math:`x_i`."""
+    n, k = normals.shape
+    out = np.empty((n, k))
+    for i in range(n):
+        for j in range(k):
+            value = 0.0
+            for m in range(j + 1):
+                value += chol[j, m] * normals[i, m]
+            out[i, j] = mean[j] + value
+    return out
 
 
 @dataclass(frozen=True, eq=False)
@@ -111,32 +159,180 @@ class _Gaussian:
     mean: FloatArray
     covariance: FloatArray
     _chol: FloatArray = field(init=False, repr=False)
-    _chol_inv: FloatArray = field(init=False, repr=False)
     _log_norm: float = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
-        chol = np.linalg.cholesky(self.covariance)
+        chol = cholesky(self.covariance)
         object.__setattr__(self, "_chol", chol)
-        object.__setattr__(self, "_chol_inv", np.linalg.inv(chol))
-        log_det = 2.0 * float(np.log(np.diag(chol)).sum())
+        log_det = 2.0 * math.fsum(math.log(d) for d in np.diag(chol))
         object.__setattr__(self, "_log_norm", -0.5 * (len(self.mean) * _LOG_2PI + log_det))
 
     def log_pdf(self, u: FloatArray) -> FloatArray:
-        z = (u - self.mean) @ self._chol_inv.T
-        return self._log_norm - 0.5 * np.einsum("nk,nk->n", z, z)
+        return _log_pdf(u, self.mean, self._chol, self._log_norm)
 
     def draw(self, rng: np.random.Generator, n: int) -> FloatArray:
-        return self.mean + rng.standard_normal((n, len(self.mean))) @ self._chol.T
+        return _transform(rng.standard_normal((n, len(self.mean))), self.mean, self._chol)
 
     def theta_mean(self) -> FloatArray:
         """:math:`E[\\theta]`: :math:`E[2\\Phi(u_k) - 1] = 2\\Phi(m_k / \\sqrt{1 + S_{kk}}) - 1`."""
         return erf(self.mean / np.sqrt(2.0 * (1.0 + np.diag(self.covariance))))
 
 
-def _ess(weights: FloatArray) -> float:
+@njit(cache=True)
+def _ess(weights):  # pragma: no cover - compiled
     """Kish's effective sample size :math:`(\\sum w)^2 / \\sum w^2`."""
-    total = weights.sum()
-    return float(total * total / np.dot(weights, weights)) if total > 0 else 0.0
+    total = 0.0
+    square = 0.0
+    for w in weights:
+        total += w
+        square += w * w
+    return total * total / square if total > 0.0 else 0.0
+
+
+@njit(cache=True)
+def _weights(log_lik, log_base, beta):  # pragma: no cover - compiled
+    """:math:`w_i = e^{l_i - \\max_j l_j}` of :math:`l_i = \\beta L_i +` ``log_base[i]``."""
+    n = len(log_lik)
+    log_w = np.empty(n)
+    top = -np.inf
+    for i in range(n):
+        log_w[i] = beta * log_lik[i] + log_base[i]
+        top = max(top, log_w[i])
+    for i in range(n):
+        log_w[i] = math.exp(log_w[i] - top)
+    return log_w
+
+
+@njit(cache=True)
+def _log_add_exp(a, b):  # pragma: no cover - compiled
+    """Elementwise :math:`\\log(e^a + e^b)`."""
+    out = np.empty(len(a))
+    for i in range(len(a)):
+        x, y = a[i], b[i]
+        if x == y:
+            out[i] = x + math.log(2.0)
+        elif x > y:
+            out[i] = x + math.log1p(math.exp(y - x))
+        else:
+            out[i] = y + math.log1p(math.exp(x - y))
+    return out
+
+
+@njit(cache=True)
+def _log_sum_exp(terms):  # pragma: no cover - compiled
+    """``(N,)`` :math:`\\log \\sum_c e^{t_{ci}}` of ``terms`` ``(C, N)``, ``C >= 1``."""
+    count, n = terms.shape
+    out = np.empty(n)
+    for i in range(n):
+        top = -np.inf
+        for c in range(count):
+            top = max(top, terms[c, i])
+        if top == -np.inf:
+            out[i] = top
+            continue
+        total = 0.0
+        for c in range(count):
+            total += math.exp(terms[c, i] - top)
+        out[i] = top + math.log(total)
+    return out
+
+
+@njit(cache=True)
+def _weighted_moments(weights, u):  # pragma: no cover - compiled
+    """Mean :math:`\\sum_i \\bar w_i u_i` and covariance
+    :math:`\\sum_i \\bar w_i (u_i - m)(u_i - m)^\\top`, :math:`\\bar w = w / \\sum w`."""
+    n, k = u.shape
+    total = 0.0
+    for i in range(n):
+        total += weights[i]
+    mean = np.zeros(k)
+    for i in range(n):
+        w = weights[i] / total
+        for j in range(k):
+            mean[j] += w * u[i, j]
+    covariance = np.zeros((k, k))
+    centered = np.empty(k)
+    for i in range(n):
+        w = weights[i] / total
+        for j in range(k):
+            centered[j] = u[i, j] - mean[j]
+        for j in range(k):
+            scaled = w * centered[j]
+            for m in range(j + 1):
+                covariance[j, m] += scaled * centered[m]
+    for j in range(k):
+        for m in range(j):
+            covariance[m, j] = covariance[j, m]
+    return mean, covariance
+
+
+@njit(cache=True)
+def _cross(a, b):  # pragma: no cover - compiled
+    """``(P, Q)`` :math:`a^\\top b` of ``a`` ``(N, P)`` and ``b`` ``(N, Q)``, summed over rows in
+    order."""
+    n, p = a.shape
+    q = b.shape[1]
+    out = np.zeros((p, q))
+    for i in range(n):
+        for j in range(p):
+            x = a[i, j]
+            for m in range(q):
+                out[j, m] += x * b[i, m]
+    return out
+
+
+@njit(cache=True)
+def _control_variate_fit(
+    weights, theta, design, gram, control_means
+):  # pragma: no cover - compiled
+    """The control-variate regression of the module docstring at weights ``weights``.
+
+    Returns Kish's ESS; :math:`\\bar\\theta - \\gamma^\\top(\\bar h - E_Q[h])` (unclipped);
+    :math:`\\sum_i \\rho_{ik}^2`, the residuals' sums of squares; and the weighted standard
+    deviation :math:`\\mathrm{sd}_k` of :math:`\\theta_k`. :math:`\\gamma` solves the normal
+    equations ``gram`` :math:`\\gamma = X^\\top z` by :func:`symmetric_lstsq`.
+    """
+    n, k = theta.shape
+    p = design.shape[1]
+    ess = _ess(weights)
+    total = 0.0
+    for i in range(n):
+        total += weights[i]
+    mean = np.zeros(k)
+    for i in range(n):
+        for j in range(k):
+            mean[j] += weights[i] * theta[i, j]
+    for j in range(k):
+        mean[j] /= total
+    scale = total / n
+    z = np.empty((n, k))
+    spread = np.zeros(k)
+    for i in range(n):
+        for j in range(k):
+            deviation = theta[i, j] - mean[j]
+            z[i, j] = (weights[i] / scale) * deviation
+            spread[j] += weights[i] * deviation * deviation
+    for j in range(k):
+        spread[j] = math.sqrt(spread[j] / total)
+    coef = symmetric_lstsq(gram, _cross(design, z))
+    squares = np.zeros(k)
+    for i in range(n):
+        for j in range(k):
+            fitted = 0.0
+            for m in range(p):
+                fitted += design[i, m] * coef[m, j]
+            residual = z[i, j] - fitted
+            squares[j] += residual * residual
+    shift = np.zeros(p)
+    for i in range(n):
+        for m in range(p):
+            shift[m] += design[i, m]
+    corrected = mean.copy()
+    for m in range(1, p):
+        difference = shift[m] / n - control_means[m]
+        for j in range(k):
+            corrected[j] -= difference * coef[m, j]
+    return ess, corrected, squares, spread
 
 
 @dataclass(frozen=True)
@@ -221,7 +417,7 @@ class _Sampler:
         """Add a fitted component that ``draws`` points of the next round come from."""
         self.components.append(component)
         self.counts.append(0)
-        self.log_fitted = np.logaddexp(self.log_fitted, np.log(draws) + component.log_pdf(self.u))
+        self.log_fitted = _log_add_exp(self.log_fitted, math.log(draws) + component.log_pdf(self.u))
         return len(self.components) - 1
 
     def _next_round_size(self) -> int:
@@ -246,10 +442,10 @@ class _Sampler:
         new, theta = self.pending
         self.pending = None
         fitted = [
-            np.log(n) + component.log_pdf(new)
+            math.log(n) + component.log_pdf(new)
             for component, n in zip(self.components[1:], self.counts[1:], strict=True)
         ]
-        log_fitted = logsumexp(np.stack(fitted), axis=0) if fitted else np.full(len(new), -np.inf)
+        log_fitted = _log_sum_exp(np.stack(fitted)) if fitted else np.full(len(new), -np.inf)
         self.u = np.concatenate([self.u, new])
         self.theta = np.concatenate([self.theta, theta])
         self.log_lik = np.concatenate([self.log_lik, log_lik])
@@ -265,14 +461,12 @@ class _Sampler:
 
     def _log_mixture(self) -> FloatArray:
         """:math:`\\log Q` at every point, :math:`Q = \\sum_c (n_c / N) q_c`."""
-        return np.logaddexp(np.log(self.counts[0]) + self.log_prior, self.log_fitted) - np.log(
-            len(self.u)
-        )
+        prior = math.log(self.counts[0]) + self.log_prior
+        return _log_add_exp(prior, self.log_fitted) - math.log(len(self.u))
 
     def _weights(self, beta: float) -> FloatArray:
         """Weights for the tempered target :math:`\\pi_\\beta`, up to a common factor."""
-        log_w = beta * self.log_lik + self.log_prior - self.log_mixture
-        return np.exp(log_w - log_w.max())
+        return _weights(self.log_lik, self.log_prior - self.log_mixture, beta)
 
     def _fit(self) -> _Gaussian:
         """The next proposal: tempered weighted moments, covariance inflated."""
@@ -288,11 +482,7 @@ class _Sampler:
                 else:
                     high = middle
             self.beta = low
-        weights = self._weights(self.beta)
-        weights /= weights.sum()
-        mean = weights @ self.u
-        centered = self.u - mean
-        covariance = (weights[:, None] * centered).T @ centered
+        mean, covariance = _weighted_moments(self._weights(self.beta), self.u)
         covariance = options.inflation * covariance + 1e-6 * np.eye(self.k)
         return _Gaussian(mean, covariance)
 
@@ -302,7 +492,7 @@ class _Sampler:
         """Append the new points' regressors ``[1, u, theta(u)]`` and update their Gram matrix."""
         rows = np.concatenate([np.ones((len(new), 1)), new, theta], axis=1)
         self.design = np.concatenate([self.design, rows])
-        self.gram = self.gram + rows.T @ rows
+        self.gram = self.gram + _cross(rows, rows)
 
     def _control_means(self) -> FloatArray:
         """Exact :math:`E_Q[h]` of the regressors under the mixture of proposals."""
@@ -319,22 +509,16 @@ class _Sampler:
         """The control-variate estimate and its delta-method standard error."""
         options = self.options
         n_total = len(self.u)
-        weights = self._weights(1.0)
-        ess = _ess(weights)
-        theta = self.theta
-        mean = (weights @ theta) / weights.sum()
-        z = (weights / weights.mean())[:, None] * (theta - mean)
-        coef = np.linalg.lstsq(self.gram, self.design.T @ z, rcond=None)[0]
-        residual = z - self.design @ coef
-        dof = max(n_total - len(coef), 1)
-        se = np.sqrt(np.einsum("nk,nk->k", residual, residual) / dof / n_total)
+        ess, corrected, squares, spread = _control_variate_fit(
+            self._weights(1.0), self.theta, self.design, self.gram, self._control_means()
+        )
+        dof = max(n_total - self.design.shape[1], 1)
+        se = np.sqrt(squares / dof / n_total)
         if ess < options.min_ess:
             # Too few effective points for the delta method (with one dominant weight it
             # reports zero): fall back to Kish's sd / sqrt(ESS), and do not converge.
-            spread = np.sqrt(weights @ (theta - mean) ** 2 / weights.sum())
-            se = np.maximum(se, spread / np.sqrt(max(ess, 1.0)))
-        shift = self.design.mean(axis=0) - self._control_means()
-        theta_hat = np.clip(mean - shift[1:] @ coef[1:], -1.0, 1.0)
+            se = np.maximum(se, spread / math.sqrt(max(ess, 1.0)))
+        theta_hat = np.clip(corrected, -1.0, 1.0)
         converged = bool(ess >= options.min_ess and np.max(se) <= options.target_se)
         return _Result(theta_hat, se, ess, n_total, converged)
 
