@@ -20,13 +20,11 @@ The feature counts of a path :math:`\\tau = (s_0, \\dots, s_T)` are
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from functools import cached_property
 
 import numpy as np
-from numba import njit
 from numpy.typing import ArrayLike, NDArray
 
 from cirl_study.record import TrialSpec
@@ -108,8 +106,8 @@ class Gridworld:
         return moves
 
 
-def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[np.float64]:
-    """Radial-basis features of every cell.
+def rbf_exponents(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[np.float64]:
+    """The exponents :math:`-\\|s - c_k\\|^2 / (2 \\sigma^2)` of :func:`rbf_features`.
 
     Args:
         grid: the gridworld.
@@ -117,8 +115,7 @@ def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[n
         sigma: the common width ``sigma > 0``.
 
     Returns:
-        ``(S, K)`` (or ``(B, S, K)``) array with ``phi_k(s)``, each the C library's ``exp`` of
-        its exponent, bitwise the same whichever SIMD variants of its loops numpy dispatches to.
+        ``(S, K)`` (or ``(B, S, K)``) array.
     """
     if sigma <= 0:
         raise ValueError(f"sigma must be positive, got {sigma}")
@@ -128,17 +125,22 @@ def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[n
     # coordinate axis, to the bit, without numpy's slow reduction over an axis of length 2.
     dx = cells[:, 0, None] - centers[..., None, :, 0]
     dy = cells[:, 1, None] - centers[..., None, :, 1]
-    return _exp(-(dx * dx + dy * dy) / (2.0 * sigma**2))
+    return -(dx * dx + dy * dy) / (2.0 * sigma**2)
 
 
-@njit(cache=True)
-def _exp(exponents):  # pragma: no cover - compiled
-    """Elementwise ``math.exp`` of a C-contiguous array."""
-    out = np.empty_like(exponents)
-    flat, values = out.reshape(-1), exponents.reshape(-1)
-    for i in range(values.size):
-        flat[i] = math.exp(values[i])
-    return out
+def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[np.float64]:
+    """Radial-basis features of every cell, :math:`\\phi_k(s) = \\exp(-\\|s - c_k\\|^2 /
+    (2 \\sigma^2))` (:func:`rbf_exponents`), each the C library's ``exp``
+    (:func:`cirl_study.core.elementwise.exp`): bitwise the same on every CPU, whichever SIMD
+    variants of its loops numpy would dispatch to.
+
+    Returns:
+        ``(S, K)`` (or ``(B, S, K)``) array with ``phi_k(s)``.
+    """
+    # The compiler loads with the first trial played, not with the log reader.
+    from cirl_study.core.elementwise import exp
+
+    return exp(rbf_exponents(grid, centers, sigma))
 
 
 def gridworld(spec: TrialSpec) -> Gridworld:
