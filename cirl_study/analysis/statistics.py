@@ -127,10 +127,17 @@ def pairwise_differences(
                 }
             )
     adjusted = holm_log10(np.array([row["log10_p"] for row in rows]))
+    # An adjusted p is never below its p: at a multiplier of 1 the round trip through log10
+    # can lose the last bit.
     return [
-        PairedComparison(**row, p_holm=p_from_log10(q), log10_p_holm=float(q))
+        PairedComparison(**row, p_holm=_at_least(p_from_log10(q), row["p"]), log10_p_holm=float(q))
         for row, q in zip(rows, adjusted, strict=True)
     ]
+
+
+def _at_least(adjusted: float, p: float) -> float:
+    """``adjusted``, or ``p`` where rounding left ``adjusted`` just below it."""
+    return p if adjusted < p else adjusted
 
 
 def holm_log10(log10_p: np.ndarray) -> np.ndarray:
