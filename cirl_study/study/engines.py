@@ -14,15 +14,18 @@ import contextlib
 import logging
 import multiprocessing
 import os
+import pickle
 import signal
 import threading
 import time
 from collections.abc import Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from multiprocessing.process import BaseProcess
 from types import TracebackType
 from typing import Any, Self
 
+from cirl_study import interrupts
 from cirl_study.core.trial import play_trials
 from cirl_study.errors import UserError
 from cirl_study.record import TrialRecord, TrialSpec
@@ -92,61 +95,159 @@ def default_workers() -> int:
 def _exit_with_parent(parent: int) -> None:
     """Poll until the parent process is gone, then end this worker at once.
 
-    A pool worker whose parent was killed (SIGKILL leaves no chance to clean up) would
-    otherwise wait for work forever.
+    A worker whose parent was killed (SIGKILL leaves no chance to clean up) would otherwise
+    wait for work forever.
     """
     while os.getppid() == parent:
         time.sleep(0.5)
     os._exit(1)
 
 
-def _init_local_worker(parent: int) -> None:
-    # Ctrl-C is the parent's to handle: it stops handing out batches and shuts the pool down.
-    signal.signal(signal.SIGINT, signal.SIG_IGN)
+class WorkerLost(Exception):
+    """The workers the run needs are gone: a local worker was killed (by the OOM killer, say)
+    or crashed, a Dask cluster has no workers left; the message says which, in a few words
+    (``worker died (signal 9)``)."""
+
+
+def _serve(connection: Connection, parent: int, others: Sequence[Connection]) -> None:
+    """A local worker: play each batch received on ``connection`` and send back the
+    :class:`PlayedBatch`, or ``(exception,)`` if playing it raised; end when the parent
+    closes its end, or ends.
+
+    ``others`` are the parent's ends of this worker's pipe and of those of the workers forked
+    before it, closed here so that each worker's pipe ends when the parent closes its end.
+    """
+    # The stopping signals are the parent's to handle: it stops the run and ends its workers.
+    interrupts.leave_to_parent()
+    for other in others:
+        other.close()
     threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
+    while True:
+        try:
+            batch = connection.recv()
+        except EOFError:
+            return
+        try:
+            played: PlayedBatch | tuple[BaseException] = play_batch(batch)
+        except Exception as error:
+            played = (_portable(error),)
+        connection.send(played)
 
 
-def _warm_up() -> int:
-    return os.getpid()
+def _portable(error: Exception) -> Exception:
+    """``error`` if it pickles, else a :class:`RuntimeError` of its text."""
+    try:
+        pickle.dumps(error)
+    except Exception:
+        return RuntimeError(f"{type(error).__name__}: {error}")
+    return error
+
+
+@dataclass
+class _Worker:
+    """A local worker process, the parent's end of its pipe, and the batch it plays."""
+
+    process: BaseProcess
+    connection: Connection
+    batch: int | None = None
+    """Index of the batch the worker plays, if any."""
+
+    def died(self) -> WorkerLost:
+        """The error of this worker's end, once it has ended."""
+        self.process.join(timeout=1.0)
+        code = self.process.exitcode
+        if code is not None and code < 0:
+            return WorkerLost(f"worker died (signal {-code})")
+        return WorkerLost(f"worker died (exit code {code})")
 
 
 class LocalEngine(Engine):
-    """A pool of ``workers`` processes on this machine; one worker plays in this process."""
+    """``workers`` processes on this machine, each playing one batch at a time; one worker
+    plays in this process.
+
+    The parent waits on each worker's pipe and on its process at once
+    (:func:`multiprocessing.connection.wait`), so a worker that ends while the run needs it
+    (``kill -9``, the OOM killer) is noticed as it ends and raises :class:`WorkerLost`, never
+    a wait without end. Leaving the engine by an exception kills the workers rather than let
+    them finish batches that would not be logged.
+    """
 
     def __init__(self, workers: int) -> None:
         if workers < 1:
             raise UserError(f"workers must be a positive integer, got {workers}")
         self.workers = workers
         self.description = "in this process" if workers == 1 else f"local pool of {workers}"
-        self._pool: ProcessPoolExecutor | None = None
+        self._pool: list[_Worker] = []
 
     def start(self) -> None:
-        if self.workers > 1:
-            # fork starts workers fast and with every module already imported; the pool is
-            # started (and its workers forked) here, before the caller starts any threads.
-            methods = multiprocessing.get_all_start_methods()
-            context = multiprocessing.get_context("fork" if "fork" in methods else None)
-            self._pool = ProcessPoolExecutor(
-                self.workers,
-                mp_context=context,
-                initializer=_init_local_worker,
-                initargs=(os.getpid(),),
+        if self.workers == 1:
+            return
+        # fork starts workers fast and with every module already imported; they are forked
+        # here, before the caller starts any threads.
+        methods = multiprocessing.get_all_start_methods()
+        context = multiprocessing.get_context("fork" if "fork" in methods else None)
+        for _ in range(self.workers):
+            ours, theirs = context.Pipe()
+            others = [ours, *(worker.connection for worker in self._pool)]
+            process = context.Process(
+                target=_serve, args=(theirs, os.getpid(), others), daemon=True
             )
-            self._pool.submit(_warm_up).result()
+            process.start()
+            theirs.close()
+            self._pool.append(_Worker(process, ours))
 
     def stop(self, failing: bool) -> None:
-        if self._pool is not None:
-            self._pool.shutdown(wait=True, cancel_futures=True)
-            self._pool = None
+        pool, self._pool = self._pool, []
+        for worker in pool:
+            if failing:
+                worker.process.kill()
+            worker.connection.close()  # a worker waiting for a batch then ends
+        for worker in pool:
+            worker.process.join()
 
     def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, PlayedBatch]]:
-        if self._pool is None:
+        if not self._pool:
             for index, batch in enumerate(batches):
                 yield index, play_batch(batch)
             return
-        futures = {self._pool.submit(play_batch, batch): i for i, batch in enumerate(batches)}
-        for future in as_completed(futures):
-            yield futures[future], future.result()
+        waiting = iter(range(len(batches)))
+        for worker in self._pool:
+            self._hand(worker, waiting, batches)
+        while any(worker.batch is not None for worker in self._pool):
+            ready = set(
+                wait(
+                    [w.connection for w in self._pool if w.batch is not None]
+                    + [w.process.sentinel for w in self._pool]
+                )
+            )
+            for worker in self._pool:
+                if worker.batch is not None and worker.connection in ready:
+                    index, played = worker.batch, self._receive(worker)
+                    self._hand(worker, waiting, batches)
+                    yield index, played
+                elif worker.process.sentinel in ready:
+                    raise worker.died()
+
+    @staticmethod
+    def _hand(worker: _Worker, waiting: Iterator[int], batches: Sequence[Batch]) -> None:
+        """Send ``worker`` the next batch waiting, if any."""
+        worker.batch = next(waiting, None)
+        if worker.batch is not None:
+            try:
+                worker.connection.send(batches[worker.batch])
+            except OSError:
+                raise worker.died() from None
+
+    @staticmethod
+    def _receive(worker: _Worker) -> PlayedBatch:
+        """What ``worker`` sent back for its batch; an exception it raised is raised here."""
+        try:
+            played = worker.connection.recv()
+        except (EOFError, OSError):
+            raise worker.died() from None
+        if isinstance(played, tuple):
+            raise played[0]
+        return played
 
 
 @contextlib.contextmanager
