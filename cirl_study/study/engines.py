@@ -12,6 +12,7 @@ from __future__ import annotations
 import abc
 import contextlib
 import logging
+import math
 import multiprocessing
 import os
 import pickle
@@ -268,15 +269,25 @@ def _children_ignore_sigint() -> Iterator[None]:
         signal.signal(signal.SIGINT, previous)
 
 
+DEFAULT_NO_WORKERS_TIMEOUT = 60.0
+"""Seconds a Dask cluster may be without workers before a run on it stops."""
+
+POLL_SECONDS = 1.0
+"""How often a run on Dask that waits for batches asks whether the cluster has workers."""
+
+
 class DaskEngine(Engine):
     """Dask distributed: the scheduler at ``scheduler``, or a new local cluster.
 
     Without a scheduler address a :class:`distributed.LocalCluster` of ``workers``
     single-threaded workers is started (in worker processes, or as threads of this process
     when ``processes`` is false) and closed afterwards; a scheduler that does not answer
-    within ``connect_timeout`` seconds is an error. Dask is an optional dependency
-    (``pip install 'cirl-study[dask]'``); workers of a remote cluster need cirl-study
-    installed in the same version.
+    within ``connect_timeout`` seconds is an error. A cluster without a worker for
+    ``no_workers_timeout`` seconds on end, from the start or while batches wait (its workers
+    died, or it never had any), raises :class:`WorkerLost`, and so does a batch whose
+    workers die each time it is tried (:class:`distributed.KilledWorker`). Dask is an
+    optional dependency (``pip install 'cirl-study[dask]'``); workers of a remote cluster
+    need cirl-study installed in the same version.
     """
 
     def __init__(
@@ -285,13 +296,17 @@ class DaskEngine(Engine):
         scheduler: str | None = None,
         processes: bool = True,
         connect_timeout: float = 10.0,
+        no_workers_timeout: float = DEFAULT_NO_WORKERS_TIMEOUT,
     ):
         if workers < 1:
             raise UserError(f"workers must be a positive integer, got {workers}")
+        if not 0 < no_workers_timeout < math.inf:
+            raise UserError(f"the no-workers timeout must be positive, got {no_workers_timeout}")
         self.workers = workers
         self.scheduler = scheduler
         self.processes = processes
         self.connect_timeout = connect_timeout
+        self.no_workers_timeout = no_workers_timeout
         self.description = (
             f"Dask scheduler {scheduler}" if scheduler else f"Dask local cluster of {workers}"
         )
@@ -324,6 +339,10 @@ class DaskEngine(Engine):
                 raise UserError(
                     f"cannot connect to the Dask scheduler at {self.scheduler}: {message}"
                 ) from None
+            try:
+                self._client.wait_for_workers(1, timeout=self.no_workers_timeout)
+            except TimeoutError:
+                raise self._no_workers() from None
             self.workers = max(1, sum(self._client.nthreads().values()))
 
     def stop(self, failing: bool) -> None:
@@ -337,22 +356,54 @@ class DaskEngine(Engine):
                 cluster.close()
 
     def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, PlayedBatch]]:
-        from dask.distributed import as_completed as dask_as_completed
+        from dask.distributed import KilledWorker, wait
 
         futures: dict[Any, int] = {
             self._client.submit(play_batch, batch, pure=False): i for i, batch in enumerate(batches)
         }
-        for future in dask_as_completed(futures):
-            yield futures[future], future.result()
+        pending = set(futures)
+        without_workers: float | None = None  # since when the cluster has had no workers
+        while pending:
+            try:
+                done, pending = wait(pending, timeout=POLL_SECONDS, return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                if self._client.nthreads():
+                    without_workers = None
+                elif without_workers is None:
+                    without_workers = time.monotonic()
+                elif time.monotonic() - without_workers >= self.no_workers_timeout:
+                    raise self._no_workers() from None
+                continue
+            for future in done:
+                try:
+                    played = future.result()
+                except KilledWorker:
+                    lost = "Dask workers died playing a batch, each time it was tried"
+                    raise WorkerLost(lost) from None
+                yield futures[future], played
+
+    def _no_workers(self) -> WorkerLost:
+        cluster = f"the Dask scheduler at {self.scheduler}" if self.scheduler else "Dask"
+        return WorkerLost(f"{cluster} has had no workers for {self.no_workers_timeout:g} s")
 
 
-def make_engine(name: str, workers: int | None, scheduler: str | None) -> Engine:
-    """The engine ``name`` (see :data:`ENGINES`) with ``workers`` workers (default: all cores)."""
+def make_engine(
+    name: str,
+    workers: int | None,
+    scheduler: str | None,
+    no_workers_timeout: float | None = None,
+) -> Engine:
+    """The engine ``name`` (see :data:`ENGINES`) with ``workers`` workers (default: all cores);
+    ``scheduler`` and ``no_workers_timeout`` (default :data:`DEFAULT_NO_WORKERS_TIMEOUT`) are
+    the Dask engine's."""
     count = default_workers() if workers is None else workers
     if name == "local":
         if scheduler is not None:
             raise UserError("a scheduler address is for the dask engine, not the local one")
+        if no_workers_timeout is not None:
+            raise UserError("a no-workers timeout is for the dask engine, not the local one")
         return LocalEngine(count)
     if name == "dask":
-        return DaskEngine(count, scheduler)
+        timeout = DEFAULT_NO_WORKERS_TIMEOUT if no_workers_timeout is None else no_workers_timeout
+        return DaskEngine(count, scheduler, no_workers_timeout=timeout)
     raise UserError(f"the engine must be one of {', '.join(ENGINES)}, got {name!r}")

@@ -21,9 +21,11 @@ planned with it and played.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import itertools
 import math
+import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -37,7 +39,7 @@ from cirl_study.errors import RunStopped, UserError
 from cirl_study.files import non_regular, remove_file
 from cirl_study.interrupts import Interrupted
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
-from cirl_study.logs.lock import writer_lock
+from cirl_study.logs.lock import LOCK_NAME, writer_lock
 from cirl_study.logs.provenance import RunIdentity, collect_provenance
 from cirl_study.logs.reader import LoggedRun, logged_run
 from cirl_study.logs.writer import TrialLogWriter
@@ -255,9 +257,13 @@ def run_pipeline(
     """
     hooks = progress or ProgressHooks()
     began = time.perf_counter()
-    _make_directory(out_dir)
+    created = _make_directory(out_dir)
     with writer_lock(out_dir):
-        return _run_locked(pipeline, out_dir, engine, hooks, began)
+        try:
+            return _run_locked(pipeline, out_dir, engine, hooks, began)
+        except BaseException:
+            _remove_unused(out_dir, created)
+            raise
 
 
 def _refuse_unplanned(out_dir: Path, logged: set[str], planned: Sequence[TrialSpec]) -> None:
@@ -271,14 +277,30 @@ def _refuse_unplanned(out_dir: Path, logged: set[str], planned: Sequence[TrialSp
         )
 
 
-def _make_directory(out_dir: Path) -> None:
-    """Create the run directory, or say in one line why it cannot be."""
+def _make_directory(out_dir: Path) -> list[Path]:
+    """Create the run directory, or say in one line why it cannot be; the directories
+    created, ``out_dir`` first, then each parent created for it."""
     if out_dir.exists() and not out_dir.is_dir():
         raise UserError(f"{out_dir}: exists and is not a directory")
+    missing = list(itertools.takewhile(lambda path: not path.exists(), [out_dir, *out_dir.parents]))
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise UserError(f"{out_dir}: cannot create the run directory: {error.strerror}") from None
+    return missing
+
+
+def _remove_unused(out_dir: Path, created: Sequence[Path]) -> None:
+    """Remove the directories ``created`` for a run that failed before it logged anything
+    (its engine could not start, say), so that it leaves nothing behind: ``out_dir`` only if
+    it holds the lock file alone, each parent only if it is empty then."""
+    if not created:
+        return
+    with contextlib.suppress(OSError):
+        if os.listdir(out_dir) == [LOCK_NAME]:
+            (out_dir / LOCK_NAME).unlink()
+        for directory in created:
+            directory.rmdir()
 
 
 def _kept(identity: RunIdentity, out_dir: Path, done: set[str]) -> str:
