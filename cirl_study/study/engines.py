@@ -275,6 +275,9 @@ DEFAULT_NO_WORKERS_TIMEOUT = 60.0
 POLL_SECONDS = 1.0
 """How often a run on Dask that waits for batches asks whether the cluster has workers."""
 
+READY_POLL_SECONDS = 0.02
+"""How often a run on Dask looks for a finished batch."""
+
 
 class DaskEngine(Engine):
     """Dask distributed: the scheduler at ``scheduler``, or a new local cluster.
@@ -312,6 +315,9 @@ class DaskEngine(Engine):
         )
         self._client: Any = None
         self._cluster: Any = None
+        self._without_workers: float | None = None
+        """Since when the cluster has had no workers, while it has none."""
+        self._quiet = contextlib.ExitStack()
 
     def start(self) -> None:
         try:
@@ -332,6 +338,11 @@ class DaskEngine(Engine):
                 )
             self._client = Client(self._cluster)
         else:
+            from distributed.utils import silence_logging_cmgr
+
+            # The client's own account of workers lost (a warning each) is the run's to give,
+            # in one line, as a local cluster's is (silence_logs).
+            self._quiet.enter_context(silence_logging_cmgr(logging.ERROR))
             try:
                 self._client = Client(self.scheduler, timeout=self.connect_timeout)
             except (OSError, TimeoutError, ValueError) as error:
@@ -354,33 +365,42 @@ class DaskEngine(Engine):
                 client.close()
             if cluster is not None:
                 cluster.close()
+        self._quiet.close()
 
     def play(self, batches: Sequence[Batch]) -> Iterator[tuple[int, PlayedBatch]]:
-        from dask.distributed import KilledWorker, wait
+        from dask.distributed import KilledWorker, as_completed
 
         futures: dict[Any, int] = {
             self._client.submit(play_batch, batch, pure=False): i for i, batch in enumerate(batches)
         }
-        pending = set(futures)
-        without_workers: float | None = None  # since when the cluster has had no workers
-        while pending:
-            try:
-                done, pending = wait(pending, timeout=POLL_SECONDS, return_when="FIRST_COMPLETED")
-            except TimeoutError:
-                if self._client.nthreads():
-                    without_workers = None
-                elif without_workers is None:
-                    without_workers = time.monotonic()
-                elif time.monotonic() - without_workers >= self.no_workers_timeout:
-                    raise self._no_workers() from None
+        # Results are gathered as batches finish (a batch whose worker dies before its result
+        # is gathered is played again); this thread only polls, so that it also watches the
+        # cluster's workers.
+        finished = as_completed(futures, with_results=True)
+        self._without_workers = None
+        checked = time.monotonic()
+        while not finished.is_empty():
+            if not finished.has_ready():
+                time.sleep(READY_POLL_SECONDS)
+                if time.monotonic() - checked >= POLL_SECONDS:
+                    self._check_workers()
+                    checked = time.monotonic()
                 continue
-            for future in done:
-                try:
-                    played = future.result()
-                except KilledWorker:
-                    lost = "Dask workers died playing a batch, each time it was tried"
-                    raise WorkerLost(lost) from None
-                yield futures[future], played
+            try:
+                future, played = next(finished)
+            except KilledWorker:
+                lost = "Dask workers died playing a batch, each time it was tried"
+                raise WorkerLost(lost) from None
+            yield futures[future], played
+
+    def _check_workers(self) -> None:
+        """Raise :class:`WorkerLost` once the cluster has had no workers for the timeout."""
+        if self._client.nthreads():
+            self._without_workers = None
+        elif self._without_workers is None:
+            self._without_workers = time.monotonic()
+        elif time.monotonic() - self._without_workers >= self.no_workers_timeout:
+            raise self._no_workers()
 
     def _no_workers(self) -> WorkerLost:
         cluster = f"the Dask scheduler at {self.scheduler}" if self.scheduler else "Dask"
