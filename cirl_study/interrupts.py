@@ -25,7 +25,8 @@ import multiprocessing
 import os
 import signal
 import sys
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
 from types import FrameType
 
 STOPPING: tuple[signal.Signals, ...] = tuple(
@@ -72,12 +73,37 @@ _reported = False
 
 def install() -> None:
     """Handle :data:`STOPPING` in this process as the module's docstring says (main thread
-    only)."""
+    only).
+
+    Python ignores an exception raised where nothing can catch it (an at-fork hook, a
+    finalizer), after printing it: :class:`Interrupted` raised there is not printed, and its
+    signal is sent again a moment later (:func:`sys.unraisablehook`), so that no signal is
+    lost.
+    """
     global _owner
     _owner = os.getpid()
     for signum in STOPPING:
         if signal.getsignal(signum) is not signal.SIG_IGN:
             signal.signal(signum, _handle)
+    sys.unraisablehook = _raise_again(sys.unraisablehook)
+
+
+def _raise_again(
+    hook: Callable[[sys.UnraisableHookArgs], object],
+) -> Callable[[sys.UnraisableHookArgs], object]:
+    """``hook``, but for an :class:`Interrupted` that Python ignored: its signal again."""
+
+    def unraisable(unraisable: sys.UnraisableHookArgs) -> object:
+        global _first
+        interrupt = unraisable.exc_value
+        if not isinstance(interrupt, Interrupted) or os.getpid() != _owner:
+            return hook(unraisable)
+        _first = None
+        # From another thread, a moment later: sent from here, it would be handled here.
+        threading.Timer(0.01, os.kill, (os.getpid(), interrupt.signum)).start()
+        return None
+
+    return unraisable
 
 
 def leave_to_parent() -> None:
