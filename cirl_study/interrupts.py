@@ -114,10 +114,12 @@ def leave_to_parent() -> None:
 
 @contextlib.contextmanager
 def deferred() -> Iterator[None]:
-    """Hold back :data:`STOPPING` until the block ends, when one that came meanwhile acts.
+    """Hold back :data:`STOPPING` from this thread until the block ends, when one that came
+    meanwhile acts.
 
-    For a step that must be whole or not at all and is short: a batch's log file renamed into
-    place and its trials counted as kept. (Main thread only.)
+    For a short step that must be whole or not at all: a batch's log file renamed into place
+    and its trials counted as kept; workers forked and recorded as the pool's, so that each
+    one is stopped (a process forked here starts with them held back too, and ignores them).
     """
     signal.pthread_sigmask(signal.SIG_BLOCK, STOPPING)
     try:

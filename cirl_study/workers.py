@@ -79,11 +79,15 @@ def started(work: Callable[[Item], Result], items: Sequence[Item]) -> Iterator[I
         # out of the garbage collector's generations: a collection in a worker then leaves
         # the pages it shares with this process alone instead of copying them (a third of
         # the page faults of a report's figure workers).
-        gc.freeze()
-        try:
-            results = pool.map(work, items)
-        finally:
-            gc.unfreeze()
+        # A stopping signal waits until the pool holds every worker it forked: one forked but
+        # not yet the pool's would never be told to end, and the interpreter's exit waits for
+        # it.
+        with interrupts.deferred():
+            gc.freeze()
+            try:
+                results = pool.map(work, items)
+            finally:
+                gc.unfreeze()
         yield results
     finally:  # after a failure, or when the caller stops early: start nothing more
         pool.shutdown(wait=True, cancel_futures=True)

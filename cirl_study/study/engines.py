@@ -187,15 +187,17 @@ class LocalEngine(Engine):
         # here, before the caller starts any threads.
         methods = multiprocessing.get_all_start_methods()
         context = multiprocessing.get_context("fork" if "fork" in methods else None)
-        for _ in range(self.workers):
-            ours, theirs = context.Pipe()
-            others = [ours, *(worker.connection for worker in self._pool)]
-            process = context.Process(
-                target=_serve, args=(theirs, os.getpid(), others), daemon=True
-            )
-            process.start()
-            theirs.close()
-            self._pool.append(_Worker(process, ours))
+        # A stopping signal waits until every worker forked is in the pool, to be stopped.
+        with interrupts.deferred():
+            for _ in range(self.workers):
+                ours, theirs = context.Pipe()
+                others = [ours, *(worker.connection for worker in self._pool)]
+                process = context.Process(
+                    target=_serve, args=(theirs, os.getpid(), others), daemon=True
+                )
+                process.start()
+                theirs.close()
+                self._pool.append(_Worker(process, ours))
 
     def stop(self, failing: bool) -> None:
         pool, self._pool = self._pool, []
