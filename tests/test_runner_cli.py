@@ -12,7 +12,7 @@ from typer.testing import CliRunner
 from cirl_study.cli import app
 from cirl_study.errors import UserError
 from cirl_study.logs.lock import LOCK_NAME
-from cirl_study.study.engines import DaskEngine
+from cirl_study.study.engines import DEFAULT_NO_WORKERS_TIMEOUT, DaskEngine
 from cirl_study.study.runner import run_pipeline
 from cirl_study.study.spec import load_pipeline
 
@@ -22,8 +22,10 @@ SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 def test_help_explains_every_option() -> None:
     result = CliRunner().invoke(app, ["run", "--help"], env={"COLUMNS": "120"})
     assert result.exit_code == 0
-    for option in ("PIPELINE", "--out", "--workers", "--engine", "--scheduler", "paper"):
+    options = ("PIPELINE", "--out", "--workers", "--engine", "--scheduler", "paper")
+    for option in (*options, "--no-workers-timeout"):
         assert option in result.stdout
+    assert f"[default: ({DEFAULT_NO_WORKERS_TIMEOUT:g})]" in " ".join(result.stdout.split())
 
 
 @pytest.mark.parametrize(

@@ -19,6 +19,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 from test_runner_engines import trial_payloads
@@ -70,15 +71,16 @@ def command(*arguments: str) -> list[str]:
     return [sys.executable, "-m", "cirl_study", *arguments]
 
 
+def popen(argv: list[str], **options: Any) -> subprocess.Popen[str]:
+    """``argv`` in a process group of its own, as a terminal's foreground job is, its output
+    read here (unless ``options`` say otherwise)."""
+    defaults = {"stdout": subprocess.PIPE, "stderr": subprocess.PIPE, "text": True}
+    return subprocess.Popen(argv, **{**defaults, **options}, start_new_session=True)
+
+
 def start(*arguments: str) -> subprocess.Popen[str]:
-    """The command in a process group of its own, as a terminal's foreground job is."""
-    return subprocess.Popen(
-        command(*arguments),
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
+    """``python -m cirl_study`` with ``arguments`` (:func:`popen`)."""
+    return popen(command(*arguments))
 
 
 def wait_for(condition: Callable[[], object], process: subprocess.Popen[str]) -> None:
@@ -235,13 +237,7 @@ except KeyboardInterrupt:
 def test_a_second_ctrl_c_exits_at_once() -> None:
     """While the first Ctrl-C is still being handled (here: for a minute), a second one
     ends the process at once, in one line, with the first's exit code."""
-    process = subprocess.Popen(
-        [sys.executable, "-c", _STOPPING_SLOWLY],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
+    process = popen([sys.executable, "-c", _STOPPING_SLOWLY])
     with group_ended(process):
         assert process.stdout is not None and process.stdout.readline() == "started\n"
         os.killpg(process.pid, signal.SIGINT)
@@ -283,13 +279,7 @@ with LocalCluster(
 def scheduler() -> Iterator[str]:
     """The address of a Dask scheduler without workers, for the test's duration."""
     pytest.importorskip("distributed")
-    process = subprocess.Popen(
-        [sys.executable, "-c", _SCHEDULER],
-        stdin=subprocess.PIPE,
-        stdout=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
+    process = popen([sys.executable, "-c", _SCHEDULER], stdin=subprocess.PIPE, stderr=None)
     with group_ended(process):
         assert process.stdout is not None
         yield process.stdout.readline().strip()
@@ -316,14 +306,13 @@ def test_a_dask_run_whose_workers_all_die_stops_and_resumes_exactly(
 ) -> None:
     from distributed import Client
 
-    worker = subprocess.Popen(
+    worker = popen(
         [sys.executable, "-m", "distributed.cli.dask_worker", scheduler, "--no-nanny"],
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
-        start_new_session=True,
     )
     out = tmp_path / "run"
-    with group_ended(worker):  # type: ignore[arg-type]
+    with group_ended(worker):
         with Client(scheduler, timeout=SECONDS) as client:
             client.wait_for_workers(1, timeout=SECONDS)
         process = start(
@@ -361,13 +350,7 @@ except KeyboardInterrupt:
 def test_a_signal_where_python_ignores_exceptions_is_not_lost() -> None:
     """Ctrl-C in a finalizer (or an at-fork hook, where ``analyze`` forks its workers), where
     Python would print the exception and go on, stops the command all the same, silently."""
-    process = subprocess.Popen(
-        [sys.executable, "-c", _INTERRUPTED_IN_A_FINALIZER],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.PIPE,
-        text=True,
-        start_new_session=True,
-    )
+    process = popen([sys.executable, "-c", _INTERRUPTED_IN_A_FINALIZER])
     with group_ended(process):
         assert process.stdout is not None and process.stdout.readline() == "finalizing\n"
         os.killpg(process.pid, signal.SIGINT)
