@@ -276,23 +276,45 @@ with LocalCluster(
 
 
 @pytest.fixture
-def scheduler() -> Iterator[str]:
-    """The address of a Dask scheduler without workers, for the test's duration."""
+def cluster() -> Iterator[tuple[str, subprocess.Popen[str]]]:
+    """A Dask scheduler without workers, for the test's duration: its address, its process."""
     pytest.importorskip("distributed")
     process = popen([sys.executable, "-c", _SCHEDULER], stdin=subprocess.PIPE, stderr=None)
     with group_ended(process):
         assert process.stdout is not None
-        yield process.stdout.readline().strip()
+        yield process.stdout.readline().strip(), process
 
 
-def test_a_dask_cluster_without_workers_stops_the_run(
-    scheduler: str, pipeline: Path, tmp_path: Path
-) -> None:
-    out = tmp_path / "new" / "run"
-    process = start(
+def start_on_dask(pipeline: Path, out: Path, scheduler: str) -> subprocess.Popen[str]:
+    return start(
         *("run", str(pipeline), "--out", str(out), "--engine", "dask"),
         *("--scheduler", scheduler, "--no-workers-timeout", "1"),
     )
+
+
+@contextlib.contextmanager
+def dask_worker(scheduler: str) -> Iterator[subprocess.Popen[str]]:
+    """A worker of ``scheduler`` (without a nanny, which would start it again when killed),
+    once the scheduler has it."""
+    from distributed import Client
+
+    worker = popen(
+        [sys.executable, "-m", "distributed.cli.dask_worker", scheduler, "--no-nanny"],
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
+    with group_ended(worker):
+        with Client(scheduler, timeout=SECONDS) as client:
+            client.wait_for_workers(1, timeout=SECONDS)
+        yield worker
+
+
+def test_a_dask_cluster_without_workers_stops_the_run(
+    cluster: tuple[str, subprocess.Popen[str]], pipeline: Path, tmp_path: Path
+) -> None:
+    scheduler, _ = cluster
+    out = tmp_path / "new" / "run"
+    process = start_on_dask(pipeline, out, scheduler)
     with group_ended(process):
         code, line = ended(process)
     assert code == 1
@@ -301,30 +323,27 @@ def test_a_dask_cluster_without_workers_stops_the_run(
     assert list(tmp_path.iterdir()) == []  # nothing was logged, so nothing is left
 
 
-def test_a_dask_run_whose_workers_all_die_stops_and_resumes_exactly(
-    scheduler: str, pipeline: Path, reference: Path, tmp_path: Path
+@pytest.mark.parametrize("lost", ["worker", "scheduler"])
+def test_a_dask_run_that_loses_its_workers_stops_and_resumes_exactly(
+    lost: str,
+    cluster: tuple[str, subprocess.Popen[str]],
+    pipeline: Path,
+    reference: Path,
+    tmp_path: Path,
 ) -> None:
-    from distributed import Client
-
-    worker = popen(
-        [sys.executable, "-m", "distributed.cli.dask_worker", scheduler, "--no-nanny"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
+    scheduler, scheduler_process = cluster
     out = tmp_path / "run"
-    with group_ended(worker):
-        with Client(scheduler, timeout=SECONDS) as client:
-            client.wait_for_workers(1, timeout=SECONDS)
-        process = start(
-            *("run", str(pipeline), "--out", str(out), "--engine", "dask"),
-            *("--scheduler", scheduler, "--no-workers-timeout", "1"),
-        )
+    with dask_worker(scheduler) as worker:
+        process = start_on_dask(pipeline, out, scheduler)
         with group_ended(process):
             wait_for(lambda: list(out.glob("*.mcap")), process)
-            worker.kill()
+            (worker if lost == "worker" else scheduler_process).kill()
             code, line = ended(process)
     assert code == 1
-    cause = f"error: the Dask scheduler at {scheduler} has had no workers for 1 s"
+    cause = {
+        "worker": f"error: the Dask scheduler at {scheduler} has had no workers for 1 s",
+        "scheduler": f"error: lost the connection to the Dask scheduler at {scheduler}",
+    }[lost]
     assert line.startswith(cause), line
     check_resumes(out, pipeline, reference, kept(line.removeprefix(cause), pipeline, out))
 

@@ -74,7 +74,11 @@ class Engine(abc.ABC):
         """Yield ``(index of the batch in batches, the played batch)`` as each finishes."""
 
     def __enter__(self) -> Self:
-        self.start()
+        try:
+            self.start()
+        except BaseException:  # what was started is stopped: a worker, a cluster, a client
+            self.stop(failing=True)
+            raise
         return self
 
     def __exit__(
@@ -281,6 +285,26 @@ READY_POLL_SECONDS = 0.02
 """How often a run on Dask looks for a finished batch."""
 
 
+@contextlib.contextmanager
+def _silenced() -> Iterator[None]:
+    """Keep Dask's client, and the event loop it runs on, from logging while the block runs."""
+    from distributed.utils import silence_logging_cmgr
+
+    handler = logging.NullHandler()
+    loggers = [logging.getLogger(name) for name in ("tornado", "asyncio")]
+    propagating = [logger.propagate for logger in loggers]
+    for logger in loggers:
+        logger.addHandler(handler)
+        logger.propagate = False
+    try:
+        with silence_logging_cmgr(logging.CRITICAL + 1):
+            yield
+    finally:
+        for logger, propagate in zip(loggers, propagating, strict=True):
+            logger.removeHandler(handler)
+            logger.propagate = propagate
+
+
 class DaskEngine(Engine):
     """Dask distributed: the scheduler at ``scheduler``, or a new local cluster.
 
@@ -329,6 +353,9 @@ class DaskEngine(Engine):
                 "the dask engine needs Dask: pip install -e '.[dask]' in a checkout, "
                 "pip install 'cirl-study[dask]' otherwise"
             ) from None
+        # The client's own account of workers or a scheduler lost (a warning or a traceback
+        # each) is the run's to give, in one line.
+        self._quiet.enter_context(_silenced())
         if self.scheduler is None:
             with _children_ignore_sigint():
                 self._cluster = LocalCluster(
@@ -340,11 +367,6 @@ class DaskEngine(Engine):
                 )
             self._client = Client(self._cluster)
         else:
-            from distributed.utils import silence_logging_cmgr
-
-            # The client's own account of workers lost (a warning each) is the run's to give,
-            # in one line, as a local cluster's is (silence_logs).
-            self._quiet.enter_context(silence_logging_cmgr(logging.ERROR))
             try:
                 self._client = Client(self.scheduler, timeout=self.connect_timeout)
             except (OSError, TimeoutError, ValueError) as error:
@@ -393,11 +415,18 @@ class DaskEngine(Engine):
             except KilledWorker:
                 lost = "Dask workers died playing a batch, each time it was tried"
                 raise WorkerLost(lost) from None
+            if future.status != "finished":  # cancelled: the scheduler is gone
+                raise WorkerLost(f"lost the connection to {self._name()}")
             yield futures[future], played
 
     def _check_workers(self) -> None:
-        """Raise :class:`WorkerLost` once the cluster has had no workers for the timeout."""
-        if self._client.nthreads():
+        """Raise :class:`WorkerLost` once the cluster has had no workers for the timeout, or
+        once its scheduler is gone."""
+        try:
+            workers = self._client.nthreads()
+        except OSError:
+            raise WorkerLost(f"lost the connection to {self._name()}") from None
+        if workers:
             self._without_workers = None
         elif self._without_workers is None:
             self._without_workers = time.monotonic()
@@ -405,8 +434,10 @@ class DaskEngine(Engine):
             raise self._no_workers()
 
     def _no_workers(self) -> WorkerLost:
-        cluster = f"the Dask scheduler at {self.scheduler}" if self.scheduler else "Dask"
-        return WorkerLost(f"{cluster} has had no workers for {self.no_workers_timeout:g} s")
+        return WorkerLost(f"{self._name()} has had no workers for {self.no_workers_timeout:g} s")
+
+    def _name(self) -> str:
+        return f"the Dask scheduler at {self.scheduler}" if self.scheduler else "the Dask cluster"
 
 
 def make_engine(
