@@ -32,7 +32,10 @@ from cirl_study.study.spec import load_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
-pytestmark = pytest.mark.skipif(not hasattr(signal, "SIGHUP"), reason="needs POSIX signals")
+pytestmark = pytest.mark.skipif(
+    not hasattr(signal, "SIGHUP") or not Path("/proc/self/task").is_dir(),
+    reason="needs POSIX signals and /proc to find a process's children",
+)
 
 SECONDS = 60
 """Bound on every wait of these tests: a command still running then is hung."""

@@ -313,10 +313,12 @@ class DaskEngine(Engine):
     when ``processes`` is false) and closed afterwards; a scheduler that does not answer
     within ``connect_timeout`` seconds is an error. A cluster without a worker for
     ``no_workers_timeout`` seconds on end, from the start or while batches wait (its workers
-    died, or it never had any), raises :class:`WorkerLost`, and so does a batch whose
-    workers die each time it is tried (:class:`distributed.KilledWorker`). Dask is an
-    optional dependency (``pip install 'cirl-study[dask]'``); workers of a remote cluster
-    need cirl-study installed in the same version.
+    died, or it never had any), raises :class:`WorkerLost`, and so do a batch whose workers
+    die each time it is tried (:class:`distributed.KilledWorker`) and a scheduler lost on
+    the way. The client and its event loop log nothing while the engine runs: the run's one
+    line says what happened. Dask is an optional dependency (``pip install
+    'cirl-study[dask]'``); workers of a remote cluster need cirl-study installed in the same
+    version.
     """
 
     def __init__(
