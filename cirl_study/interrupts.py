@@ -69,6 +69,8 @@ _first: int | None = None
 """The first stopping signal received, once one is."""
 _reported = False
 """Whether the line of the interruption is printed."""
+_held: list[int] | None = None
+"""While the main thread is in a :func:`deferred` block: the signal held back, if one came."""
 
 
 def install() -> None:
@@ -114,18 +116,28 @@ def leave_to_parent() -> None:
 
 @contextlib.contextmanager
 def deferred() -> Iterator[None]:
-    """Hold back :data:`STOPPING` from this thread until the block ends, when one that came
-    meanwhile acts.
+    """Hold back the first of :data:`STOPPING` until the block ends, when it acts; a second
+    one still ends the process at once.
 
     For a short step that must be whole or not at all: a batch's log file renamed into place
     and its trials counted as kept; workers forked and recorded as the pool's, so that each
-    one is stopped (a process forked here starts with them held back too, and ignores them).
+    one is stopped. Held back both from this thread (its signal mask, which a process forked
+    here starts with too) and, in the main thread, from the handler :func:`install` sets,
+    which runs there whichever thread the signal reached.
     """
-    signal.pthread_sigmask(signal.SIG_BLOCK, STOPPING)
+    global _held
+    outermost = threading.current_thread() is threading.main_thread() and _held is None
+    if outermost:
+        _held = []
+    mask = signal.pthread_sigmask(signal.SIG_BLOCK, STOPPING)
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_UNBLOCK, STOPPING)
+        signal.pthread_sigmask(signal.SIG_SETMASK, mask)
+        if outermost:
+            held, _held = _held, None
+            if held:
+                raise Interrupted(held[0])
 
 
 def report(interrupt: KeyboardInterrupt) -> int:
@@ -144,6 +156,9 @@ def _handle(signum: int, frame: FrameType | None) -> None:
         return  # a forked worker, before it ignores the signal itself
     if _first is None:
         _first = signum
+        if _held is not None:
+            _held.append(signum)  # raised as the deferred block ends
+            return
         raise Interrupted(signum)
     stopped = Interrupted(_first)
     if not _reported:
