@@ -224,6 +224,25 @@ def test_a_stopped_run_says_so_in_one_line_and_resumes_exactly(
     check_resumes(out, pipeline, reference, count)
 
 
+@pytest.mark.parametrize("signum", [signal.SIGHUP, signal.SIGTERM], ids=["sighup", "sigterm"])
+def test_a_signal_to_a_run_on_a_local_dask_cluster_is_one_line(
+    signum: signal.Signals, pipeline: Path, reference: Path, tmp_path: Path
+) -> None:
+    """The signal reaches the cluster's processes too (a terminal's hang-up, ``kill`` of the
+    group): only the main process reports it."""
+    pytest.importorskip("distributed")
+    out = tmp_path / "run"
+    process = start("run", str(pipeline), "--out", str(out), "--engine", "dask", "--workers", "2")
+    with group_ended(process):
+        wait_for(lambda: list(out.glob("*.mcap")), process)
+        os.killpg(process.pid, signum)
+        code, line = ended(process)
+    assert code == 128 + signum
+    cause = f"interrupted ({signum.name})"
+    assert line.startswith(cause), line
+    check_resumes(out, pipeline, reference, kept(line.removeprefix(cause), pipeline, out))
+
+
 _STOPPING_SLOWLY = """
 import sys, time
 from cirl_study import interrupts
@@ -378,3 +397,29 @@ def test_a_signal_where_python_ignores_exceptions_is_not_lost() -> None:
         os.killpg(process.pid, signal.SIGINT)
         stdout, stderr = process.communicate(timeout=SECONDS)
     assert (stdout, stderr, process.returncode) == ("stopped\n", "", 0)
+
+
+_HELD_BACK = """
+import threading, time
+from cirl_study import interrupts
+interrupts.install()
+threading.Thread(target=time.sleep, args=(60,), daemon=True).start()
+try:
+    with interrupts.deferred():
+        print("holding", flush=True)
+        time.sleep(1)
+        print("held", flush=True)
+except KeyboardInterrupt as interrupt:
+    print(f"then {interrupt.line()}", flush=True)
+"""
+
+
+def test_a_deferred_step_ends_before_the_signal_acts_whichever_thread_it_reached() -> None:
+    """A batch's log file and its count are one step for a signal, also in a process with
+    threads (a Dask client's, a progress bar's), where the signal may reach another thread."""
+    process = popen([sys.executable, "-c", _HELD_BACK])
+    with group_ended(process):
+        assert process.stdout is not None and process.stdout.readline() == "holding\n"
+        os.kill(process.pid, signal.SIGTERM)
+        stdout, stderr = process.communicate(timeout=SECONDS)
+    assert (stdout, stderr) == ("held\nthen interrupted (SIGTERM)\n", "")

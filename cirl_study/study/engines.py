@@ -258,21 +258,26 @@ class LocalEngine(Engine):
 
 
 @contextlib.contextmanager
-def _children_ignore_sigint() -> Iterator[None]:
-    """Ignore SIGINT while processes are started, so that they inherit the disposition.
+def _children_ignore_the_terminal() -> Iterator[None]:
+    """Ignore SIGINT and SIGHUP while processes are started, so that they inherit the
+    disposition.
 
-    A terminal's Ctrl-C reaches the whole process group; the workers should leave it to the
-    main process, which stops the run, instead of each printing a traceback. (Only the
-    main thread may change signal handlers; elsewhere this does nothing.)
+    A terminal's Ctrl-C or hang-up reaches the whole process group; the workers (and
+    multiprocessing's resource tracker) should leave it to the main process, which stops the
+    run and then its cluster, instead of each printing a traceback. SIGTERM stays theirs:
+    it is how the cluster ends them. (Only the main thread may change signal handlers;
+    elsewhere this does nothing.)
     """
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    terminal = [signum for signum in interrupts.STOPPING if signum != signal.SIGTERM]
+    previous = {signum: signal.signal(signum, signal.SIG_IGN) for signum in terminal}
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 DEFAULT_NO_WORKERS_TIMEOUT = 60.0
@@ -283,6 +288,11 @@ POLL_SECONDS = 1.0
 
 READY_POLL_SECONDS = 0.02
 """How often a run on Dask looks for a finished batch."""
+
+
+SILENT = logging.CRITICAL + 1
+"""The level of Dask's logs while it plays a run: above all of them, in this process and in a
+local cluster's."""
 
 
 @contextlib.contextmanager
@@ -297,7 +307,7 @@ def _silenced() -> Iterator[None]:
         logger.addHandler(handler)
         logger.propagate = False
     try:
-        with silence_logging_cmgr(logging.CRITICAL + 1):
+        with silence_logging_cmgr(SILENT):
             yield
     finally:
         for logger, propagate in zip(loggers, propagating, strict=True):
@@ -359,13 +369,13 @@ class DaskEngine(Engine):
         # each) is the run's to give, in one line.
         self._quiet.enter_context(_silenced())
         if self.scheduler is None:
-            with _children_ignore_sigint():
+            with _children_ignore_the_terminal():
                 self._cluster = LocalCluster(
                     n_workers=self.workers,
                     threads_per_worker=1,
                     processes=self.processes,
                     dashboard_address=None,
-                    silence_logs=logging.ERROR,
+                    silence_logs=SILENT,
                 )
             self._client = Client(self._cluster)
         else:
