@@ -22,17 +22,21 @@ ONE_THREAD = {"OMP_NUM_THREADS": "1", "OPENBLAS_NUM_THREADS": "1", "MKL_NUM_THRE
 
 
 def console_script() -> None:
-    """The application (:data:`cirl_study.cli.app`), with :data:`ONE_THREAD` set, then a
-    prompt exit.
+    """The application (:data:`cirl_study.cli.app`), with :data:`ONE_THREAD` set and the
+    stopping signals handled (:func:`cirl_study.interrupts.install`), then a prompt exit.
 
     At exit the interpreter's last garbage collections walk every object the command left,
     the statistics and plotting libraries among them. Freezing them first (``gc.freeze``)
     leaves them out of those collections; nothing is collected later anyway.
-    Tests invoke the application itself, so they keep collecting.
+    Tests invoke the application itself, so they keep collecting and Python's own handling of
+    signals.
     """
     for name, value in ONE_THREAD.items():
         os.environ.setdefault(name, value)
+    from cirl_study import interrupts
     from cirl_study.cli import app
+
+    interrupts.install()
 
     try:
         app(prog_name="cirl-study")

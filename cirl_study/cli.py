@@ -3,7 +3,8 @@
 Each command lives in its own module of :mod:`cirl_study.commands`, as a typer app with one
 ``@app.command()``; this file merges them into one application (typer's ``add_typer`` without
 a name) and is the one place where a :class:`~cirl_study.errors.UserError` becomes a one-line
-message and a non-zero exit code, and Ctrl-C becomes ``interrupted`` and exit code 130.
+message and a non-zero exit code, and a stopping signal (Ctrl-C, SIGTERM, SIGHUP: see
+:mod:`cirl_study.interrupts`) one line and 128 + the signal's number.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ from typing import Annotated, Any
 import typer
 from typer.core import TyperGroup
 
-from cirl_study import __version__
+from cirl_study import __version__, interrupts
 from cirl_study.commands import (
     analyze,
     calibrate,
@@ -26,9 +27,6 @@ from cirl_study.commands import (
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 
-INTERRUPTED_EXIT_CODE = 130
-"""Exit code after Ctrl-C (128 + SIGINT), as shells report it."""
-
 
 class _Commands(TyperGroup):
     """The commands of ``cirl-study``, with user errors reported in one line, never a traceback."""
@@ -39,9 +37,8 @@ class _Commands(TyperGroup):
         except UserError as error:
             typer.echo(f"error: {terminal(error, limit=None)}", err=True)
             raise typer.Exit(error.exit_code) from None
-        except KeyboardInterrupt:
-            typer.echo("interrupted", err=True)
-            raise typer.Exit(INTERRUPTED_EXIT_CODE) from None
+        except KeyboardInterrupt as interrupt:
+            raise typer.Exit(interrupts.report(interrupt)) from None
 
 
 app = typer.Typer(

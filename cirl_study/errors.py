@@ -11,3 +11,10 @@ class UserError(Exception):
     """An error caused by the user's input, reported as a single line."""
 
     exit_code: int = 2
+
+
+class RunStopped(UserError):
+    """A run stopped before its end for a cause outside its input (a worker died, a cluster
+    lost its workers); the message says the cause, the trials kept and how to resume."""
+
+    exit_code: int = 1

@@ -20,6 +20,8 @@ from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any, TypeVar
 
+from cirl_study import interrupts
+
 Item = TypeVar("Item")
 Result = TypeVar("Result")
 
@@ -66,17 +68,26 @@ def started(work: Callable[[Item], Result], items: Sequence[Item]) -> Iterator[I
     if workers < 2 or not forkable():
         yield map(work, items)
         return
-    pool = ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("fork"))
+    # A signal that stops the command is the calling process's to handle: it stops the workers.
+    pool = ProcessPoolExecutor(
+        workers,
+        mp_context=multiprocessing.get_context("fork"),
+        initializer=interrupts.leave_to_parent,
+    )
     try:
         # The workers are forked by the first submission, with this process's objects frozen
         # out of the garbage collector's generations: a collection in a worker then leaves
         # the pages it shares with this process alone instead of copying them (a third of
         # the page faults of a report's figure workers).
-        gc.freeze()
-        try:
-            results = pool.map(work, items)
-        finally:
-            gc.unfreeze()
+        # A stopping signal waits until the pool holds every worker it forked: one forked but
+        # not yet the pool's would never be told to end, and the interpreter's exit waits for
+        # it.
+        with interrupts.deferred():
+            gc.freeze()
+            try:
+                results = pool.map(work, items)
+            finally:
+                gc.unfreeze()
         yield results
     finally:  # after a failure, or when the caller stops early: start nothing more
         pool.shutdown(wait=True, cancel_futures=True)

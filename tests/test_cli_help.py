@@ -83,6 +83,7 @@ BAD_VALUES = {
     ("run", "--engine"): ("foo", "'foo' is not one of: local, dask."),
     ("reproduce", "--engine"): ("DASK", "'DASK' is not one of: local, dask."),
     ("run", "--workers"): ("2.5", "'2.5' is not an integer."),
+    ("run", "--no-workers-timeout"): ("soon", "'soon' is not a number of seconds."),
     ("reproduce", "--workers"): ("many", "'many' is not an integer."),
     ("compare", "--rtol"): ("-1e-9", "'-1e-9' is not a number >= 0."),
     ("compare", "--atol"): ("nan", "'nan' is not a number >= 0."),

@@ -11,7 +11,10 @@ from typer.testing import CliRunner
 
 from cirl_study.cli import app
 from cirl_study.errors import UserError
-from cirl_study.study.engines import DaskEngine
+from cirl_study.logs.lock import LOCK_NAME
+from cirl_study.study.engines import DEFAULT_NO_WORKERS_TIMEOUT, DaskEngine
+from cirl_study.study.pipeline_file import load_pipeline
+from cirl_study.study.runner import run_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -19,8 +22,10 @@ SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 def test_help_explains_every_option() -> None:
     result = CliRunner().invoke(app, ["run", "--help"], env={"COLUMNS": "120"})
     assert result.exit_code == 0
-    for option in ("PIPELINE", "--out", "--workers", "--engine", "--scheduler", "paper"):
+    options = ("PIPELINE", "--out", "--workers", "--engine", "--scheduler", "paper")
+    for option in (*options, "--no-workers-timeout"):
         assert option in result.stdout
+    assert f"[default: ({DEFAULT_NO_WORKERS_TIMEOUT:g})]" in " ".join(result.stdout.split())
 
 
 @pytest.mark.parametrize(
@@ -28,6 +33,15 @@ def test_help_explains_every_option() -> None:
     [
         (["--workers", "0"], "error: --workers must be a positive integer, got 0"),
         (["--scheduler", "tcp://127.0.0.1:1"], "error: --scheduler needs --engine dask"),
+        (["--no-workers-timeout", "5"], "error: --no-workers-timeout needs --engine dask"),
+        (
+            ["--engine", "dask", "--no-workers-timeout", "0"],
+            "error: --no-workers-timeout must be a positive number of seconds, got 0",
+        ),
+        (
+            ["--engine", "dask", "--no-workers-timeout", "inf"],
+            "error: --no-workers-timeout must be a positive number of seconds, got inf",
+        ),
     ],
 )
 def test_bad_options_exit_2_with_one_line(
@@ -54,13 +68,19 @@ def test_dask_engine_without_dask_is_one_line(
     assert all(note.startswith("preparing ") for note in notes)
 
 
-def test_unreachable_scheduler_is_one_line() -> None:
+def test_unreachable_scheduler_is_one_line_and_leaves_no_directory(tmp_path: Path) -> None:
     engine = DaskEngine(1, scheduler="tcp://127.0.0.1:1", connect_timeout=0.5)
-    with pytest.raises(UserError) as caught, engine:
-        pass
+    with pytest.raises(UserError) as caught:
+        run_pipeline(load_pipeline(SMOKE), tmp_path / "new" / "run", engine)
     message = str(caught.value)
     assert message.startswith("cannot connect to the Dask scheduler at tcp://127.0.0.1:1: ")
     assert "\n" not in message
+    assert list(tmp_path.iterdir()) == []  # neither the run directory nor its parent
+    existing = tmp_path / "existing"
+    existing.mkdir()
+    with pytest.raises(UserError):
+        run_pipeline(load_pipeline(SMOKE), existing, engine)
+    assert [path.name for path in existing.iterdir()] == [LOCK_NAME]  # it was there before
 
 
 def test_run_prints_a_summary(tmp_path: Path) -> None:

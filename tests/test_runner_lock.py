@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import os
 import signal
 import subprocess
@@ -10,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from cirl_study.logs.lock import LOCK_NAME
+from cirl_study.logs.lock import LOCK_NAME, writer_pid
 from cirl_study.logs.reader import read_run
 from cirl_study.logs.validate import validate_run
 
@@ -22,6 +23,15 @@ _HOLD = (
     "import sys, time; from pathlib import Path; from cirl_study.logs.lock import writer_lock\n"
     "with writer_lock(Path(sys.argv[1])):\n"
     "    print('locked', flush=True); time.sleep(120)\n"
+)
+
+_HOLD_AND_FORK = (
+    "import os, sys, time; from pathlib import Path; from cirl_study.logs.lock import writer_lock\n"
+    "with writer_lock(Path(sys.argv[1])):\n"
+    "    child = os.fork()\n"
+    "    if child == 0:\n"  # the child speaks once its fork hooks have run
+    "        print(os.getpid(), flush=True); time.sleep(120); os._exit(0)\n"
+    "    time.sleep(120)\n"
 )
 
 
@@ -79,3 +89,25 @@ def test_concurrent_writers_one_proceeds_nothing_duplicated(tmp_path: Path, writ
     assert all(err.count("\n") == 1 and "another cirl-study run (pid " in err for err in refused)
     verdict = validate_run(out)
     assert verdict.ok and verdict.trials == 82
+
+
+def test_the_lock_ends_with_its_holder_not_with_the_children_it_forked(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    out.mkdir()
+    holder = subprocess.Popen(
+        [sys.executable, "-c", _HOLD_AND_FORK, str(out)], stdout=subprocess.PIPE, text=True
+    )
+    assert holder.stdout is not None
+    child = int(holder.stdout.readline())
+    try:
+        assert writer_pid(out) == str(holder.pid)
+        os.kill(holder.pid, signal.SIGKILL)
+        holder.wait(timeout=10)
+        os.kill(child, 0)  # the child is still there, and holds no lock
+        assert writer_pid(out) is None
+    finally:
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(holder.pid, signal.SIGKILL)
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(child, signal.SIGKILL)
+        holder.wait(timeout=10)

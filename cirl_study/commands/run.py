@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from enum import StrEnum
 from pathlib import Path
 from typing import TYPE_CHECKING, Annotated
@@ -115,6 +116,18 @@ SchedulerOption = Annotated[
     ),
 ]
 
+NoWorkersTimeoutOption = Annotated[
+    float | None,
+    typer.Option(
+        "--no-workers-timeout",
+        metavar="SECONDS",
+        parser=number(float, "a number of seconds"),
+        show_default="60",
+        help="With --engine dask: how long the cluster may be without workers (its workers "
+        "died, or it never had any) before the run stops, keeping every trial logged.",
+    ),
+]
+
 
 @app.command(cls=Command)
 def run(
@@ -123,6 +136,7 @@ def run(
     workers: WorkersOption = None,
     engine: EngineOption = EngineName.local,
     scheduler: SchedulerOption = None,
+    no_workers_timeout: NoWorkersTimeoutOption = None,
 ) -> None:
     """Run a study pipeline and log every trial to MCAP (resumable).
 
@@ -141,7 +155,15 @@ def run(
         raise UserError(f"--workers must be a positive integer, got {workers}")
     if scheduler is not None and engine is not EngineName.dask:
         raise UserError("--scheduler needs --engine dask")
-    chosen = make_engine(engine.value, workers, scheduler)
+    if no_workers_timeout is not None:
+        if engine is not EngineName.dask:
+            raise UserError("--no-workers-timeout needs --engine dask")
+        if not 0 < no_workers_timeout < math.inf:
+            raise UserError(
+                f"--no-workers-timeout must be a positive number of seconds, "
+                f"got {no_workers_timeout:g}"
+            )
+    chosen = make_engine(engine.value, workers, scheduler, no_workers_timeout)
     with progress_bar() as hooks:
         result = run_pipeline(spec, out or default_out_dir(spec), chosen, hooks)
     typer.echo(_summary(result, chosen.description))

@@ -9,6 +9,11 @@ holder's process id, and touches nothing: it neither plays trials nor deletes th
 temporary files. Readers take no lock: they see only complete files
 (:mod:`cirl_study.logs.writer`) and whole reports; they ask :func:`writer_pid` whether a run
 is being written, so as to say so rather than advise resuming it.
+
+A process forked while a lock is held (a pool worker) does not hold it: its copy of the
+lock's descriptor is closed as it starts (:func:`os.register_at_fork`), never unlocked, which
+would release the holder's lock. A holder's lock thus ends with the holder, even while
+workers it forked are still ending.
 """
 
 from __future__ import annotations
@@ -30,6 +35,20 @@ LOCK_NAME = ".cirl-study.lock"
 LOCK_ATTEMPTS = 20
 """Tries, 10 ms apart, to take the lock before another writer is said to hold it: a reader
 asking :func:`writer_pid` holds the lock's shared side for an instant."""
+
+_HELD: set[int] = set()
+"""Descriptors of the locks this process holds."""
+
+
+def _close_held_in_child() -> None:
+    """Close, in a forked child, its copies of the descriptors of the locks its parent holds."""
+    for descriptor in _HELD:
+        with contextlib.suppress(OSError):
+            os.close(descriptor)
+    _HELD.clear()
+
+
+os.register_at_fork(after_in_child=_close_held_in_child)
 
 
 @contextlib.contextmanager
@@ -70,6 +89,7 @@ def exclusive_lock(lock_file: Path, *, cannot: str, busy: Callable[[str], str]) 
         descriptor = open_descriptor(lock_file, os.O_RDWR, truncate=False)
     except UserError as error:
         raise UserError(f"{cannot}: {error}") from None
+    _HELD.add(descriptor)
     try:
         for attempt in range(LOCK_ATTEMPTS):
             try:
@@ -83,6 +103,7 @@ def exclusive_lock(lock_file: Path, *, cannot: str, busy: Callable[[str], str]) 
         os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
         yield
     finally:
+        _HELD.discard(descriptor)
         os.close(descriptor)  # closing releases the lock
 
 

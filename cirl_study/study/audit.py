@@ -157,16 +157,21 @@ def plan_faults(
 
 def resume_advice(identity: RunIdentity, run_dir: Path) -> str:
     """How to complete the run in ``run_dir``: that a run is writing to it, while one is
-    (:func:`~cirl_study.logs.lock.writer_pid`); else ``resume with `<command>```, each argument
-    of the command a shell word (:func:`~cirl_study.escape.shell`) naming its path as
+    (:func:`~cirl_study.logs.lock.writer_pid`); else :func:`resume_command`."""
+    pid = writer_pid(run_dir)
+    if pid is not None:
+        return f"a cirl-study run (pid {pid}) is still writing it: wait for it to end"
+    return resume_command(identity, run_dir)
+
+
+def resume_command(identity: RunIdentity, run_dir: Path) -> str:
+    """``resume with `<command>```, the command that completes the run in ``run_dir``, each
+    of its arguments a shell word (:func:`~cirl_study.escape.shell`) naming its path as
     :func:`~cirl_study.study.pipeline_file.path_argument` does.
 
     The command's pipeline is a file that holds the run's pipeline text now
     (:func:`_pipeline_file`); when none does, the command says ``PIPELINE`` and what it must be.
     """
-    pid = writer_pid(run_dir)
-    if pid is not None:
-        return f"a cirl-study run (pid {pid}) is still writing it: wait for it to end"
     out = shell(path_argument(run_dir))
     pipeline = _pipeline_file(identity)
     if pipeline is None:

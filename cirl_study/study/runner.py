@@ -8,7 +8,10 @@ most the batches in flight. Started again, it deletes the temporary files, skips
 trial whose record a complete file holds (decoded and checked, never taken from the file's
 own index) and plays the rest; since a trial's record
 depends only on its identity (:mod:`cirl_study.study.plan`), the finished directory holds the
-same records as an uninterrupted run, each exactly once.
+same records as an uninterrupted run, each exactly once. A run stopped on the way, by a
+signal (:class:`~cirl_study.interrupts.Interrupted`) or by the loss of its workers
+(:class:`~cirl_study.errors.RunStopped`), says in its one line how many trials it kept and
+the command that resumes it.
 
 Order of play: block ``eta_cv`` first; then, per feature level, the eta with the lowest
 mean regret over the logged cross-validation records is chosen
@@ -18,9 +21,11 @@ planned with it and played.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import itertools
 import math
+import os
 import time
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
@@ -29,15 +34,18 @@ from pathlib import Path
 
 import msgspec
 
-from cirl_study.errors import UserError
+from cirl_study import interrupts
+from cirl_study.errors import RunStopped, UserError
 from cirl_study.files import non_regular, remove_file
+from cirl_study.interrupts import Interrupted
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
-from cirl_study.logs.lock import writer_lock
+from cirl_study.logs.lock import LOCK_NAME, writer_lock
 from cirl_study.logs.provenance import RunIdentity, collect_provenance
 from cirl_study.logs.reader import LoggedRun, logged_run
 from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, TrialRow, TrialSpec
-from cirl_study.study.engines import Engine
+from cirl_study.study.audit import resume_command
+from cirl_study.study.engines import Engine, WorkerLost
 from cirl_study.study.eta_cv import EtaChoice, choose_etas
 from cirl_study.study.limits import MAX_BATCH
 from cirl_study.study.pipeline_file import path_argument
@@ -202,8 +210,9 @@ class _Session:
             self.play_seconds += played.seconds
             if [record.trial_id for record in records] != [t.trial_id for t in batch]:
                 raise RuntimeError("the engine returned records that do not match their batch")
-            self._log(batch_file_name(batch), records)
-            self.done.update(trial.trial_id for trial in batch)
+            with interrupts.deferred():  # a signal leaves the batch logged and kept, or neither
+                self._log(batch_file_name(batch), records)
+                self.done.update(trial.trial_id for trial in batch)
             self.progress.advance(len(batch))
             yield records
 
@@ -258,9 +267,13 @@ def run_pipeline(
     """
     hooks = progress or ProgressHooks()
     began = time.perf_counter()
-    _make_directory(out_dir)
+    created = _make_directory(out_dir)
     with writer_lock(out_dir):
-        return _run_locked(pipeline, out_dir, engine, hooks, began)
+        try:
+            return _run_locked(pipeline, out_dir, engine, hooks, began)
+        except BaseException:
+            _remove_unused(out_dir, created)
+            raise
 
 
 def _refuse_unplanned(out_dir: Path, logged: set[str], planned: Sequence[TrialSpec]) -> None:
@@ -274,14 +287,35 @@ def _refuse_unplanned(out_dir: Path, logged: set[str], planned: Sequence[TrialSp
         )
 
 
-def _make_directory(out_dir: Path) -> None:
-    """Create the run directory, or say in one line why it cannot be."""
+def _make_directory(out_dir: Path) -> list[Path]:
+    """Create the run directory, or say in one line why it cannot be; the directories
+    created, ``out_dir`` first, then each parent created for it."""
     if out_dir.exists() and not out_dir.is_dir():
         raise UserError(f"{out_dir}: exists and is not a directory")
+    missing = list(itertools.takewhile(lambda path: not path.exists(), [out_dir, *out_dir.parents]))
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
     except OSError as error:
         raise UserError(f"{out_dir}: cannot create the run directory: {error.strerror}") from None
+    return missing
+
+
+def _remove_unused(out_dir: Path, created: Sequence[Path]) -> None:
+    """Remove the directories ``created`` for a run that failed before it logged anything
+    (its engine could not start, say), so that it leaves nothing behind: ``out_dir`` only if
+    it holds the lock file alone, each parent only if it is empty then."""
+    if not created:
+        return
+    with contextlib.suppress(OSError):
+        if os.listdir(out_dir) == [LOCK_NAME]:
+            (out_dir / LOCK_NAME).unlink()
+        for directory in created:
+            directory.rmdir()
+
+
+def _kept(identity: RunIdentity, out_dir: Path, done: set[str]) -> str:
+    """``N trials kept; resume with `<command>```: what a run stopped on the way says."""
+    return f"{len(done)} trials kept; {resume_command(identity, out_dir)}"
 
 
 def _run_locked(
@@ -302,16 +336,21 @@ def _run_locked(
         hooks.note("preparing the numerical kernels (compiled on a first run, then cached)")
         warm_up(pipeline)
     session = _Session(engine, out_dir, provenance, hooks, logged, done)
-    with engine:
-        hooks.start(total, resumed)
-        play_began = time.perf_counter()
-        cv_trials = eta_cv_trials(pipeline)
-        etas = _cross_validate(session, cv_trials)
-        trials = study_trials(pipeline, {key: choice.eta for key, choice in etas.items()})
-        _refuse_unplanned(out_dir, done, [*cv_trials, *trials])
-        for _ in session.play(trials):
-            pass
-        playing_seconds = time.perf_counter() - play_began
+    try:
+        with engine:
+            hooks.start(total, resumed)
+            play_began = time.perf_counter()
+            cv_trials = eta_cv_trials(pipeline)
+            etas = _cross_validate(session, cv_trials)
+            trials = study_trials(pipeline, {key: choice.eta for key, choice in etas.items()})
+            _refuse_unplanned(out_dir, done, [*cv_trials, *trials])
+            for _ in session.play(trials):
+                pass
+            playing_seconds = time.perf_counter() - play_began
+    except WorkerLost as lost:
+        raise RunStopped(f"{lost}: {_kept(identity, out_dir, done)}") from None
+    except KeyboardInterrupt as interrupt:
+        raise Interrupted.of(interrupt, _kept(identity, out_dir, done)) from None
     return RunResult(
         out_dir=out_dir,
         run_id=pipeline.run_id,
