@@ -44,6 +44,7 @@ from cirl_study.analysis.result_types import (
     AxisDistance,
     CalibrationResults,
     CellComparison,
+    ClaimRow,
     LevelDistance,
     TargetCell,
     UniverseDistance,
@@ -377,7 +378,7 @@ def _axes(ranked: Sequence[UniverseDistance]) -> list[AxisDistance]:
     return summaries
 
 
-def _claims_in(uid: str, trials: Sequence[TrialRow], pipeline: Pipeline) -> list:
+def _claims_in(uid: str, trials: Sequence[TrialRow], pipeline: Pipeline) -> list[ClaimRow]:
     """The paper's claims judged in the universe ``uid`` with the paper report's rules."""
     if pipeline.multiverse is None:
         rows, study = list(trials), pipeline
