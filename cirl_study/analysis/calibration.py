@@ -189,13 +189,18 @@ def calibrate(
         UserError: no universe of the run measures one of the target's cells, or no universe
             can be ranked.
     """
+    # Per universe: its study's pipeline and the rows it analyses (a single study's: all).
     if pipeline.multiverse is None:
-        main, base = [r for r in trials if r.block == MAIN], None
+        studies = {"": (pipeline, list(trials))}
+        base = None
     else:
-        chosen = universe_trials(trials, pipeline).values()
-        main = [r for rows in chosen for r in rows if r.block == MAIN]
+        studies = {
+            u.id: (universe_pipeline(pipeline, u), rows)
+            for u, rows in universe_trials(trials, pipeline).items()
+        }
         base = base_universe(pipeline).id
-    ranked = ranked_distances(cell_means(trial_table(main)), _studies(pipeline), target, base)
+    main = [r for _, rows in studies.values() for r in rows if r.block == MAIN]
+    ranked = ranked_distances(cell_means(trial_table(main)), _settings(pipeline), target, base)
     return CalibrationResults(
         pipeline=pipeline.name,
         target_file=target_file,
@@ -203,12 +208,12 @@ def calibrate(
         target=list(target),
         universes=ranked,
         axes=_axes([d for d in ranked if d.mean_squared_log_ratio is not None]),
-        nearest_claims=_claims_in(ranked[0].id, trials, pipeline),
+        nearest_claims=_claims_in(*studies[ranked[0].id], paper_only=base is not None),
         run_id=run_id,
     )
 
 
-def _studies(pipeline: Pipeline) -> dict[str, tuple[dict[str, Any], str]]:
+def _settings(pipeline: Pipeline) -> dict[str, tuple[dict[str, Any], str]]:
     """Per universe id (``""`` for a single study): its settings and its reference robot."""
     if pipeline.multiverse is None:
         return {"": ({}, pipeline.main.reference_robot)}
@@ -378,14 +383,8 @@ def _axes(ranked: Sequence[UniverseDistance]) -> list[AxisDistance]:
     return summaries
 
 
-def _claims_in(uid: str, trials: Sequence[TrialRow], pipeline: Pipeline) -> list[ClaimRow]:
-    """The paper's claims judged in the universe ``uid`` with the paper report's rules."""
-    if pipeline.multiverse is None:
-        rows, study = list(trials), pipeline
-    else:
-        chosen = {u.id: (u, r) for u, r in universe_trials(trials, pipeline).items()}
-        universe, rows = chosen[uid]
-        study = universe_pipeline(pipeline, universe)
+def _claims_in(study: Pipeline, rows: list[TrialRow], *, paper_only: bool) -> list[ClaimRow]:
+    """The claims tested on a study's ``rows`` with the paper report's rules; of a multiverse
+    universe (``paper_only``), the paper's claims a universe tests (``PAPER_CLAIMS``)."""
     results = with_claims(analyse(rows, study), run_id=None, partial=None, theory=None)
-    wanted = set(PAPER_CLAIMS) if pipeline.multiverse is not None else None
-    return [c for c in results.claims if c.tested and (wanted is None or c.id in wanted)]
+    return [c for c in results.claims if c.tested and (not paper_only or c.id in PAPER_CLAIMS)]
