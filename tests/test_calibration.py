@@ -156,3 +156,24 @@ def test_calibration_recovers_each_committed_universe_from_its_own_noisy_means()
         nearest = ranked_distances(means, studies, target, base=None)[0]
         assert nearest.id == truth["id"]
         assert nearest.mean_squared_log_ratio < 4 * NOISE**2
+
+
+def test_a_single_study_is_calibrated_as_one_universe(smoke_run: Path, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from cirl_study.api import load_trials
+    from cirl_study.cli import app
+
+    table = load_trials(smoke_run)
+    cell = table[(table["block"] == "main") & (table["num_features"] == 3)]
+    expert = float(cell[cell["policy"] == "expert"]["kl"].mean())
+    target = _target(tmp_path, f"measure,num_features,policy,value\nkl,3,expert,{2 * expert!r}\n")
+    out = tmp_path / "calibration"
+    command = ["calibrate", str(smoke_run), "--target", str(target), "--out", str(out)]
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 0, result.output
+    results = json.loads((out / "results.json").read_text())
+    (universe,) = results["universes"]
+    assert universe["id"] == "" and results["axes"] == []
+    assert universe["mean_squared_log_ratio"] == pytest.approx(math.log(2) ** 2, rel=1e-12)
+    assert "nearest the run, D = 0.4805 (within a factor of 2)" in result.stdout
