@@ -84,7 +84,9 @@ from typing import Any
 
 from cirl_study.record import GRADIENT_ASCENT
 from cirl_study.study.settings import (
+    NOTHING_KNOWN,
     POSITIVE_INTEGER,
+    Check,
     Invalid,
     Known,
     Limits,
@@ -487,6 +489,20 @@ def _sigmas(game: GameSpec) -> LevelCheck:
     )
 
 
+def _passing(check: Check, what: str) -> Callable[[GameSpec], LevelCheck]:
+    """``levels`` of an axis whose levels are the values ``check`` passes, the constraint of
+    the setting it varies (``what``: those values in words)."""
+
+    def passes(value: Any) -> bool:
+        try:
+            check(value, NOTHING_KNOWN)
+        except Invalid:
+            return False
+        return True
+
+    return lambda game: (passes, what)
+
+
 def _game_axis(
     field: str,
     label: str,
@@ -517,10 +533,7 @@ AXES: dict[str, Axis] = {
     "rationality": Axis(
         label="lambda",
         show=shortest_number,
-        levels=lambda game: (
-            lambda v: is_positive_number(v) and RATIONALITY.low <= v <= RATIONALITY.high,
-            f"numbers in {RATIONALITY}",
-        ),
+        levels=_passing(number_in(RATIONALITY), f"numbers in {RATIONALITY}"),
         read=lambda game, main: main.rationality,
         apply=_set_rationality,
         convert=float,
@@ -536,10 +549,7 @@ AXES: dict[str, Axis] = {
     "ascent_steps": Axis(
         label="ga_steps",
         show=str,
-        levels=lambda game: (
-            lambda v: is_integer(v) and 1 <= v <= MAX_ASCENT_STEPS,
-            f"integers in [1, {MAX_ASCENT_STEPS}]",
-        ),
+        levels=_passing(_ascent_steps, f"integers in [1, {MAX_ASCENT_STEPS}]"),
         read=lambda game, main: None,
         apply=_set_ascent("steps"),
         nested=True,
@@ -547,10 +557,7 @@ AXES: dict[str, Axis] = {
     "learning_rate": Axis(
         label="ga_rate",
         show=shortest_number,
-        levels=lambda game: (
-            lambda v: is_positive_number(v) and LEARNING_RATE.low <= v <= LEARNING_RATE.high,
-            f"numbers in {LEARNING_RATE}",
-        ),
+        levels=_passing(number_in(LEARNING_RATE), f"numbers in {LEARNING_RATE}"),
         read=lambda game, main: None,
         apply=_set_ascent("learning_rate"),
         convert=float,
