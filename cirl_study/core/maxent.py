@@ -525,7 +525,8 @@ def _trajectory_moments(
         soft_backup(scaled[b], successors, horizon, values, log_policy, policy, needed)
         backward_future_counts(policy, successors, phi, future, needed)
         log_z[b] = values[0, start]
-        mean[b] = future[0, start]
+        for j in range(k):
+            mean[b, j] = future[0, start, j]
         if not with_covariance:
             continue
         visitation[0, :] = 0.0
@@ -586,7 +587,7 @@ def _class_paths(successors, start, demo, phi):  # pragma: no cover - compiled
     path = np.empty(horizon + 1, dtype=np.int64)
     path[0] = start
     if horizon == 0:
-        found[0] = path
+        found[0, 0] = start
         return found[:1]
     options = np.empty((horizon, actions), dtype=np.int64)
     count = np.zeros(horizon, dtype=np.int64)
@@ -619,9 +620,12 @@ def _class_paths(successors, start, demo, phi):  # pragma: no cover - compiled
         if depth + 1 == horizon:
             if members == found.shape[0]:
                 grown = np.empty((2 * members, horizon + 1), dtype=np.int64)
-                grown[:members] = found
+                for m in range(members):
+                    for t in range(horizon + 1):
+                        grown[m, t] = found[m, t]
                 found = grown
-            found[members] = path
+            for t in range(horizon + 1):
+                found[members, t] = path[t]
             members += 1
             if members > MAX_CLASS_PATHS:
                 break

@@ -93,8 +93,9 @@ def _divergence_from_every_cell(scaled, scaled_hat, successors, horizon):  # pra
                     step += p * (log_policy[t, s, a] - log_policy_hat[t, s, a])
                     ahead += p * later[nxt]
                 now[s] = max(step, 0.0) + ahead
-            later[:] = now
-        divergence[b] = later
+            later, now = now, later
+        for s in range(cells):
+            divergence[b, s] = later[s]
     return divergence
 
 

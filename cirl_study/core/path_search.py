@@ -244,7 +244,8 @@ def _search(successors, start, horizon, rotated_features, rotated_target, needed
                         if value < best:
                             best = value
                             path[depth] = a
-                            best_actions[b, :] = path
+                            for t in range(horizon):
+                                best_actions[b, t] = path[t]
                         continue
                     limit = best * (1 + slack) + slack
                     bound = _bound(child, target, low, high, remaining, nxt, limit)
