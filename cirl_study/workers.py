@@ -65,7 +65,31 @@ def started(work: Callable[[Item], Result], items: Sequence[Item]) -> Iterator[I
     :func:`map_in_workers`), each is handled as its result is taken.
     """
     workers = min(cores(), len(items))
-    if workers < 2 or not forkable():
+    with _forked(work, items, workers if workers >= 2 else 0) as results:
+        yield results
+
+
+@contextlib.contextmanager
+def aside(work: Callable[[Item], Result], item: Item) -> Iterator[Iterator[Result]]:
+    """``work(item)`` begun in one forked worker while this process does its own work on the
+    other cores: ``with aside(compile_robots, trials) as done: compile_humans(); next(done)``.
+
+    The result is taken, and an exception raised by ``work`` raised, from the iterator given;
+    leaving the block waits for the worker, and a result not taken is dropped. With one core,
+    no ``fork`` on the platform or other threads running, ``work(item)`` is done in this
+    process when its result is taken (so not at all if it is not).
+    """
+    with _forked(work, [item], 1 if cores() >= 2 else 0) as results:
+        yield results
+
+
+@contextlib.contextmanager
+def _forked(
+    work: Callable[[Item], Result], items: Sequence[Item], workers: int
+) -> Iterator[Iterator[Result]]:
+    """``work`` of each of ``items`` in ``workers`` forked processes (in this one, lazily,
+    when ``workers`` is 0 or this process cannot fork)."""
+    if workers == 0 or not forkable():
         yield map(work, items)
         return
     # A signal that stops the command is the calling process's to handle: it stops the workers.

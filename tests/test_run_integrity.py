@@ -286,7 +286,10 @@ def test_a_full_disk_ends_the_run_in_one_line_and_loses_nothing(tmp_path: Path) 
     assert done.returncode == 2, done.stderr
     *progress, error = done.stderr.splitlines()  # plain progress lines, then the error
     assert "Traceback" not in done.stderr
-    assert all(line.startswith(("trials: ", "preparing ")) for line in progress), progress
+    assert all(
+        line.startswith(("trials: ", "preparing ", "numerical kernels ready in "))
+        for line in progress
+    ), progress
     assert error.startswith("error: ") and "cannot write the log (File too large)" in error
     assert error.endswith("trial(s) logged before are kept: fix the cause and run again to resume")
     logged = payloads(out) if list(out.glob("*.mcap")) else {}

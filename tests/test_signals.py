@@ -40,7 +40,7 @@ pytestmark = pytest.mark.skipif(
 SECONDS = 60
 """Bound on every wait of these tests: a command still running then is hung."""
 
-PROGRESS = re.compile(r"(preparing |trials: )")
+PROGRESS = re.compile(r"(preparing |numerical kernels ready in |trials: )")
 """The start of the progress lines a run writes on stderr outside a terminal."""
 
 

@@ -82,18 +82,24 @@ def _group_key(spec: TrialSpec) -> Hashable:
 
 def play_trials(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     """Play every trial and return their records, in the order given."""
-    for spec in specs:
-        check_playable(spec)
-    groups: dict[Hashable, list[int]] = defaultdict(list)
-    for position, spec in enumerate(specs):
-        groups[_group_key(spec)].append(position)
     records: list[TrialRecord | None] = [None] * len(specs)
-    for positions in groups.values():
+    for positions in _groups(specs):
         for position, record in zip(
             positions, _play_group([specs[p] for p in positions]), strict=True
         ):
             records[position] = record
     return records  # type: ignore[return-value]
+
+
+def _groups(specs: Sequence[TrialSpec]) -> list[list[int]]:
+    """The positions of ``specs`` played together (:func:`_group_key`), once each is checked
+    (:func:`check_playable`)."""
+    for spec in specs:
+        check_playable(spec)
+    groups: dict[Hashable, list[int]] = defaultdict(list)
+    for position, spec in enumerate(specs):
+        groups[_group_key(spec)].append(position)
+    return list(groups.values())
 
 
 def _by(specs: Sequence[TrialSpec], *names: str) -> dict[Any, IntArray]:
@@ -148,35 +154,77 @@ def _estimates(
     return fitted  # type: ignore[return-value]
 
 
+def demonstrations(specs: Sequence[TrialSpec]) -> np.ndarray:
+    """Every trial's demonstration ``(B, T + 1)``, in the order given: the learning phase of
+    :func:`play_trials` alone, the same paths (cell indices) it plays.
+
+    Lets the humans' kernels be compiled apart from the robots' and the measures'
+    (:func:`cirl_study.study.runner.warm_up`).
+    """
+    demos: list[np.ndarray | None] = [None] * len(specs)
+    for positions in _groups(specs):
+        group = [specs[p] for p in positions]
+        setting = _Setting.of(group)
+        shown = _demonstrations(setting.game, group, setting.theta, setting.seeds)
+        for position, path in zip(positions, shown, strict=True):
+            demos[position] = path
+    return np.array(demos)
+
+
+@dataclasses.dataclass(frozen=True)
+class _Setting:
+    """What trials played together share: their grid and features, the game, and per trial
+    its true ``theta`` ``(B, K)`` and ``seed`` ``(B,)``."""
+
+    grid: Gridworld
+    features: np.ndarray
+    game: Apprenticeship
+    theta: np.ndarray
+    seeds: np.ndarray
+
+    @classmethod
+    def of(cls, specs: Sequence[TrialSpec]) -> _Setting:
+        """The setting of ``specs``, trials of one group (:func:`_group_key`)."""
+        first = specs[0]
+        grid = gridworld(first)
+        theta = np.array([spec.theta for spec in specs], dtype=np.float64)
+        centers = np.array([spec.features.centers for spec in specs], dtype=np.float64)
+        features = rbf_features(grid, centers, first.features.sigma)
+        start = grid.index(*first.start)
+        learning = MaxEnt(
+            Phase(grid.demonstrator_moves(first.demonstrator_stays), start, first.learning_steps),
+            features,
+            first.rationality,
+        )
+        deployment = MaxEnt(
+            Phase(
+                grid.successors,
+                start if first.deployment_start == "demonstration" else None,
+                first.deployment_steps,
+            ),
+            features,
+            first.rationality,
+        )
+        hypotheses = _hypotheses(specs, learning, theta)
+        game = Apprenticeship(learning, deployment, hypotheses, first.teaching)
+        seeds = np.array([spec.seed for spec in specs], dtype=np.int64)
+        return cls(grid, features, game, theta, seeds)
+
+
 def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     """Play trials that share the game's shape and rationality, vectorised: each policy's
     demonstrations together (each distinct one once), then each robot's estimates together."""
     first = specs[0]
-    grid = gridworld(first)
-    theta = np.array([spec.theta for spec in specs], dtype=np.float64)
-    centers = np.array([spec.features.centers for spec in specs], dtype=np.float64)
-    features = rbf_features(grid, centers, first.features.sigma)
-    start = grid.index(*first.start)
-    learning = MaxEnt(
-        Phase(grid.demonstrator_moves(first.demonstrator_stays), start, first.learning_steps),
-        features,
-        first.rationality,
-    )
-    deployment_start = start if first.deployment_start == "demonstration" else None
-    deployment = MaxEnt(
-        Phase(grid.successors, deployment_start, first.deployment_steps),
-        features,
-        first.rationality,
-    )
-    game = Apprenticeship(learning, deployment, _hypotheses(specs, learning, theta), first.teaching)
-    seeds = np.array([spec.seed for spec in specs], dtype=np.int64)
-    demos = _demonstrations(game, specs, theta, seeds)
-    fitted = _estimates(game, specs, demos, seeds)
+    setting = _Setting.of(specs)
+    grid, game, theta = setting.grid, setting.game, setting.theta
+    deployment = game.deployment
+    demos = _demonstrations(game, specs, theta, setting.seeds)
+    fitted = _estimates(game, specs, demos, setting.seeds)
     theta_hat = np.array([estimate.theta_hat[row] for estimate, row in fitted])
     measures = {
         "regret": regret(deployment, theta, theta_hat),
         "kl": trajectory_kl(deployment, theta, theta_hat),
-        "reward_l2": reward_l2(features, theta, theta_hat),
+        "reward_l2": reward_l2(setting.features, theta, theta_hat),
         "regret_under_estimate": regret(deployment, theta_hat, theta),
     }
     robot_plan = optimal_plan(
@@ -184,7 +232,7 @@ def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     )
     rollouts = [
         paths_cells(grid, path)
-        for path in _deployment_rollouts(grid, specs, deployment_start, robot_plan.actions)
+        for path in _deployment_rollouts(grid, specs, deployment.phase.start, robot_plan.actions)
     ]
     shown, actions = paths_cells(grid, demos), paths_actions(grid, demos)
     return [

@@ -56,6 +56,7 @@ from cirl_study.study.plan import (
     trial_counts,
 )
 from cirl_study.study.spec import Pipeline
+from cirl_study.workers import aside
 
 BATCHES_PER_WORKER = 4
 """A block is cut into at least this many batches per worker, so that workers finish together."""
@@ -103,24 +104,33 @@ def warm_up(pipeline: Pipeline) -> None:
     afterwards, so later runs load them in a fraction of a second). Doing it here, before
     the engine starts its workers, lets forked workers inherit them and keeps the progress
     bar for playing. Nothing is logged.
+
+    The compiling is split over two cores first: this process plays the humans'
+    demonstrations (:func:`~cirl_study.core.trial.demonstrations`) while a forked worker
+    plays whole trials of the first policy with every robot (the robots' fits and the
+    measures). The worker's kernels land in numba's cache, from which this process then
+    loads them, so a first run compiles in about the time of the slower half instead of
+    both (``benchmarks/README.md``). Where the cache cannot be written, or no worker can be
+    forked, this process compiles what it needs itself; the trials played do not change.
     """
     from cirl_study.core.players import HUMANS
-    from cirl_study.core.trial import play_trials
+    from cirl_study.core.trial import demonstrations, play_trials
 
     base = (eta_cv_trials(pipeline) or study_trials(pipeline, {}))[0]
-    play_trials(
-        [
-            msgspec.structs.replace(
-                base,
-                policy=policy,
-                eta=1.0 if HUMANS[policy].takes_eta else None,
-                robot=robot,
-                gradient_ascent=gradient_ascent_settings(pipeline, robot),
-            )
-            for policy in pipeline.main.policies
-            for robot in pipeline.main.robots
-        ]
-    )
+    trials = [
+        msgspec.structs.replace(
+            base,
+            policy=policy,
+            eta=1.0 if HUMANS[policy].takes_eta else None,
+            robot=robot,
+            gradient_ascent=gradient_ascent_settings(pipeline, robot),
+        )
+        for policy in pipeline.main.policies
+        for robot in pipeline.main.robots
+    ]
+    with aside(play_trials, [trial for trial in trials if trial.policy == trials[0].policy]):
+        demonstrations(trials)
+    play_trials(trials)
 
 
 def default_out_dir(pipeline: Pipeline) -> Path:
@@ -334,7 +344,9 @@ def _run_locked(
     total = sum(trial_counts(pipeline).values())
     if resumed < total:
         hooks.note("preparing the numerical kernels (compiled on a first run, then cached)")
+        preparing = time.perf_counter()
         warm_up(pipeline)
+        hooks.note(f"numerical kernels ready in {time.perf_counter() - preparing:.1f} s")
     session = _Session(engine, out_dir, provenance, hooks, logged, done)
     try:
         with engine:
