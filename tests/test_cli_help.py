@@ -85,6 +85,8 @@ BAD_VALUES = {
     ("run", "--workers"): ("2.5", "'2.5' is not an integer."),
     ("run", "--no-workers-timeout"): ("soon", "'soon' is not a number of seconds."),
     ("reproduce", "--workers"): ("many", "'many' is not an integer."),
+    ("calibrate", "--max-probes"): ("3.5", "'3.5' is not an integer."),
+    ("calibrate", "--workers"): ("all", "'all' is not an integer."),
     ("compare", "--rtol"): ("-1e-9", "'-1e-9' is not a number >= 0."),
     ("compare", "--atol"): ("nan", "'nan' is not a number >= 0."),
 }

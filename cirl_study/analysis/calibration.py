@@ -57,7 +57,7 @@ from cirl_study.escape import terminal
 from cirl_study.files import read_regular_file
 from cirl_study.record import MAIN, MEASURES, TrialRow
 from cirl_study.study.multiverse import base_universe, universe_pipeline, universes
-from cirl_study.study.spec import AXES, Pipeline
+from cirl_study.study.spec import AXES, Pipeline, Universe
 
 MAX_TARGET_BYTES = 1 << 20
 """Largest target file read."""
@@ -211,6 +211,21 @@ def calibrate(
         nearest_claims=_claims_in(*studies[ranked[0].id], paper_only=base is not None),
         run_id=run_id,
     )
+
+
+def universe_distance(
+    trials: Sequence[TrialRow],
+    pipeline: Pipeline,
+    universe: Universe,
+    target: Sequence[TargetCell],
+) -> UniverseDistance:
+    """The distance to ``target`` of ``universe``, one of the multiverse ``pipeline``'s, on
+    the run's ``trials``, measured as :func:`calibrate` measures each universe (a refinement's
+    probe, :mod:`cirl_study.study.probes`); not the base universe's."""
+    main = [r for r in universe_trials(trials, pipeline)[universe] if r.block == MAIN]
+    means = cell_means(trial_table(main)).get(universe.id, {})
+    reference = universe_pipeline(pipeline, universe).main.reference_robot
+    return _distance(universe.id, False, settings(universe), reference, means, target)
 
 
 def _settings(pipeline: Pipeline) -> dict[str, tuple[dict[str, Any], str]]:

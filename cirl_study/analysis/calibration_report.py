@@ -1,7 +1,8 @@
 """The report of a calibration: ``report.md``, ``results.json``, ``universes.csv``, the figure.
 
 :func:`write_calibration_report` writes what :func:`cirl_study.analysis.calibration.calibrate`
-found: the universes nearest the target with their settings, the target beside the nearest
+found: the universes nearest the target with their settings, the search's path and the
+refined universe beside the nearest (with ``--refine``), the target beside the nearest
 universes' measurements cell by cell, the paper's claims in the nearest universe, and per axis
 the best level and how far the distance moves (``docs/multiverse.md``, *Calibration*).
 """
@@ -21,7 +22,7 @@ from cirl_study.analysis import figures
 from cirl_study.analysis.markdown import MEASURE_NAMES, document, number, p_text, table
 from cirl_study.analysis.multiverse import level_label
 from cirl_study.analysis.output import write_report_directory
-from cirl_study.analysis.result_types import CalibrationResults, UniverseDistance
+from cirl_study.analysis.result_types import CalibrationResults, Refinement, UniverseDistance
 
 FIGURE_NAME = "calibration.png"
 """Target against measured, per cell, for the nearest universes."""
@@ -171,10 +172,97 @@ def _axes(results: CalibrationResults) -> list[str]:
     ]
 
 
+STOPS = {
+    "exact": "it reached a distance of 0, which nothing is nearer than",
+    "converged": "no neighbour at the smallest step, on any setting, was nearer",
+    "budget": "it had played its budget of probes",
+}
+"""Why a refinement stopped, by its ``stop``."""
+
+
+def _refinement(results: CalibrationResults) -> list[str]:
+    refinement = results.refinement
+    if refinement is None:
+        return []
+    nearest, final = results.universes[0], refinement.final
+    probes = refinement.played + refinement.reused
+    of_run = len(refinement.probes) - probes
+    path = [
+        [
+            str(index),
+            escape.markdown(row.axis),
+            f"x{row.step:.3g}",
+            *[escape.markdown(level_label(row.settings[axis])) for axis in refinement.axes],
+            row.source,
+            number(row.mean_squared_log_ratio),
+            number(row.chi_square) + (f" ({row.chi_square_df})" if row.chi_square_df else ""),
+            p_text(row.log10_p),
+            "yes" if row.accepted else "",
+        ]
+        for index, row in enumerate(refinement.probes, start=1)
+    ]
+    beside = [
+        [
+            escape.markdown(axis),
+            escape.markdown(level_label(nearest.settings.get(axis))),
+            escape.markdown(level_label(final.settings.get(axis)))
+            + (" (moved)" if nearest.settings.get(axis) != final.settings.get(axis) else ""),
+        ]
+        for axis in final.settings
+        if nearest.settings.get(axis) is not None or final.settings.get(axis) is not None
+    ]
+    beside += [
+        ["D", number(nearest.mean_squared_log_ratio), number(final.mean_squared_log_ratio)],
+        ["p", p_text(nearest.log10_p), p_text(final.log10_p)],
+    ]
+    axes = ", ".join(f"`{axis}`" for axis in refinement.axes)
+    return [
+        "## Refinement",
+        "",
+        f"A coordinate search from the nearest universe over {axes} (`docs/multiverse.md`, "
+        "*Refinement*): each sweep takes every setting in turn, measures its value divided "
+        "and multiplied by the step factor, and moves to the nearer of the two when it lowers "
+        f"`D`; a sweep that does not move shrinks the step, from x{refinement.first_step:.3g} "
+        f"to its square root, down to x{refinement.min_step:.3g}. It measured "
+        f"{len(refinement.probes)} point(s): {probes} probe(s), each a universe played as a "
+        f"run of its own ({refinement.played} played now, {refinement.reused} reused; at most "
+        f"{refinement.max_probes}), and {of_run} universe(s) of the run; it stopped because "
+        f"{STOPS[refinement.stop]}.",
+        "",
+        table(
+            [
+                "#",
+                "setting",
+                "step",
+                *refinement.axes,
+                "source",
+                "D",
+                "chi-square (df)",
+                "p",
+                "moved to",
+            ],
+            path,
+            [True, False, True, *[True] * len(refinement.axes), False, True, True, True, False],
+        ),  # fmt: skip
+        "",
+        f"The refined universe {_label(final)} beside the nearest universe of the run:",
+        "",
+        table(["setting", "nearest of the run", "refined"], beside, [False, True, True]),
+        "",
+    ]
+
+
 def render_markdown(results: CalibrationResults) -> str:
     """``report.md`` of a calibration."""
     return document(
-        [_header(results), _nearest(results), _cells(results), _claims(results), _axes(results)]
+        [
+            _header(results),
+            _nearest(results),
+            _refinement(results),
+            _cells(results),
+            _claims(results),
+            _axes(results),
+        ]
     )
 
 
@@ -192,6 +280,27 @@ def universe_table(results: CalibrationResults) -> pd.DataFrame:
                 "missing": "; ".join(u.missing),
             }
             for u in results.universes
+        ]
+    )
+
+
+def probe_table(refinement: Refinement) -> pd.DataFrame:
+    """``probes.csv`` of a refined calibration: every point the search measured, in order."""
+    return pd.DataFrame(
+        [
+            {
+                "universe": row.id,
+                **{axis: row.settings[axis] for axis in refinement.axes},
+                "axis": row.axis,
+                "step": row.step,
+                "source": row.source,
+                "mean_squared_log_ratio": row.mean_squared_log_ratio,
+                "chi_square": row.chi_square,
+                "chi_square_df": row.chi_square_df,
+                "log10_p": row.log10_p,
+                "accepted": row.accepted,
+            }
+            for row in refinement.probes
         ]
     )
 
@@ -218,7 +327,8 @@ def write_calibration_report(
     results: CalibrationResults, out_dir: Path | str, *, provenance: Mapping[str, Any] | None
 ) -> None:
     """Write the calibration ``results`` into ``out_dir``: ``report.md``, ``results.json``,
-    ``universes.csv``, the figure (PNG and SVG) and ``provenance.json`` (if given).
+    ``universes.csv`` (and of a refinement ``probes.csv``), the figure (PNG and SVG) and
+    ``provenance.json`` (if given).
 
     Raises:
         UserError: the report cannot be written.
@@ -227,7 +337,14 @@ def write_calibration_report(
         out_dir,
         markdown=render_markdown(results),
         results=msgspec.to_builtins(results),
-        tables={"universes.csv": universe_table(results)},
+        tables={
+            "universes.csv": universe_table(results),
+            **(
+                {}
+                if results.refinement is None
+                else {"probes.csv": probe_table(results.refinement)}
+            ),
+        },
         figures=figures.draw_all(
             {FIGURE_NAME: (figures.calibration_plot, (comparison_frame(results),))}
         ),

@@ -563,10 +563,51 @@ class AxisDistance(msgspec.Struct, **_ROW):
     levels: list[LevelDistance]
 
 
+class RefinementProbe(msgspec.Struct, **_ROW):
+    """A point the refinement measured, in the order measured (``docs/multiverse.md``,
+    *Refinement*): its universe and that universe's values of the searched settings, the axis
+    and step factor of the move that proposed it, where its distance comes from (``source``:
+    ``run``, a universe of the run; ``played``, a probe played now; ``reused``, a probe whose
+    run the probes directory held complete), the distance and chi-square as
+    :class:`UniverseDistance` has them, and whether the search moved to it."""
+
+    id: str
+    settings: dict[str, Any]
+    axis: str
+    step: float
+    source: str
+    mean_squared_log_ratio: Number
+    chi_square: Number
+    chi_square_df: int
+    p: Number
+    log10_p: Number
+    accepted: bool
+
+
+class Refinement(msgspec.Struct, **_ROW):
+    """The coordinate search from the nearest universe (``start``) over the numeric settings
+    ``axes`` (:mod:`cirl_study.analysis.refine`): its step factors, from ``first_step`` down
+    to ``min_step``, its budget, every point measured, the probes played now and reused, why
+    it stopped (``exact``, ``converged`` or ``budget``) and the universe it ended at with its
+    distance (``final``; ``start``'s own when no probe was nearer)."""
+
+    start: str
+    axes: list[str]
+    first_step: float
+    min_step: float
+    max_probes: int
+    probes: list[RefinementProbe]
+    played: int
+    reused: int
+    stop: str
+    final: UniverseDistance
+
+
 class CalibrationResults(msgspec.Struct, **_ROW):
     """``results.json`` of a calibration (:func:`cirl_study.analysis.calibration.calibrate`):
     the target, every universe's distance to it (ranked universes first, nearest first), the
-    axes, and the claims judged in the nearest universe."""
+    axes, the claims judged in the nearest universe, and with ``--refine`` the refinement
+    (left out without)."""
 
     pipeline: str
     target_file: str
@@ -576,6 +617,7 @@ class CalibrationResults(msgspec.Struct, **_ROW):
     axes: list[AxisDistance]
     nearest_claims: list[ClaimRow]
     run_id: str | None
+    refinement: Refinement | None = None
 
 
 SCHEMAS: dict[str, type[msgspec.Struct]] = {

@@ -4,24 +4,32 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
+from cirl_study.analysis.refine import DEFAULT_MAX_PROBES
 from cirl_study.commands.analyze import (
     ForceOption,
     RunArgument,
     prepare_analysis,
     report_provenance_of,
 )
-from cirl_study.commands.parameters import Command
+from cirl_study.commands.parameters import Command, number
+from cirl_study.errors import UserError
 from cirl_study.escape import terminal
+
+if TYPE_CHECKING:
+    from cirl_study.analysis.result_types import Refinement, UniverseDistance
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``calibrate`` command, merged into :data:`cirl_study.cli.app`."""
 
 REPORT_NAME = "calibration"
 """Name of the default calibration report directory, inside the run directory."""
+
+PROBES_NAME = "probes"
+"""Name of the default directory of a refinement's probes, inside the run directory."""
 
 TargetOption = Annotated[
     Path,
@@ -45,6 +53,52 @@ CalibrationDirectoryOption = Annotated[
     ),
 ]
 
+RefineOption = Annotated[
+    bool,
+    typer.Option(
+        "--refine",
+        help="Then search the numeric settings around the nearest universe (sigma; for the "
+        "gradient-ascent robot its steps and learning rate), one at a time, until the distance "
+        "stops falling; each probe a universe played as a run of its own in --probes "
+        "(docs/multiverse.md, Refinement).",
+    ),
+]
+
+MaxProbesOption = Annotated[
+    int | None,
+    typer.Option(
+        "--max-probes",
+        metavar="N",
+        parser=number(int, "an integer"),
+        show_default=str(DEFAULT_MAX_PROBES),
+        help="With --refine: the most probes the search plays (or reuses).",
+    ),
+]
+
+ProbesOption = Annotated[
+    Path | None,
+    typer.Option(
+        "--probes",
+        metavar="DIR",
+        show_default="RUN/probes",
+        help="With --refine: where the probes are played, a run directory per universe "
+        "(DIR/<universe id>). A probe played before is read, not replayed; one holding "
+        "another pipeline's logs is refused.",
+    ),
+]
+
+ProbeWorkersOption = Annotated[
+    int | None,
+    typer.Option(
+        "--workers",
+        metavar="N",
+        parser=number(int, "an integer"),
+        show_default="all cores",
+        help="With --refine: a probe's trials played at once, by worker processes on this "
+        "machine; 1 plays in this process. Results do not depend on it.",
+    ),
+]
+
 
 @app.command(cls=Command)
 def calibrate(
@@ -52,6 +106,10 @@ def calibrate(
     target: TargetOption,
     out: CalibrationDirectoryOption = None,
     force: ForceOption = False,
+    refine: RefineOption = False,
+    max_probes: MaxProbesOption = None,
+    probes: ProbesOption = None,
+    workers: ProbeWorkersOption = None,
 ) -> None:
     """Rank a run's universes by their distance to a table of published numbers.
 
@@ -63,16 +121,33 @@ def calibrate(
     means, the paper's claims in the nearest universe, and per setting the best level and
     how far the distance moves. Reads only the run's MCAP logs, checked as analyze checks
     them; the run must be complete.
+
+    With --refine (a multiverse run), a coordinate search then moves the nearest universe's
+    numeric settings while the distance falls, each probe played, logged and read as a run;
+    the report adds the search's path. Progress of the probes goes to stderr.
     """
     from cirl_study.analysis.calibration import read_target
     from cirl_study.logs.reader import read_run
 
+    if not refine:
+        for given, name in (
+            (max_probes, "--max-probes"),
+            (probes, "--probes"),
+            (workers, "--workers"),
+        ):
+            if given is not None:
+                raise UserError(f"{name} needs --refine")
+    if max_probes is not None and max_probes < 1:
+        raise UserError(f"--max-probes must be a positive integer, got {max_probes}")
+    if workers is not None and workers < 1:
+        raise UserError(f"--workers must be a positive integer, got {workers}")
     target_dir = out if out is not None else run / REPORT_NAME
+    probes_dir = probes if probes is not None else run / PROBES_NAME
     cells, sha256 = read_target(target)
     report_provenance: dict[str, Any] = {}
+    outputs = (run, target_dir, probes_dir) if refine else (run, target_dir)
     contents = read_run(
-        run,
-        meanwhile=lambda: report_provenance.update(prepare_analysis(outputs=(run, target_dir))),
+        run, meanwhile=lambda: report_provenance.update(prepare_analysis(outputs=outputs))
     )
     from cirl_study.analysis.calibration import calibrate as calibrate_run
     from cirl_study.analysis.calibration_report import write_calibration_report
@@ -82,6 +157,8 @@ def calibrate(
     for warning in contents.warnings:
         typer.echo(f"warning: {terminal(warning, limit=None)}", err=True)
     chosen = analysed_run(run, contents, partial=False)
+    if refine and chosen.pipeline.multiverse is None:
+        raise UserError(f"{terminal(run)}: --refine needs a multiverse run, not a single study")
     run_id = contents.identity.run_id
     results = calibrate_run(
         chosen.trials,
@@ -91,6 +168,21 @@ def calibrate(
         target_sha256=sha256,
         run_id=run_id,
     )
+    if refine:
+        import msgspec
+
+        from cirl_study.commands.refinement import refine as refine_nearest
+        from cirl_study.study.engines import make_engine
+
+        refinement = refine_nearest(
+            chosen.pipeline,
+            results,
+            cells,
+            probes=probes_dir,
+            engine=lambda: make_engine("local", workers, None),
+            max_probes=DEFAULT_MAX_PROBES if max_probes is None else max_probes,
+        )
+        results = msgspec.structs.replace(results, refinement=refinement)
     provenance = report_provenance_of(contents.provenance, report_provenance)
     with replacing_report(target_dir, run_id=run_id, force=force) as replacement:
         write_calibration_report(results, replacement.stage, provenance=provenance)
@@ -101,4 +193,33 @@ def calibrate(
         f"calibration of {len(results.universes)} universe(s) against {len(cells)} target "
         f"cells written to {terminal(target_dir)}: nearest {name}, "
         f"D = {nearest.mean_squared_log_ratio:.4g} (within a factor of {factor:.3g})"
+    )
+    if results.refinement is not None:
+        typer.echo(refinement_summary(results.refinement, nearest))
+
+
+STOPS = {
+    "exact": "it reached D = 0",
+    "converged": "no neighbour at the smallest step is nearer",
+    "budget": "it spent its --max-probes",
+}
+"""Why a refinement stopped, in words, by its ``stop``."""
+
+
+def refinement_summary(refinement: Refinement, nearest: UniverseDistance) -> str:
+    """The line a refinement ends with: its probes, why it stopped, and where it ended
+    against where it began (the ``nearest`` universe of the run)."""
+    from cirl_study.analysis.multiverse import level_label
+
+    final = refinement.final
+    moves = ", ".join(
+        f"{name} {level_label(nearest.settings[name])} -> {level_label(final.settings[name])}"
+        for name in refinement.axes
+    )
+    probes = refinement.played + refinement.reused
+    return (
+        f"refinement over {', '.join(refinement.axes)}: {probes} probe(s) "
+        f"({refinement.played} played now, {refinement.reused} reused), stopped because "
+        f"{STOPS[refinement.stop]}: {moves}, D = {final.mean_squared_log_ratio:.4g} "
+        f"(was {nearest.mean_squared_log_ratio:.4g})"
     )
