@@ -8,12 +8,21 @@ import math
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 from scipy import stats
 
-from cirl_study.analysis.calibration import Z_95, ranked_distances, read_target
+from cirl_study.analysis.calibration import (
+    Z_95,
+    calibrate,
+    cell_means,
+    ranked_distances,
+    read_target,
+)
 from cirl_study.analysis.result_types import TargetCell
 from cirl_study.errors import UserError
+from cirl_study.logs.reader import read_run
+from cirl_study.study.audit import analysed_run
 
 ROOT = Path(__file__).resolve().parent.parent
 HEADER = "measure,num_features,policy,value,se\n"
@@ -177,3 +186,44 @@ def test_a_single_study_is_calibrated_as_one_universe(smoke_run: Path, tmp_path:
     assert universe["id"] == "" and results["axes"] == []
     assert universe["mean_squared_log_ratio"] == pytest.approx(math.log(2) ** 2, rel=1e-12)
     assert "nearest the run, D = 0.4805 (within a factor of 2)" in result.stdout
+
+
+def test_a_single_study_is_calibrated_on_regret_under_the_estimate(
+    smoke_run: Path, tmp_path: Path
+) -> None:
+    from cirl_study.api import load_trials
+
+    table = load_trials(smoke_run)
+    cell = table[(table["block"] == "main") & (table["num_features"] == 3)]
+    expert = cell[cell["policy"] == "expert"]
+    measured = float(expert["regret_under_estimate"].mean())
+    assert measured > 0 and measured != float(expert["regret"].mean())
+    target = _target(
+        tmp_path,
+        f"measure,num_features,policy,value\nregret_under_estimate,3,expert,{3 * measured!r}\n",
+    )
+    cells, _ = read_target(target)
+    contents = read_run(smoke_run)
+    chosen = analysed_run(smoke_run, contents, partial=False)
+    results = calibrate(
+        chosen.trials, chosen.pipeline, cells, target_file="t.csv", target_sha256="0",
+        run_id=contents.identity.run_id,
+    )  # fmt: skip
+    (universe,) = results.universes
+    assert universe.mean_squared_log_ratio == pytest.approx(math.log(3) ** 2, rel=1e-12)
+
+
+def test_a_cell_whose_trials_lack_a_measure_is_missing() -> None:
+    table = pd.DataFrame(
+        {
+            "universe": [None, None],
+            "num_features": [3, 3],
+            "policy": ["expert", "expert"],
+            "robot": ["map", "map"],
+            **{measure: [1.0, 2.0] for measure in ("regret", "kl", "reward_l2")},
+            "regret_under_estimate": [float("nan"), float("nan")],
+        }
+    )
+    means = cell_means(table)[""]
+    assert means[("regret", 3, "expert", "map")] == (2, 1.5, pytest.approx(math.sqrt(0.5)))
+    assert ("regret_under_estimate", 3, "expert", "map") not in means

@@ -55,7 +55,7 @@ from cirl_study.analysis.tails import chi2_tail
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.files import read_regular_file
-from cirl_study.record import MAIN, MEASURES, TrialRow
+from cirl_study.record import LOGGED_MEASURES, MAIN, TrialRow
 from cirl_study.study.multiverse import base_universe, universe_pipeline, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe
 
@@ -119,9 +119,9 @@ def _target_cell(row: dict[str, str | None], where: str) -> TargetCell:
         raise UserError(f"{where}: has more fields than the header")
     field = {name: (value or "").strip() for name, value in row.items()}
     measure = field["measure"]
-    if measure not in MEASURES:
+    if measure not in LOGGED_MEASURES:
         raise UserError(
-            f"{where}: measure must be one of {', '.join(MEASURES)}, got {terminal(measure)}"
+            f"{where}: measure must be one of {', '.join(LOGGED_MEASURES)}, got {terminal(measure)}"
         )
     features = field["num_features"]
     if not features.isdigit() or int(features) < 1:
@@ -283,13 +283,17 @@ def ranked_distances(
 def cell_means(main: pd.DataFrame) -> dict[str, dict[CellKey, Measured]]:
     """Per universe id (``""`` in a single study), per cell of the trial table ``main`` (of
     the ``main`` block, each universe's rows as it analyses them): ``(n, mean, sd)`` of each
-    measure."""
+    logged measure over the trials that hold it (``regret_under_estimate`` is missing from
+    records of log formats before 7: a cell none of whose trials holds it is left out, and
+    a target naming it is then told the universe lacks the cell)."""
     main = main.assign(universe=main["universe"].fillna(""))
     keys = ["universe", "num_features", "policy", "robot"]
     means: dict[str, dict[CellKey, Measured]] = {}
-    for measure in MEASURES:
+    for measure in LOGGED_MEASURES:
         grouped = main.groupby(keys, sort=True)[measure].agg(["count", "mean", "std"])
         for (universe, k, policy, robot), row in grouped.iterrows():
+            if row["count"] == 0:
+                continue
             means.setdefault(str(universe), {})[(measure, int(k), str(policy), str(robot))] = (
                 int(row["count"]),
                 float(row["mean"]),
