@@ -26,6 +26,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from types import FrameType
 
@@ -108,10 +109,28 @@ def _raise_again(
     return unraisable
 
 
-def leave_to_parent() -> None:
-    """Ignore :data:`STOPPING` in this worker process: its parent stops it."""
+def leave_to_parent(parent: int | None = None) -> None:
+    """Ignore :data:`STOPPING` in this worker process: its parent stops it.
+
+    With ``parent`` (the parent's process id, read before the fork), a daemon thread also
+    ends this worker at once when that parent is gone: one whose parent was killed (SIGKILL
+    leaves it no chance to stop its workers) would otherwise wait for work forever.
+    """
     for signum in STOPPING:
         signal.signal(signum, signal.SIG_IGN)
+    if parent is not None:
+        threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
+
+
+PARENT_POLL_SECONDS = 0.5
+"""How often a worker looks whether its parent is gone."""
+
+
+def _exit_with_parent(parent: int) -> None:
+    """Poll until the process ``parent`` is no longer this one's parent, then end at once."""
+    while os.getppid() == parent:
+        time.sleep(PARENT_POLL_SECONDS)
+    os._exit(1)
 
 
 @contextlib.contextmanager

@@ -97,6 +97,7 @@ def _forked(
         workers,
         mp_context=multiprocessing.get_context("fork"),
         initializer=interrupts.leave_to_parent,
+        initargs=(os.getpid(),),
     )
     try:
         # The workers are forked by the first submission, with this process's objects frozen

@@ -25,6 +25,7 @@ import pytest
 from test_runner_engines import trial_payloads
 
 from cirl_study.escape import shell
+from cirl_study.interrupts import PARENT_POLL_SECONDS
 from cirl_study.logs.lock import LOCK_NAME, writer_pid
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.pipeline_file import load_pipeline
@@ -110,6 +111,15 @@ def alive(pid: int) -> bool:
     except ProcessLookupError:
         return False
     return True
+
+
+def running(pid: int) -> bool:
+    """Whether ``pid`` is a process that has not ended (a zombie, not yet reaped, has)."""
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
 
 
 @contextlib.contextmanager
@@ -284,6 +294,21 @@ def test_ctrl_c_during_analyze_is_one_line(reference: Path, tmp_path: Path) -> N
     assert sorted(path.name for path in run.iterdir()) == sorted(
         path.name for path in reference.iterdir()
     )
+
+
+def test_the_workers_of_a_killed_analyze_end_with_it(reference: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(reference, run)
+    process = start("analyze", str(run))
+    with group_ended(process):
+        wait_for(lambda: children(process.pid), process)  # its workers read the logs
+        workers = children(process.pid)
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait(timeout=SECONDS)
+        gone = time.monotonic() + 10 * PARENT_POLL_SECONDS + 5
+        while any(map(running, workers)) and time.monotonic() < gone:
+            time.sleep(0.05)
+        assert not any(map(running, workers))
 
 
 _SCHEDULER = """

@@ -97,17 +97,6 @@ def default_workers() -> int:
     return os.cpu_count() or 1
 
 
-def _exit_with_parent(parent: int) -> None:
-    """Poll until the parent process is gone, then end this worker at once.
-
-    A worker whose parent was killed (SIGKILL leaves no chance to clean up) would otherwise
-    wait for work forever.
-    """
-    while os.getppid() == parent:
-        time.sleep(0.5)
-    os._exit(1)
-
-
 class WorkerLost(Exception):
     """The workers the run needs are gone: a local worker was killed (by the OOM killer, say)
     or crashed, a Dask cluster has no workers left; the message says which, in a few words
@@ -123,10 +112,9 @@ def _serve(connection: Connection, parent: int, others: Sequence[Connection]) ->
     before it, closed here so that each worker's pipe ends when the parent closes its end.
     """
     # The stopping signals are the parent's to handle: it stops the run and ends its workers.
-    interrupts.leave_to_parent()
+    interrupts.leave_to_parent(parent)
     for other in others:
         other.close()
-    threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
     while True:
         try:
             batch = connection.recv()
