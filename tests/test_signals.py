@@ -282,12 +282,20 @@ def test_a_second_ctrl_c_exits_at_once() -> None:
     assert stderr == "interrupted (SIGINT)\n"
 
 
-def test_ctrl_c_during_analyze_is_one_line(reference: Path, tmp_path: Path) -> None:
-    run = tmp_path / "run"
+@contextlib.contextmanager
+def analyze_reading(reference: Path, run: Path) -> Iterator[subprocess.Popen[str]]:
+    """``cirl-study analyze`` of ``run``, a copy of the reference run, once its workers read
+    the logs; what is left of it is killed after the block."""
     shutil.copytree(reference, run)
     process = start("analyze", str(run))
     with group_ended(process):
-        wait_for(lambda: children(process.pid), process)  # its workers read the logs
+        wait_for(lambda: children(process.pid), process)
+        yield process
+
+
+def test_ctrl_c_during_analyze_is_one_line(reference: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    with analyze_reading(reference, run) as process:
         os.killpg(process.pid, signal.SIGINT)
         code, line = ended(process)
     assert (code, line) == (128 + signal.SIGINT, "interrupted (SIGINT)")
@@ -297,11 +305,7 @@ def test_ctrl_c_during_analyze_is_one_line(reference: Path, tmp_path: Path) -> N
 
 
 def test_the_workers_of_a_killed_analyze_end_with_it(reference: Path, tmp_path: Path) -> None:
-    run = tmp_path / "run"
-    shutil.copytree(reference, run)
-    process = start("analyze", str(run))
-    with group_ended(process):
-        wait_for(lambda: children(process.pid), process)  # its workers read the logs
+    with analyze_reading(reference, tmp_path / "run") as process:
         workers = children(process.pid)
         os.kill(process.pid, signal.SIGKILL)
         process.wait(timeout=SECONDS)
