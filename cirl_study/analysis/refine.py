@@ -34,7 +34,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 FIRST_STEP = 2.0
@@ -139,18 +139,20 @@ def coordinate_search(
     if first is None or not math.isfinite(first):
         raise ValueError("the search starts at a point with a finite distance")
     measured: dict[Point, float] = {start: first}
-    evaluations: list[dict[str, Any]] = []
+    evaluations: list[Evaluation] = []
+    accepted: set[Point] = set()  # no point is measured twice, so a point names its evaluation
+    probes = 0
 
     def measure(point: Point, axis: str, step: float) -> float:
+        nonlocal probes
         if point in measured:
             return measured[point]
         probed = point not in known
-        if probed and sum(e["probed"] for e in evaluations) >= max_probes:
+        if probed and probes >= max_probes:
             raise _BudgetSpent
         value = distance(point) if probed else known[point]
-        evaluations.append(
-            {"point": point, "axis": axis, "step": step, "distance": value, "probed": probed}
-        )
+        probes += probed
+        evaluations.append(Evaluation(point, axis, step, value, probed, accepted=False))
         measured[point] = math.inf if value is None else value
         return measured[point]
 
@@ -168,7 +170,7 @@ def coordinate_search(
                 nearest = min(scored, key=lambda pair: pair[0], default=(math.inf, point))
                 if nearest[0] < measured[point]:
                     point, moved = nearest[1], True
-                    next(e for e in evaluations if e["point"] == point)["accepted"] = True
+                    accepted.add(point)
                     if nearest[0] == 0:
                         break
             if not moved:
@@ -179,9 +181,9 @@ def coordinate_search(
     except _BudgetSpent:
         stop = "budget"
     return Search(
-        evaluations=tuple(Evaluation(**{"accepted": False, **e}) for e in evaluations),
+        evaluations=tuple(replace(e, accepted=e.point in accepted) for e in evaluations),
         point=point,
         distance=measured[point],
-        probes=sum(e["probed"] for e in evaluations),
+        probes=probes,
         stop=stop,
     )
