@@ -6,6 +6,8 @@ demonstration and the first two moments of the feature counts; every one is comp
 the same quantity summed over every enumerated path.
 """
 
+import math
+
 import mpmath
 import numpy as np
 import path_enumeration as bf
@@ -13,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cirl_study.core.maxent import MaxEnt, Moments, Phase
+from cirl_study.core.maxent import MaxEnt, Moments, Phase, _split_exp
 
 
 def _model(features, width, height, start, horizon, rationality, batch=1):
@@ -104,11 +106,9 @@ def test_log_likelihood_at_equals_enumeration(rationality):
 
 @pytest.mark.parametrize("rationality", [1e-4, 1.0, 10.0, 30.0, 100.0, 1e3, 1e5])
 def test_log_likelihood_at_equals_the_one_at_a_time_recursion(rationality):
-    # log_likelihood_at scores points in linear space, switching to log space where masses
-    # fall below 2^-500 (on this game: never up to lambda = 30, part-way for most points at
-    # 100, from the first step at 1e3 and 1e5); either way it matches the soft value
-    # iteration of log_partition to rounding. The rounding is of the terms summed, about
-    # T * lambda * max|theta . phi|, not of log Z itself.
+    # log_likelihood_at scores points in linear space with a binary exponent per cell, at
+    # every lambda; it matches the log-space soft value iteration of log_partition to the
+    # rounding of the terms that one sums, about T * lambda * max|theta . phi|.
     width, height, start, horizon, k = 10, 10, 55, 9, 10
     rng = np.random.default_rng(9)
     centres = rng.uniform(0, 9, size=(k, 2))
@@ -120,10 +120,74 @@ def test_log_likelihood_at_equals_the_one_at_a_time_recursion(rationality):
     batched = model.take([0]).log_likelihood_at(thetas[None], demo[None])[0]
     scale = 1.0 + horizon * rationality * np.abs(thetas @ features.T).max(axis=1)
     np.testing.assert_array_less(np.abs(batched - one_at_a_time), 1e-12 * scale)
-    # Each point is scored on its own: the same bits alone as among the others.
+    # Each point is scored on its own: the same bits alone as among the others, in the
+    # SIMD lanes' loop or its remainder.
     for n in (0, 17, 63):
         alone = model.take([0]).log_likelihood_at(thetas[None, [n]], demo[None])[0, 0]
         assert alone == batched[n]
+    assert_array_equal = np.testing.assert_array_equal
+    assert_array_equal(
+        model.take([0]).log_likelihood_at(thetas[None, 5:], demo[None])[0], batched[5:]
+    )
+
+
+@pytest.mark.parametrize("rationality", [1e-4, 1.0, 1e3, 1e5])
+def test_log_likelihood_at_equals_high_precision_enumeration(rationality):
+    # Every path's weight summed in 50 digits, at the float64 points: the error is the
+    # rounding of lambda * theta . phi(s) (relative 2^-53, each of the T terms of a path)
+    # and of the sums, so within a few T ulp of lambda * max|theta . phi(s)|.
+    width, height, start, horizon = 4, 4, 5, 5
+    rng, features, paths, counts = bf.random_game(width, height, start, horizon, 3, seed=12)
+    thetas = rng.uniform(-1, 1, size=(1, 9, 3))
+    demo = counts[rng.integers(len(paths), size=1)]
+    got = _model(features, width, height, start, horizon, rationality, 1).log_likelihood_at(
+        thetas, demo
+    )[0]
+    with mpmath.workdps(50):
+        for n, theta in enumerate(thetas[0]):
+            scores = [
+                rationality
+                * mpmath.fsum(mpmath.mpf(c) * t for c, t in zip(row, theta, strict=True))
+                for row in counts
+            ]
+            top = max(scores)
+            log_z = top + mpmath.log(mpmath.fsum(mpmath.exp(s - top) for s in scores))
+            want = (
+                rationality
+                * mpmath.fsum(mpmath.mpf(c) * t for c, t in zip(demo[0], theta, strict=True))
+                - log_z
+            )
+            scale = 1.0 + rationality * np.abs(features @ theta).max()
+            assert abs(float(got[n] - want)) <= 8 * horizon * 2.0**-52 * scale
+
+
+@pytest.mark.parametrize(("horizon", "rationality"), [(40, 1e-4), (40, 1.0), (40, 50.0), (19, 1e3)])
+def test_log_likelihood_at_renormalises_long_phases(horizon, rationality):
+    # Masses grow by up to 2A = 10 a step, so phases longer than 18 steps are brought back
+    # to [1, 2) on the way; the soft value iteration of log_partition is the reference.
+    width, height, start, k = 3, 3, 4, 3
+    rng = np.random.default_rng(horizon)
+    features = rng.uniform(0, 1, size=(width * height, k))
+    thetas = rng.uniform(-1, 1, size=(20, k))
+    demo = features[rng.integers(width * height, size=horizon)].sum(axis=0)
+    model = _model(features, width, height, start, horizon, rationality, batch=20)
+    want = model.log_likelihood(thetas, np.broadcast_to(demo, (20, k)))
+    got = model.take([0]).log_likelihood_at(thetas[None], demo[None])[0]
+    scale = 1.0 + horizon * rationality * np.abs(thetas @ features.T).max(axis=1)
+    np.testing.assert_array_less(np.abs(got - want), 1e-12 * scale)
+
+
+def test_split_exp_is_within_two_ulp_of_high_precision():
+    rng = np.random.default_rng(3)
+    xs = [*rng.uniform(-745.0, 709.0, 400), *rng.uniform(-1e5, 1e5, 100)]
+    xs += [0.0, 1e-300, -1e-300, math.log(2.0), -math.log(2.0), 1.0 / 32.0, -40.0]
+    with mpmath.workdps(40):
+        for x in xs:
+            m, e = _split_exp(x)
+            assert e == math.floor(e)
+            assert 1.0 <= m < 2.0 * (1.0 + 2.0**-40)
+            exact = mpmath.exp(mpmath.mpf(x)) / mpmath.mpf(2) ** int(e)
+            assert abs(float((m - exact) / exact)) <= 2 * 2.0**-52, x
 
 
 @pytest.mark.parametrize("rationality", [1e-2, 1.0, 20.0, 1e3])

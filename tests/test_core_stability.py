@@ -4,7 +4,8 @@ The same trials of the paper's game, at every lambda of its sweep, give the same
 (to 1e-6) in processes whose BLAS kernels differ (``OPENBLAS_CORETYPE`` changes only the
 kernels' rounding), and when the features are perturbed by 1e-12. The ``posterior_mean``
 robot's records are bitwise the same whatever the BLAS kernel, whichever of numpy's SIMD
-variants are dispatched (``NPY_DISABLE_CPU_FEATURES``), and whatever trials share the batch.
+variants are dispatched (``NPY_DISABLE_CPU_FEATURES``), whatever vector width its compiled
+loops run in (``NUMBA_CPU_NAME=generic``), and whatever trials share the batch.
 """
 
 from __future__ import annotations
@@ -97,9 +98,12 @@ def _play_with(
     digest: str = "estimates",
     trials: str = "paper_trials",
     disable: tuple[str, ...] = (),
+    cache: str | None = None,
 ) -> dict:
     """Play ``trials()`` in a new process with the BLAS kernel ``coretype`` (None: the
     library's choice) and numpy's SIMD targets ``disable`` turned off; ``digest`` of the records.
+    With ``cache`` (a fresh directory), the kernels are compiled there for a generic x86-64
+    CPU (``NUMBA_CPU_NAME=generic``: SSE2, two lanes a vector, instead of this CPU's).
     """
     environment = dict(os.environ)
     environment.pop("OPENBLAS_CORETYPE", None)
@@ -108,6 +112,8 @@ def _play_with(
         environment["OPENBLAS_CORETYPE"] = coretype
     if disable:
         environment["NPY_DISABLE_CPU_FEATURES"] = " ".join(disable)
+    if cache is not None:
+        environment.update(NUMBA_CPU_NAME="generic", NUMBA_CACHE_DIR=cache)
     code = _PLAY.format(tests=os.path.dirname(__file__), digest=digest, trials=trials)
     done = subprocess.run(
         [sys.executable, "-c", code], env=environment, capture_output=True, text=True, check=True
@@ -132,14 +138,16 @@ def test_the_estimates_do_not_depend_on_the_blas_kernels():
 
 
 @pytest.mark.skipif(sys.platform != "linux", reason="OPENBLAS_CORETYPE is an OpenBLAS setting")
-def test_the_posterior_mean_is_bitwise_the_same_on_every_kernel():
+def test_the_posterior_mean_is_bitwise_the_same_on_every_kernel(tmp_path):
     default = _play_with(None, "bits", "posterior_trials")
     assert len(default) == 12
     prescott = _play_with("Prescott", "bits", "posterior_trials")
     narrowed = _play_with(None, "bits", "posterior_trials", disable=_dispatched_targets())
+    generic = _play_with(None, "bits", "posterior_trials", cache=str(tmp_path))
     for trial, numbers in default.items():
         assert prescott[trial] == numbers, trial
         assert narrowed[trial] == numbers, trial
+        assert generic[trial] == numbers, trial
 
 
 def test_a_posterior_mean_record_does_not_depend_on_its_batch():

@@ -233,10 +233,10 @@ class MaxEnt:
         ``thetas`` is ``(B, N, K)``: for trial ``b``, the points ``thetas[b]`` at which its
         demonstration's ``demo_counts[b]`` is scored (e.g. samples of a posterior). The
         log-partitions come from :func:`_log_likelihoods`, which agrees with
-        :meth:`log_partition` to the rounding of the terms it adds (about
-        :math:`T \\lambda \\max_s |\\theta^\\top \\phi(s)|` times the machine epsilon), and
-        scores each point on its own: a point's value does not depend on the others scored
-        with it, nor on the CPU beyond the last bits of ``exp`` and ``log``.
+        :meth:`log_partition` to the rounding of :math:`\\lambda r(s)` (about
+        :math:`\\lambda \\max_s |\\theta^\\top \\phi(s)|` times the machine epsilon), and
+        scores each point on its own with additions, multiplications and one logarithm: a
+        point's value does not depend on the others scored with it, nor on the CPU.
         """
         phase = self.phase
         return _log_likelihoods(
@@ -374,17 +374,64 @@ def _log_partition(scaled, successors, start, horizon, needed):  # pragma: no co
     return log_z
 
 
-FLOOR_EXPONENT = -500
-"""Binary exponent that bounds the linear recursion of :func:`_log_likelihoods`: weights in
-``[2^-500, 2^500]`` times masses in ``[2^-500, 1)``, and sums of five such products, are
-normal doubles, so nothing there underflows or overflows."""
+LN2_HIGH = 6.93147180369123816490e-01
+"""The leading 32 bits of :math:`\\ln 2`: ``E * LN2_HIGH`` is exact for integers
+``|E| < 2^21``."""
 
-SKIP_BELOW = -40.0
-"""Terms :math:`e^{d}` with :math:`d` below it (about ``4e-18``) are left out of a log-space
-``logsumexp`` whose largest term is 1: four of them change the sum by less than half an ulp."""
+LN2_LOW = 1.90821492927058770002e-10
+""":math:`\\ln 2 -` ``LN2_HIGH``, to double precision."""
+
+EXP_TABLE_STEPS = 32
+"""Entries per unit of the table of :math:`e^{j / 32}` behind :func:`_split_exp`."""
+
+_EXP_TABLE = np.array([math.exp(j / EXP_TABLE_STEPS) for j in range(EXP_TABLE_STEPS + 2)])
+
+FARTHEST_EXPONENT = 1000
+"""A term more than this many binary orders below a sum's largest is scaled by
+``2^-FARTHEST_EXPONENT`` instead of its own power of two: the masses stay below ``2^61``
+(:data:`_RENORMALISE_BITS`), so it is below ``2^-939`` of the sum either way and the rounded
+sum is the same, and every scaled term is a normal double."""
+
+_RENORMALISE_BITS = 60
+"""The masses of :func:`_log_likelihoods` grow by at most a factor ``2A`` a step from
+``[1, 2)``; they are brought back to ``[1, 2)`` once their growth could pass ``2^60``."""
+
+LIKELIHOOD_LANES = 128
+"""Points scored together by :func:`_log_likelihoods`, in the innermost loops (SIMD lanes);
+a point's value does not depend on the others."""
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always", error_model="numpy")
+def _split_exp(x):  # pragma: no cover - compiled
+    """``(m, E)`` with :math:`e^x = m\\, 2^E`, ``E`` an integer (a float) and
+    :math:`1 \\le m < 2 (1 + 2^{-40})`, for finite ``x`` with :math:`|E| < 2^{31}`; the
+    reduction is exact while :math:`|x| < 2^{21} \\ln 2`, and beyond it :math:`r` carries a
+    rounding of about :math:`|x|\\, 2^{-53}`, that of ``x`` itself.
+
+    :math:`E = \\lfloor x / \\ln 2 \\rfloor`, :math:`r = x - E \\ln 2` (Cody and Waite's
+    two-part :math:`\\ln 2`, clamped at 0), :math:`j = \\lfloor 32 r \\rfloor`,
+    :math:`m = e^{j/32} \\cdot p(r - j/32)` with :math:`p` the degree-7 Taylor polynomial of
+    :math:`e^f` on :math:`[0, 1/32)` (remainder below :math:`2^{-55}`): additions,
+    multiplications and one table read, so the loop that calls it runs in SIMD lanes and
+    gives the same bits on every CPU; within 2 ulp of :math:`e^r` (tests: against mpmath).
+    """
+    e = np.floor(x * (1.0 / math.log(2.0)))
+    r = (x - e * LN2_HIGH) - e * LN2_LOW
+    r = r if r > 0.0 else 0.0
+    j = int(r * EXP_TABLE_STEPS)
+    f = r - j * (1.0 / EXP_TABLE_STEPS)
+    p = 1.0 / 5040.0
+    p = p * f + 1.0 / 720.0
+    p = p * f + 1.0 / 120.0
+    p = p * f + 1.0 / 24.0
+    p = p * f + 1.0 / 6.0
+    p = p * f + 0.5
+    p = p * f + 1.0
+    p = p * f + 1.0
+    return _EXP_TABLE[j] * p, e
+
+
+@njit(cache=True, error_model="numpy")
 def _log_likelihoods(
     rationality, thetas, demo_counts, features, successors, start, horizon, needed
 ):  # pragma: no cover - compiled
@@ -392,117 +439,120 @@ def _log_likelihoods(
     the ``N`` points ``thetas[b]`` of each trial, each scored on its own, every sum a loop in
     a fixed order.
 
-    :math:`\\log Z` is computed in linear space first: with
-    :math:`w(s) = e^{\\lambda r(s) - c}`, ``c`` the midpoint of the scaled rewards of the
-    cells ever entered, :math:`z_T = 1` and
-    :math:`z_t(s) = 2^{-e_t} \\sum_a w(s') z_{t+1}(s')` (``e_t`` the binary exponent of the
-    step's largest sum, so the rescaling is exact),
-    :math:`Z_t(s) = z_t(s)\\, e^{(T - t) c}\\, 2^{\\sum_{u \\ge t} e_u}`: multiply-adds, and
-    one exponential per cell rather than per move. Every operand there is a normal double,
-    rounded only, while every :math:`w` lies in ``2^(+-FLOOR_EXPONENT)`` and every rescaled
-    :math:`z` (below 1) is at least ``2^FLOOR_EXPONENT``. From the first step where a
-    :math:`z` is not (large :math:`\\lambda`: cells whose mass is negligible next to
-    others'; from the start if a :math:`w` is not), the recursion goes on in log space from
-    :math:`V_{t+1} = \\log Z_{t+1}`: :math:`V_t(s) = m + \\log \\sum_a e^{Q(s, a) - m}`,
-    :math:`m = \\max_a Q(s, a)`, leaving out the terms below ``e^SKIP_BELOW``, which do not
-    change the sum.
+    :math:`Z_t(s) = \\sum_a w(s') Z_{t+1}(s')`, :math:`Z_T = 1`, with
+    :math:`w(s) = e^{\\lambda r(s)}`, is computed in linear space with a binary exponent per
+    cell: :math:`w = m_w 2^{E_w}` (:func:`_split_exp`, once per cell) and
+    :math:`Z_t(s) = m_t(s)\\, 2^{E_t(s)}`. With :math:`G(s') = E_w(s') + E_{t+1}(s')` and
+    :math:`G^* = \\max_a G(s')`,
+
+    .. math::
+
+        E_t(s) = G^*, \\qquad
+        m_t(s) = \\sum_a m_w(s')\\, m_{t+1}(s')\\, 2^{G(s') - G^*},
+
+    each power of two exact (written as its IEEE exponent bits; see ``FARTHEST_EXPONENT``),
+    so every operation is a rounded product or sum
+    of normal doubles at every :math:`\\lambda`: nothing underflows or overflows, and no
+    exponential or logarithm is taken per move. The largest term is at least 1, so
+    :math:`m \\ge 1`; every :math:`R = \\lfloor 60 / \\log_2 2A \\rfloor` steps the masses are
+    brought back to ``[1, 2)`` (exactly, by powers of two). Finally
+    :math:`\\log Z = \\log m_0(s_0) + E_0(s_0) \\ln 2`. Each term carries a relative rounding
+    of a few ulp, so :math:`\\log Z` is within about :math:`4 T` ulp of 1 plus the rounding of
+    :math:`\\lambda r(s)` and of :math:`E \\ln 2`. The points run in the innermost loops,
+    ``LIKELIHOOD_LANES`` at a time (each lane does the same operations in the same order as
+    it would alone).
     """
     batch, points, k = thetas.shape
     cells = features.shape[1]
     actions = successors.shape[1]
+    renormalise = max(1, int(_RENORMALISE_BITS // math.log2(2.0 * actions)))
     entered = np.zeros(cells, dtype=np.bool_)
     for t in range(1, horizon + 1):
         for s in range(cells):
             entered[s] |= needed[t, s]
-    weight = np.empty(cells)
-    current = np.empty(cells)
-    following = np.empty(cells)
-    values = np.empty((horizon + 1, cells))
-    floor = math.ldexp(1.0, FLOOR_EXPONENT)
-    reach = -FLOOR_EXPONENT * np.log(2.0)
-    row = np.empty(cells)
+    lanes = LIKELIHOOD_LANES
+    theta = np.empty((k, lanes))
+    weight = np.ones((cells, lanes))
+    weight_exponent = np.zeros((cells, lanes))
+    mass = np.ones((cells, lanes))
+    exponent = np.zeros((cells, lanes))
+    combined = np.zeros((cells, lanes))
+    product = np.zeros((cells, lanes))
+    top = np.empty(lanes)
+    total = np.empty(lanes)
+    power_bits = np.empty(lanes, dtype=np.int64)
+    power = power_bits.view(np.float64)  # 2^-gap, built from its exponent bits
     log_likelihood = np.empty((batch, points))
-    for b, n in np.ndindex(batch, points):
-        theta, phi = thetas[b, n], features[b]
-        for s in range(cells):
-            if entered[s]:
-                total = 0.0
+    for b in range(batch):
+        phi = features[b]
+        for begin in range(0, points, lanes):
+            width = min(lanes, points - begin)
+            for p in range(width):
                 for i in range(k):
-                    total += phi[s, i] * theta[i]
-                row[s] = rationality * total
-        demo = 0.0
-        for i in range(k):
-            demo += theta[i] * demo_counts[b, i]
-        demo *= rationality
-        high, low = -np.inf, np.inf
-        for s in range(cells):
-            if entered[s]:
-                high, low = max(high, row[s]), min(low, row[s])
-        centre = 0.5 * (high + low)
-        t = horizon  # the linear recursion holds z_t in ``following``
-        exponents = 0
-        if high - centre <= reach:
+                    theta[i, p] = thetas[b, begin + p, i]
             for s in range(cells):
-                if entered[s]:
-                    weight[s] = np.exp(row[s] - centre)
-            following[:] = 1.0
-            while t > 0:
-                biggest = 0.0
-                for s in range(cells):
-                    if needed[t - 1, s]:
-                        total = 0.0
-                        for a in range(actions):
-                            nxt = successors[s, a]
-                            if nxt >= 0:
-                                total += weight[nxt] * following[nxt]
-                        current[s] = total
-                        biggest = max(biggest, total)
-                _, e = math.frexp(biggest)
-                scale = math.ldexp(1.0, -e)
-                lowest = np.inf
-                for s in range(cells):
-                    if needed[t - 1, s]:
-                        current[s] *= scale
-                        lowest = min(lowest, current[s])
-                if lowest < floor:
-                    break
-                following, current = current, following
-                exponents += e
-                t -= 1
-        if t == 0:
-            log_z = np.log(following[start]) + horizon * centre + exponents * np.log(2.0)
-            log_likelihood[b, n] = demo - log_z
-            continue
-        if t == horizon:
-            values[horizon, :] = 0.0
-        else:
-            offset = (horizon - t) * centre + exponents * np.log(2.0)
-            for s in range(cells):
-                if needed[t, s]:
-                    values[t, s] = np.log(following[s]) + offset
-        for u in range(t - 1, -1, -1):
-            for s in range(cells):
-                if needed[u + 1, s]:
-                    current[s] = row[s] + values[u + 1, s]  # Q of every move into s
-            for s in range(cells):
-                if not needed[u, s]:
+                if not entered[s]:
                     continue
-                best = -np.inf
-                for a in range(actions):
-                    nxt = successors[s, a]
-                    if nxt >= 0:
-                        best = max(best, current[nxt])
-                total = 0.0
-                for a in range(actions):
-                    nxt = successors[s, a]
-                    if nxt >= 0:
-                        d = current[nxt] - best
-                        if d == 0.0:
-                            total += 1.0
-                        elif d >= SKIP_BELOW:
-                            total += np.exp(d)
-                values[u, s] = best if total == 1.0 else best + np.log(total)
-        log_likelihood[b, n] = demo - values[0, start]
+                for p in range(width):
+                    total[p] = 0.0
+                for i in range(k):
+                    f = phi[s, i]
+                    for p in range(width):
+                        total[p] += f * theta[i, p]
+                for p in range(width):
+                    m, e = _split_exp(rationality * total[p])
+                    weight[s, p] = m
+                    weight_exponent[s, p] = e
+            for s in range(cells):
+                if needed[horizon, s]:
+                    for p in range(width):
+                        mass[s, p] = 1.0
+                        exponent[s, p] = 0.0
+            for t in range(horizon - 1, -1, -1):
+                for s in range(cells):
+                    if needed[t + 1, s]:
+                        for p in range(width):
+                            combined[s, p] = weight_exponent[s, p] + exponent[s, p]
+                            product[s, p] = weight[s, p] * mass[s, p]
+                for s in range(cells):
+                    if not needed[t, s]:
+                        continue
+                    for p in range(width):
+                        top[p] = -np.inf
+                    for a in range(actions):
+                        nxt = successors[s, a]
+                        if nxt >= 0:
+                            for p in range(width):
+                                g = combined[nxt, p]
+                                top[p] = g if g > top[p] else top[p]
+                    for p in range(width):
+                        total[p] = 0.0
+                    for a in range(actions):
+                        nxt = successors[s, a]
+                        if nxt >= 0:
+                            for p in range(width):
+                                gap = top[p] - combined[nxt, p]
+                                gap = gap if gap < FARTHEST_EXPONENT else FARTHEST_EXPONENT
+                                power_bits[p] = (1023 - np.int64(gap)) << 52
+                            for p in range(width):
+                                total[p] += product[nxt, p] * power[p]
+                    for p in range(width):
+                        mass[s, p] = total[p]
+                        exponent[s, p] = top[p]
+                if t > 0 and (horizon - t) % renormalise == 0:
+                    for s in range(cells):
+                        if needed[t, s]:
+                            for p in range(width):
+                                m, e = math.frexp(mass[s, p])
+                                mass[s, p] = 2.0 * m
+                                exponent[s, p] += e - 1
+            for p in range(width):
+                demo = 0.0
+                for i in range(k):
+                    demo += theta[i, p] * demo_counts[b, i]
+                m, e = mass[start, p], exponent[start, p]
+                log_z = math.log(m) + e * LN2_HIGH + e * LN2_LOW
+                log_likelihood[b, begin + p] = rationality * demo - log_z
     return log_likelihood
 
 
