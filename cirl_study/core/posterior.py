@@ -112,33 +112,43 @@ def theta_of(u: FloatArray) -> FloatArray:
     return erf(u / _SQRT2)
 
 
-@njit(cache=True)
+_PDF_BLOCK = 128
+"""Points whose densities :func:`_log_pdf` forms together, in its innermost loops."""
+
+
+@njit(cache=True, error_model="numpy")
 def _log_pdf(u, mean, chol, log_norm):  # pragma: no cover - compiled
     """``(N,)`` :math:`\\log N(u_i; m, L L^\\top)`: :math:`z = L^{-1}(u_i - m)` by forward
     substitution, ``log_norm`` :math:`- \\frac12 |z|^2`, each point's sums in the order of
-    the coordinates (the loops over points are innermost, free to run in SIMD lanes)."""
+    the coordinates (``_PDF_BLOCK`` points at a time in the innermost loops, free to run in
+    SIMD lanes)."""
     n, k = u.shape
-    z = np.empty((k, n))
-    total = np.zeros(n)
-    for j in range(k):
-        row = z[j]
-        for i in range(n):
-            row[i] = u[i, j] - mean[j]
-        for m in range(j):
-            factor, previous = chol[j, m], z[m]
-            for i in range(n):
-                row[i] -= factor * previous[i]
-        pivot = chol[j, j]
-        for i in range(n):
-            row[i] /= pivot
-            total[i] += row[i] * row[i]
+    z = np.empty((k, _PDF_BLOCK))
+    total = np.empty(_PDF_BLOCK)
     out = np.empty(n)
-    for i in range(n):
-        out[i] = log_norm - 0.5 * total[i]
+    for begin in range(0, n, _PDF_BLOCK):
+        width = min(_PDF_BLOCK, n - begin)
+        for i in range(width):
+            total[i] = 0.0
+        for j in range(k):
+            row = z[j]
+            centre = mean[j]
+            for i in range(width):
+                row[i] = u[begin + i, j] - centre
+            for m in range(j):
+                factor, previous = chol[j, m], z[m]
+                for i in range(width):
+                    row[i] -= factor * previous[i]
+            pivot = chol[j, j]
+            for i in range(width):
+                row[i] /= pivot
+                total[i] += row[i] * row[i]
+        for i in range(width):
+            out[begin + i] = log_norm - 0.5 * total[i]
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _transform(normals, mean, chol):  # pragma: no cover - compiled
     """``(N, K)`` points :math:`m + L x_i` of standard normal draws :math:`x_i`."""
     n, k = normals.shape
@@ -178,7 +188,7 @@ class _Gaussian:
         return erf(self.mean / np.sqrt(2.0 * (1.0 + np.diag(self.covariance))))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _ess(weights):  # pragma: no cover - compiled
     """Kish's effective sample size :math:`(\\sum w)^2 / \\sum w^2`."""
     total = 0.0
@@ -189,7 +199,7 @@ def _ess(weights):  # pragma: no cover - compiled
     return total * total / square if total > 0.0 else 0.0
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _weights(log_lik, log_base, beta):  # pragma: no cover - compiled
     """:math:`w_i = e^{l_i - \\max_j l_j}` of :math:`l_i = \\beta L_i +` ``log_base[i]``."""
     n = len(log_lik)
@@ -203,7 +213,7 @@ def _weights(log_lik, log_base, beta):  # pragma: no cover - compiled
     return log_w
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _log_add_exp(a, b):  # pragma: no cover - compiled
     """Elementwise :math:`\\log(e^a + e^b)`."""
     out = np.empty(len(a))
@@ -218,7 +228,7 @@ def _log_add_exp(a, b):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _log_sum_exp(terms):  # pragma: no cover - compiled
     """``(N,)`` :math:`\\log \\sum_c e^{t_{ci}}` of ``terms`` ``(C, N)``, ``C >= 1``."""
     count, n = terms.shape
@@ -237,7 +247,7 @@ def _log_sum_exp(terms):  # pragma: no cover - compiled
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _weighted_moments(weights, u):  # pragma: no cover - compiled
     """Mean :math:`\\sum_i \\bar w_i u_i` and covariance
     :math:`\\sum_i \\bar w_i (u_i - m)(u_i - m)^\\top`, :math:`\\bar w = w / \\sum w`."""
@@ -266,34 +276,49 @@ def _weighted_moments(weights, u):  # pragma: no cover - compiled
     return mean, covariance
 
 
-@njit(cache=True)
-def _cross(a, b):  # pragma: no cover - compiled
-    """``(P, Q)`` :math:`a^\\top b` of ``a`` ``(N, P)`` and ``b`` ``(N, Q)``, summed over rows in
-    order."""
-    n, p = a.shape
-    q = b.shape[1]
-    out = np.zeros((p, q))
+@njit(cache=True, inline="always", error_model="numpy")
+def _regressors(u, theta, i, row):  # pragma: no cover - compiled
+    """Point ``i``'s regressors :math:`(1, u_i, \\theta_i)`, written into ``row``."""
+    k = u.shape[1]
+    row[0] = 1.0
+    for j in range(k):
+        row[1 + j] = u[i, j]
+        row[1 + k + j] = theta[i, j]
+
+
+@njit(cache=True, error_model="numpy")
+def _gram(u, theta):  # pragma: no cover - compiled
+    """``(P, P)`` :math:`X^\\top X` of the regressors :math:`X_i = (1, u_i, \\theta_i)`,
+    ``P = 2K + 1``, summed over the points in order."""
+    n, k = u.shape
+    p = 1 + 2 * k
+    row = np.empty(p)
+    out = np.zeros((p, p))
     for i in range(n):
+        _regressors(u, theta, i, row)
         for j in range(p):
-            x = a[i, j]
-            for m in range(q):
-                out[j, m] += x * b[i, m]
+            x = row[j]
+            for m in range(j + 1):
+                out[j, m] += x * row[m]
+    for j in range(p):
+        for m in range(j):
+            out[m, j] = out[j, m]
     return out
 
 
-@njit(cache=True)
-def _control_variate_fit(
-    weights, theta, design, gram, control_means
-):  # pragma: no cover - compiled
+@njit(cache=True, error_model="numpy")
+def _control_variate_fit(weights, u, theta, gram, control_means):  # pragma: no cover - compiled
     """The control-variate regression of the module docstring at weights ``weights``.
 
-    Returns Kish's ESS; :math:`\\bar\\theta - \\gamma^\\top(\\bar h - E_Q[h])` (unclipped);
-    :math:`\\sum_i \\rho_{ik}^2`, the residuals' sums of squares; and the weighted standard
-    deviation :math:`\\mathrm{sd}_k` of :math:`\\theta_k`. :math:`\\gamma` solves the normal
-    equations ``gram`` :math:`\\gamma = X^\\top z` by :func:`symmetric_lstsq`.
+    The regressors of point ``i`` are :math:`X_i = (1, u_i, \\theta_i)` and ``gram`` is
+    :math:`X^\\top X`. Returns Kish's ESS; :math:`\\bar\\theta - \\gamma^\\top(\\bar h -
+    E_Q[h])` (unclipped); :math:`\\sum_i \\rho_{ik}^2`, the residuals' sums of squares; and the
+    weighted standard deviation :math:`\\mathrm{sd}_k` of :math:`\\theta_k`.
+    :math:`\\gamma` solves the normal equations ``gram`` :math:`\\gamma = X^\\top z` by
+    :func:`symmetric_lstsq`.
     """
     n, k = theta.shape
-    p = design.shape[1]
+    p = 1 + 2 * k
     ess = _ess(weights)
     total = 0.0
     for i in range(n):
@@ -305,28 +330,38 @@ def _control_variate_fit(
     for j in range(k):
         mean[j] /= total
     scale = total / n
-    z = np.empty((n, k))
+    row = np.empty(p)
+    z = np.empty(k)
     spread = np.zeros(k)
+    moment = np.zeros((p, k))  # X^T z
+    shift = np.zeros(p)  # the regressors' sums
     for i in range(n):
         for j in range(k):
             deviation = theta[i, j] - mean[j]
-            z[i, j] = (weights[i] / scale) * deviation
+            z[j] = (weights[i] / scale) * deviation
             spread[j] += weights[i] * deviation * deviation
+        _regressors(u, theta, i, row)
+        for m in range(p):
+            x = row[m]
+            shift[m] += x
+            for j in range(k):
+                moment[m, j] += x * z[j]
     for j in range(k):
         spread[j] = math.sqrt(spread[j] / total)
-    coef = symmetric_lstsq(gram, _cross(design, z))
+    coef = symmetric_lstsq(gram, moment)
     squares = np.zeros(k)
+    fitted = np.empty(k)
     for i in range(n):
+        _regressors(u, theta, i, row)
         for j in range(k):
-            fitted = 0.0
-            for m in range(p):
-                fitted += design[i, m] * coef[m, j]
-            residual = z[i, j] - fitted
-            squares[j] += residual * residual
-    shift = np.zeros(p)
-    for i in range(n):
+            fitted[j] = 0.0
         for m in range(p):
-            shift[m] += design[i, m]
+            x = row[m]
+            for j in range(k):
+                fitted[j] += x * coef[m, j]
+        for j in range(k):
+            residual = (weights[i] / scale) * (theta[i, j] - mean[j]) - fitted[j]
+            squares[j] += residual * residual
     corrected = mean.copy()
     for m in range(1, p):
         difference = shift[m] / n - control_means[m]
@@ -380,9 +415,8 @@ class _Sampler:
         self.finished = False
         self.round_quality = 1.0  # ESS fraction of the last round's own points
         self.log_mixture = np.empty(0)  # log Q at every point, refreshed by ingest
-        # Regression design [1, u, theta] of every point, and its Gram matrix.
+        # The regressors' Gram matrix X^T X, X_i = (1, u_i, theta_i), over every point.
         self.theta = np.empty((0, k))
-        self.design = np.empty((0, 1 + 2 * k))
         self.gram = np.zeros((1 + 2 * k, 1 + 2 * k))
 
     # -- the rounds --------------------------------------------------------------------------
@@ -451,7 +485,7 @@ class _Sampler:
         self.log_lik = np.concatenate([self.log_lik, log_lik])
         self.log_prior = np.concatenate([self.log_prior, self.prior.log_pdf(new)])
         self.log_fitted = np.concatenate([self.log_fitted, log_fitted])
-        self._grow_design(new, theta)
+        self.gram = self.gram + _gram(new, theta)
         self.log_mixture = self._log_mixture()
         self.result = self._estimate()
         self.round_quality = _ess(self._weights(1.0)[-len(new) :]) / len(new)
@@ -488,12 +522,6 @@ class _Sampler:
 
     # -- the estimate ------------------------------------------------------------------------
 
-    def _grow_design(self, new: FloatArray, theta: FloatArray) -> None:
-        """Append the new points' regressors ``[1, u, theta(u)]`` and update their Gram matrix."""
-        rows = np.concatenate([np.ones((len(new), 1)), new, theta], axis=1)
-        self.design = np.concatenate([self.design, rows])
-        self.gram = self.gram + _cross(rows, rows)
-
     def _control_means(self) -> FloatArray:
         """Exact :math:`E_Q[h]` of the regressors under the mixture of proposals."""
         k = self.k
@@ -510,9 +538,9 @@ class _Sampler:
         options = self.options
         n_total = len(self.u)
         ess, corrected, squares, spread = _control_variate_fit(
-            self._weights(1.0), self.theta, self.design, self.gram, self._control_means()
+            self._weights(1.0), self.u, self.theta, self.gram, self._control_means()
         )
-        dof = max(n_total - self.design.shape[1], 1)
+        dof = max(n_total - len(self.gram), 1)
         se = np.sqrt(squares / dof / n_total)
         if ess < options.min_ess:
             # Too few effective points for the delta method (with one dominant weight it
