@@ -9,7 +9,13 @@ import pytest
 
 from cirl_study.core.estimate import Estimate
 from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot, register_human, register_robot
-from cirl_study.core.trial import check_playable, play_trials
+from cirl_study.core.trial import (
+    check_playable,
+    demonstrations,
+    first_move_paths,
+    play_trials,
+    play_watched,
+)
 from cirl_study.record import (
     MAP,
     MEASURES,
@@ -290,6 +296,29 @@ UNPLAYABLE = {
     ),
     "start off the grid": (lambda: msgspec.structs.replace(_expert(), start=(4, 0)), "outside"),
 }
+
+
+def test_watching_the_humans_demonstrations_is_playing_the_trials(played):
+    specs, records = played
+    watched = play_watched(specs, demonstrations(specs))
+    assert [encode(record) for record in watched] == [encode(record) for record in records]
+
+
+@pytest.mark.parametrize("stays", [True, False])
+def test_first_move_paths_are_paths_of_the_learning_phase(stays):
+    specs = [msgspec.structs.replace(spec, demonstrator_stays=stays) for spec in _specs()]
+    paths = first_move_paths(specs)
+    assert paths.shape == (len(specs), GAME["learning_steps"] + 1)
+    for spec, path in zip(specs, paths, strict=True):
+        states = [bf.xy(spec.grid.width, int(cell)) for cell in path]
+        assert states[0] == spec.start
+        steps = [(b[0] - a[0], b[1] - a[1]) for a, b in zip(states, states[1:], strict=False)]
+        allowed = {(1, 0), (-1, 0), (0, 1), (0, -1)} | ({(0, 0)} if stays else set())
+        assert set(steps) <= allowed
+    watched = play_watched(specs, paths)
+    assert [r.demonstration.states for r in watched] == [
+        tuple(bf.xy(GAME["grid"].width, int(cell)) for cell in path) for path in paths
+    ]
 
 
 def test_playable_specs_pass_the_check():

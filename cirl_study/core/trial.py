@@ -82,13 +82,46 @@ def _group_key(spec: TrialSpec) -> Hashable:
 
 def play_trials(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
     """Play every trial and return their records, in the order given."""
+    return _play(specs, None)
+
+
+def play_watched(specs: Sequence[TrialSpec], demos: np.ndarray) -> list[TrialRecord]:
+    """The records of trials whose demonstrations are given, ``demos[b]`` ``(B, T + 1)``
+    (cell indices, each a path of its learning phase): the robots' fits, the measures and the
+    deployment, as :func:`play_trials` plays them after its humans have shown theirs."""
+    return _play(specs, np.asarray(demos, dtype=np.int64))
+
+
+def _play(specs: Sequence[TrialSpec], demos: np.ndarray | None) -> list[TrialRecord]:
+    """Every trial's record, its demonstration shown by its human (``demos`` None) or given."""
     records: list[TrialRecord | None] = [None] * len(specs)
     for positions in _groups(specs):
-        for position, record in zip(
-            positions, _play_group([specs[p] for p in positions]), strict=True
-        ):
+        group = [specs[p] for p in positions]
+        setting = _Setting.of(group)
+        shown = (
+            _demonstrations(setting.game, group, setting.theta, setting.seeds)
+            if demos is None
+            else demos[positions]
+        )
+        for position, record in zip(positions, _watched(setting, group, shown), strict=True):
             records[position] = record
     return records  # type: ignore[return-value]
+
+
+def first_move_paths(specs: Sequence[TrialSpec]) -> np.ndarray:
+    """Every trial's path ``(B, T + 1)`` that takes the first available move at each step: a
+    path of its learning phase found without any compiled kernel (so the robots' kernels can
+    be compiled on it while the humans' compile elsewhere, as
+    :func:`cirl_study.study.runner.warm_up` does)."""
+    paths = []
+    for spec in specs:
+        grid = gridworld(spec)
+        moves = grid.demonstrator_moves(spec.demonstrator_stays)
+        path = [grid.index(*spec.start)]
+        for _ in range(spec.learning_steps):
+            path.append(int(next(cell for cell in moves[path[-1]] if cell >= 0)))
+        paths.append(path)
+    return np.array(paths, dtype=np.int64)
 
 
 def _groups(specs: Sequence[TrialSpec]) -> list[list[int]]:
@@ -211,14 +244,12 @@ class _Setting:
         return cls(grid, features, game, theta, seeds)
 
 
-def _play_group(specs: Sequence[TrialSpec]) -> list[TrialRecord]:
-    """Play trials that share the game's shape and rationality, vectorised: each policy's
-    demonstrations together (each distinct one once), then each robot's estimates together."""
+def _watched(setting: _Setting, specs: Sequence[TrialSpec], demos: np.ndarray) -> list[TrialRecord]:
+    """The records of trials of one group (:func:`_group_key`) that watched ``demos``,
+    vectorised: each robot's estimates together, then the measures and the deployment."""
     first = specs[0]
-    setting = _Setting.of(specs)
     grid, game, theta = setting.grid, setting.game, setting.theta
     deployment = game.deployment
-    demos = _demonstrations(game, specs, theta, setting.seeds)
     fitted = _estimates(game, specs, demos, setting.seeds)
     theta_hat = np.array([estimate.theta_hat[row] for estimate, row in fitted])
     measures = {

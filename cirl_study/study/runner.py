@@ -107,8 +107,9 @@ def warm_up(pipeline: Pipeline) -> None:
 
     The compiling is split over two cores first: this process plays the humans'
     demonstrations (:func:`~cirl_study.core.trial.demonstrations`) while a forked worker
-    plays whole trials of the first policy with every robot (the robots' fits and the
-    measures). The worker's kernels land in numba's cache, from which this process then
+    has every robot of the first policy's trials watch a stand-in path
+    (:func:`_watch_stand_ins`: the robots' fits and the measures, without the humans'
+    kernels). The worker's kernels land in numba's cache, from which this process then
     loads them, so a first run compiles in about the time of the slower half instead of
     both (``benchmarks/README.md``). Where the cache cannot be written, or no worker can be
     forked, this process compiles what it needs itself; the trials played do not change.
@@ -128,9 +129,19 @@ def warm_up(pipeline: Pipeline) -> None:
         for policy in pipeline.main.policies
         for robot in pipeline.main.robots
     ]
-    with aside(play_trials, [trial for trial in trials if trial.policy == trials[0].policy]):
+    watching = [trial for trial in trials if trial.policy == trials[0].policy]
+    with aside(_watch_stand_ins, watching):
         demonstrations(trials)
     play_trials(trials)
+
+
+def _watch_stand_ins(trials: Sequence[TrialSpec]) -> list[TrialRecord]:
+    """The records of ``trials`` had each watched the path of first moves
+    (:func:`~cirl_study.core.trial.first_move_paths`): what compiles the robots' and the
+    measures' kernels and none of the humans'."""
+    from cirl_study.core.trial import first_move_paths, play_watched
+
+    return play_watched(trials, first_move_paths(trials))
 
 
 def default_out_dir(pipeline: Pipeline) -> Path:
