@@ -333,6 +333,7 @@ def _control_variate_fit(weights, u, theta, gram, control_means):  # pragma: no 
     row = np.empty(p)
     z = np.empty(k)
     spread = np.zeros(k)
+    square = np.zeros(k)  # z^T z
     moment = np.zeros((p, k))  # X^T z
     shift = np.zeros(p)  # the regressors' sums
     for i in range(n):
@@ -340,6 +341,7 @@ def _control_variate_fit(weights, u, theta, gram, control_means):  # pragma: no 
             deviation = theta[i, j] - mean[j]
             z[j] = (weights[i] / scale) * deviation
             spread[j] += weights[i] * deviation * deviation
+            square[j] += z[j] * z[j]
         _regressors(u, theta, i, row)
         for m in range(p):
             x = row[m]
@@ -349,19 +351,17 @@ def _control_variate_fit(weights, u, theta, gram, control_means):  # pragma: no 
     for j in range(k):
         spread[j] = math.sqrt(spread[j] / total)
     coef = symmetric_lstsq(gram, moment)
-    squares = np.zeros(k)
-    fitted = np.empty(k)
-    for i in range(n):
-        _regressors(u, theta, i, row)
-        for j in range(k):
-            fitted[j] = 0.0
+    # |z - X gamma|^2 = z^T z - 2 gamma^T X^T z + gamma^T (X^T X) gamma, without a pass over
+    # the points; clamped at 0 against the rounding of the difference.
+    squares = np.empty(k)
+    for j in range(k):
+        fitted = 0.0
         for m in range(p):
-            x = row[m]
-            for j in range(k):
-                fitted[j] += x * coef[m, j]
-        for j in range(k):
-            residual = (weights[i] / scale) * (theta[i, j] - mean[j]) - fitted[j]
-            squares[j] += residual * residual
+            projected = 0.0
+            for q in range(p):
+                projected += gram[m, q] * coef[q, j]
+            fitted += coef[m, j] * (projected - 2.0 * moment[m, j])
+        squares[j] = max(square[j] + fitted, 0.0)
     corrected = mean.copy()
     for m in range(1, p):
         difference = shift[m] / n - control_means[m]
