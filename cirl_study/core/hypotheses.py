@@ -334,7 +334,11 @@ def _pedagogic_pass(
     :math:`\\alpha \\log P_L(\\theta_{truth} \\mid m) - \\log N_{truth}`.
 
     ``rewards[s, h]`` is :math:`\\lambda \\theta_h^\\top \\phi(s)`, so a class's log-likelihood
-    is the sum over its cells less :math:`\\log Z(\\theta_h)`. Each term
+    is :math:`-\\log Z(\\theta_h)` plus its cells' rewards, added in the order of its sorted
+    cells. A class that shares its first ``j`` cells with the class before it (mostly long
+    prefixes: the classes come sorted by their packed cells, lexicographically wherever the
+    key fits in 63 bits) starts from that class's sum after those ``j``: the same additions in
+    the same order, so the same number. Each term
     :math:`n_m P_L(\\theta_h \\mid m)^\\alpha` lies in :math:`[0, n_m]`, so the plain sum
     cannot overflow; where it is below :data:`SUM_FLOOR` (its largest terms near underflow)
     that hypothesis is summed again in log space (:func:`_log_space_normaliser`).
@@ -342,16 +346,25 @@ def _pedagogic_pass(
     classes, steps = cells.shape
     count = rewards.shape[1]
     total = np.zeros(count)
+    # prefix[j]: the log-likelihoods after the class's first j cells (the earlier classes'
+    # rows stay valid as far as the current class shares their cells).
+    prefix = np.empty((steps + 1, count))
+    for h in range(count):
+        prefix[0, h] = -log_partition[h]
     score = np.empty(count)
     relative = np.empty(count)
     truth_log = np.empty(classes if truth >= 0 else 0)
     for m in range(classes):
-        for h in range(count):
-            score[h] = -log_partition[h]
-        for j in range(steps):
+        shared = 0
+        if m > 0:
+            while shared < steps and cells[m, shared] == cells[m - 1, shared]:
+                shared += 1
+        for j in range(shared, steps):
             row = cells[m, j]
             for h in range(count):
-                score[h] += rewards[row, h]
+                prefix[j + 1, h] = prefix[j, h] + rewards[row, h]
+        for h in range(count):
+            score[h] = prefix[steps, h]
         top = -np.inf
         for h in range(count):
             top = max(top, score[h])
