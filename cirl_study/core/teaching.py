@@ -118,7 +118,7 @@ def regret_optimal_paths(game: Apprenticeship, theta: FloatArray, seeds: IntArra
         space = game.hypotheses
         for b in range(batch):
             telling = space.pedagogic_path_log_probability(b, theta[b])
-            top = np.argsort(-telling, kind="stable")[:PEDAGOGIC_CANDIDATES]
+            top = _largest_first(telling, PEDAGOGIC_CANDIDATES)
             shown = space.classes.representative(top).astype(np.int64)
             candidates[b] = np.concatenate([candidates[b], shown])
     best, best_regret = _best_of(game, theta, candidates)
@@ -130,6 +130,18 @@ def regret_optimal_paths(game: Apprenticeship, theta: FloatArray, seeds: IntArra
             break
         best[better], best_regret[better] = found[better], found_regret[better]
     return best
+
+
+def _largest_first(values: FloatArray, count: int) -> IntArray:
+    """The indices of the ``count`` largest ``values``, largest first, ties to the lower
+    index: ``np.argsort(-values, kind="stable")[:count]``, sorting only the values at least
+    as large as the ``count``-th largest (a partition finds it) instead of all of them."""
+    size = len(values)
+    if count >= size or np.isnan(values).any():
+        return np.argsort(-values, kind="stable")[:count]
+    threshold = np.partition(values, size - count)[size - count]
+    contenders = np.flatnonzero(values >= threshold)
+    return contenders[np.argsort(-values[contenders], kind="stable")[:count]]
 
 
 def _visit_classes(game: Apprenticeship) -> VisitClasses | None:
