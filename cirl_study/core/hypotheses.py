@@ -203,13 +203,15 @@ class HypothesisSpace:
     alpha: float
     _normalisers: dict[bytes, FloatArray] = field(default_factory=dict, repr=False)
     _teaching: dict[bytes, FloatArray] = field(default_factory=dict, repr=False)
+    _log_partitions: dict[bytes, FloatArray] = field(default_factory=dict, repr=False)
 
     def take(self, rows: IntArray) -> HypothesisSpace:
-        """The spaces of the trials ``rows`` only; the normalisers and the pedagogic path
-        probabilities computed so far are shared (every human of a subject reads them)."""
+        """The spaces of the trials ``rows`` only; the log-partitions, the normalisers and the
+        pedagogic path probabilities computed so far are shared (every human and robot of a
+        subject reads them)."""
         return HypothesisSpace(
             self.model.take(rows), self.thetas[rows], self.includes_truth, self.alpha,
-            self._normalisers, self._teaching,
+            self._normalisers, self._teaching, self._log_partitions,
         )  # fmt: skip
 
     @property
@@ -219,8 +221,21 @@ class HypothesisSpace:
 
     @cached_property
     def log_partition(self) -> FloatArray:
-        """``(B, H)`` :math:`\\log Z(\\theta_h)` by the exact backward recursion."""
-        return set_log_partition(self.model, self.thetas)
+        """``(B, H)`` :math:`\\log Z(\\theta_h)` by the exact backward recursion, once per
+        distinct trial features and space (:meth:`_log_partitions_of`)."""
+        return self._log_partitions_of(np.arange(self.model.batch), self.thetas)
+
+    def _log_partitions_of(self, rows: IntArray, spaces: FloatArray) -> FloatArray:
+        """``(n, H)`` :math:`\\log Z` of the hypotheses ``spaces[i]`` ``(H, K)`` with trial
+        ``rows[i]``'s features; those not computed before are computed together (a trial's
+        values do not depend on the others computed with it)."""
+        keys = [self._key(int(b), space) for b, space in zip(rows, spaces, strict=True)]
+        missing = {key: i for i, key in enumerate(keys) if key not in self._log_partitions}
+        if missing:
+            picked = np.array(list(missing.values()), dtype=np.int64)
+            found = set_log_partition(self.model.take(rows[picked]), spaces[picked])
+            self._log_partitions.update(zip(missing, found, strict=True))
+        return np.array([self._log_partitions[key] for key in keys])
 
     def literal_log_likelihood(self, counts: FloatArray) -> FloatArray:
         """``(B, H)`` :math:`\\log P_L(\\tau \\mid \\theta_h)` of paths with ``counts``."""
@@ -291,8 +306,7 @@ class HypothesisSpace:
         """:math:`\\log N_h` ``(H,)`` over ``space`` ``(H, K)`` for trial ``b``, and, when
         ``truth`` is an index of ``space``, each class's path log-probability ``(M,)`` of the
         pedagogic demonstrator with that reward (:meth:`pedagogic_path_log_probability`)."""
-        model = self.model.take(np.array([b]))
-        log_partition = set_log_partition(model, space[None])[0]
+        log_partition = self._log_partitions_of(np.array([b]), space[None])[0]
         # einsum's own loops, not BLAS: the same sums in the same order on every CPU.
         rewards = self.model.rationality * np.einsum("sk,hk->sh", self.model.features[b], space)
         classes = self.classes
@@ -334,7 +348,11 @@ def _pedagogic_pass(
     :math:`\\alpha \\log P_L(\\theta_{truth} \\mid m) - \\log N_{truth}`.
 
     ``rewards[s, h]`` is :math:`\\lambda \\theta_h^\\top \\phi(s)`, so a class's log-likelihood
-    is the sum over its cells less :math:`\\log Z(\\theta_h)`. Each term
+    is :math:`-\\log Z(\\theta_h)` plus its cells' rewards, added in the order of its sorted
+    cells. A class that shares its first ``j`` cells with the class before it (mostly long
+    prefixes: the classes come sorted by their packed cells, lexicographically wherever the
+    key fits in 63 bits) starts from that class's sum after those ``j``: the same additions in
+    the same order, so the same number. Each term
     :math:`n_m P_L(\\theta_h \\mid m)^\\alpha` lies in :math:`[0, n_m]`, so the plain sum
     cannot overflow; where it is below :data:`SUM_FLOOR` (its largest terms near underflow)
     that hypothesis is summed again in log space (:func:`_log_space_normaliser`).
@@ -342,16 +360,25 @@ def _pedagogic_pass(
     classes, steps = cells.shape
     count = rewards.shape[1]
     total = np.zeros(count)
+    # prefix[j]: the log-likelihoods after the class's first j cells (the earlier classes'
+    # rows stay valid as far as the current class shares their cells).
+    prefix = np.empty((steps + 1, count))
+    for h in range(count):
+        prefix[0, h] = -log_partition[h]
     score = np.empty(count)
     relative = np.empty(count)
     truth_log = np.empty(classes if truth >= 0 else 0)
     for m in range(classes):
-        for h in range(count):
-            score[h] = -log_partition[h]
-        for j in range(steps):
+        shared = 0
+        if m > 0:
+            while shared < steps and cells[m, shared] == cells[m - 1, shared]:
+                shared += 1
+        for j in range(shared, steps):
             row = cells[m, j]
             for h in range(count):
-                score[h] += rewards[row, h]
+                prefix[j + 1, h] = prefix[j, h] + rewards[row, h]
+        for h in range(count):
+            score[h] = prefix[steps, h]
         top = -np.inf
         for h in range(count):
             top = max(top, score[h])

@@ -118,18 +118,31 @@ def regret_optimal_paths(game: Apprenticeship, theta: FloatArray, seeds: IntArra
         space = game.hypotheses
         for b in range(batch):
             telling = space.pedagogic_path_log_probability(b, theta[b])
-            top = np.argsort(-telling, kind="stable")[:PEDAGOGIC_CANDIDATES]
+            top = _largest_first(telling, PEDAGOGIC_CANDIDATES)
             shown = space.classes.representative(top).astype(np.int64)
             candidates[b] = np.concatenate([candidates[b], shown])
-    best, best_regret = _best_of(game, theta, candidates)
+    known: list[dict[bytes, float]] = [{} for _ in range(batch)]
+    best, best_regret = _best_of(game, theta, candidates, known)
     for _ in range(SEARCH_ROUNDS):
         moved = [_single_moves(learning.phase.successors, path) for path in best]
-        found, found_regret = _best_of(game, theta, moved)
+        found, found_regret = _best_of(game, theta, moved, known)
         better = found_regret < best_regret
         if not better.any():
             break
         best[better], best_regret[better] = found[better], found_regret[better]
     return best
+
+
+def _largest_first(values: FloatArray, count: int) -> IntArray:
+    """The indices of the ``count`` largest ``values``, largest first, ties to the lower
+    index: ``np.argsort(-values, kind="stable")[:count]``, sorting only the values at least
+    as large as the ``count``-th largest (a partition finds it) instead of all of them."""
+    size = len(values)
+    if count >= size or np.isnan(values).any():
+        return np.argsort(-values, kind="stable")[:count]
+    threshold = np.partition(values, size - count)[size - count]
+    contenders = np.flatnonzero(values >= threshold)
+    return contenders[np.argsort(-values[contenders], kind="stable")[:count]]
 
 
 def _visit_classes(game: Apprenticeship) -> VisitClasses | None:
@@ -166,25 +179,47 @@ def _single_moves(successors: IntArray, path: IntArray) -> IntArray:
 
 
 def _best_of(
-    game: Apprenticeship, theta: FloatArray, candidates: list[IntArray]
+    game: Apprenticeship,
+    theta: FloatArray,
+    candidates: list[IntArray],
+    known: list[dict[bytes, float]] | None = None,
 ) -> tuple[IntArray, FloatArray]:
-    """Per trial, the candidate path with the lowest MAP regret (the first among equals)."""
-    rows = np.concatenate([np.full(len(c), b) for b, c in enumerate(candidates)])
-    paths = np.concatenate(candidates)
-    regrets = np.empty(len(rows))
-    for start in range(0, len(rows), FIT_CHUNK):
-        part = slice(start, start + FIT_CHUNK)
-        estimate = map_estimate(game.learning.take(rows[part]), paths[part])
-        regrets[part] = regret(
-            game.deployment.take(rows[part]), theta[rows[part]], estimate.theta_hat
-        )
-    best = np.empty((len(candidates), paths.shape[1]), dtype=np.int64)
-    best_regret = np.empty(len(candidates))
-    offset = 0
+    """Per trial, the candidate path with the lowest MAP regret (the first among equals).
+
+    Each distinct path of a trial is fitted once: a path repeated among its candidates, or
+    already in the trial's ``known`` regrets (path bytes to regret, updated here), is not
+    fitted again. A fit depends only on its own trial and path, so the regrets are the same.
+    """
+    known = [{} for _ in candidates] if known is None else known
+    rows_fitted: list[int] = []
+    fitted: list[IntArray] = []
     for b, c in enumerate(candidates):
-        pick = offset + int(np.argmin(regrets[offset : offset + len(c)]))
-        best[b], best_regret[b] = paths[pick], regrets[pick]
-        offset += len(c)
+        pending: set[bytes] = set()
+        for path in c:
+            key = path.tobytes()
+            if key not in known[b] and key not in pending:
+                pending.add(key)
+                rows_fitted.append(b)
+                fitted.append(path)
+    if fitted:
+        rows = np.array(rows_fitted, dtype=np.int64)
+        paths = np.array(fitted, dtype=np.int64)
+        regrets = np.empty(len(rows))
+        for start in range(0, len(rows), FIT_CHUNK):
+            part = slice(start, start + FIT_CHUNK)
+            estimate = map_estimate(game.learning.take(rows[part]), paths[part])
+            regrets[part] = regret(
+                game.deployment.take(rows[part]), theta[rows[part]], estimate.theta_hat
+            )
+        for b, path, value in zip(rows, paths, regrets, strict=True):
+            known[b][path.tobytes()] = float(value)
+    width = candidates[0].shape[1] if candidates else 0
+    best = np.empty((len(candidates), width), dtype=np.int64)
+    best_regret = np.empty(len(candidates))
+    for b, c in enumerate(candidates):
+        values = np.array([known[b][path.tobytes()] for path in c])
+        pick = int(np.argmin(values))
+        best[b], best_regret[b] = c[pick], values[pick]
     return best, best_regret
 
 
