@@ -15,7 +15,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from cirl_study.core.maxent import MaxEnt, Moments, Phase, _split_exp
+from cirl_study.core.maxent import _EXP_TABLE, MaxEnt, Moments, Phase, _split_exp, _split_log
 
 
 def _model(features, width, height, start, horizon, rationality, batch=1):
@@ -175,6 +175,28 @@ def test_log_likelihood_at_renormalises_long_phases(horizon, rationality):
     got = model.take([0]).log_likelihood_at(thetas[None], demo[None])[0]
     scale = 1.0 + horizon * rationality * np.abs(thetas @ features.T).max(axis=1)
     np.testing.assert_array_less(np.abs(got - want), 1e-12 * scale)
+
+
+def test_the_exponential_table_is_correctly_rounded():
+    with mpmath.workdps(50):
+        for j, value in enumerate(_EXP_TABLE):
+            assert value == float(mpmath.exp(mpmath.mpf(j) / 32)), j
+
+
+def test_split_log_is_within_two_ulp_of_high_precision():
+    rng = np.random.default_rng(4)
+    cases = [
+        (m, float(e))
+        for m, e in zip(rng.uniform(1.0, 2.0**61, 300), rng.integers(-5000, 5000, 300), strict=True)
+    ]
+    cases += [(m, 0.0) for m in rng.uniform(1.0, 2.0, 300)]
+    cases += [(1.0, 0.0), (2.0, 0.0), (math.sqrt(2.0), 0.0), (1.0 + 2.0**-52, 0.0), (1.0, -3.0)]
+    with mpmath.workdps(40):
+        for m, e in cases:
+            want = mpmath.log(mpmath.mpf(m)) + e * mpmath.log(2)
+            got = _split_log(m, e)
+            assert abs(float(got - want)) <= 2 * 2.0**-52 * max(abs(float(want)), 1e-300), (m, e)
+    assert _split_log(1.0, 0.0) == 0.0
 
 
 def test_split_exp_is_within_two_ulp_of_high_precision():
