@@ -58,6 +58,21 @@ def _pipeline(directory: Path) -> Path:
     return path
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _ctrl_c_reaches_the_commands() -> Iterator[None]:
+    """The commands start as a terminal's foreground job does, Ctrl-C at its default, also
+    when the suite runs with SIGINT ignored (``pytest &`` in a script), which a command would
+    inherit and, rightly, keep."""
+    if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
+        yield
+        return
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 @pytest.fixture(scope="module")
 def pipeline(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return _pipeline(tmp_path_factory.mktemp("pipeline"))
