@@ -214,6 +214,21 @@ def _weights(log_lik, log_base, beta):  # pragma: no cover - compiled
 
 
 @njit(cache=True, error_model="numpy")
+def _temperature(log_lik, log_base, low, min_ess):  # pragma: no cover - compiled
+    """The tempering's :math:`\\beta`: from ``low`` (whose weights keep an ESS of
+    ``min_ess``) toward 1 by 50 halvings of the interval, the largest found whose weights
+    (:func:`_weights`) keep it."""
+    high = 1.0
+    for _ in range(50):
+        middle = 0.5 * (low + high)
+        if _ess(_weights(log_lik, log_base, middle)) >= min_ess:
+            low = middle
+        else:
+            high = middle
+    return low
+
+
+@njit(cache=True, error_model="numpy")
 def _log_add_exp(a, b):  # pragma: no cover - compiled
     """Elementwise :math:`\\log(e^a + e^b)`."""
     out = np.empty(len(a))
@@ -508,14 +523,8 @@ class _Sampler:
         if _ess(self._weights(1.0)) >= options.min_ess:
             self.beta = 1.0
         else:
-            low, high = self.beta, 1.0
-            for _ in range(50):
-                middle = 0.5 * (low + high)
-                if _ess(self._weights(middle)) >= options.min_ess:
-                    low = middle
-                else:
-                    high = middle
-            self.beta = low
+            log_base = self.log_prior - self.log_mixture
+            self.beta = _temperature(self.log_lik, log_base, self.beta, options.min_ess)
         mean, covariance = _weighted_moments(self._weights(self.beta), self.u)
         covariance = options.inflation * covariance + 1e-6 * np.eye(self.k)
         return _Gaussian(mean, covariance)
