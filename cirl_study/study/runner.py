@@ -105,13 +105,13 @@ def warm_up(pipeline: Pipeline) -> None:
     the engine starts its workers, lets forked workers inherit them and keeps the progress
     bar for playing. Nothing is logged.
 
-    The compiling is split over two cores first: this process plays the humans'
-    demonstrations (:func:`~cirl_study.core.trial.demonstrations`) while a forked worker
-    has every robot of the first policy's trials watch a stand-in path
-    (:func:`_watch_stand_ins`: the robots' fits and the measures, without the humans'
-    kernels). The worker's kernels land in numba's cache, from which this process then
-    loads them, so a first run compiles in about the time of the slower half instead of
-    both (``benchmarks/README.md``). Where the cache cannot be written, or no worker can be
+    The compiling is split over two cores first: a forked worker has the first robot watch
+    a stand-in path (:func:`_watch_stand_ins`: that robot's fit and the measures, without the
+    humans' kernels) while this process plays the humans' demonstrations
+    (:func:`~cirl_study.core.trial.demonstrations`), then has the other robots watch. The
+    worker's kernels land in numba's cache, from which this process then loads them, so a
+    first run compiles in about the time of the slower half instead of both
+    (``benchmarks/README.md``). Where the cache cannot be written, or no worker can be
     forked, this process compiles what it needs itself; the trials played do not change.
     """
     from cirl_study.core.players import HUMANS
@@ -130,8 +130,10 @@ def warm_up(pipeline: Pipeline) -> None:
         for robot in pipeline.main.robots
     ]
     watching = [trial for trial in trials if trial.policy == trials[0].policy]
-    with aside(_watch_stand_ins, watching):
+    first = [trial for trial in watching if trial.robot == watching[0].robot]
+    with aside(_watch_stand_ins, first):
         demonstrations(trials)
+        _watch_stand_ins([trial for trial in watching if trial.robot != watching[0].robot])
     play_trials(trials)
 
 
