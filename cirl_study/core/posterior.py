@@ -84,7 +84,10 @@ the BLAS kernel that the CPU selects, and its ``exp`` and ``log`` have AVX512 va
 one last bit there can flip a stopping decision, which moves the estimate by about its
 standard error. So an estimate is bitwise the same on every x86-64 CPU, BLAS kernel and
 thread count, and does not depend on the other trials of its batch, their order or
-``chunk`` (trials that ask for rounds of the same size are scored in one call).
+``chunk`` (trials that ask for rounds of the same size are scored in one call). The kernels
+use numba's numpy error model: every divisor in them is a positive total, scale or pivot, and
+without the zero check that Python's model adds to each division their loops vectorise (the
+same operations per element, so the same bits).
 """
 
 from __future__ import annotations
