@@ -25,7 +25,7 @@ from __future__ import annotations
 
 import dataclasses
 from collections import defaultdict
-from collections.abc import Hashable, Sequence
+from collections.abc import Hashable, Iterator, Sequence
 from typing import Any
 
 import numpy as np
@@ -95,9 +95,7 @@ def play_watched(specs: Sequence[TrialSpec], demos: np.ndarray) -> list[TrialRec
 def _play(specs: Sequence[TrialSpec], demos: np.ndarray | None) -> list[TrialRecord]:
     """Every trial's record, its demonstration shown by its human (``demos`` None) or given."""
     records: list[TrialRecord | None] = [None] * len(specs)
-    for positions in _groups(specs):
-        group = [specs[p] for p in positions]
-        setting = _Setting.of(group)
+    for positions, group, setting in _settings(specs):
         shown = (
             _demonstrations(setting.game, group, setting.theta, setting.seeds)
             if demos is None
@@ -133,6 +131,16 @@ def _groups(specs: Sequence[TrialSpec]) -> list[list[int]]:
     for position, spec in enumerate(specs):
         groups[_group_key(spec)].append(position)
     return list(groups.values())
+
+
+def _settings(
+    specs: Sequence[TrialSpec],
+) -> Iterator[tuple[list[int], list[TrialSpec], _Setting]]:
+    """Each group of ``specs`` played together (:func:`_groups`): its positions, its specs
+    and their :class:`_Setting`."""
+    for positions in _groups(specs):
+        group = [specs[p] for p in positions]
+        yield positions, group, _Setting.of(group)
 
 
 def _by(specs: Sequence[TrialSpec], *names: str) -> dict[Any, IntArray]:
@@ -195,9 +203,7 @@ def demonstrations(specs: Sequence[TrialSpec]) -> np.ndarray:
     (:func:`cirl_study.study.runner.warm_up`).
     """
     demos: list[np.ndarray | None] = [None] * len(specs)
-    for positions in _groups(specs):
-        group = [specs[p] for p in positions]
-        setting = _Setting.of(group)
+    for positions, group, setting in _settings(specs):
         shown = _demonstrations(setting.game, group, setting.theta, setting.seeds)
         for position, path in zip(positions, shown, strict=True):
             demos[position] = path
