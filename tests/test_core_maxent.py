@@ -125,8 +125,7 @@ def test_log_likelihood_at_equals_the_one_at_a_time_recursion(rationality):
     for n in (0, 17, 63):
         alone = model.take([0]).log_likelihood_at(thetas[None, [n]], demo[None])[0, 0]
         assert alone == batched[n]
-    assert_array_equal = np.testing.assert_array_equal
-    assert_array_equal(
+    np.testing.assert_array_equal(
         model.take([0]).log_likelihood_at(thetas[None, 5:], demo[None])[0], batched[5:]
     )
 
@@ -178,6 +177,7 @@ def test_log_likelihood_at_renormalises_long_phases(horizon, rationality):
 
 
 def test_the_exponential_table_is_correctly_rounded():
+    assert len(_EXP_TABLE) == int(32 * math.log(2.0)) + 1
     with mpmath.workdps(50):
         for j, value in enumerate(_EXP_TABLE):
             assert value == float(mpmath.exp(mpmath.mpf(j) / 32)), j

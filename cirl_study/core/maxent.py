@@ -411,22 +411,12 @@ _EXP_TABLE = np.array(
             "0x1.de455df80e3c0p+0",
             "0x1.ed73f240dc142p+0",
             "0x1.fd1de6182f8c9p+0",
-            "0x1.06a39207f0a09p+1",
-            "0x1.0ef9db467dcf8p+1",
-            "0x1.1793e4652cc50p+1",
-            "0x1.2073d3f1bd518p+1",
-            "0x1.299be1f3e7f1cp+1",
-            "0x1.330e587b62b28p+1",
-            "0x1.3ccd9432682b4p+1",
-            "0x1.46dc04f4e5338p+1",
-            "0x1.513c2e6c731d7p+1",
-            "0x1.5bf0a8b145769p+1",
-            "0x1.66fc20f0338a7p+1",
         )
     ]
 )
-"""The correctly rounded :math:`e^{j / 32}`, ``j = 0..33`` (50-digit mpmath), written out so
-that no C library's ``exp`` enters them."""
+"""The correctly rounded :math:`e^{j / 32}`, ``j = 0..22`` (50-digit mpmath), written out so
+that no C library's ``exp`` enters them: :func:`_split_exp` reads ``j = floor(32 r)`` with
+:math:`r < \\ln 2 (1 + 2^{-40})`, so :math:`j \\le 22`."""
 
 FARTHEST_EXPONENT = 1000
 """A term more than this many binary orders below a sum's largest is scaled by
