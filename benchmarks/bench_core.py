@@ -34,7 +34,8 @@ from cirl_study.core.measures import regret, reward_l2, trajectory_kl
 from cirl_study.core.path_search import nearest_paths
 from cirl_study.core.robot import map_estimate
 from cirl_study.core.trial import play_trials
-from cirl_study.record import BEST_RESPONSE, EXPERT, Grid, RBFFeatures, TrialSpec
+from cirl_study.features import RBFFeatures
+from cirl_study.record import BEST_RESPONSE, EXPERT, Grid, TrialSpec
 
 PAPER = Path(__file__).resolve().parents[1] / "pipelines" / "paper.toml"
 

@@ -26,7 +26,8 @@ import time
 from collections.abc import Callable
 
 from cirl_study.core.trial import play_trials
-from cirl_study.record import Grid, RBFFeatures, TrialSpec, decode, encode
+from cirl_study.features import RBFFeatures
+from cirl_study.record import Grid, TrialSpec, decode, encode
 
 
 def paper_records(count: int) -> list:

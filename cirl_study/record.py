@@ -27,6 +27,8 @@ from typing import Annotated, Literal
 
 import msgspec
 
+from cirl_study.features import Features
+
 MAIN, ETA_CV, LAMBDA_SWEEP = "main", "eta_cv", "lambda_sweep"
 """The blocks of docs/design.md §5."""
 
@@ -92,14 +94,6 @@ class Grid(msgspec.Struct, **_STRUCT):
 
     width: PositiveInt
     height: PositiveInt
-
-
-class RBFFeatures(msgspec.Struct, **_STRUCT):
-    """Radial-basis features ``phi_k(s) = exp(-||s - c_k||^2 / (2 sigma^2))``."""
-
-    centers: Annotated[tuple[tuple[float, float], ...], msgspec.Meta(min_length=1)]
-    sigma: Positive
-    kind: Literal["rbf"] = "rbf"
 
 
 class Demonstration(msgspec.Struct, **_STRUCT):
@@ -202,8 +196,10 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
     start: Cell
     learning_steps: PositiveInt
     deployment_steps: PositiveInt
-    features: RBFFeatures
+    features: Features
     theta: Annotated[tuple[Weight, ...], msgspec.Meta(min_length=1)]
+    goals: tuple[Cell, ...] = ()
+    task: NonEmptyText | None = None
     robot: NonEmptyText = MAP
     demonstrator_stays: bool = True
     deployment_start: DeploymentStart = "uniform"
@@ -284,13 +280,15 @@ class TrialRow(msgspec.Struct, **_STRUCT):
 
 
 def setting_faults(spec: TrialSpec) -> list[str]:
-    """Every way ``spec``'s settings break the rules their types cannot state: ``theta`` and
-    the RBF centers have ``num_features`` entries each, the start ``s_0`` lies on the grid, and
-    ``gradient_ascent`` is given exactly for the robot of that name (empty for a sound spec).
-    A record (a :class:`TrialSpec` too) is checked by the same rules before it is believed
-    (:mod:`cirl_study.logs.record_checks`).
+    """Every way ``spec``'s settings break the rules their types cannot state: ``theta`` has
+    ``num_features`` entries, as many as its features (of any kind, each with rules of its own,
+    :mod:`cirl_study.features`); the start ``s_0`` and the goals lie on the grid, the goals are
+    distinct and ``s_0`` is none of them; and ``gradient_ascent`` is given exactly for the robot
+    of that name (empty for a sound spec). A record (a :class:`TrialSpec` too) is checked by
+    the same rules before it is believed (:mod:`cirl_study.logs.record_checks`).
 
     Examples:
+        >>> from cirl_study.features import RBFFeatures
         >>> spec = TrialSpec(trial_id="t", run_id="r", block="main", subject="s",
         ...     policy="expert", robot="map", num_features=1, rationality=1.0, eta=None,
         ...     seed=0, grid=Grid(width=2, height=2), start=(2, 0), learning_steps=1,
@@ -300,13 +298,19 @@ def setting_faults(spec: TrialSpec) -> list[str]:
         ['theta has 2 entries, num_features is 1', 'start [2, 0] is outside the 2x2 grid']
     """
     k, grid = spec.num_features, spec.grid
-    lengths = {"theta": len(spec.theta), "features.centers": len(spec.features.centers)}
+    lengths = {"theta": len(spec.theta), "the features": spec.features.count}
     faults = [
         f"{name} has {n} entries, num_features is {k}" for name, n in lengths.items() if n != k
     ]
-    x, y = spec.start
-    if not (0 <= x < grid.width and 0 <= y < grid.height):
-        faults.append(f"start {list(spec.start)} is outside the {grid.width}x{grid.height} grid")
+    faults += spec.features.faults(grid.width, grid.height)
+    for name, cell in [("start", spec.start)] + [("goal", goal) for goal in spec.goals]:
+        x, y = cell
+        if not (0 <= x < grid.width and 0 <= y < grid.height):
+            faults.append(f"{name} {list(cell)} is outside the {grid.width}x{grid.height} grid")
+    if len(set(spec.goals)) != len(spec.goals):
+        faults.append("a goal cell is listed twice")
+    if spec.start in spec.goals:
+        faults.append(f"start {list(spec.start)} is a goal")
     if (spec.gradient_ascent is None) == (spec.robot == GRADIENT_ASCENT):
         faults.append(
             f"gradient_ascent is {'null' if spec.gradient_ascent is None else 'given'} for "
@@ -317,8 +321,10 @@ def setting_faults(spec: TrialSpec) -> list[str]:
 
 def draw_digest(spec: TrialSpec) -> str:
     """BLAKE2b digest of a trial's reward draw: ``num_features``, ``theta``, the features, the
-    grid and the start cell."""
+    grid, the start cell and the goals."""
     drawn = (spec.num_features, spec.theta, spec.features, spec.grid, spec.start)
+    if spec.goals:
+        drawn += (spec.goals,)
     return hashlib.blake2b(_ENCODER.encode(drawn), digest_size=12).hexdigest()
 
 
@@ -389,5 +395,6 @@ def validated(spec: TrialSpec) -> TrialSpec:
     return spec
 
 
-TRIAL_SCHEMA: dict = msgspec.json.schema(TrialRecord)
-"""JSON Schema (draft 2020-12) of a trial record, declared by the ``/cirl/trial`` channel."""
+TRIAL_SCHEMA: dict = msgspec.json.decode(msgspec.json.encode(msgspec.json.schema(TrialRecord)))
+"""JSON Schema (draft 2020-12) of a trial record, declared by the ``/cirl/trial`` channel, as
+JSON holds it (a default ``()`` is the list ``[]``)."""

@@ -545,3 +545,89 @@ def random_game(
     features = rbf_features(width, height, centers, rng.uniform(0.8, 2.0))
     paths = np.array(enumerate_paths(width, height, start, horizon))
     return rng, features, paths, feature_counts(paths, features)
+
+
+# --------------------------------------------------------------------------------------------
+# Episodes that end at a goal, and policies that share ties (docs/design.md §1, §4)
+# --------------------------------------------------------------------------------------------
+
+
+def episode_paths(
+    table: np.ndarray, start: int, horizon: int, goals: Sequence[int]
+) -> list[tuple[int, ...]]:
+    """Every path from ``start`` over the move table ``table`` (``-1`` unavailable): with
+    ``goals``, each path of at most ``horizon`` moves that ends on entering a goal and enters
+    none before; without, every ``horizon``-move path. By recursion over moves."""
+    goals = set(goals)
+    found: list[tuple[int, ...]] = []
+
+    def extend(path: tuple[int, ...]) -> None:
+        if goals and path[-1] in goals and len(path) > 1:
+            found.append(path)
+            return
+        if len(path) == horizon + 1:
+            if not goals:
+                found.append(path)
+            return
+        for nxt in table[path[-1]]:
+            if nxt >= 0:
+                extend((*path, int(nxt)))
+
+    extend((start,))
+    return found
+
+
+def episode_counts(paths: Sequence[Sequence[int]], features: np.ndarray) -> np.ndarray:
+    """``(N, K)`` counts of paths of any lengths, the start cell not counted."""
+    return np.array([features[list(path[1:])].sum(axis=0) for path in paths])
+
+
+def best_episode_value(
+    table: np.ndarray, rewards: np.ndarray, start: int, horizon: int, goals: Sequence[int]
+) -> float:
+    """``max`` over :func:`episode_paths` from ``start`` of the summed rewards (or ``-inf``)."""
+    paths = episode_paths(table, start, horizon, goals)
+    return max((math.fsum(rewards[list(p[1:])]) for p in paths), default=-math.inf)
+
+
+def shared_policy_value(
+    table: np.ndarray,
+    true_rewards: np.ndarray,
+    planned_rewards: np.ndarray,
+    start: int,
+    horizon: int,
+    goals: Sequence[int],
+    tolerance: float = 1e-9,
+) -> float:
+    """Value under ``true_rewards`` of the policy optimal for ``planned_rewards`` that shares
+    its mass evenly among tied moves: the sum over every path of the tie tree of its
+    probability times its true reward. A move's value is its planned reward plus the best
+    planned value of the episodes after it (by enumeration); a move within ``tolerance``
+    (relative to ``horizon * max |planned|``) of the best is tied."""
+    goals = tuple(goals)
+    scale = tolerance * horizon * float(np.abs(planned_rewards).max())
+
+    def move_values(cell: int, left: int) -> dict[int, float]:
+        values = {}
+        for nxt in table[cell]:
+            if nxt < 0:
+                continue
+            nxt = int(nxt)
+            if goals and nxt in goals:
+                after = 0.0
+            elif left == 1:
+                after = -math.inf if goals else 0.0
+            else:
+                after = best_episode_value(table, planned_rewards, nxt, left - 1, goals)
+            values[nxt] = planned_rewards[nxt] + after
+        return values
+
+    def value(cell: int, left: int) -> float:
+        if left == 0 or (goals and cell in goals):
+            return 0.0
+        options = move_values(cell, left)
+        best = max(options.values())
+        tied = [nxt for nxt, v in options.items() if v >= best - scale]
+        return math.fsum(true_rewards[n] + value(n, left - 1) for n in tied) / len(tied)
+
+    return value(start, horizon)

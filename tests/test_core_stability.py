@@ -19,7 +19,8 @@ import numpy as np
 import pytest
 
 from cirl_study.core.trial import play_trials
-from cirl_study.record import Grid, RBFFeatures, TrialSpec
+from cirl_study.features import RBFFeatures
+from cirl_study.record import Grid, TrialSpec
 
 SWEEP = (1e-4, 1e-2, 1.0, 1e2, 1e3)
 

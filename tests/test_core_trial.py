@@ -16,6 +16,7 @@ from cirl_study.core.trial import (
     play_trials,
     play_watched,
 )
+from cirl_study.features import RBFFeatures
 from cirl_study.record import (
     MAP,
     MEASURES,
@@ -23,7 +24,6 @@ from cirl_study.record import (
     FitDiagnostics,
     Grid,
     Measures,
-    RBFFeatures,
     TrialRecord,
     TrialSpec,
     decode,

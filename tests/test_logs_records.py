@@ -379,8 +379,8 @@ def test_the_move_table_walk_agrees_with_the_named_path_faults(
         )
     ]
     for name, path, start, steps in paths:
-        named = list(record_checks._path_faults(name, path, start, steps, grid))
-        assert (record_checks._walk(path, start, steps, moves) is None) == bool(named), name
+        named = list(record_checks._path_faults(name, path, start, steps, grid, ()))
+        assert (record_checks._walk(path, start, steps, moves, ()) is None) == bool(named), name
 
 
 def test_reward_l2_is_checked_record_by_record_in_a_batch() -> None:

@@ -27,6 +27,8 @@ from functools import cached_property
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from cirl_study.features import feature_matrix as features_of
+from cirl_study.features import grid_coordinates, rbf_exponents
 from cirl_study.record import TrialSpec
 
 ACTIONS: tuple[str, ...] = ("stay", "N", "S", "E", "W")
@@ -78,8 +80,7 @@ class Gridworld:
 
     def cell_coordinates(self) -> NDArray[np.float64]:
         """``(S, 2)`` array of every cell's ``[x, y]``, in flat-index order."""
-        ys, xs = np.divmod(np.arange(self.num_cells), self.width)
-        return np.stack([xs, ys], axis=1).astype(np.float64)
+        return grid_coordinates(self.width, self.height)
 
     @cached_property
     def successors(self) -> NDArray[np.int64]:
@@ -106,8 +107,11 @@ class Gridworld:
         return moves
 
 
-def rbf_exponents(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[np.float64]:
-    """The exponents :math:`-\\|s - c_k\\|^2 / (2 \\sigma^2)` of :func:`rbf_features`.
+def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[np.float64]:
+    """Radial-basis features of every cell, :math:`\\phi_k(s) = \\exp(-\\|s - c_k\\|^2 /
+    (2 \\sigma^2))` (:func:`cirl_study.features.rbf_exponents`), each the C library's
+    ``exp`` (:func:`cirl_study.core.elementwise.exp`): bitwise the same on every CPU, whichever
+    SIMD variants of its loops numpy would dispatch to.
 
     Args:
         grid: the gridworld.
@@ -115,32 +119,12 @@ def rbf_exponents(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[
         sigma: the common width ``sigma > 0``.
 
     Returns:
-        ``(S, K)`` (or ``(B, S, K)``) array.
-    """
-    if sigma <= 0:
-        raise ValueError(f"sigma must be positive, got {sigma}")
-    centers = np.asarray(centers, dtype=np.float64)
-    cells = grid.cell_coordinates()
-    # ||s - c_k||^2 as dx^2 + dy^2 on (S, K) arrays: the same sum as a reduction over the
-    # coordinate axis, to the bit, without numpy's slow reduction over an axis of length 2.
-    dx = cells[:, 0, None] - centers[..., None, :, 0]
-    dy = cells[:, 1, None] - centers[..., None, :, 1]
-    return -(dx * dx + dy * dy) / (2.0 * sigma**2)
-
-
-def rbf_features(grid: Gridworld, centers: ArrayLike, sigma: float) -> NDArray[np.float64]:
-    """Radial-basis features of every cell, :math:`\\phi_k(s) = \\exp(-\\|s - c_k\\|^2 /
-    (2 \\sigma^2))` (:func:`rbf_exponents`), each the C library's ``exp``
-    (:func:`cirl_study.core.elementwise.exp`): bitwise the same on every CPU, whichever SIMD
-    variants of its loops numpy would dispatch to.
-
-    Returns:
         ``(S, K)`` (or ``(B, S, K)``) array with ``phi_k(s)``.
     """
     # The compiler loads with the first trial played, not with the log reader.
     from cirl_study.core.elementwise import exp
 
-    return exp(rbf_exponents(grid, centers, sigma))
+    return exp(rbf_exponents(grid.width, grid.height, np.asarray(centers, np.float64), sigma))
 
 
 def gridworld(spec: TrialSpec) -> Gridworld:
@@ -149,8 +133,11 @@ def gridworld(spec: TrialSpec) -> Gridworld:
 
 
 def feature_matrix(spec: TrialSpec) -> NDArray[np.float64]:
-    """``Phi``, the ``(width * height, K)`` RBF features of every cell of a trial, by flat index."""
-    return rbf_features(gridworld(spec), spec.features.centers, spec.features.sigma)
+    """``Phi``, the ``(width * height, K)`` features of every cell of a trial, by flat index
+    (:func:`cirl_study.features.feature_matrix` with the C library's ``exp``)."""
+    from cirl_study.core.elementwise import exp
+
+    return features_of(spec.grid.width, spec.grid.height, spec.features, exp)
 
 
 def paths_actions(grid: Gridworld, paths: NDArray[np.int64]) -> list[tuple[str, ...]]:

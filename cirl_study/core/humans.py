@@ -64,7 +64,9 @@ def expert_paths(model: MaxEnt, theta: FloatArray) -> IntArray:
     :func:`cirl_study.core.planning.optimal_plan`). The robot's :math:`\\lambda` plays no part.
     """
     phase = model.phase
-    plan = optimal_plan(model.cell_rewards(theta), phase.successors, phase.horizon)
+    plan = optimal_plan(
+        model.cell_rewards(theta), phase.successors, phase.horizon, phase.reachable
+    )
     return follow_policy(phase.successors, np.full(len(theta), phase.start_cell), plan.actions)
 
 
@@ -113,7 +115,11 @@ def literal_paths(model: MaxEnt, theta: FloatArray, seeds: IntArray) -> IntArray
     """
     phase = model.phase
     plan = soft_value_iteration(
-        model.cell_rewards(theta), phase.successors, phase.horizon, model.rationality
+        model.cell_rewards(theta),
+        phase.successors,
+        phase.horizon,
+        model.rationality,
+        phase.reachable,
     )
     batch = len(theta)
     uniforms = np.array([human_generator(seed).random(phase.horizon) for seed in seeds])

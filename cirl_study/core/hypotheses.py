@@ -58,15 +58,16 @@ game imports this module)."""
 
 
 def path_count(phase: Phase) -> int:
-    """Number of ``horizon``-move paths from the phase's start (by counting, not listing)."""
+    """Number of paths of the phase from its start (by counting, not listing): its
+    ``horizon``-move paths, or with goals those that reach one in time."""
     counts = np.zeros(phase.successors.shape[0], dtype=object)
     counts[phase.start_cell] = 1
-    for _ in range(phase.horizon):
+    for t in range(phase.horizon):
         following = np.zeros_like(counts)
         for action in range(phase.successors.shape[1]):
             moves = phase.successors[:, action]
             np.add.at(following, moves[moves >= 0], counts[moves >= 0])
-        counts = following
+        counts = np.where(phase.reachable[t + 1], following, 0)
     return int(counts.sum())
 
 
@@ -92,7 +93,10 @@ class VisitClasses:
     @classmethod
     def of(cls, phase: Phase) -> VisitClasses:
         """Enumerate ``phase`` (shared: one enumeration per successor table, start, horizon)."""
-        key = (phase.successors.tobytes(), phase.successors.shape, phase.start_cell, phase.horizon)
+        key = (
+            phase.successors.tobytes(), phase.successors.shape, phase.start_cell, phase.horizon,
+            phase.goals,
+        )  # fmt: skip
         if key not in _ENUMERATED:
             _ENUMERATED.clear()
             _ENUMERATED[key] = cls._enumerate(phase)
@@ -107,9 +111,10 @@ class VisitClasses:
                 "hypothesis space enumerates"
             )
         paths = np.full((1, 1), phase.start_cell, dtype=np.int32)
-        for _ in range(phase.horizon):
+        live = np.append(phase.reachable, np.zeros((phase.horizon + 1, 1), bool), axis=1)
+        for t in range(phase.horizon):
             following = phase.successors[paths[:, -1]]
-            rows, moves = np.nonzero(following >= 0)
+            rows, moves = np.nonzero(live[t + 1][following])
             paths = np.concatenate([paths[rows], following[rows, moves, None]], axis=1)
             paths = paths.astype(np.int32, copy=False)
         visits = np.sort(paths[:, 1:], axis=1)

@@ -51,6 +51,7 @@ from cirl_study.core.planning import (
     FloatArray,
     IntArray,
     backward_future_counts,
+    finishing_cells,
     forward_visitation,
     reachable_cells,
     soft_backup,
@@ -62,25 +63,51 @@ MAX_CLASS_PATHS = 100_000
 
 @dataclass(frozen=True, eq=False)
 class Phase:
-    """The dynamics of one phase: ``horizon`` moves on the grid's ``successors`` from ``start``.
+    """The dynamics of one phase: at most ``horizon`` moves on a grid's moves from ``start``.
+
+    A phase has a fixed horizon (every path makes ``horizon`` moves: the paper), or ``goals``:
+    cells that absorb, a path ending on entering one, and the paths of the phase are those
+    that reach a goal within ``horizon`` moves. The second is encoded as the first on one
+    more cell, the *sink* (index ``S``, zero features, so zero reward): a goal's one move is
+    the first action into the sink, the sink's is into itself, and a path of the phase is a
+    ``horizon``-move path padded with the sink after its goal. Every kernel then runs
+    unchanged over paths of one length; :attr:`reachable` leaves out the cells from which no
+    goal can be reached in the moves left, so no path that misses every goal is counted.
 
     Attributes:
-        successors: ``(S, A)`` next-cell index of each action, ``-1`` where unavailable.
-        start: flat index of the start cell :math:`s_0`; ``None`` when every cell is a start,
-            drawn uniformly (the deployment phase, whose measures average over all cells).
-        horizon: number of moves ``T >= 0``.
+        successors: ``(S, A)`` next-cell index of each action on the grid, ``-1`` where
+            unavailable; ``(S + 1, A)`` with the sink's row once built, for a phase with goals.
+        start: flat index of the start cell :math:`s_0`; ``None`` when the phase starts in
+            every cell that can end in time, drawn uniformly (the deployment phase, whose
+            measures average over :attr:`starts`).
+        horizon: number of moves ``T >= 0`` (at most ``T`` with goals).
+        goals: flat indices of the absorbing goal cells (none: a fixed horizon).
     """
 
     successors: IntArray
     start: int | None
     horizon: int
+    goals: tuple[int, ...] = ()
 
     def __post_init__(self) -> None:
-        object.__setattr__(
-            self, "successors", np.ascontiguousarray(self.successors, dtype=np.int64)
-        )
+        goals = tuple(sorted({int(g) for g in self.goals}))
+        moves = np.ascontiguousarray(self.successors, dtype=np.int64)
+        if goals:
+            moves = absorbing_moves(moves, goals)
+        object.__setattr__(self, "successors", moves)
+        object.__setattr__(self, "goals", goals)
         object.__setattr__(self, "start", None if self.start is None else int(self.start))
         object.__setattr__(self, "horizon", int(self.horizon))
+
+    @property
+    def cells(self) -> int:
+        """``S``, the grid's cells (the sink not counted)."""
+        return self.successors.shape[0] - (1 if self.goals else 0)
+
+    @property
+    def sink(self) -> int | None:
+        """The sink's index ``S`` in a phase with goals, else ``None``."""
+        return self.cells if self.goals else None
 
     @property
     def start_cell(self) -> int:
@@ -90,11 +117,64 @@ class Phase:
         return self.start
 
     @cached_property
+    def finishing(self) -> NDArray[np.bool_]:
+        """``(T + 1, S)`` mask (``S + 1`` columns with the sink): ``[t, s]`` is true iff a path
+        from ``s`` at step ``t`` can still end in time (with goals: be in a goal or the sink
+        after ``T`` moves; without, every path can). What a plan from every cell needs."""
+        cells = self.successors.shape[0]
+        if self.goals:
+            ends = np.zeros(cells, dtype=np.bool_)
+            ends[list(self.goals)] = True
+            ends[self.cells] = True
+        else:
+            ends = np.ones(cells, dtype=np.bool_)
+        return finishing_cells(self.successors, self.horizon, ends)
+
+    @cached_property
     def reachable(self) -> NDArray[np.bool_]:
-        """``(T + 1, S)`` mask: ``[t, s]`` is true iff ``s`` is reachable in exactly ``t`` moves."""
+        """``(T + 1, S)`` mask: ``[t, s]`` is true iff ``s`` is reached in exactly ``t`` moves
+        from a start by a path that can still end in time (:attr:`finishing`)."""
         if self.start is None:
-            return np.ones((self.horizon + 1, self.successors.shape[0]), dtype=np.bool_)
-        return reachable_cells(self.successors, self.start, self.horizon)
+            return self.finishing
+        return reachable_cells(self.successors, self.start, self.horizon) & self.finishing
+
+    @cached_property
+    def starts(self) -> NDArray[np.bool_]:
+        """``(S,)`` the cells the phase may start in: ``start`` alone, or every grid cell that
+        is not a goal and can end in time (all of them without goals); the measures average
+        over these (:func:`cirl_study.core.measures.over_starts`)."""
+        starts = np.zeros(self.cells, dtype=np.bool_)
+        if self.start is not None:
+            starts[self.start] = True
+            return starts
+        starts[:] = self.reachable[0, : self.cells]
+        starts[list(self.goals)] = False
+        return starts
+
+    def path_ends(self, paths: IntArray) -> IntArray:
+        """``(B,)`` the number of moves of each ``(B, T + 1)`` path before the sink: ``T``
+        without goals, else the step at which the path entered its goal."""
+        if not self.goals:
+            return np.full(len(paths), self.horizon, dtype=np.int64)
+        return (paths != self.cells).sum(axis=1) - 1
+
+
+def absorbing_moves(successors: IntArray, goals: tuple[int, ...]) -> IntArray:
+    """``(S + 1, A)`` moves of a grid whose ``goals`` absorb (see :class:`Phase`): the grid's
+    ``successors``, but a goal's only move and the sink's is the first action, into the sink
+    (index ``S``).
+
+    Examples:
+        >>> absorbing_moves(np.array([[0, 1], [1, 0]]), (1,)).tolist()
+        [[0, 1], [2, -1], [2, -1]]
+    """
+    cells, actions = successors.shape
+    moves = np.full((cells + 1, actions), -1, dtype=np.int64)
+    moves[:cells] = successors
+    moves[list(goals)] = -1
+    moves[list(goals), 0] = cells
+    moves[cells, 0] = cells
+    return moves
 
 
 @dataclass(frozen=True)
@@ -180,7 +260,8 @@ class MaxEnt:
 
     Attributes:
         phase: the dynamics.
-        features: ``(B, S, K)`` cell features :math:`\\phi` of each trial.
+        features: ``(B, S, K)`` cell features :math:`\\phi` of each trial (given for the
+            grid's cells; a phase with goals adds the sink's row of zeros).
         rationality: :math:`\\lambda > 0`.
     """
 
@@ -189,7 +270,10 @@ class MaxEnt:
     rationality: float
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "features", np.ascontiguousarray(self.features, dtype=np.float64))
+        features = np.ascontiguousarray(self.features, dtype=np.float64)
+        if self.phase.sink is not None and features.shape[1] == self.phase.cells:
+            features = np.concatenate([features, np.zeros_like(features[:, :1])], axis=1)
+        object.__setattr__(self, "features", features)
         object.__setattr__(self, "rationality", float(self.rationality))
 
     @property
@@ -587,7 +671,7 @@ def _log_likelihoods(
                         top[p] = -np.inf
                     for a in range(actions):
                         nxt = successors[s, a]
-                        if nxt >= 0:
+                        if nxt >= 0 and needed[t + 1, nxt]:
                             for p in range(width):
                                 g = combined[nxt, p]
                                 top[p] = g if g > top[p] else top[p]
@@ -595,7 +679,7 @@ def _log_likelihoods(
                         total[p] = 0.0
                     for a in range(actions):
                         nxt = successors[s, a]
-                        if nxt >= 0:
+                        if nxt >= 0 and needed[t + 1, nxt]:
                             for p in range(width):
                                 gap = top[p] - combined[nxt, p]
                                 gap = gap if gap < FARTHEST_EXPONENT else FARTHEST_EXPONENT

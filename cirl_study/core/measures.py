@@ -3,11 +3,13 @@
 All three compare the true reward weights :math:`\\theta` with the robot's estimate
 :math:`\\hat\\theta` on the deployment phase: ``T`` steps from a start cell drawn
 uniformly from all cells (``phase.start = None``; the paper's setting) or from one fixed
-start (``phase.start = s``). Expectations over the start are taken exactly, by averaging
-over every cell, :math:`\\frac{1}{|S|}\\sum_s`; a fixed start replaces that average by the
-value at ``s``. Each takes the MaxEnt model of the deployment phase
-(:class:`cirl_study.core.maxent.MaxEnt`: its dynamics, the trials' features and
-:math:`\\lambda`).
+start (``phase.start = s``); in a phase with goals, ``T`` is the most moves and a path ends
+on entering a goal, and the starts are the cells that are not goals (and can reach one in
+time). Expectations over the start are taken exactly, by averaging over the starts
+(:attr:`~cirl_study.core.maxent.Phase.starts`; every cell in the paper),
+:math:`\\frac{1}{|S|}\\sum_s`; a fixed start replaces that average by the value at ``s``.
+Each takes the MaxEnt model of the deployment phase (:class:`cirl_study.core.maxent.MaxEnt`:
+its dynamics, the trials' features and :math:`\\lambda`).
 
 * ``regret``: :math:`\\frac{1}{|S|}\\sum_s V^*_\\theta(s) - V^{\\pi_{\\hat\\theta}}_\\theta(s)`,
   where :math:`\\pi_{\\hat\\theta}` is the optimal (hard-max) ``T``-step policy for
@@ -32,22 +34,27 @@ import numpy as np
 from numba import njit
 
 from cirl_study.core.maxent import MaxEnt, Phase
-from cirl_study.core.planning import FloatArray, evaluate_policy, optimal_plan, soft_backup
+from cirl_study.core.planning import FloatArray, optimal_plan, shared_policy_values, soft_backup
 
 
 def regret(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
     """:math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta` over the deployment's starts ``(B,)``.
 
-    The values :math:`V` sum :math:`r_\\theta(s_t)`, ``t = 1..T``, from each start. It is
-    non-negative (up to rounding) for any two weight vectors, so the call with the roles
-    swapped is the second reading, ``regret_under_estimate``.
+    The values :math:`V` sum :math:`r_\\theta(s_t)`, ``t = 1..T``, from each start;
+    :math:`\\pi_{\\hat\\theta}` shares its mass evenly among tied optimal actions
+    (:func:`cirl_study.core.planning.shared_policy_values`), so regret is a function of the
+    game, not of the order of the action list. It is non-negative (up to rounding) for any
+    two weight vectors, so the call with the roles swapped is the second reading,
+    ``regret_under_estimate``.
     """
-    successors, horizon = deployment.phase.successors, deployment.phase.horizon
+    phase = deployment.phase
+    successors, horizon, live = phase.successors, phase.horizon, phase.finishing
     true_rewards = deployment.cell_rewards(theta)
-    best = optimal_plan(true_rewards, successors, horizon).values[0]
-    robot = optimal_plan(deployment.cell_rewards(theta_hat), successors, horizon).actions
-    achieved = evaluate_policy(true_rewards, successors, robot)[0]
-    return over_starts(best - achieved, deployment.phase)
+    best = optimal_plan(true_rewards, successors, horizon, live).values[0]
+    achieved = shared_policy_values(
+        true_rewards, deployment.cell_rewards(theta_hat), successors, horizon, live
+    )
+    return over_starts(best - achieved, phase)
 
 
 def trajectory_kl(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
@@ -58,18 +65,18 @@ def trajectory_kl(deployment: MaxEnt, theta: FloatArray, theta_hat: FloatArray) 
         rationality * deployment.cell_rewards(theta_hat),
         phase.successors,
         phase.horizon,
+        phase.finishing,
     )
     return over_starts(divergence, phase)
 
 
 @njit(cache=True)
-def _divergence_from_every_cell(scaled, scaled_hat, successors, horizon):  # pragma: no cover
+def _divergence_from_every_cell(scaled, scaled_hat, successors, horizon, live):  # pragma: no cover
     # D_t(s) = max(sum_a pi_t(a|s) [log pi_t(a|s) - log pi_hat_t(a|s)], 0)
     #          + sum_a pi_t(a|s) D_{t+1}(s'), one trial at a time in scratch arrays (the
     # clipping removes only rounding below zero from a per-step KL, which is >= 0).
     batch, cells = scaled.shape
     actions = successors.shape[1]
-    everywhere = np.ones((horizon + 1, cells), dtype=np.bool_)
     values, values_hat = np.empty((horizon + 1, cells)), np.empty((horizon + 1, cells))
     shape = (horizon, cells, actions)
     log_policy, log_policy_hat = np.empty(shape), np.empty(shape)
@@ -77,17 +84,20 @@ def _divergence_from_every_cell(scaled, scaled_hat, successors, horizon):  # pra
     later, now = np.zeros(cells), np.zeros(cells)
     divergence = np.empty((batch, cells))
     for b in range(batch):
-        soft_backup(scaled[b], successors, horizon, values, log_policy, policy, everywhere)
+        soft_backup(scaled[b], successors, horizon, values, log_policy, policy, live)
         soft_backup(
-            scaled_hat[b], successors, horizon, values_hat, log_policy_hat, policy_hat, everywhere
+            scaled_hat[b], successors, horizon, values_hat, log_policy_hat, policy_hat, live
         )
         later[:] = 0.0
         for t in range(horizon - 1, -1, -1):
             for s in range(cells):
                 step, ahead = 0.0, 0.0
+                if not live[t, s]:
+                    now[s] = 0.0
+                    continue
                 for a in range(actions):
                     nxt = successors[s, a]
-                    if nxt < 0:
+                    if nxt < 0 or not live[t + 1, nxt]:
                         continue
                     p = policy[t, s, a]
                     step += p * (log_policy[t, s, a] - log_policy_hat[t, s, a])
@@ -100,13 +110,20 @@ def _divergence_from_every_cell(scaled, scaled_hat, successors, horizon):  # pra
 
 
 def over_starts(values: FloatArray, phase: Phase) -> FloatArray:
-    """``(B, S)`` values per start cell, averaged over the phase's starts: ``(B,)``."""
-    return values.mean(axis=1) if phase.start is None else values[:, phase.start]
+    """``(B, S)`` values per cell (``S + 1`` with a sink), averaged over the phase's starts
+    (:attr:`~cirl_study.core.maxent.Phase.starts`): ``(B,)``."""
+    if phase.start is not None:
+        return values[:, phase.start]
+    starts = phase.starts
+    if starts.all():
+        return values[:, : phase.cells].mean(axis=1)
+    return values[:, : phase.cells][:, starts].mean(axis=1)
 
 
 def reward_l2(features: FloatArray, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:
     """:math:`\\lVert \\Phi(\\theta - \\hat\\theta) \\rVert_2` over all cells, ``(B,)``.
 
-    ``features`` is ``(B, S, K)``: each trial's :math:`\\Phi`.
+    ``features`` is ``(B, S, K)``: each trial's :math:`\\Phi` (a sink's row of zeros adds
+    nothing).
     """
     return np.linalg.norm(np.einsum("bsk,bk->bs", features, theta - theta_hat), axis=1)

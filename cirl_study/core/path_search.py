@@ -111,9 +111,9 @@ def suffix_extremes(cell_values, successors, horizon, needed, low, high):  # pra
             separately.
         successors: ``(S, A)`` successor table.
         horizon: largest ``r``.
-        needed: ``(horizon + 1, S)`` mask of the ``(r, s)`` entries to compute; the
-            successors of a needed ``(r, s)`` must be needed at ``r - 1`` (entries that are
-            not needed are left as they were).
+        needed: ``(horizon + 1, S)`` mask of the ``(r, s)`` entries to compute; a move
+            into a cell not needed at ``r - 1`` is unavailable (it cannot end in time), and
+            entries that are not needed are left as they were.
         low, high: ``(horizon + 1, S, M)`` outputs; index ``r`` holds the extremes over
             ``r``-step suffixes, ``low[r, s] = min over available s -> s' of v(s') +
             low[r - 1, s']``, and row 0 must hold zeros. One trial's arrays are a few hundred
@@ -130,7 +130,7 @@ def suffix_extremes(cell_values, successors, horizon, needed, low, high):  # pra
             first = True
             for a in range(successors.shape[1]):
                 nxt = successors[s, a]
-                if nxt < 0:
+                if nxt < 0 or not needed[r - 1, nxt]:
                     continue
                 value, below, above = cell_values[nxt], low_prev[nxt], high_prev[nxt]
                 lowest, highest = low_now[s], high_now[s]
@@ -162,7 +162,8 @@ def _prepare(
         batch, features.shape[1], -1, k
     )
     rotated_target = np.matmul(flat, target[:, :, None]).reshape(batch, -1, k)
-    # A prefix with r steps left ends in a cell reachable from the start in T - r steps.
+    # A prefix with r steps left ends in a cell reachable from the start in T - r steps, on a
+    # path that can still end in time.
     return _Problem(rotated_features, rotated_target, phase.reachable[::-1].copy())
 
 
@@ -231,7 +232,7 @@ def _search(successors, start, horizon, rotated_features, rotated_target, needed
                 m = 0
                 for a in range(actions):
                     nxt = successors[cells[depth], a]
-                    if nxt < 0:
+                    if nxt < 0 or not needed[remaining, nxt]:
                         continue
                     for j in range(bases):
                         for i in range(k):

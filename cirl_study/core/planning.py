@@ -50,7 +50,8 @@ class HardPlan:
 
     Attributes:
         values: ``(T + 1, B, S)`` optimal values :math:`V^*_t(s)`.
-        actions: ``(T, B, S)`` optimal action index at each step (lowest index on ties).
+        actions: ``(T, B, S)`` optimal action index at each step (lowest index on exact
+            ties).
     """
 
     values: FloatArray
@@ -73,6 +74,23 @@ def reachable_cells(successors, start, horizon):  # pragma: no cover - compiled
 
 
 @njit(cache=True)
+def finishing_cells(successors, horizon, ends):  # pragma: no cover - compiled
+    """``(T + 1, S)`` mask: ``[t, s]`` is true iff some path of ``T - t`` moves from ``s`` ends
+    in a cell of ``ends (S,)`` (all true when every cell ends a path)."""
+    cells, actions = successors.shape
+    finishing = np.zeros((horizon + 1, cells), dtype=np.bool_)
+    finishing[horizon] = ends
+    for t in range(horizon - 1, -1, -1):
+        for s in range(cells):
+            for a in range(actions):
+                nxt = successors[s, a]
+                if nxt >= 0 and finishing[t + 1, nxt]:
+                    finishing[t, s] = True
+                    break
+    return finishing
+
+
+@njit(cache=True)
 def soft_backup(
     scaled, successors, horizon, values, log_policy, policy, needed
 ):  # pragma: no cover
@@ -81,8 +99,10 @@ def soft_backup(
     ``scaled`` is :math:`\\lambda r` ``(S,)``; fills ``values (T+1, S)``,
     ``log_policy (T, S, A)`` and ``policy (T, S, A)`` (``-inf`` / 0 where unavailable)
     at the steps and cells where ``needed (T + 1, S)`` is true (all of them, or those
-    reachable from the start: a needed cell's successors must be needed at the next step).
-    Entries that are not needed are left undefined.
+    reachable from the start on a path that can still end in time,
+    :attr:`cirl_study.core.maxent.Phase.reachable`). A move into a cell that is not needed at
+    the next step is unavailable there: no path that takes it ends in time. Entries that are
+    not needed are left undefined.
     """
     cells, actions = successors.shape
     values[horizon, :] = 0.0
@@ -93,7 +113,7 @@ def soft_backup(
             top = -np.inf
             for a in range(actions):
                 nxt = successors[s, a]
-                if nxt >= 0:
+                if nxt >= 0 and needed[t + 1, nxt]:
                     q = scaled[nxt] + values[t + 1, nxt]
                     log_policy[t, s, a] = q
                     if q > top:
@@ -116,21 +136,29 @@ def soft_backup(
 
 
 @njit(cache=True)
-def _soft_value_iteration(scaled, successors, horizon):  # pragma: no cover - compiled
+def _soft_value_iteration(scaled, successors, horizon, live):  # pragma: no cover - compiled
     """Batch-major ``(B, T + 1, S)``, ``(B, T, S, A)`` x 2 results of :func:`soft_backup`."""
     batch, cells = scaled.shape
     actions = successors.shape[1]
     values = np.empty((batch, horizon + 1, cells))
     log_policy = np.empty((batch, horizon, cells, actions))
     policy = np.empty((batch, horizon, cells, actions))
-    everywhere = np.ones((horizon + 1, cells), dtype=np.bool_)
     for b in range(batch):
-        soft_backup(scaled[b], successors, horizon, values[b], log_policy[b], policy[b], everywhere)
+        soft_backup(scaled[b], successors, horizon, values[b], log_policy[b], policy[b], live)
     return values, log_policy, policy
 
 
+def everywhere(successors: IntArray, horizon: int) -> NDArray[np.bool_]:
+    """The ``(T + 1, S)`` mask of a fixed horizon from any cell: every cell at every step."""
+    return np.ones((horizon + 1, successors.shape[0]), dtype=np.bool_)
+
+
 def soft_value_iteration(
-    cell_rewards: FloatArray, successors: IntArray, horizon: int, rationality: float
+    cell_rewards: FloatArray,
+    successors: IntArray,
+    horizon: int,
+    rationality: float,
+    live: NDArray[np.bool_] | None = None,
 ) -> SoftPlan:
     """Finite-horizon soft value iteration for a batch of reward vectors.
 
@@ -139,13 +167,18 @@ def soft_value_iteration(
         successors: ``(S, A)`` successor table (``-1`` = unavailable).
         horizon: number of steps ``T >= 0``.
         rationality: :math:`\\lambda > 0`.
+        live: ``(T + 1, S)`` the steps and cells on paths that end in time
+            (:attr:`cirl_study.core.maxent.Phase.reachable`); every one by default.
 
     Returns:
-        The soft policy and values; see :class:`SoftPlan`.
+        The soft policy and values; see :class:`SoftPlan` (undefined outside ``live``).
     """
     scaled = rationality * np.ascontiguousarray(cell_rewards, dtype=np.float64)
     values, log_policy, policy = _soft_value_iteration(
-        scaled, np.ascontiguousarray(successors, dtype=np.int64), horizon
+        scaled,
+        np.ascontiguousarray(successors, dtype=np.int64),
+        horizon,
+        everywhere(successors, horizon) if live is None else live,
     )
     # Computed trial by trial (batch-major); returned as (T, B, ...) views.
     return SoftPlan(
@@ -192,7 +225,7 @@ def backward_future_counts(policy, successors, features, future, needed):  # pra
                 future[t, s, i] = 0.0
             for a in range(actions):
                 nxt = successors[s, a]
-                if nxt < 0:
+                if nxt < 0 or not needed[t + 1, nxt]:
                     continue
                 p = policy[t, s, a]
                 for i in range(k):
@@ -271,32 +304,41 @@ def future_feature_counts(
     )
 
 
-def optimal_plan(cell_rewards: FloatArray, successors: IntArray, horizon: int) -> HardPlan:
+def optimal_plan(
+    cell_rewards: FloatArray,
+    successors: IntArray,
+    horizon: int,
+    live: NDArray[np.bool_] | None = None,
+) -> HardPlan:
     """Finite-horizon value iteration (hard max) for a batch of reward vectors.
 
-    :math:`V^*_T = 0`, :math:`V^*_t(s) = \\max_a r(s') + V^*_{t+1}(s')`; ties go to the
-    lowest action index, so the policy is a deterministic function of the rewards.
+    :math:`V^*_T = 0`, :math:`V^*_t(s) = \\max_a r(s') + V^*_{t+1}(s')` over the moves into
+    ``live`` cells (every cell by default; see :func:`soft_value_iteration`); ``actions`` takes
+    the lowest action index among exact ties, so the path it follows is a deterministic
+    function of the rewards (the policy the measures evaluate shares ties instead:
+    :func:`shared_policy_values`). Values are ``-inf`` where no live move is left.
     """
     values, actions = _hard_value_iteration(
         np.ascontiguousarray(cell_rewards, dtype=np.float64),
         np.ascontiguousarray(successors, dtype=np.int64),
         horizon,
+        everywhere(successors, horizon) if live is None else live,
     )
     return HardPlan(values=values, actions=actions)
 
 
 @njit(cache=True)
-def _hard_value_iteration(rewards, successors, horizon):  # pragma: no cover - compiled
+def _hard_value_iteration(rewards, successors, horizon, live):  # pragma: no cover - compiled
     batch, cells = rewards.shape
     values = np.zeros((horizon + 1, batch, cells))
-    actions = np.empty((horizon, batch, cells), dtype=np.int64)
+    actions = np.zeros((horizon, batch, cells), dtype=np.int64)
     for t in range(horizon - 1, -1, -1):
         for b in range(batch):
             for s in range(cells):
                 best, chosen = -np.inf, 0
                 for a in range(successors.shape[1]):
                     nxt = successors[s, a]
-                    if nxt < 0:
+                    if nxt < 0 or not live[t + 1, nxt]:
                         continue
                     q = rewards[b, nxt] + values[t + 1, b, nxt]
                     if q > best:
@@ -306,34 +348,83 @@ def _hard_value_iteration(rewards, successors, horizon):  # pragma: no cover - c
     return values, actions
 
 
-def evaluate_policy(
-    cell_rewards: FloatArray, successors: IntArray, actions: IntArray
+TIE_TOLERANCE = 1e-9
+"""Actions whose value under the planned reward is within ``TIE_TOLERANCE * T * max_s |r(s)|``
+of the best are tied (:func:`shared_policy_values`). The values are sums of at most ``T``
+rewards, each rounded to a relative :math:`2^{-53}`, so their rounding stays below
+:math:`T^2 2^{-53} \\max_s |r(s)|`, far inside the tolerance for every horizon a pipeline
+admits: actions that tie in exact arithmetic (paths through the same cells in another order)
+always tie here, and what changes is a gap of at most the tolerance, never rounding."""
+
+
+def shared_policy_values(
+    cell_rewards: FloatArray,
+    planned_rewards: FloatArray,
+    successors: IntArray,
+    horizon: int,
+    live: NDArray[np.bool_] | None = None,
 ) -> FloatArray:
-    """Values of a deterministic time-indexed policy under the given rewards.
+    """Values under ``cell_rewards`` of the optimal policy for ``planned_rewards`` whose ties
+    share the mass: ``(B, S)`` :math:`V^{\\pi}_0(s)` from every cell.
 
-    :math:`V_T = 0`, :math:`V_t(s) = r(s') + V_{t+1}(s')` with :math:`s'` the successor of
-    ``s`` under ``actions[t, :, s]`` (which must be available).
-
-    Returns:
-        ``(T + 1, B, S)`` values.
+    The policy :math:`\\pi_t(\\cdot \\mid s)` is uniform over the actions ``a`` whose
+    :math:`\\hat Q_t(s, a) = \\hat r(s') + \\hat V^*_{t+1}(s')` is the best up to
+    :data:`TIE_TOLERANCE` (``planned_rewards`` :math:`\\hat r`), so no value depends on the
+    order of the action list; its value is :math:`V_T = 0`,
+    :math:`V_t(s) = \\frac{1}{|A^*_t(s)|} \\sum_{a \\in A^*_t(s)} r(s') + V_{t+1}(s')`, both
+    recursions in one backward pass. ``live`` as in :func:`optimal_plan`; values are ``-inf``
+    where no live move is left.
     """
-    cells = successors.shape[0]
-    chosen = successors[np.arange(cells), actions]  # (T, B, S)
-    if (chosen < 0).any():
-        raise ValueError("policy takes an unavailable action")
-    return _policy_values(np.ascontiguousarray(cell_rewards, dtype=np.float64), chosen)
+    return _shared_policy_values(
+        np.ascontiguousarray(cell_rewards, dtype=np.float64),
+        np.ascontiguousarray(planned_rewards, dtype=np.float64),
+        np.ascontiguousarray(successors, dtype=np.int64),
+        horizon,
+        everywhere(successors, horizon) if live is None else live,
+    )
 
 
 @njit(cache=True)
-def _policy_values(rewards, chosen):  # pragma: no cover - compiled
-    horizon, batch, cells = chosen.shape
-    values = np.zeros((horizon + 1, batch, cells))
-    for t in range(horizon - 1, -1, -1):
-        for b in range(batch):
+def _shared_policy_values(rewards, planned, successors, horizon, live):  # pragma: no cover
+    batch, cells = rewards.shape
+    actions = successors.shape[1]
+    planned_later, planned_now = np.zeros(cells), np.zeros(cells)
+    later, now = np.zeros(cells), np.zeros(cells)
+    achieved = np.empty((batch, cells))
+    for b in range(batch):
+        scale = 0.0
+        for s in range(cells):
+            scale = max(scale, abs(planned[b, s]))
+        tolerance = TIE_TOLERANCE * horizon * scale
+        planned_later[:] = 0.0
+        later[:] = 0.0
+        for t in range(horizon - 1, -1, -1):
             for s in range(cells):
-                nxt = chosen[t, b, s]
-                values[t, b, s] = rewards[b, nxt] + values[t + 1, b, nxt]
-    return values
+                best = -np.inf
+                for a in range(actions):
+                    nxt = successors[s, a]
+                    if nxt >= 0 and live[t + 1, nxt]:
+                        best = max(best, planned[b, nxt] + planned_later[nxt])
+                planned_now[s] = best
+                if best == -np.inf:
+                    now[s] = -np.inf
+                    continue
+                total, tied = 0.0, 0
+                for a in range(actions):
+                    nxt = successors[s, a]
+                    if (
+                        nxt >= 0
+                        and live[t + 1, nxt]
+                        and planned[b, nxt] + planned_later[nxt] >= best - tolerance
+                    ):
+                        total += rewards[b, nxt] + later[nxt]
+                        tied += 1
+                now[s] = total / tied
+            planned_later, planned_now = planned_now, planned_later
+            later, now = now, later
+        for s in range(cells):
+            achieved[b, s] = later[s]
+    return achieved
 
 
 def rollout(successors: IntArray, start: int | IntArray, actions: IntArray) -> IntArray:

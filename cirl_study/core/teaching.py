@@ -34,6 +34,7 @@ from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.estimate import Estimate
 from cirl_study.core.humans import best_response_paths, expert_paths, human_generator
 from cirl_study.core.hypotheses import MAX_PATHS, VisitClasses, path_count
+from cirl_study.core.maxent import Phase
 from cirl_study.core.measures import regret
 from cirl_study.core.planning import FloatArray, IntArray
 from cirl_study.core.robot import map_estimate
@@ -124,7 +125,7 @@ def regret_optimal_paths(game: Apprenticeship, theta: FloatArray, seeds: IntArra
     known: list[dict[bytes, float]] = [{} for _ in range(batch)]
     best, best_regret = _best_of(game, theta, candidates, known)
     for _ in range(SEARCH_ROUNDS):
-        moved = [_single_moves(learning.phase.successors, path) for path in best]
+        moved = [_single_moves(learning.phase, path) for path in best]
         found, found_regret = _best_of(game, theta, moved, known)
         better = found_regret < best_regret
         if not better.any():
@@ -152,8 +153,10 @@ def _visit_classes(game: Apprenticeship) -> VisitClasses | None:
     return VisitClasses.of(game.learning.phase)
 
 
-def _single_moves(successors: IntArray, path: IntArray) -> IntArray:
-    """Every path that makes one move differently from ``path`` and then the same moves."""
+def _single_moves(phase: Phase, path: IntArray) -> IntArray:
+    """Every path of ``phase`` that makes one move differently from ``path`` and then the same
+    moves (with goals: one that still ends in time)."""
+    successors, live = phase.successors, phase.reachable
     moves = np.array(
         [
             int(np.flatnonzero(successors[a] == b)[0])
@@ -168,9 +171,9 @@ def _single_moves(successors: IntArray, path: IntArray) -> IntArray:
             changed = moves.copy()
             changed[step] = action
             cells = [path[0]]
-            for move in changed:
+            for t, move in enumerate(changed, start=1):
                 following = successors[cells[-1], move]
-                if following < 0:
+                if following < 0 or not live[t, following]:
                     break
                 cells.append(following)
             else:

@@ -35,17 +35,18 @@ from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.estimate import Estimate
 from cirl_study.core.gridworld import (
     Gridworld,
+    feature_matrix,
     gridworld,
     paths_actions,
     paths_cells,
-    rbf_features,
 )
 from cirl_study.core.hypotheses import HypothesisSpace, draw_hypotheses
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.measures import regret, reward_l2, trajectory_kl
-from cirl_study.core.planning import IntArray, follow_policy, optimal_plan
+from cirl_study.core.planning import HardPlan, IntArray, follow_policy, optimal_plan
 from cirl_study.core.players import HUMANS, ROBOTS, player_faults
 from cirl_study.record import (
+    Cell,
     Demonstration,
     Deployment,
     FitDiagnostics,
@@ -66,15 +67,46 @@ def check_playable(spec: TrialSpec) -> None:
     validated(spec)
     faults = player_faults(spec.policy, spec.robot, spec.eta, spec.teaching is not None)
     faults += setting_faults(spec)
+    if not faults:
+        faults += _game_faults(spec)
     if faults:
         raise ValueError(f"{spec.trial_id}: {'; '.join(faults)}")
 
 
+def _game_faults(spec: TrialSpec) -> list[str]:
+    """How a sound spec's game cannot be played: with goals, no goal within reach of the
+    learning phase's start in ``learning_steps`` moves, or of any deployment start."""
+    if not spec.goals:
+        return []
+    learning, deployment = phases(spec)
+    faults = []
+    if not learning.reachable[0, learning.start_cell]:
+        faults.append(f"no goal is within {spec.learning_steps} moves of start {list(spec.start)}")
+    if not deployment.starts.any():
+        faults.append(f"no deployment start has a goal within {spec.deployment_steps} moves")
+    return faults
+
+
+def phases(spec: TrialSpec) -> tuple[Phase, Phase]:
+    """The dynamics of a trial's learning and deployment phases: the grid's moves (the
+    human's without ``stay`` unless ``demonstrator_stays``), their starts, horizons and
+    goals."""
+    grid = gridworld(spec)
+    start = grid.index(*spec.start)
+    goals = tuple(grid.index(*goal) for goal in spec.goals)
+    learning = Phase(
+        grid.demonstrator_moves(spec.demonstrator_stays), start, spec.learning_steps, goals
+    )
+    deployment_start = start if spec.deployment_start == "demonstration" else None
+    deployment = Phase(grid.successors, deployment_start, spec.deployment_steps, goals)
+    return learning, deployment
+
+
 def _group_key(spec: TrialSpec) -> Hashable:
-    """What the trials played together share: the game's shape, its rationality and the
-    teaching settings (every policy and robot of a subject are played in one group)."""
+    """What the trials played together share: the game's shape and dynamics, its rationality
+    and the teaching settings (every policy and robot of a subject are played in one group)."""
     return (
-        spec.grid, spec.start, spec.learning_steps, spec.deployment_steps, spec.features.sigma,
+        spec.grid, spec.start, spec.goals, spec.learning_steps, spec.deployment_steps,
         spec.num_features, spec.rationality, spec.demonstrator_stays, spec.deployment_start,
         None if spec.teaching is None else replace(spec.teaching, hypothesis_seed=0),
     )  # fmt: skip
@@ -113,11 +145,11 @@ def first_move_paths(specs: Sequence[TrialSpec]) -> np.ndarray:
     :func:`cirl_study.study.runner.warm_up` does)."""
     paths = []
     for spec in specs:
-        grid = gridworld(spec)
-        moves = grid.demonstrator_moves(spec.demonstrator_stays)
-        path = [grid.index(*spec.start)]
-        for _ in range(spec.learning_steps):
-            path.append(int(next(cell for cell in moves[path[-1]] if cell >= 0)))
+        phase = phases(spec)[0]
+        path = [phase.start_cell]
+        for t in range(1, spec.learning_steps + 1):
+            moves = phase.successors[path[-1]]
+            path.append(int(next(c for c in moves if c >= 0 and phase.reachable[t, c])))
         paths.append(path)
     return np.array(paths, dtype=np.int64)
 
@@ -227,23 +259,10 @@ class _Setting:
         first = specs[0]
         grid = gridworld(first)
         theta = np.array([spec.theta for spec in specs], dtype=np.float64)
-        centers = np.array([spec.features.centers for spec in specs], dtype=np.float64)
-        features = rbf_features(grid, centers, first.features.sigma)
-        start = grid.index(*first.start)
-        learning = MaxEnt(
-            Phase(grid.demonstrator_moves(first.demonstrator_stays), start, first.learning_steps),
-            features,
-            first.rationality,
-        )
-        deployment = MaxEnt(
-            Phase(
-                grid.successors,
-                start if first.deployment_start == "demonstration" else None,
-                first.deployment_steps,
-            ),
-            features,
-            first.rationality,
-        )
+        features = np.stack([feature_matrix(spec) for spec in specs])
+        learning_phase, deployment_phase = phases(first)
+        learning = MaxEnt(learning_phase, features, first.rationality)
+        deployment = MaxEnt(deployment_phase, features, first.rationality)
         hypotheses = _hypotheses(specs, learning, theta)
         game = Apprenticeship(learning, deployment, hypotheses, first.teaching)
         seeds = np.array([spec.seed for spec in specs], dtype=np.int64)
@@ -253,7 +272,6 @@ class _Setting:
 def _watched(setting: _Setting, specs: Sequence[TrialSpec], demos: np.ndarray) -> list[TrialRecord]:
     """The records of trials of one group (:func:`_group_key`) that watched ``demos``,
     vectorised: each robot's estimates together, then the measures and the deployment."""
-    first = specs[0]
     grid, game, theta = setting.grid, setting.game, setting.theta
     deployment = game.deployment
     fitted = _estimates(game, specs, demos, setting.seeds)
@@ -264,14 +282,15 @@ def _watched(setting: _Setting, specs: Sequence[TrialSpec], demos: np.ndarray) -
         "reward_l2": reward_l2(setting.features, theta, theta_hat),
         "regret_under_estimate": regret(deployment, theta_hat, theta),
     }
+    phase = deployment.phase
     robot_plan = optimal_plan(
-        deployment.cell_rewards(theta_hat), grid.successors, first.deployment_steps
+        deployment.cell_rewards(theta_hat), phase.successors, phase.horizon, phase.finishing
     )
     rollouts = [
-        paths_cells(grid, path)
-        for path in _deployment_rollouts(grid, specs, deployment.phase.start, robot_plan.actions)
+        _path_cells(grid, phase, path) for path in _deployment_rollouts(specs, phase, robot_plan)
     ]
-    shown, actions = paths_cells(grid, demos), paths_actions(grid, demos)
+    learning = game.learning.phase
+    shown, actions = _path_cells(grid, learning, demos), _path_actions(grid, learning, demos)
     return [
         TrialRecord(
             **{name: getattr(spec, name) for name in TrialSpec.__struct_fields__},
@@ -285,6 +304,27 @@ def _watched(setting: _Setting, specs: Sequence[TrialSpec], demos: np.ndarray) -
             ),
         )
         for b, spec in enumerate(specs)
+    ]
+
+
+def _path_cells(grid: Gridworld, phase: Phase, paths: IntArray) -> list[tuple[Cell, ...]]:
+    """The ``[x, y]`` cells of each ``(B, T + 1)`` path of ``phase`` as a record holds it: the
+    path actually taken, up to its goal in a phase with goals."""
+    if phase.sink is None:
+        return paths_cells(grid, paths)
+    cells = paths_cells(grid, np.where(paths == phase.sink, 0, paths))
+    ends = phase.path_ends(paths)
+    return [path[: end + 1] for path, end in zip(cells, ends.tolist(), strict=True)]
+
+
+def _path_actions(grid: Gridworld, phase: Phase, paths: IntArray) -> list[tuple[str, ...]]:
+    """The moves of each path of :func:`_path_cells`."""
+    if phase.sink is None:
+        return paths_actions(grid, paths)
+    ends = phase.path_ends(paths).tolist()
+    return [
+        paths_actions(grid, path[None, : end + 1])[0]
+        for path, end in zip(paths, ends, strict=True)
     ]
 
 
@@ -320,21 +360,28 @@ def _hypotheses(
 
 
 def _deployment_rollouts(
-    grid: Gridworld, specs: Sequence[TrialSpec], start: int | None, policy: np.ndarray
+    specs: Sequence[TrialSpec], phase: Phase, plan: HardPlan
 ) -> list[np.ndarray]:
-    """The robot's paths ``(B, T + 1)`` from each trial's own few replay start cells.
+    """The robot's paths ``(B, T + 1)`` from each trial's own few replay start cells,
+    following ``plan`` (the first of tied actions).
 
-    The start cells are drawn from the trial's ``seed``, without replacement, when the
-    deployment starts anywhere (``start`` is ``None``); else the one path from ``start``.
+    The start cells are drawn from the trial's ``seed``, without replacement, among the
+    phase's starts when the deployment starts anywhere (``phase.start`` is ``None``); else
+    the one path from the start.
     """
-    if start is not None:
-        return [follow_policy(grid.successors, np.full(len(specs), start), policy)]
+    if phase.start is not None:
+        return [follow_policy(phase.successors, np.full(len(specs), phase.start), plan.actions)]
+    candidates = np.flatnonzero(phase.starts)
+    if len(candidates) == phase.cells:
+        candidates = phase.cells  # the same draws as from every cell's index
     starts = np.array(
         [
             np.random.default_rng(spec.seed).choice(
-                grid.num_cells, size=min(DEPLOYMENT_ROLLOUTS, grid.num_cells), replace=False
+                candidates, size=min(DEPLOYMENT_ROLLOUTS, phase.starts.sum()), replace=False
             )
             for spec in specs
         ]
     )
-    return [follow_policy(grid.successors, starts[:, i], policy) for i in range(starts.shape[1])]
+    return [
+        follow_policy(phase.successors, starts[:, i], plan.actions) for i in range(starts.shape[1])
+    ]

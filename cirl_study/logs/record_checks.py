@@ -2,11 +2,13 @@
 
 Types and ranges are checked by decoding into :class:`~cirl_study.record.TrialRecord`
 (:func:`decode_trial`). Consistency, in docs/design.md's notation: ``len(theta) =
-len(theta_hat) = K`` = number of RBF centers; ``theta_hat`` lies in the box ``[-1, 1]^K``
-unless its robot is ``gradient_ascent`` (whose estimate may leave it), which alone has, and
-must have, its settings (``gradient_ascent``); the start cell ``s_0`` lies on the grid; the
+len(theta_hat) = K`` = the number of features (:mod:`cirl_study.features`, each kind with
+rules of its own); ``theta_hat`` lies in the box ``[-1, 1]^K`` unless its robot is
+``gradient_ascent`` (whose estimate may leave it), which alone has, and must have, its
+settings (``gradient_ascent``); the start cell ``s_0`` and the goals lie on the grid; the
 demonstration is a path ``(s_0, ..., s_T_learn)`` of available moves from ``s_0`` with
-``T_learn`` actions, each the move between consecutive cells, none of them ``stay`` unless
+``T_learn`` actions (with goals: at most ``T_learn``, ending on entering its first goal),
+each the move between consecutive cells, none of them ``stay`` unless
 ``demonstrator_stays``; every deployment rollout is such a path of ``T_deploy`` moves from its
 start, which is the demonstration's start when ``deployment_start`` says so; ``regret >= 0``,
 ``kl >= 0`` and ``regret_under_estimate >= 0`` where logged (up to rounding);
@@ -36,16 +38,15 @@ from cirl_study.core.gridworld import (
     ACTIONS,
     Gridworld,
     action_between,
-    rbf_exponents,
 )
 from cirl_study.core.players import player_faults
+from cirl_study.features import Features, feature_matrix
 from cirl_study.record import (
     GRADIENT_ASCENT,
     Cell,
     DecodeError,
     Grid,
     NestedTooDeep,
-    RBFFeatures,
     TrialRecord,
     decode,
     setting_faults,
@@ -158,13 +159,29 @@ def _size_faults(r: TrialRecord) -> list[str]:
     return []
 
 
+def _ends_right(path: Sequence[Cell], steps: int, goals: tuple[Cell, ...]) -> bool:
+    """Whether ``path`` has the length of its phase: ``steps`` moves, or with ``goals`` at
+    most ``steps``, ending on its first goal."""
+    if not goals:
+        return len(path) == steps + 1
+    return (
+        2 <= len(path) <= steps + 1
+        and tuple(path[-1]) in goals
+        and not any(tuple(cell) in goals for cell in path[:-1])
+    )
+
+
 def _walk(
-    path: Sequence[Cell], start: Cell, steps: int, moves: dict[tuple[Cell, Cell], str]
+    path: Sequence[Cell],
+    start: Cell,
+    steps: int,
+    moves: dict[tuple[Cell, Cell], str],
+    goals: tuple[Cell, ...],
 ) -> tuple[str, ...] | None:
     """The actions of ``path`` if it is a walk of ``steps`` available moves from ``start``
-    (``steps >= 1``), else ``None`` (also for cells that are not tuples: the detailed
-    checks then decide)."""
-    if steps < 1 or len(path) != steps + 1 or path[0] != start:
+    (``steps >= 1``; at most ``steps`` to its first goal with ``goals``), else ``None`` (also
+    for cells that are not tuples: the detailed checks then decide)."""
+    if steps < 1 or path[0] != start or not _ends_right(path, steps, goals):
         return None
     try:
         return tuple(map(moves.__getitem__, zip(path, path[1:], strict=False)))
@@ -195,11 +212,13 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
     grid = _gridworld(r.grid)
     moves = _moves(r.grid) if r.grid.width * r.grid.height <= _MOVE_TABLE_CELLS else None
     states, actions = r.demonstration.states, r.demonstration.actions
-    walked = None if moves is None else _walk(states, r.start, r.learning_steps, moves)
+    walked = None if moves is None else _walk(states, r.start, r.learning_steps, moves, r.goals)
     if walked is None:
-        yield from _path_faults("demonstration.states", states, r.start, r.learning_steps, grid)
-    if len(actions) != r.learning_steps:
-        yield f"demonstration has {len(actions)} actions, learning_steps is {r.learning_steps}"
+        yield from _path_faults(
+            "demonstration.states", states, r.start, r.learning_steps, grid, r.goals
+        )
+    if len(actions) != len(states) - 1:
+        yield f"demonstration has {len(actions)} actions for {len(states)} cells"
     if walked != actions:
         for t, (action, cell, next_cell) in enumerate(
             zip(actions, states, states[1:], strict=False)
@@ -219,9 +238,9 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
         if len(starts) != len(paths):
             yield f"deployment has {len(starts)} starts and {len(paths)} paths"
         for i, (start, path) in enumerate(zip(starts, paths, strict=False)):
-            if moves is None or _walk(path, start, r.deployment_steps, moves) is None:
+            if moves is None or _walk(path, start, r.deployment_steps, moves, r.goals) is None:
                 yield from _path_faults(
-                    f"deployment.paths[{i}]", path, start, r.deployment_steps, grid
+                    f"deployment.paths[{i}]", path, start, r.deployment_steps, grid, r.goals
                 )
     for name in ("regret", "kl", "regret_under_estimate"):
         value = getattr(r.measures, name)
@@ -231,7 +250,7 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
 
 def _sized(r: TrialRecord) -> bool:
     """Whether ``theta``, ``theta_hat`` and the centers all have ``num_features`` entries."""
-    return len(r.theta) == len(r.theta_hat) == len(r.features.centers) == r.num_features
+    return len(r.theta) == len(r.theta_hat) == r.features.count == r.num_features
 
 
 def _reward_l2_faults(records: Sequence[TrialRecord]) -> Iterator[tuple[int, str]]:
@@ -284,19 +303,19 @@ def _gridworld(grid: Grid) -> Gridworld:
     return Gridworld(grid.width, grid.height)
 
 
-def _feature_matrix(grid: Grid, features: RBFFeatures) -> NDArray[np.float64]:
+def _feature_matrix(grid: Grid, features: Features) -> NDArray[np.float64]:
     """``Phi`` of a grid and its features, computed once for all the trials of a subject when
     it is small (:data:`_CACHED_FEATURE_ENTRIES`)."""
-    if grid.width * grid.height * len(features.centers) > _CACHED_FEATURE_ENTRIES:
+    if grid.width * grid.height * features.count > _CACHED_FEATURE_ENTRIES:
         return _features(grid, features)
     return _cached_features(grid, features)
 
 
-def _features(grid: Grid, features: RBFFeatures) -> NDArray[np.float64]:
-    """``Phi`` by numpy's ``exp``: within an ulp of the trial's features (the C library's,
-    :func:`~cirl_study.core.gridworld.rbf_features`), far inside :data:`L2_TOLERANCE`, and it
-    keeps the compiler out of the log reader."""
-    matrix = np.exp(rbf_exponents(_gridworld(grid), features.centers, features.sigma))
+def _features(grid: Grid, features: Features) -> NDArray[np.float64]:
+    """``Phi`` (:func:`cirl_study.features.feature_matrix`) by numpy's ``exp``: within an ulp
+    of the trial's features (the C library's, :func:`~cirl_study.core.gridworld.feature_matrix`),
+    far inside :data:`L2_TOLERANCE`, and it keeps the compiler out of the log reader."""
+    matrix = feature_matrix(grid.width, grid.height, features)
     matrix.flags.writeable = False
     return matrix
 
@@ -310,10 +329,14 @@ def _path_faults(
     start: Sequence[int],
     steps: int,
     grid: Gridworld,
+    goals: tuple[Cell, ...],
 ) -> Iterator[str]:
-    """Faults of ``path`` as a walk of ``steps`` available moves from ``start``."""
-    if len(path) != steps + 1:
+    """Faults of ``path`` as a walk of ``steps`` available moves from ``start`` (with ``goals``,
+    of at most ``steps`` moves ending on its first goal)."""
+    if not goals and len(path) != steps + 1:
         yield f"{name} has {len(path)} cells, expected {steps} steps + 1"
+    if goals and not 2 <= len(path) <= steps + 1:
+        yield f"{name} has {len(path)} cells, expected 1 to {steps} steps + 1"
     if tuple(path[0]) != tuple(start):
         yield f"{name} starts at {list(path[0])}, not at {list(start)}"
     for t, cell in enumerate(path):
@@ -323,4 +346,10 @@ def _path_faults(
     for t in range(1, len(path)):
         if action_between(path[t - 1], path[t]) is None:
             yield f"{name} jumps from {list(path[t - 1])} to {list(path[t])} at step {t}"
+            return
+    if goals and tuple(path[-1]) not in goals:
+        yield f"{name} ends at {list(path[-1])}, which is not a goal"
+    for t, cell in enumerate(path[:-1]):
+        if goals and tuple(cell) in goals:
+            yield f"{name} enters the goal {list(cell)} at step {t} and goes on"
             return

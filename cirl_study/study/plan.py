@@ -46,6 +46,7 @@ from typing import NamedTuple, TypeVar
 
 import numpy as np
 
+from cirl_study.features import RBFFeatures
 from cirl_study.record import (
     ETA_CV,
     GRADIENT_ASCENT,
@@ -53,7 +54,6 @@ from cirl_study.record import (
     MAIN,
     GradientAscent,
     Grid,
-    RBFFeatures,
     Teaching,
     TrialSpec,
 )
