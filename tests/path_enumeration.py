@@ -597,7 +597,7 @@ def shared_policy_value(
     start: int,
     horizon: int,
     goals: Sequence[int],
-    tolerance: float = 1e-9,
+    tolerance: float = 2.0**-40,
 ) -> float:
     """Value under ``true_rewards`` of the policy optimal for ``planned_rewards`` that shares
     its mass evenly among tied moves: the sum over every path of the tie tree of its

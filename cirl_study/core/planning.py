@@ -348,13 +348,14 @@ def _hard_value_iteration(rewards, successors, horizon, live):  # pragma: no cov
     return values, actions
 
 
-TIE_TOLERANCE = 1e-9
+TIE_TOLERANCE = 2.0**-40
 """Actions whose value under the planned reward is within ``TIE_TOLERANCE * T * max_s |r(s)|``
 of the best are tied (:func:`shared_policy_values`). The values are sums of at most ``T``
-rewards, each rounded to a relative :math:`2^{-53}`, so their rounding stays below
-:math:`T^2 2^{-53} \\max_s |r(s)|`, far inside the tolerance for every horizon a pipeline
-admits: actions that tie in exact arithmetic (paths through the same cells in another order)
-always tie here, and what changes is a gap of at most the tolerance, never rounding."""
+rewards, and two sums of the same rewards in another order differ by at most
+:math:`T^2\\, 2^{-53} \\max_s |r(s)|`, below the tolerance for every ``T < 8192``: actions
+that tie in exact arithmetic (paths through the same cells, or cells of equal reward, in
+another order) always tie here, and a real gap below the tolerance (a relative
+:math:`10^{-12} T`) is taken for a tie too."""
 
 
 def shared_policy_values(
