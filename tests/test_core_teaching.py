@@ -787,7 +787,7 @@ def test_single_moves_are_every_path_one_move_away(name: str) -> None:
     are every listed path that does so."""
     setting = SETTINGS[name]
     for path in setting.paths:
-        got = teaching._single_moves(setting.learning.successors, np.array(path, dtype=np.int64))
+        got = teaching._single_moves(setting.learning, np.array(path, dtype=np.int64))
         assert got.shape[1] == setting.horizon + 1
         rows = [tuple(int(c) for c in row) for row in got]
         assert len(set(rows)) == len(rows)

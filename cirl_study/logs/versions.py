@@ -26,6 +26,11 @@ format 5 or 6 has neither: ``gradient_ascent`` reads as ``null``, and so does
 ``regret_under_estimate``, marked missing rather than recomputed (:data:`_ADDED_MEASURES`):
 the trial table shows it as NaN.
 
+Format 8 added games of other feature kinds (a record's ``features`` is tagged by its
+``kind``, ``rbf`` as before or ``tiles``), goal cells that end an episode (``goals``) and
+named tasks (``task``); a record of an earlier format reads ``goals`` as ``[]`` (a fixed
+horizon) and ``task`` as ``null``.
+
 A run of format 5 is read, validated and analysed; it is resumed only by the version that wrote
 it (its pipeline text is of that version).
 """
@@ -36,14 +41,15 @@ from typing import Any
 
 import msgspec
 
-LOG_FORMAT = "7"
-"""The format this version writes: 7 the ``gradient_ascent`` robot and its settings, and
-``measures.regret_under_estimate``; 6 one name per concept (see the module docstring); 5 the
+LOG_FORMAT = "8"
+"""The format this version writes: 8 games of any feature kind (``features.kind`` ``tiles``),
+with goal cells (``goals``) and named tasks (``task``); 7 the ``gradient_ascent`` robot and
+its settings, and ``measures.regret_under_estimate``; 6 one name per concept (see the module docstring); 5 the
 record's ``teaching`` (hypothesis space), and ``seed`` shared by the robots of one
 demonstration; 4 the record's ``demonstrator_stays``, ``deployment_start`` and ``universe``;
 3 the run's identity and pipeline text in every file; 2 the typed record."""
 
-READABLE = ("5", "6", LOG_FORMAT)
+READABLE = ("5", "6", "7", LOG_FORMAT)
 """The formats this version reads."""
 
 _RENAMING = ("5",)
@@ -86,8 +92,11 @@ def _pipeline_value(key: str, value: Any) -> Any:
     return value
 
 
-_ADDED: dict[str, Any] = {"gradient_ascent": None}
-"""The record's fields that format 7 added, as a record of an earlier format reads them."""
+_ADDED: dict[str, dict[str, Any]] = {
+    "7": {"gradient_ascent": None},
+    "8": {"goals": [], "task": None},
+}
+"""The record's fields each format added, as a record of an earlier format reads them."""
 
 _ADDED_MEASURES: dict[str, Any] = {"regret_under_estimate": None}
 """The measures that format 7 added, as a record of an earlier format reads them: missing
@@ -102,10 +111,13 @@ def record_payload(data: bytes, log_format: str) -> bytes:
     canonical (keys sorted). Bytes that are not a JSON object are returned as they are, for
     the decoder to report.
 
-    >>> record_payload(b'{"robot":"literal","universe":"sigma=1.5,centres=shared"}', "5")
-    b'{"gradient_ascent":null,"robot":"literal_observer","universe":"sigma=1.5,centers=shared"}'
-    >>> record_payload(b'{"measures":{"regret":0.25}}', "6")
-    b'{"gradient_ascent":null,"measures":{"regret":0.25,"regret_under_estimate":null}}'
+    >>> msgspec.json.decode(record_payload(b'{"robot":"literal","universe":"centres=x"}', "5"))
+    {'goals': [], 'gradient_ascent': None, 'robot': 'literal_observer', 'task': None, \
+'universe': 'centers=x'}
+    >>> record_payload(b'{"measures":{"regret":0.25}}', "6")[35:]
+    b'"measures":{"regret":0.25,"regret_under_estimate":null},"task":null}'
+    >>> record_payload(b'{"robot":"map"}', "7")
+    b'{"goals":[],"robot":"map","task":null}'
     """
     if log_format == LOG_FORMAT:
         return data
@@ -115,8 +127,14 @@ def record_payload(data: bytes, log_format: str) -> bytes:
         return data
     if not isinstance(record, dict):
         return data
-    renamed = {**_ADDED, **record}
-    if isinstance(record.get("measures"), dict):
+    added = {
+        name: value
+        for since, fields in _ADDED.items()
+        if int(log_format) < int(since)
+        for name, value in fields.items()
+    }
+    renamed = {**added, **record}
+    if int(log_format) < 7 and isinstance(record.get("measures"), dict):
         renamed["measures"] = {**_ADDED_MEASURES, **record["measures"]}
     for key, rename in (("trial_id", trial_id), ("universe", _universe), ("robot", _robot)):
         if isinstance(renamed.get(key), str):
