@@ -499,3 +499,16 @@ def test_the_map_robot_reports_the_exact_likelihood_of_its_estimate(small_run: P
         demo = np.array([cells + [phase.sink] * (6 - len(cells))])
         exact = model.log_likelihood(np.array([record.theta_hat]), model.path_counts(demo))[0]
         assert record.irl.log_likelihood == pytest.approx(exact, rel=1e-9, abs=1e-12)
+
+
+def test_the_limits_count_the_sink_and_the_longer_paths() -> None:
+    """A goal game's programmes run over one more cell (the sink), and the enumeration of
+    13-move paths on 31 cells keys each class by a bit string (5 bits x 13 > 63)."""
+    from cirl_study.study.limits import batch_memory, enumeration_bytes, game_cells
+
+    pipeline = load_pipeline(TILES)
+    assert game_cells(pipeline) == 31
+    assert enumeration_bytes(9, 100) == 200  # the paper's phase, as before
+    assert enumeration_bytes(13, 31) == 448  # measured peak: 325 bytes a path
+    assert enumeration_bytes(12, 31) == 260  # keys of 60 bits still fit an integer
+    assert batch_memory(pipeline) < 2**30
