@@ -13,6 +13,9 @@ factor of the ``main`` and ``lambda_sweep`` blocks, and the eta cross-validation
 the reference robot alone (:attr:`cirl_study.study.spec.MainSpec.reference_robot`). In a
 multiverse (:mod:`cirl_study.study.multiverse`) a trial's id ends with ``@`` and its universe's
 id, e.g. ``main:main-k03-s0001:expert:lambda=1.0:robot=map@sigma=2.5,centers=per_draw,...``.
+In a pipeline with ``[tasks]`` (a tile game's) each task is one test subject, its id the
+task's name after the group and level, ``main-k04-oox``, so a task's trials and seeds do not
+depend on the order or number of the tasks; the cross-validation draws stay prior draws.
 
 Randomness. Every stream is a :class:`numpy.random.SeedSequence` with the pipeline's root
 seed as entropy and, as spawn key, the BLAKE2b hash of the identity string
@@ -20,7 +23,9 @@ seed as entropy and, as spawn key, the BLAKE2b hash of the identity string
 trials are planned, batched or played. A subject's stream draws, in this order, ``K`` RBF
 centers uniformly over the continuous extent ``[0, width-1] x [0, height-1]`` and then
 ``theta ~ Uniform[-1, 1]^K``; every trial of the subject (both policies, every lambda) sees
-the same centers and ``theta``. The centers drawn are the subject's own when
+the same centers and ``theta``; in a tile game the layout's features are every subject's
+and the stream draws ``theta`` alone, and a task's subject takes its task's weights. The
+centers drawn are the subject's own when
 ``game.centers = "per_draw"``; with ``"shared"`` every subject at ``K`` features uses the
 centers of the stream ``centres:k<K>`` (drawn the same way; the stream keeps its first name
 so that no draw moves), with ``"lattice"`` those of :func:`lattice_centers`, and ``theta``
