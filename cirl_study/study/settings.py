@@ -45,10 +45,10 @@ class Invalid(Exception):
     positive integer``), ``got`` what it is, as shown after ``, got`` (by default the value,
     :func:`shown`). ``at`` names where the fault lies: for a check, a key below the one checked
     (``oox.cyan`` of ``tasks``), whose value ``got`` then shows; for a derived field, the key
-    of its table that makes it impossible (the message then has no ``, got``)."""
+    of its table that makes it impossible (the message then has no ``, got``). ``got = ""``
+    shows no value (a key that has no place, a table that misses one)."""
 
     def __init__(self, must: str, got: str | None = None, at: str | None = None):
-        # got="" shows no value (a key that should not be there, a table missing a key)
         super().__init__(must)
         self.must = must
         self.got = got

@@ -35,6 +35,20 @@ shape, with every key required::
     subjects = 500            # the first `subjects` reward draws of the main block
     rationalities = [1e-4, ..., 1e3]
 
+A game may instead have the features of a tile layout (``features = "tiles"``, when not
+given ``"rbf"``): its grid, goals and features come from ``[game.tiles]``, and it has no
+``width``, ``height``, ``sigma``, ``feature_levels`` nor ``centers``; ``[tasks]`` then names
+rewards over those features, each the reward of one subject (docs/tiles.md)::
+
+    [game.tiles]
+    layout = [".oooo.", ".opccy"]   # rows, top first (or one string, a row a line)
+    legend = { o = "orange", p = "purple", c = "cyan", "." = "", y = "" }
+    goals = "y"               # characters whose cells end a path (optional)
+    step = "step"             # the per-move feature (optional; with goals)
+
+    [tasks]
+    oox = { orange = 0, purple = 0, cyan = -1, step = -0.1 }
+
 A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human, the
 ``literal_observer`` or ``pragmatic`` robot; :mod:`cirl_study.core.teaching`) declares their
 hypothesis space in ``[teaching]``, and then has no ``[lambda_sweep]``::
