@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_logs_helpers import run_records
 from typer.testing import CliRunner
@@ -415,6 +415,7 @@ def tile_tables(draw):
     return table
 
 
+@settings(max_examples=200, deadline=None)
 @given(tile_tables())
 def test_a_tile_layout_reads_into_one_hot_features_and_the_step(table) -> None:
     if table is None:
