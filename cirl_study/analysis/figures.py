@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 
 from cirl_study.analysis.markdown import svg_name
 from cirl_study.core.gridworld import feature_matrix
+from cirl_study.features import RBFFeatures, TileFeatures
 from cirl_study.record import BEST_RESPONSE, MEASURES, PAPER_POLICIES, TrialRecord
 from cirl_study.workers import Call, call, started
 
@@ -173,42 +174,82 @@ def _figure_legend(figure: Figure, axes: Axes, columns: int) -> None:
 
 @dataclass(frozen=True)
 class RewardScene:
-    """What Figure 1 needs of one trial record.
+    """What Figure 1 needs of one trial record, of any feature kind.
 
-    ``features`` is the record's ``(width * height, K)`` RBF matrix ``Phi``
-    (:meth:`~cirl_study.record.TrialSpec.feature_matrix`), ``centers`` its ``(K, 2)``
-    centers and ``states`` the ``(T + 1, 2)`` cells of the demonstration.
+    ``features`` is the record's ``(width * height, K)`` matrix ``Phi``
+    (:func:`~cirl_study.core.gridworld.feature_matrix`) and ``states`` the ``(T + 1, 2)``
+    cells of the demonstration. What marks the features on the map: ``centers``, the
+    ``(K, 2)`` centers of RBF features (``None`` for another kind), or ``tiles``, the rows of
+    a tile layout, top row first, its ``legend`` (``None`` for another kind) and the
+    ``goals``' cells.
     """
 
     width: int
     height: int
-    centers: NDArray[np.float64]
+    centers: NDArray[np.float64] | None
     features: NDArray[np.float64]
     theta: NDArray[np.float64]
     theta_hat: NDArray[np.float64]
     states: NDArray[np.float64]
+    tiles: tuple[str, ...] | None = None
+    legend: tuple[tuple[str, str | None], ...] | None = None
+    goals: tuple[tuple[int, int], ...] = ()
 
     @classmethod
     def from_record(cls, record: TrialRecord) -> RewardScene:
         """The grid, features, parameters and demonstration of a trial record.
 
-        The record is taken as consistent (``theta``, ``theta_hat`` and the centers of one
+        The record is taken as consistent (``theta``, ``theta_hat`` and its features of one
         length), as :func:`cirl_study.logs.record_checks.record_faults` checks when logs are
         read.
         """
+        kind = record.features
+        rbf = isinstance(kind, RBFFeatures)
         return cls(
             width=record.grid.width,
             height=record.grid.height,
-            centers=np.asarray(record.features.centers, dtype=np.float64),
+            centers=np.asarray(kind.centers, dtype=np.float64) if rbf else None,
             features=feature_matrix(record),
             theta=np.asarray(record.theta, dtype=np.float64),
             theta_hat=np.asarray(record.theta_hat, dtype=np.float64),
             states=np.asarray(record.demonstration.states, dtype=np.float64),
+            tiles=kind.layout if isinstance(kind, TileFeatures) else None,
+            legend=kind.legend if isinstance(kind, TileFeatures) else None,
+            goals=tuple(record.goals),
         )
 
     def reward_map(self, weights: NDArray[np.float64]) -> NDArray[np.float64]:
         """``(height, width)`` array of ``weights . phi([x, y])``, row ``y``, column ``x``."""
         return (self.features @ weights).reshape(self.height, self.width)
+
+    def mark_features(self, axes: Axes) -> None:
+        """Where the features lie: a cross on each RBF center, or each tile's character in
+        the lower left of its cell."""
+        if self.centers is not None:
+            axes.plot(
+                self.centers[:, 0],
+                self.centers[:, 1],
+                marker="x",
+                color="black",
+                linestyle="none",
+                markersize=6,
+            )
+        for row, text in enumerate(self.tiles or ()):
+            for x, char in enumerate(text):
+                axes.text(x - 0.42, self.height - 1 - row - 0.42, char, ha="left",
+                          va="bottom", fontsize=6, color="#333333")  # fmt: skip
+
+    @property
+    def key(self) -> str:
+        """The line under Figure 1 that says how to read its panels (:data:`FIGURE1_KEY`)."""
+        if self.legend is None or self.tiles is None:
+            return FIGURE1_KEY
+        goals = {self.tiles[self.height - 1 - y][x] for x, y in self.goals}
+        tiles = ", ".join(
+            f"{char} {name or ('goal' if char in goals else 'no feature')}"
+            for char, name in self.legend
+        )
+        return FIGURE1_KEY.replace("Crosses: RBF centers.", f"Letters: the tiles ({tiles}).")
 
 
 def _draw_map(axes: Axes, values: NDArray[np.float64], limit: float, title: str):
@@ -303,13 +344,15 @@ def reward_maps(expert: TrialRecord, best_response: TrialRecord, title: str) -> 
 def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -> Figure:
     """Figure 1: true reward; each demonstration over the MAP reward inferred from it.
 
-    The reward of cell ``s`` is ``theta . phi(s)`` with ``phi_k(s) = exp(-||s - c_k||^2 /
-    (2 sigma^2))``; the three panels share one symmetric colour scale. The demonstration
-    runs from the white dot (step 0) to the white square, every step drawn and numbered, in
-    shades from light (first) to dark (last), a stay as a ring; the crosses are the RBF
-    centers. The number beside a cell lists the steps at which the demonstration is there
-    (``3-4``: steps 3 to 4; ``2,5``: steps 2 and 5). Each demonstration panel names its
-    regret, and a legend line under the panels says how to read them.
+    The reward of cell ``s`` is ``theta . phi(s)``, with ``phi_k(s) = exp(-||s - c_k||^2 /
+    (2 sigma^2))`` for RBF features or the one-hot colours (and the step) of a tile layout;
+    the three panels share one symmetric colour scale. The demonstration runs from the white
+    dot (step 0) to the white square, every step drawn and numbered, in shades from light
+    (first) to dark (last), a stay as a ring; crosses mark the RBF centers, or each cell's
+    letter its tile (:meth:`RewardScene.mark_features`). The number beside a cell lists the
+    steps at which the demonstration is there (``3-4``: steps 3 to 4; ``2,5``: steps 2 and
+    5). Each demonstration panel names its regret, and a legend line under the panels says
+    how to read them.
 
     Args:
         expert: the expert's trial record of the reward draw.
@@ -338,14 +381,7 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
         axes = _panels(figure, 1, 3, margins)[0]
         for panel, (values, name) in enumerate(zip(maps, titles, strict=True)):
             image = _draw_map(axes[panel], values, limit, name)
-            axes[panel].plot(
-                scenes[0].centers[:, 0],
-                scenes[0].centers[:, 1],
-                marker="x",
-                color="black",
-                linestyle="none",
-                markersize=6,
-            )
+            scenes[0].mark_features(axes[panel])
             if panel:
                 _draw_path(axes[panel], scenes[panel - 1].states)
             axes[panel].set_xlim(-0.5, scenes[0].width - 0.5)
@@ -362,7 +398,7 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
             )
         )
         figure.colorbar(image, cax=bar, label="reward of the cell")
-        figure.text(0.5, 0.12 / height, FIGURE1_KEY, ha="center", va="bottom", fontsize=7)
+        figure.text(0.5, 0.12 / height, scenes[0].key, ha="center", va="bottom", fontsize=7)
         figure.suptitle(title)
         return figure
 

@@ -5,6 +5,11 @@ cross-validation draws (block ``eta_cv``, disjoint from the test draws) at every
 grid; per feature level, the eta with the lowest mean regret is chosen. The run plays the
 main block and the lambda sweep with that eta, and the report re-derives it from the same
 records with the same function, so the two can only disagree if the logs do.
+
+In a pipeline with ``[tasks]`` the test subjects are the tasks, and the cross-validation
+still plays draws from the prior over the same features (:mod:`cirl_study.study.plan`): the
+tasks are the test set, and an eta chosen on them would be fitted to the rewards it is
+judged on (docs/tiles.md).
 """
 
 from __future__ import annotations

@@ -50,17 +50,38 @@ def batch_memory(pipeline: Pipeline) -> int:
     game = pipeline.game
     steps = max(game.learning_steps, game.deployment_steps) + 1
     k = max(game.feature_levels)
-    trials = MAX_BATCH * steps * game.width * game.height * (5 + k + k * k) * 8
+    cells = game_cells(pipeline)
+    trials = MAX_BATCH * steps * cells * (5 + k + k * k) * 8
     teaching = pipeline.teaching
     if teaching is None:
         return trials
     # The hypotheses' log-partitions repeat each trial's features once per hypothesis.
-    repeated = MAX_BATCH * teaching.hypotheses * game.width * game.height * k * 8
+    repeated = MAX_BATCH * teaching.hypotheses * cells * k * 8
     # The numerical core is loaded already: the learning paths were counted with it.
     from cirl_study.core.hypotheses import TEACHING_CACHE_BYTES
 
-    enumeration = ENUMERATION_BYTES_PER_PATH * teaching.learning_paths
+    enumeration = enumeration_bytes(game.learning_steps, cells) * teaching.learning_paths
     return trials + repeated + enumeration + TEACHING_CACHE_BYTES
+
+
+def game_cells(pipeline: Pipeline) -> int:
+    """The cells every dynamic programme of a trial runs over: the grid's, and in a game
+    with goals the sink that follows them (:class:`cirl_study.core.maxent.Phase`)."""
+    game = pipeline.game
+    return game.width * game.height + (1 if game.goals else 0)
+
+
+def enumeration_bytes(learning_steps: int, cells: int) -> int:
+    """Peak bytes per learning path of enumerating a teaching study's visit classes on
+    ``cells`` cells: each path's ``T + 1`` 32-bit cells, their sorted copy and its key are
+    held a few times over, so the bound grows with the path's length, and more once a
+    class's key no longer fits in 63 bits (a bit string per path instead of one integer).
+    :data:`ENUMERATION_BYTES_PER_PATH` at the paper's ``T = 9`` (156 measured); measured on
+    the tile game of ``pipelines/tiles.toml``: 325 at ``T = 13`` (bit-string keys, bound
+    448), 345 at ``T = 15`` (bound 512)."""
+    packed = max(1, (cells - 1).bit_length()) * learning_steps <= 63
+    per_cell = ENUMERATION_BYTES_PER_PATH // 10 if packed else 32
+    return per_cell * max(learning_steps + 1, 10)
 
 
 def batch_messages(pipeline: Pipeline) -> int:

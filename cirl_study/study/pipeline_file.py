@@ -17,13 +17,13 @@ import itertools
 import tomllib
 from collections import ChainMap
 from collections.abc import Callable
-from dataclasses import replace
+from dataclasses import fields, replace
 from pathlib import Path
 from typing import Any
 
 from cirl_study.errors import UserError
 from cirl_study.study.limits import check_resources
-from cirl_study.study.settings import Table, shown
+from cirl_study.study.settings import Table, applies, shown
 from cirl_study.study.spec import (
     AXES,
     EtaCVSpec,
@@ -33,6 +33,7 @@ from cirl_study.study.spec import (
     MainSpec,
     MultiverseSpec,
     Pipeline,
+    Task,
     TeachingSpec,
     Universe,
 )
@@ -50,8 +51,8 @@ axis's list of levels); the bound leaves room for new keys and keeps every check
 far from the interpreter's recursion limit (the parser itself recurses at about 500 levels)."""
 
 TOP_KEYS = (
-    "name", "description", "seed", "game", "eta_cv", "main", "lambda_sweep", "multiverse",
-    "teaching", "gradient_ascent",
+    "name", "description", "seed", "game", "tasks", "eta_cv", "main", "lambda_sweep",
+    "multiverse", "teaching", "gradient_ascent",
 )  # fmt: skip
 """The keys of a pipeline's top table, in the order they are checked."""
 
@@ -91,8 +92,9 @@ def parse_pipeline(
     description = top.setting(Pipeline, "description")
     seed = top.setting(Pipeline, "seed")
     game = top.spec("game", GameSpec)
+    tasks = _tasks(top, game)
     eta_cv = top.spec("eta_cv", EtaCVSpec)
-    main = top.spec("main", MainSpec)
+    main = top.spec("main", MainSpec, ChainMap({"game": game, "tasks": tasks}))
     lambda_sweep = _lambda_sweep(top, main)
     ascent = _ascent_table(top)
     multiverse = _multiverse(top, game, eta_cv, main, ascent) if "multiverse" in top.data else None
@@ -101,6 +103,7 @@ def parse_pipeline(
         description=description,
         seed=seed,
         game=game,
+        tasks=tasks,
         eta_cv=eta_cv,
         main=main,
         lambda_sweep=lambda_sweep,
@@ -113,6 +116,18 @@ def parse_pipeline(
     )
     check_resources(pipeline, label)
     return pipeline
+
+
+def _tasks(top: Table, game: GameSpec) -> tuple[Task, ...] | None:
+    """``[tasks]``, where it has a place (a tile game's; :class:`~cirl_study.study.spec.Pipeline`)
+    and is given."""
+    (declared,) = (f for f in fields(Pipeline) if f.name == "tasks")
+    known = ChainMap({"game": game})
+    if not applies(declared, known):
+        if "tasks" in top.data:
+            top.fail("tasks", f"must not be given {declared.metadata['only'](known)}")
+        return None
+    return top.setting(Pipeline, "tasks", known) if "tasks" in top.data else None
 
 
 def _lambda_sweep(top: Table, main: MainSpec) -> LambdaSweepSpec | None:
@@ -168,6 +183,12 @@ def _multiverse(
     (listed), each once, in that order, each with the settings of its robot alone
     (:meth:`~cirl_study.study.spec.Universe.fitted`: ``ascent`` the ``[gradient_ascent]``
     table)."""
+    if game.tiles is not None:
+        top.fail(
+            "multiverse",
+            f'must not be given with game.features = "{game.features}" (its universes vary '
+            "the RBF features)",
+        )
     if len(main.robots) != 1:
         top.fail("main.robots", "must name one robot in a multiverse (robot is one of its axes)")
     if game.learning_steps != game.deployment_steps:

@@ -13,6 +13,9 @@ factor of the ``main`` and ``lambda_sweep`` blocks, and the eta cross-validation
 the reference robot alone (:attr:`cirl_study.study.spec.MainSpec.reference_robot`). In a
 multiverse (:mod:`cirl_study.study.multiverse`) a trial's id ends with ``@`` and its universe's
 id, e.g. ``main:main-k03-s0001:expert:lambda=1.0:robot=map@sigma=2.5,centers=per_draw,...``.
+In a pipeline with ``[tasks]`` (a tile game's) each task is one test subject, its id the
+task's name after the group and level, ``main-k04-oox``, so a task's trials and seeds do not
+depend on the order or number of the tasks; the cross-validation draws stay prior draws.
 
 Randomness. Every stream is a :class:`numpy.random.SeedSequence` with the pipeline's root
 seed as entropy and, as spawn key, the BLAKE2b hash of the identity string
@@ -20,7 +23,9 @@ seed as entropy and, as spawn key, the BLAKE2b hash of the identity string
 trials are planned, batched or played. A subject's stream draws, in this order, ``K`` RBF
 centers uniformly over the continuous extent ``[0, width-1] x [0, height-1]`` and then
 ``theta ~ Uniform[-1, 1]^K``; every trial of the subject (both policies, every lambda) sees
-the same centers and ``theta``. The centers drawn are the subject's own when
+the same centers and ``theta``; in a tile game the layout's features are every subject's
+and the stream draws ``theta`` alone, and a task's subject takes its task's weights. The
+centers drawn are the subject's own when
 ``game.centers = "per_draw"``; with ``"shared"`` every subject at ``K`` features uses the
 centers of the stream ``centres:k<K>`` (drawn the same way; the stream keeps its first name
 so that no draw moves), with ``"lattice"`` those of :func:`lattice_centers`, and ``theta``
@@ -46,7 +51,7 @@ from typing import NamedTuple, TypeVar
 
 import numpy as np
 
-from cirl_study.features import RBFFeatures
+from cirl_study.features import Features, RBFFeatures
 from cirl_study.record import (
     ETA_CV,
     GRADIENT_ASCENT,
@@ -63,7 +68,7 @@ from cirl_study.study.multiverse import (
     universe_pipeline,
     universes,
 )
-from cirl_study.study.spec import GameSpec, Pipeline, Universe
+from cirl_study.study.spec import GameSpec, Pipeline, Task, Universe
 
 CV_GROUP = "cv"
 """Subject-id prefix of the cross-validation draws."""
@@ -82,6 +87,11 @@ def random_stream(root_seed: int, identity: str) -> np.random.SeedSequence:
 def subject_id(group: str, num_features: int, index: int) -> str:
     """Id of reward draw ``index`` (1-based) of ``group`` at ``num_features`` features."""
     return f"{group}-k{num_features:02d}-s{index:04d}"
+
+
+def task_subject_id(num_features: int, task: str) -> str:
+    """Id of the test subject whose reward is the task named ``task`` (``main-k04-oox``)."""
+    return f"{TEST_GROUP}-k{num_features:02d}-{task}"
 
 
 def demonstration_id(
@@ -132,28 +142,34 @@ class Cell(NamedTuple):
 
 @dataclass(frozen=True, eq=False)
 class Subject:
-    """Reward draw ``index`` (1-based) of ``group`` at ``num_features`` features of a pipeline.
+    """Reward draw ``index`` (1-based) of ``group`` at ``num_features`` features of a pipeline,
+    or, in a pipeline with tasks, the test subject of ``task``.
 
-    Its RBF features and ``theta`` are drawn when first asked for (:func:`draw_reward`): a
-    plan of trial ids needs only the subject's :attr:`id`.
+    Its features and ``theta`` are drawn when first asked for (:func:`draw_reward`; a task's
+    are its weights): a plan of trial ids needs only the subject's :attr:`id`.
     """
 
     pipeline: Pipeline
     group: str
     num_features: int
     index: int
+    task: Task | None = None
 
     @property
     def id(self) -> str:
+        if self.task is not None:
+            return task_subject_id(self.num_features, self.task.name)
         return subject_id(self.group, self.num_features, self.index)
 
     @cached_property
-    def reward(self) -> tuple[RBFFeatures, tuple[float, ...]]:
-        """The draw's features and ``theta`` (:func:`draw_reward`)."""
+    def reward(self) -> tuple[Features, tuple[float, ...]]:
+        """The subject's features and ``theta`` (:func:`draw_reward`, or its task's)."""
+        if self.task is not None:
+            return self.pipeline.game.tile_features, self.task.weights  # type: ignore[return-value]
         return draw_reward(self.pipeline, self.id, self.num_features)
 
     @property
-    def features(self) -> RBFFeatures:
+    def features(self) -> Features:
         return self.reward[0]
 
     @property
@@ -163,11 +179,16 @@ class Subject:
 
 def draw_reward(
     pipeline: Pipeline, subject: str, num_features: int
-) -> tuple[RBFFeatures, tuple[float, ...]]:
+) -> tuple[Features, tuple[float, ...]]:
     """Draw the reward of ``subject``: centers ``c_k`` then ``theta``, from its own stream; the
-    centers are replaced by the shared or lattice ones when ``game.centers`` says so."""
+    centers are replaced by the shared or lattice ones when ``game.centers`` says so. In a
+    tile game, ``theta`` alone (the layout's features are every subject's)."""
     game = pipeline.game
     rng = np.random.default_rng(random_stream(pipeline.seed, f"subject:{subject}"))
+    tiles = game.tile_features
+    if tiles is not None:
+        theta = rng.uniform(-1.0, 1.0, size=num_features)
+        return tiles, tuple(float(t) for t in theta)
     centers = _uniform_centers(rng, game, num_features)
     theta = rng.uniform(-1.0, 1.0, size=num_features)
     if game.centers == "shared":
@@ -208,6 +229,13 @@ def lattice_centers(width: int, height: int, count: int) -> np.ndarray:
 
 
 def _subjects(pipeline: Pipeline, group: str, num_features: int, count: int) -> list[Subject]:
+    """The first ``count`` subjects of ``group``: reward draws, or in the test group of a
+    pipeline with tasks, its first ``count`` tasks."""
+    if group == TEST_GROUP and pipeline.tasks is not None:
+        return [
+            Subject(pipeline, group, num_features, i, task)
+            for i, task in enumerate(pipeline.tasks[:count], start=1)
+        ]
     return [Subject(pipeline, group, num_features, i) for i in range(1, count + 1)]
 
 
@@ -231,6 +259,8 @@ def _trial(pipeline: Pipeline, cell: Cell) -> TrialSpec:
         deployment_steps=game.deployment_steps,
         features=subject.features,
         theta=subject.theta,
+        goals=game.goals,
+        task=None if subject.task is None else subject.task.name,
         robot=robot,
         demonstrator_stays=game.demonstrator_stays,
         deployment_start=game.deployment_start,

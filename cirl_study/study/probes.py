@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -40,6 +40,7 @@ from cirl_study.study.engines import Engine
 from cirl_study.study.multiverse import cv_universe, universe_pipeline
 from cirl_study.study.pipeline_file import MAX_PIPELINE_BYTES, parse_pipeline
 from cirl_study.study.runner import ProgressHooks, run_pipeline
+from cirl_study.study.settings import written
 from cirl_study.study.spec import AXES, GradientAscentSpec, Pipeline, Universe
 
 PIPELINE_FILE_NAME = "pipeline.toml"
@@ -82,9 +83,9 @@ def _table(name: str, entries: Mapping[str, Any], header: str = "[{}]") -> list[
 
 
 def _settings(spec: Any) -> dict[str, Any]:
-    """The keys of a spec's table as a pipeline file writes them (its derived fields left
-    out)."""
-    return {f.name: getattr(spec, f.name) for f in fields(spec) if "check" in f.metadata}
+    """The keys of a spec's table as a pipeline file writes them (:func:`written`: its derived
+    fields, the keys without a place and the optional ones at their default left out)."""
+    return written(spec)
 
 
 def probe_text(pipeline: Pipeline, universe: Universe) -> str:

@@ -20,7 +20,7 @@ import json
 import math
 from collections import ChainMap
 from collections.abc import Callable, Collection, Mapping
-from dataclasses import dataclass, field, fields
+from dataclasses import Field, dataclass, field, fields
 from types import MappingProxyType
 from typing import Any, NoReturn, TypeVar
 
@@ -43,23 +43,91 @@ Spec = TypeVar("Spec")
 class Invalid(Exception):
     """A setting's value breaks its constraint: ``must`` is what it must be (``must be a
     positive integer``), ``got`` what it is, as shown after ``, got`` (by default the value,
-    :func:`shown`)."""
+    :func:`shown`). ``at`` names where the fault lies: for a check, a key below the one checked
+    (``oox.cyan`` of ``tasks``), whose value ``got`` then shows; for a derived field, the key
+    of its table that makes it impossible (the message then has no ``, got``). ``got = ""``
+    shows no value (a key that has no place, a table that misses one)."""
 
-    def __init__(self, must: str, got: str | None = None):
+    def __init__(self, must: str, got: str | None = None, at: str | None = None):
         super().__init__(must)
         self.must = must
         self.got = got
+        self.at = at
 
 
-def setting(check: Check) -> Any:
-    """A spec field read from the file's key of the field's name, and held to ``check``."""
-    return field(metadata={"check": check})
+Only = Callable[[Known], "str | None"]
+"""Whether a key has a place in a file, from the settings read before it: ``None`` where it
+has, else why not, as it follows ``must not be given`` (``with game.features = "tiles"``)."""
+
+_REQUIRED = object()
+
+
+def setting(
+    check: Check,
+    *,
+    only: Only | None = None,
+    otherwise: Callable[[Known], Any] | None = None,
+    default: Any = _REQUIRED,
+) -> Any:
+    """A spec field read from the file's key of the field's name, and held to ``check``.
+
+    ``only`` says where the key has a place (:data:`Only`; everywhere when not given): where
+    it has none, giving it is an error and the field is ``otherwise`` of the settings read
+    before it (``None`` when not given). ``default`` makes the key optional: its value when
+    left out (a file that leaves it out reads as one that writes it).
+    """
+    metadata: dict[str, Any] = {"check": check}
+    if only is not None:
+        metadata["only"] = only
+        metadata["otherwise"] = otherwise
+    if default is not _REQUIRED:
+        metadata["default"] = default
+    return field(metadata=metadata)
+
+
+def nested(kind: type, *, only: Only | None = None) -> Any:
+    """A spec field read from a table of the file below the spec's own (``[game.tiles]``)
+    into the spec ``kind`` by its fields, which see the settings read before it; ``only`` as
+    for :func:`setting` (where the table has no place, the field is ``None``)."""
+    metadata: dict[str, Any] = {"check": _read_whole, "nested": kind}
+    if only is not None:
+        metadata["only"] = only
+    return field(metadata=metadata)
+
+
+def _read_whole(value: Any, _known: Known) -> Any:  # pragma: no cover - never called
+    """The check of a nested table's field: none, :meth:`Table.spec` reads it by its fields."""
+    raise AssertionError("a nested table is read by Table.spec")
 
 
 def derived(compute: Callable[[Known], Any]) -> Any:
     """A spec field not in the file: ``compute`` makes it from the settings read before it
-    (it may raise :class:`UserError` naming the setting that makes it impossible)."""
+    (it may raise :class:`Invalid` whose ``at`` names the key of its table that makes it
+    impossible, or :class:`UserError`)."""
     return field(metadata={"derive": compute})
+
+
+def applies(declared: Field[Any], known: Known) -> bool:
+    """Whether the key of the field ``declared`` has a place in a file whose earlier settings
+    are ``known`` (:data:`Only`)."""
+    only = declared.metadata.get("only")
+    return only is None or only(known) is None
+
+
+def written(spec: Any) -> dict[str, Any]:
+    """The keys of ``spec``'s table as a pipeline file writes them, in their order: its
+    settings, less those without a place in it and the optional ones at their default (so a
+    file written from a spec read from a file holds the keys that file had to hold)."""
+    values: dict[str, Any] = {}
+    known = {f.name: getattr(spec, f.name) for f in fields(spec)}
+    for declared in fields(spec):
+        if "check" not in declared.metadata or not applies(declared, known):
+            continue
+        value = getattr(spec, declared.name)
+        if "default" in declared.metadata and value == declared.metadata["default"]:
+            continue
+        values[declared.name] = value
+    return values
 
 
 @dataclass(frozen=True)
@@ -116,15 +184,6 @@ class Table:
             self.fail(key, "is missing")
         return self.data[key]
 
-    def checked(self, key: str, check: Check, known: Known = NOTHING_KNOWN) -> Any:
-        """``table[key]`` held to ``check``."""
-        value = self.value(key)
-        try:
-            return check(value, known)
-        except Invalid as invalid:
-            got = shown(value) if invalid.got is None else invalid.got
-            self.fail(key, f"{invalid.must}, got {got}")
-
     def setting(self, kind: type, key: str, known: Known = NOTHING_KNOWN) -> Any:
         """``table[key]`` held to the constraint of the field ``key`` of the spec ``kind``."""
         (declared,) = (f for f in fields(kind) if f.name == key)
@@ -136,18 +195,42 @@ class Table:
             self.fail(key, f"must be a table ([{self.prefix}{key}]), got {shown(value)}")
         return Table(self.label, f"{self.prefix}{key}.", value, keys)
 
+    def checked(self, key: str, check: Check, known: Known = NOTHING_KNOWN) -> Any:
+        """``table[key]`` held to ``check``."""
+        value = self.value(key)
+        try:
+            return check(value, known)
+        except Invalid as invalid:
+            got = shown(value) if invalid.got is None else invalid.got
+            where = key if invalid.at is None else f"{key}.{invalid.at}"
+            self.fail(where, f"{invalid.must}, got {got}" if got else invalid.must)
+
     def spec(self, key: str, kind: type[Spec], known: Known = NOTHING_KNOWN) -> Spec:
         """The table ``key`` read into a ``kind`` by its fields (:func:`setting`,
-        :func:`derived`), in their order; ``known`` holds the specs read before it."""
+        :func:`nested`, :func:`derived`), in their order; ``known`` holds the specs read
+        before it."""
         declared = fields(kind)  # type: ignore[arg-type]
         table = self.table(key, [f.name for f in declared if "check" in f.metadata])
         read: dict[str, Any] = {}
         seen = ChainMap(read, known)
         for f in declared:
-            if "check" in f.metadata:
-                read[f.name] = table.checked(f.name, f.metadata["check"], seen)
+            metadata = f.metadata
+            if "derive" in metadata:
+                try:
+                    read[f.name] = metadata["derive"](seen)
+                except Invalid as invalid:
+                    table.fail(invalid.at or f.name, invalid.must)
+            elif not applies(f, seen):
+                if f.name in table.data:
+                    table.fail(f.name, f"must not be given {metadata['only'](seen)}")
+                otherwise = metadata.get("otherwise")
+                read[f.name] = None if otherwise is None else otherwise(seen)
+            elif "default" in metadata and f.name not in table.data:
+                read[f.name] = metadata["default"]
+            elif "nested" in metadata:
+                read[f.name] = table.spec(f.name, metadata["nested"], seen)
             else:
-                read[f.name] = f.metadata["derive"](seen)
+                read[f.name] = table.checked(f.name, metadata["check"], seen)
         return kind(**read)
 
 

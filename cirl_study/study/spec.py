@@ -35,6 +35,20 @@ shape, with every key required::
     subjects = 500            # the first `subjects` reward draws of the main block
     rationalities = [1e-4, ..., 1e3]
 
+A game may instead have the features of a tile layout (``features = "tiles"``, when not
+given ``"rbf"``): its grid, goals and features come from ``[game.tiles]``, and it has no
+``width``, ``height``, ``sigma``, ``feature_levels`` nor ``centers``; ``[tasks]`` then names
+rewards over those features, each the reward of one subject (docs/tiles.md)::
+
+    [game.tiles]
+    layout = [".oooo.", ".opccy"]   # rows, top first (or one string, a row a line)
+    legend = { o = "orange", p = "purple", c = "cyan", "." = "", y = "" }
+    goals = "y"               # characters whose cells end a path (optional)
+    step = "step"             # the per-move feature (optional; with goals)
+
+    [tasks]
+    oox = { orange = 0, purple = 0, cyan = -1, step = -0.1 }
+
 A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human, the
 ``literal_observer`` or ``pragmatic`` robot; :mod:`cirl_study.core.teaching`) declares their
 hypothesis space in ``[teaching]``, and then has no ``[lambda_sweep]``::
@@ -82,6 +96,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
+from cirl_study.features import TileFeatures
 from cirl_study.record import GRADIENT_ASCENT
 from cirl_study.study.settings import (
     NOTHING_KNOWN,
@@ -96,11 +111,13 @@ from cirl_study.study.settings import (
     is_integer,
     is_positive_number,
     names,
+    nested,
     number_in,
     numbers_in,
     one_of,
     positive_integers,
     setting,
+    shown,
     string,
 )
 
@@ -163,7 +180,7 @@ def sigma_limits(width: int, height: int) -> Limits:
 
 
 def _start_cell(value: Any, known: Known) -> tuple[int, int]:
-    """A cell ``[x, y]`` of the grid read before it."""
+    """A cell ``[x, y]`` of the grid read before it; in a tile game, not a goal's."""
     width, height = known["width"], known["height"]
     if not (
         isinstance(value, list)
@@ -176,7 +193,24 @@ def _start_cell(value: Any, known: Known) -> tuple[int, int]:
             f"must be a cell [x, y] of the {width}x{height} grid "
             f"(0 <= x < {width}, 0 <= y < {height})"
         )
+    tiles: TilesSpec | None = known.get("tiles")
+    if tiles is not None and tuple(value) in tiles.goal_cells:
+        raise Invalid("must not be a goal cell (a path ends on entering one)")
     return value[0], value[1]
+
+
+def _learning_steps(value: Any, known: Known) -> int:
+    """A positive number of moves; in a game with goals, enough to reach one from the start."""
+    steps = POSITIVE_INTEGER(value, known)
+    tiles: TilesSpec | None = known.get("tiles")
+    if tiles is not None and tiles.goal_cells:
+        distance = tiles.goal_distances()[known["start"]]
+        if distance > steps:
+            raise Invalid(
+                f"must be at least the {distance} moves from game.start to the nearest goal "
+                "(every path of the learning phase ends in a goal)"
+            )
+    return steps
 
 
 def _feature_levels(value: Any, known: Known) -> tuple[int, ...]:
@@ -192,25 +226,252 @@ def _feature_levels(value: Any, known: Known) -> tuple[int, ...]:
     return levels
 
 
-@dataclass(frozen=True)
-class GameSpec:
-    """The gridworld, horizons, RBF features and the feature levels (docs/design.md §1).
+GAME_FEATURES: tuple[str, ...] = ("rbf", "tiles")
+"""The feature kinds a pipeline's game may have (``game.features``): the paper's radial-basis
+features, drawn with each reward (``rbf``), or a tile layout whose colours are the features
+(``tiles``, :class:`TilesSpec`)."""
 
-    ``centers`` is one of :data:`CENTER_PLACEMENTS`; ``demonstrator_stays`` whether the human
-    may take the ``stay`` action during the demonstration (the robot always may); and
-    ``deployment_start`` one of :data:`DEPLOYMENT_STARTS`.
+RBF, TILES = GAME_FEATURES
+
+MAX_LAYOUT_CELLS = 4096
+"""Most cells of a tile layout: a 64 x 64 grid, past the size whose dynamic programmes a
+batch can hold (:func:`cirl_study.study.limits.batch_memory` bounds the rest)."""
+
+_SYMBOL = re.compile(r"[!-~]")
+_FEATURE_NAME = re.compile(r"[A-Za-z_][\w-]{0,63}", re.ASCII)
+
+
+def _layout(value: Any, _known: Known) -> tuple[str, ...]:
+    """The rows of a tile layout, top row first: a string of one row per line (surrounding
+    spaces and blank first and last lines ignored) or a list of strings; a rectangle of at
+    least two cells, each a printable ASCII character other than a space."""
+    if isinstance(value, str):
+        rows = [line.strip() for line in value.strip().splitlines()]
+    elif isinstance(value, list) and value and all(isinstance(row, str) for row in value):
+        rows = [row.strip() for row in value]
+    else:
+        raise Invalid("must be a string of rows, one per line, or a non-empty list of rows")
+    widths = sorted({len(row) for row in rows})
+    if len(widths) != 1 or widths[0] == 0:
+        raise Invalid(
+            "must be a rectangle: every row as long as the first (rows of "
+            f"{', '.join(map(str, widths))} characters)"
+        )
+    if not 2 <= len(rows) * widths[0] <= MAX_LAYOUT_CELLS:
+        raise Invalid(f"must have 2 to {MAX_LAYOUT_CELLS} cells")
+    odd = sorted({char for row in rows for char in row if not _SYMBOL.fullmatch(char)})
+    if odd:
+        raise Invalid(f"must be printable ASCII characters other than a space, not {odd}")
+    return tuple(rows)
+
+
+def _legend(value: Any, known: Known) -> tuple[tuple[str, str | None], ...]:
+    """Each character of the layout, once, with the name of its cells' feature or ``""`` for
+    none; every character named is in the layout."""
+    if not isinstance(value, dict) or not value:
+        raise Invalid('must be a table of characters and feature names ("" for none)')
+    for char, name in value.items():
+        if not _SYMBOL.fullmatch(char):
+            raise Invalid("must be one printable ASCII character other than a space", at=char)
+        if not (name == "" or (isinstance(name, str) and _FEATURE_NAME.fullmatch(name))):
+            raise Invalid(
+                'must be "" (no feature) or a feature name (a letter or _, then letters, '
+                "digits, _ or -; at most 64)",
+                at=char,
+            )
+    layout = known["layout"]
+    used = {char for row in layout for char in row}
+    missing = sorted(used - set(value))
+    if missing:
+        raise Invalid(f"must name every character of the layout, not {missing}")
+    unused = sorted(set(value) - used)
+    if unused:
+        raise Invalid(f"must name only characters of the layout, not {unused}")
+    if not any(value.values()):
+        raise Invalid("must name at least one feature")
+    return tuple((char, name or None) for char, name in value.items())
+
+
+def _goal_symbols(value: Any, known: Known) -> str:
+    """Distinct characters of the legend; no feature is carried by the goals alone, and by
+    every one of them (every path would count it once: its weight is unidentifiable)."""
+    legend = dict(known["legend"])
+    if not isinstance(value, str) or len(set(value)) != len(value):
+        raise Invalid("must be a string of distinct characters of the legend")
+    strange = sorted(set(value) - set(legend))
+    if strange:
+        raise Invalid(f"must be characters of the legend, not {strange}")
+    on_goals = {legend[char] for char in value}
+    elsewhere = {name for char, name in legend.items() if char not in value}
+    if len(on_goals) == 1 and None not in on_goals and not on_goals & elsewhere:
+        (name,) = on_goals
+        raise Invalid(
+            f"must not all carry {name!r}, a feature of no other cell: every path enters one "
+            "goal, so it counts that feature once and its weight is unidentifiable"
+        )
+    return value
+
+
+def _step_feature(value: Any, known: Known) -> str | None:
+    """The name of the per-move feature (1 in every cell): a name the legend does not use,
+    in a game with goals (without, every path makes the same moves and counts it alike)."""
+    if not (isinstance(value, str) and _FEATURE_NAME.fullmatch(value)):
+        raise Invalid("must be a feature name (a letter or _, then letters, digits, _ or -)")
+    if value in {name for _, name in known["legend"]}:
+        raise Invalid("must not be a feature of the legend")
+    if not known["goals"]:
+        raise Invalid(
+            "must not be given without goals: every path then makes the same number of "
+            "moves, so the step feature's weight is unidentifiable"
+        )
+    return value
+
+
+def _tile_features(known: Known) -> TileFeatures:
+    """The layout's features: the legend's names in their order of first appearance, then
+    the step feature last."""
+    names = list(dict.fromkeys(name for _, name in known["legend"] if name is not None))
+    if known["step"] is not None:
+        names.append(known["step"])
+    return TileFeatures(
+        layout=known["layout"],
+        names=tuple(names),
+        legend=known["legend"],
+        step=known["step"],
+    )
+
+
+@dataclass(frozen=True)
+class TilesSpec:
+    """A tile game's layout (``[game.tiles]``; :class:`cirl_study.features.TileFeatures`).
+
+    ``layout`` holds the grid's rows, top (``y = height - 1``) first; ``legend`` each of its
+    characters with the feature its cells carry (``None``: none); ``goals`` the characters
+    whose cells absorb (a path ends on entering one; ``""``: none, every path makes exactly
+    the phase's moves); ``step`` the per-move feature's name, if any. ``features`` are the
+    game's features in the order of ``theta``: the legend's names as they first appear in it,
+    then ``step``.
     """
 
-    width: int = setting(integer_at_least(2, "an integer of at least 2"))
-    height: int = setting(integer_at_least(2, "an integer of at least 2"))
+    layout: tuple[str, ...] = setting(_layout)
+    legend: tuple[tuple[str, str | None], ...] = setting(_legend)
+    goals: str = setting(_goal_symbols, default="")
+    step: str | None = setting(_step_feature, default=None)
+    features: TileFeatures = derived(_tile_features)
+
+    @property
+    def width(self) -> int:
+        return len(self.layout[0])
+
+    @property
+    def height(self) -> int:
+        return len(self.layout)
+
+    @property
+    def goal_cells(self) -> tuple[tuple[int, int], ...]:
+        """The goals' ``[x, y]`` cells, by flat index."""
+        return self.features.cells_of(self.goals, self.width, self.height)
+
+    def goal_distances(self) -> dict[tuple[int, int], int]:
+        """Every cell's fewest moves to a goal (``0`` on one; unreachable cells left out)."""
+        distance = {cell: 0 for cell in self.goal_cells}
+        frontier = list(distance)
+        while frontier:
+            following = []
+            for x, y in frontier:
+                for cell in ((x + 1, y), (x - 1, y), (x, y + 1), (x, y - 1)):
+                    inside = 0 <= cell[0] < self.width and 0 <= cell[1] < self.height
+                    if inside and cell not in distance:
+                        distance[cell] = distance[x, y] + 1
+                        following.append(cell)
+            frontier = following
+        return distance
+
+
+def _tile_game(known: Known) -> str | None:
+    """Where ``[game.tiles]`` has a place: a game of tile features."""
+    return None if known.get("features") == TILES else f'unless game.features = "{TILES}"'
+
+
+def _rbf_game(known: Known) -> str | None:
+    """Where the RBF settings and the grid's size have a place: a game of RBF features (a
+    tile game's size is its layout's, its one feature level its features)."""
+    return None if known.get("features", RBF) == RBF else f'with game.features = "{TILES}"'
+
+
+def _goal_cells(known: Known) -> tuple[tuple[int, int], ...]:
+    """The game's goal cells; with goals, every deployment start has one within reach."""
+    tiles: TilesSpec | None = known["tiles"]
+    if tiles is None or not tiles.goal_cells:
+        return ()
+    steps = known["deployment_steps"]
+    distances = tiles.goal_distances()
+    if known["deployment_start"] == "demonstration":
+        starts = [known["start"]]
+    else:
+        starts = [cell for cell in distances if cell not in tiles.goal_cells]
+    farthest = max(starts, key=lambda cell: (distances[cell], -cell[1], -cell[0]))
+    if distances[farthest] > steps:
+        where = (
+            "game.start"
+            if known["deployment_start"] == "demonstration"
+            else f"cell {list(farthest)} (the deployment starts in every cell but a goal)"
+        )
+        raise Invalid(
+            f"must be at least the {distances[farthest]} moves from {where} to the nearest "
+            f"goal, got {steps}",
+            at="deployment_steps",
+        )
+    return tiles.goal_cells
+
+
+@dataclass(frozen=True)
+class GameSpec:
+    """The gridworld, horizons, features and the feature levels (docs/design.md §1).
+
+    ``features`` is one of :data:`GAME_FEATURES`, ``rbf`` when not given. An ``rbf`` game
+    gives its grid's size, its RBF width ``sigma``, its ``feature_levels`` and where the
+    ``centers`` lie (one of :data:`CENTER_PLACEMENTS`); a ``tiles`` game gives its layout
+    (``tiles``, :class:`TilesSpec`), which makes the grid's size, its one feature level
+    (``K``, the layout's features) and its ``goals``, and has no ``sigma`` nor ``centers``
+    (``None``). ``demonstrator_stays`` is whether the human may take the ``stay`` action
+    during the demonstration (the robot always may), and ``deployment_start`` one of
+    :data:`DEPLOYMENT_STARTS`.
+    """
+
+    features: str = setting(one_of(GAME_FEATURES), default=RBF)
+    tiles: TilesSpec | None = nested(TilesSpec, only=_tile_game)
+    width: int = setting(
+        integer_at_least(2, "an integer of at least 2"),
+        only=_rbf_game,
+        otherwise=lambda known: known["tiles"].width,
+    )
+    height: int = setting(
+        integer_at_least(2, "an integer of at least 2"),
+        only=_rbf_game,
+        otherwise=lambda known: known["tiles"].height,
+    )
     start: tuple[int, int] = setting(_start_cell)
-    learning_steps: int = setting(POSITIVE_INTEGER)
+    learning_steps: int = setting(_learning_steps)
     deployment_steps: int = setting(POSITIVE_INTEGER)
-    sigma: float = setting(number_in(lambda known: sigma_limits(known["width"], known["height"])))
-    feature_levels: tuple[int, ...] = setting(_feature_levels)
-    centers: str = setting(one_of(CENTER_PLACEMENTS))
+    sigma: float | None = setting(
+        number_in(lambda known: sigma_limits(known["width"], known["height"])), only=_rbf_game
+    )
+    feature_levels: tuple[int, ...] = setting(
+        _feature_levels,
+        only=_rbf_game,
+        otherwise=lambda known: (known["tiles"].features.count,),
+    )
+    centers: str | None = setting(one_of(CENTER_PLACEMENTS), only=_rbf_game)
     demonstrator_stays: bool = setting(boolean)
     deployment_start: str = setting(one_of(DEPLOYMENT_STARTS))
+    goals: tuple[tuple[int, int], ...] = derived(_goal_cells)
+    """The goal cells of a tile game (``()`` without goals, and in an ``rbf`` game)."""
+
+    @property
+    def tile_features(self) -> TileFeatures | None:
+        """A tile game's features (shared by every reward), ``None`` in an ``rbf`` game."""
+        return None if self.tiles is None else self.tiles.features
 
 
 @dataclass(frozen=True)
@@ -235,6 +496,67 @@ def _robots() -> Any:
     return ROBOTS
 
 
+TASK_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}")
+"""A task's name: it ends its subject's id (``main-k04-oox``), so letters, digits, ``_`` and
+``-``, at most 32."""
+
+
+@dataclass(frozen=True)
+class Task:
+    """A named reward of a tile game: ``weights`` are ``theta``, one per feature, in the
+    order of the game's features (:attr:`TilesSpec.features`)."""
+
+    name: str
+    weights: tuple[float, ...]
+
+
+def _tasks(value: Any, known: Known) -> tuple[Task, ...]:
+    """``[tasks]``: one or more named rewards, each a table giving every feature of the tile
+    game its weight, a number in ``[-1, 1]`` (the prior's box), and no other key."""
+    features: TileFeatures = known["game"].tile_features
+    wanted = ", ".join(features.names)
+    if not isinstance(value, dict) or not value:
+        raise Invalid(f"must be a table of named tasks, each a table of weights ({wanted})")
+    tasks = []
+    for name, weights in value.items():
+        if not TASK_NAME.fullmatch(name):
+            raise Invalid(
+                "must be a task name: a letter or digit, then letters, digits, _ or -; at most "
+                "32 (it ends the subject's id)",
+                got=f'"{name}"',
+            )
+        if not isinstance(weights, dict):
+            raise Invalid(f"must be a table of weights ({wanted})", got=shown(weights), at=name)
+        unknown = sorted(set(weights) - set(features.names))
+        if unknown:
+            raise Invalid(
+                f"is not a feature of the game ({wanted})", got="", at=f"{name}.{unknown[0]}"
+            )
+        missing = [feature for feature in features.names if feature not in weights]
+        if missing:
+            raise Invalid(
+                f"must give every feature a weight ({wanted}); {missing[0]} is missing",
+                got="",
+                at=name,
+            )
+        for feature in features.names:
+            weight = weights[feature]
+            number = isinstance(weight, int | float) and not isinstance(weight, bool)
+            if not (number and -1.0 <= weight <= 1.0):
+                raise Invalid(
+                    "must be a number in [-1, 1] (the prior's box, where the robots estimate)",
+                    at=f"{name}.{feature}",
+                    got=shown(weight),
+                )
+        tasks.append(Task(name, tuple(float(weights[feature]) for feature in features.names)))
+    return tuple(tasks)
+
+
+def _without_tasks(known: Known) -> str | None:
+    """Where ``main.subjects`` has a place: a study without tasks (each task is a subject)."""
+    return None if not known.get("tasks") else "with [tasks] (each task is one subject)"
+
+
 @dataclass(frozen=True)
 class MainSpec:
     """The main study: every policy of ``policies`` on ``subjects`` draws per feature level.
@@ -248,7 +570,9 @@ class MainSpec:
     demonstration, is the same whichever robot watches.
     """
 
-    subjects: int = setting(POSITIVE_INTEGER)
+    subjects: int = setting(
+        POSITIVE_INTEGER, only=_without_tasks, otherwise=lambda known: len(known["tasks"])
+    )
     rationality: float = setting(number_in(RATIONALITY))
     policies: tuple[str, ...] = setting(names(_humans, "human policies"))
     robots: tuple[str, ...] = setting(names(_robots, "robots"))
@@ -271,7 +595,8 @@ def _learning_paths(known: Known) -> int:
     game: GameSpec = known["game"]
     grid = Gridworld(game.width, game.height)
     moves = grid.demonstrator_moves(game.demonstrator_stays)
-    return path_count(Phase(moves, grid.index(*game.start), game.learning_steps))
+    goals = tuple(grid.index(*goal) for goal in game.goals)
+    return path_count(Phase(moves, grid.index(*game.start), game.learning_steps, goals))
 
 
 @dataclass(frozen=True)
@@ -591,6 +916,14 @@ class MultiverseSpec:
     universes: tuple[Universe, ...]
 
 
+def _tile_game_known(known: Known) -> str | None:
+    """Where ``[tasks]`` has a place: a pipeline whose game has tile features."""
+    game: GameSpec = known["game"]
+    if game.tiles is not None:
+        return None
+    return f'unless game.features = "{TILES}" (a task weighs a tile game\'s named features)'
+
+
 _NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
 
@@ -622,6 +955,7 @@ class Pipeline:
     description: str = setting(string)
     seed: int = setting(integer_at_least(0, "a non-negative integer"))
     game: GameSpec
+    tasks: tuple[Task, ...] | None = setting(_tasks, only=_tile_game_known)
     eta_cv: EtaCVSpec
     main: MainSpec
     lambda_sweep: LambdaSweepSpec | None
