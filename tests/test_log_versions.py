@@ -83,8 +83,8 @@ def test_a_run_of_an_earlier_format_gives_its_trial_table_in_the_current_names(r
 def test_records_of_an_earlier_format_read_the_second_regret_as_missing() -> None:
     for run in OLD_RUNS:
         rows = read_run(run).rows
-        assert rows and all(row.measures.regret_under_estimate is None for row in rows)
-        assert all(row.measures.regret >= 0 for row in rows)
+        assert rows and all(row.measure("regret_under_estimate") is None for row in rows)
+        assert all(row.measure("regret") >= 0 for row in rows)
 
 
 def test_a_run_of_format_6_is_analysed() -> None:

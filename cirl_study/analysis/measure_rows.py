@@ -1,8 +1,9 @@
 """Each test of every measure, as JSON-ready rows: the shape ``results.json`` stores.
 
 :func:`plain` turns numpy scalars and NaN into JSON data; the others run one test of
-:mod:`cirl_study.analysis.statistics` or :mod:`cirl_study.analysis.anova` for each measure of
-:data:`~cirl_study.record.MEASURES` and return its rows, measures in order.
+:mod:`cirl_study.analysis.statistics` or :mod:`cirl_study.analysis.anova` for each measure the
+analysis tests (:func:`~cirl_study.core.measure_registry.analysed_measures`) and return its
+rows, measures in the registry's order.
 """
 
 from __future__ import annotations
@@ -17,8 +18,8 @@ import pandas as pd
 
 from cirl_study.analysis import statistics
 from cirl_study.analysis.anova import repeated_measures_anova
+from cirl_study.core.measure_registry import analysed_measures
 from cirl_study.errors import UserError
-from cirl_study.record import MEASURES
 
 
 def plain(value: Any) -> Any:
@@ -52,7 +53,10 @@ def paired_rows(frame: pd.DataFrame, factor: str, baseline: str, by: list[str]) 
     """:func:`~cirl_study.analysis.statistics.paired_differences` for every measure, one Holm
     family per measure."""
     return rows(
-        pd.concat(statistics.paired_differences(frame, m, factor, baseline, by) for m in MEASURES)
+        pd.concat(
+            statistics.paired_differences(frame, m, factor, baseline, by)
+            for m in analysed_measures()
+        )
     )
 
 
@@ -62,7 +66,7 @@ def anova_rows(frame: pd.DataFrame, within: list[str]) -> list[dict[str, Any]]:
     between = "num_features" if frame["num_features"].nunique() > 1 else None
     return [
         plain(msgspec.to_builtins(row))
-        for m in MEASURES
+        for m in analysed_measures()
         for row in repeated_measures_anova(frame, m, within, between)
     ]
 
@@ -72,7 +76,7 @@ def pairwise_rows(frame: pd.DataFrame, factors: Mapping[str, tuple[str, ...]]) -
     every factor of ``factors`` (its levels, in order) with two levels or more."""
     return [
         plain(msgspec.to_builtins(row))
-        for m in MEASURES
+        for m in analysed_measures()
         for factor, levels in factors.items()
         if levels[1:]
         for row in statistics.pairwise_differences(frame, m, factor, levels)

@@ -20,12 +20,13 @@ import msgspec
 from cirl_study import escape
 from cirl_study.analysis import figures, paper_report, study_report, teaching_report
 from cirl_study.analysis.cells import papers_own
-from cirl_study.analysis.markdown import document, number, svg_name, table
+from cirl_study.analysis.markdown import document, measure_name, number, svg_name, table
 from cirl_study.analysis.output import csv_file, write_report_directory
 from cirl_study.analysis.result_types import ClaimRow, Estimates, StudyResults, Teaching, frame
 from cirl_study.analysis.results import combined, estimates, tests, with_claims
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
+from cirl_study.core.measure_registry import MEASURES, PAPER_MEASURES, analysed_measures
 from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_POLICIES, TrialRecord, TrialRow
 from cirl_study.study.spec import Pipeline
 from cirl_study.workers import Call
@@ -93,6 +94,23 @@ def _hypothesis_space(teaching: Teaching) -> str:
     )
 
 
+def _directions() -> str:
+    """One sentence: which measures the analysis tests are losses, and which scores."""
+    losses = [measure_name(m) for m in analysed_measures() if MEASURES[m].lower_is_better]
+    scores = [measure_name(m) for m in analysed_measures() if not MEASURES[m].lower_is_better]
+    sentence = f"The measures: {_listed(losses)} {'are losses' if losses[1:] else 'is a loss'} "
+    sentence += "(lower is better)"
+    if scores:
+        sentence += f"; {_listed(scores)} {'are scores' if scores[1:] else 'is a score'} "
+        sentence += "(higher is better: the sign of a difference reads the other way)"
+    return sentence + "."
+
+
+def _listed(names: Sequence[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return " and ".join(filter(None, [", ".join(names[:-1]), names[-1]]))
+
+
 def _header(results: StudyResults) -> list[str]:
     trials, design = results.trials, results.design
     per_level = ", ".join(f"{n} at {k} features" for k, n in design.subjects_per_level.items())
@@ -116,8 +134,8 @@ def _header(results: StudyResults) -> list[str]:
         "On the gridworld of Cooperative Inverse Reinforcement Learning (Hadfield-Menell et "
         "al., NeurIPS 2016, section 4), with the paper's measures: the published claims "
         "beside what this run measured. Every human demonstrates to every robot on the same "
-        "reward draws (within subjects); the number of features varies between them. All "
-        "three measures are losses: lower is better.",
+        "reward draws (within subjects); the number of features varies between them. "
+        f"{_directions()}",
         "",
         f"- Humans: {', '.join(escape.markdown(h) for h in design.humans)} (baseline "
         f"{escape.markdown(design.baseline)}); robots: "
@@ -192,6 +210,13 @@ def _figure1_records(
     return {policy: found[policy] for policy in PAPER_POLICIES}
 
 
+FIGURE2_TITLE = "Lower is better: the three measures by policy and number of features"
+"""The title of Figure 2 (left): the paper's three measures, all losses."""
+
+OTHERS_TITLE = "the other measures by policy and number of features"
+"""The title of the figure of the measures beyond the paper's, after which way is better."""
+
+
 def _drawings(
     trials: Sequence[TrialRow],
     records_of: Callable[[set[str]], Sequence[TrialRecord]],
@@ -213,10 +238,17 @@ def _drawings(
             (pair[EXPERT], pair[BEST_RESPONSE], title),
         )
         of_paper = (cells["robot"] == reference) & cells["policy"].isin(PAPER_POLICIES)
+        paper_cells = cells[of_paper].drop(columns="robot").reset_index(drop=True)
         drawings[FIGURES["figure2_measures"][0]] = (
             figures.measure_bars,
-            (cells[of_paper].drop(columns="robot").reset_index(drop=True),),
+            (paper_cells, PAPER_MEASURES, FIGURE2_TITLE),
         )
+        others = study_report.other_measures(paper_cells["measure"])
+        if others:
+            drawings[FIGURES["other_measures"][0]] = (
+                figures.measure_bars,
+                (paper_cells, others, f"{figures.better(others)}: {OTHERS_TITLE}"),
+            )
         if estimated.lambda_sweep:
             sweep = frame(estimated.lambda_sweep)
             of_paper = (sweep["robot"] == reference) & sweep["policy"].isin(PAPER_POLICIES)

@@ -6,7 +6,10 @@ One analysis serves every design of humans x robots x feature levels (``docs/pip
 (:class:`~cirl_study.analysis.result_types.StudyResults`), which the claims are judged on,
 the report reads and ``results.json`` stores. Its halves, :func:`estimates` (everything
 the figures draw) and :func:`tests`, depend only on the trials, so the report draws its
-figures in worker processes while it computes the tests. Every measure is a loss: lower is better.
+figures in worker processes while it computes the tests. Every per-measure section holds each
+measure the analysis tests (:func:`~cirl_study.core.measure_registry.analysed_measures`, in
+the registry's order); Cronbach's alpha, the paper's three
+(:data:`~cirl_study.core.measure_registry.PAPER_MEASURES`).
 
 The sections, by key:
 
@@ -32,7 +35,8 @@ The sections, by key:
 * ``paper``, where the run has the paper's humans (:data:`~cirl_study.analysis.cells.PAPER`):
   the paper's analyses on the reference robot's trials of the expert and the best response:
   its mixed ANOVA, the simple effects of policy, Tukey HSD as the paper ran it, Wilcoxon
-  checks and Cronbach's alpha (:func:`paper_tests`), and the reward draw of Figure 1;
+  checks (each per measure) and Cronbach's alpha of the paper's three measures
+  (:func:`paper_tests`), and the reward draw of Figure 1;
 * ``robots``, with two robots or more: every other robot against the reference, paired, in
   the main block and at every rationality of the sweep (:func:`robot_comparison`);
 * the teaching sections, where the run has their cells (:mod:`cirl_study.analysis.teaching`).
@@ -51,6 +55,7 @@ from cirl_study.analysis.cells import PAPER, Design
 from cirl_study.analysis.measure_rows import anova_rows, paired_rows, pairwise_rows, plain, rows
 from cirl_study.analysis.result_types import Estimates, Results, StudyResults, checked
 from cirl_study.analysis.table import trial_table
+from cirl_study.core.measure_registry import PAPER_MEASURES, analysed_measures
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
 from cirl_study.record import (
@@ -60,7 +65,6 @@ from cirl_study.record import (
     EXPERT,
     LAMBDA_SWEEP,
     MAIN,
-    MEASURES,
     PAPER_POLICIES,
     TrialRow,
 )
@@ -285,13 +289,14 @@ def estimates(
     main = everything[everything["block"] == MAIN]
     sweep = everything[everything["block"] == LAMBDA_SWEEP]
     by_cell = ["num_features", "policy", "robot"]
+    measures = analysed_measures()
     estimated = {
         "pipeline": pipeline.name,
         "trials": _trial_counts(everything),
         "design": _design(main, design, pipeline),
-        "cells": rows(_concat([statistics.group_means(main, m, by_cell) for m in MEASURES])),
+        "cells": rows(_concat([statistics.group_means(main, m, by_cell) for m in measures])),
         "lambda_sweep": rows(
-            _concat([statistics.group_means(sweep, m, ["rationality", *by_cell]) for m in MEASURES])
+            _concat([statistics.group_means(sweep, m, ["rationality", *by_cell]) for m in measures])
         )
         if not sweep.empty
         else [],
@@ -330,9 +335,11 @@ def tests(everything: pd.DataFrame, pipeline: Pipeline) -> Results:
 def paper_tests(paper_main: pd.DataFrame) -> Results:
     """The paper's tests on the ``main`` block of its humans and the reference robot
     (:func:`paper_main_block`): ``anova`` (policy within subjects, ``num_features`` between),
-    ``simple_effects``, ``tukey_hsd``, ``wilcoxon`` and ``cronbach_alpha``."""
-    alpha = statistics.cronbach_alpha(paper_main[list(MEASURES)].reset_index(drop=True))
-    alpha["items"] = list(MEASURES)
+    ``simple_effects``, ``tukey_hsd``, ``wilcoxon`` (each per measure) and ``cronbach_alpha``
+    (of the paper's three measures)."""
+    measures = analysed_measures()
+    alpha = statistics.cronbach_alpha(paper_main[list(PAPER_MEASURES)].reset_index(drop=True))
+    alpha["items"] = list(PAPER_MEASURES)
     alpha["rows"] = (
         f"all {len(paper_main)} trials of the main block, one row per trial (both policies, "
         "every feature level), the three measures on their own scales"
@@ -340,10 +347,10 @@ def paper_tests(paper_main: pd.DataFrame) -> Results:
     return {
         "anova": anova_rows(paper_main, ["policy"]),
         "simple_effects": rows(
-            _concat([statistics.simple_effects(paper_main, m) for m in MEASURES])
+            _concat([statistics.simple_effects(paper_main, m) for m in measures])
         ),
-        "tukey_hsd": rows(_concat([statistics.tukey_hsd(paper_main, m) for m in MEASURES])),
-        "wilcoxon": rows(_concat([statistics.wilcoxon(paper_main, m) for m in MEASURES])),
+        "tukey_hsd": rows(_concat([statistics.tukey_hsd(paper_main, m) for m in measures])),
+        "wilcoxon": rows(_concat([statistics.wilcoxon(paper_main, m) for m in measures])),
         "cronbach_alpha": plain(alpha),
     }
 
