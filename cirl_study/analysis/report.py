@@ -22,7 +22,14 @@ from cirl_study.analysis import figures, paper_report, study_report, teaching_re
 from cirl_study.analysis.cells import papers_own
 from cirl_study.analysis.markdown import document, measure_name, number, svg_name, table
 from cirl_study.analysis.output import csv_file, write_report_directory
-from cirl_study.analysis.result_types import ClaimRow, Estimates, StudyResults, Teaching, frame
+from cirl_study.analysis.result_types import (
+    ClaimRow,
+    Estimates,
+    StudyResults,
+    Teaching,
+    Undefined,
+    frame,
+)
 from cirl_study.analysis.results import combined, estimates, tests, with_claims
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
@@ -144,7 +151,17 @@ def _header(results: StudyResults) -> list[str]:
         f"best-response η = {etas}.",
         f"- Trials: {trials['total']} ({blocks}); reward draws {per_level}.",
         *([f"- Hypothesis space: {_hypothesis_space(space)}."] if space else []),
+        *(_undefined(row) for row in results.undefined),
     ]
+
+
+def _undefined(row: Undefined) -> str:
+    """A line of the header: a measure some trials have no value of, and what is left out."""
+    where = MEASURES[row.measure].undefined or "not logged"
+    return (
+        f"- No {measure_name(row.measure)} for {row.trials} trial(s) of {row.subjects} reward "
+        f"draw(s) ({where}): those draws are left out of its statistics."
+    )
 
 
 def _partial_title(results: StudyResults) -> list[str]:

@@ -8,8 +8,10 @@ the report reads and ``results.json`` stores. Its halves, :func:`estimates` (eve
 the figures draw) and :func:`tests`, depend only on the trials, so the report draws its
 figures in worker processes while it computes the tests. Every per-measure section holds each
 measure the analysis tests (:func:`~cirl_study.core.measure_registry.analysed_measures`, in
-the registry's order); Cronbach's alpha, the paper's three
-(:data:`~cirl_study.core.measure_registry.PAPER_MEASURES`).
+the registry's order), each on the trials that have a value of it
+(:func:`~cirl_study.analysis.measure_rows.measured`: a reward draw without a value of a measure
+in some trial is left out of all that measure's statistics); Cronbach's alpha, the paper's
+three (:data:`~cirl_study.core.measure_registry.PAPER_MEASURES`).
 
 The sections, by key:
 
@@ -39,7 +41,10 @@ The sections, by key:
   (:func:`paper_tests`), and the reward draw of Figure 1;
 * ``robots``, with two robots or more: every other robot against the reference, paired, in
   the main block and at every rationality of the sweep (:func:`robot_comparison`);
-* the teaching sections, where the run has their cells (:mod:`cirl_study.analysis.teaching`).
+* the teaching sections, where the run has their cells (:mod:`cirl_study.analysis.teaching`);
+* ``undefined``, only where some trials have no value of a measure: per such measure, those
+  trials and their reward draws, left out of its statistics
+  (:func:`~cirl_study.analysis.measure_rows.undefined`).
 """
 
 from __future__ import annotations
@@ -52,10 +57,18 @@ import pandas as pd
 
 from cirl_study.analysis import statistics, teaching
 from cirl_study.analysis.cells import PAPER, Design
-from cirl_study.analysis.measure_rows import anova_rows, paired_rows, pairwise_rows, plain, rows
+from cirl_study.analysis.measure_rows import (
+    anova_rows,
+    measured,
+    paired_rows,
+    pairwise_rows,
+    plain,
+    rows,
+    undefined,
+)
 from cirl_study.analysis.result_types import Estimates, Results, StudyResults, checked
 from cirl_study.analysis.table import trial_table
-from cirl_study.core.measure_registry import PAPER_MEASURES, analysed_measures
+from cirl_study.core.measure_registry import PAPER_MEASURES
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
 from cirl_study.record import (
@@ -246,7 +259,8 @@ RESULT_KEYS: tuple[str, ...] = (
     "robots",
     *teaching.SECTIONS,
 )
-"""The keys of :func:`analyse`'s results, in the order ``results.json`` lists them."""
+"""The keys of :func:`analyse`'s results, in the order ``results.json`` lists them; then
+``undefined``, where some trials have no value of a measure."""
 
 
 def analyse(trials: Sequence[TrialRow], pipeline: Pipeline) -> Results:
@@ -259,8 +273,9 @@ def analyse(trials: Sequence[TrialRow], pipeline: Pipeline) -> Results:
         pipeline: the run's pipeline (the order of its humans and robots, its name).
 
     Returns:
-        Plain data with the keys of :data:`RESULT_KEYS` (see the module docstring); a
-        section whose cells the run lacks is ``None``.
+        Plain data with the keys of :data:`RESULT_KEYS` (see the module docstring), and
+        ``undefined`` where some trials have no value of a measure; a section whose cells the
+        run lacks is ``None``.
     """
     everything = trial_table(trials)
     return combined(estimates(trials, everything, pipeline), tests(everything, pipeline))
@@ -279,7 +294,8 @@ def estimates(
 ) -> Estimates:
     """What the trials measured, with confidence intervals: everything the figures draw.
 
-    The sections ``pipeline, trials, design, cells, lambda_sweep, converged, eta_cv, robots``
+    The sections ``pipeline, trials, design, undefined, cells, lambda_sweep, converged, eta_cv,
+    robots``
     of :func:`analyse` and, where the run has the paper's humans, the paper's ``figure1``,
     from the rows and their table ``everything``
     (:func:`~cirl_study.analysis.table.trial_table`).
@@ -289,14 +305,19 @@ def estimates(
     main = everything[everything["block"] == MAIN]
     sweep = everything[everything["block"] == LAMBDA_SWEEP]
     by_cell = ["num_features", "policy", "robot"]
-    measures = analysed_measures()
     estimated = {
         "pipeline": pipeline.name,
         "trials": _trial_counts(everything),
         "design": _design(main, design, pipeline),
-        "cells": rows(_concat([statistics.group_means(main, m, by_cell) for m in measures])),
+        "undefined": undefined(everything),
+        "cells": rows(_concat([statistics.group_means(k, m, by_cell) for m, k in measured(main)])),
         "lambda_sweep": rows(
-            _concat([statistics.group_means(sweep, m, ["rationality", *by_cell]) for m in measures])
+            _concat(
+                [
+                    statistics.group_means(kept, m, ["rationality", *by_cell])
+                    for m, kept in measured(sweep)
+                ]
+            )
         )
         if not sweep.empty
         else [],
@@ -337,7 +358,6 @@ def paper_tests(paper_main: pd.DataFrame) -> Results:
     (:func:`paper_main_block`): ``anova`` (policy within subjects, ``num_features`` between),
     ``simple_effects``, ``tukey_hsd``, ``wilcoxon`` (each per measure) and ``cronbach_alpha``
     (of the paper's three measures)."""
-    measures = analysed_measures()
     alpha = statistics.cronbach_alpha(paper_main[list(PAPER_MEASURES)].reset_index(drop=True))
     alpha["items"] = list(PAPER_MEASURES)
     alpha["rows"] = (
@@ -347,10 +367,10 @@ def paper_tests(paper_main: pd.DataFrame) -> Results:
     return {
         "anova": anova_rows(paper_main, ["policy"]),
         "simple_effects": rows(
-            _concat([statistics.simple_effects(paper_main, m) for m in measures])
+            _concat([statistics.simple_effects(k, m) for m, k in measured(paper_main)])
         ),
-        "tukey_hsd": rows(_concat([statistics.tukey_hsd(paper_main, m) for m in measures])),
-        "wilcoxon": rows(_concat([statistics.wilcoxon(paper_main, m) for m in measures])),
+        "tukey_hsd": rows(_concat([statistics.tukey_hsd(k, m) for m, k in measured(paper_main)])),
+        "wilcoxon": rows(_concat([statistics.wilcoxon(k, m) for m, k in measured(paper_main)])),
         "cronbach_alpha": plain(alpha),
     }
 
@@ -362,7 +382,10 @@ def combined(estimated: Estimates, tested: Results) -> Results:
     figure1 = measured.pop("figure1")
     paper = None if tested["paper"] is None else {**tested["paper"], "figure1": figure1}
     both = {**measured, **tested, "paper": paper}
-    return {key: both[key] for key in RESULT_KEYS}
+    results = {key: both[key] for key in RESULT_KEYS}
+    if "undefined" in both:  # only where some trials have no value of a measure
+        results["undefined"] = both["undefined"]
+    return results
 
 
 def with_claims(
