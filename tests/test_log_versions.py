@@ -40,7 +40,8 @@ def _in_current_names(table: pd.DataFrame, log_format: str) -> pd.DataFrame:
         table["robot"] = table["robot"].replace({"literal": "literal_observer"})
     table["trial_id"] = [versions.trial_id(t, log_format) for t in table["trial_id"]]
     # Format 7 logs the second reading of regret; an earlier record reads it as missing.
-    table.insert(table.columns.get_loc("reward_l2") + 1, "regret_under_estimate", math.nan)
+    if "regret_under_estimate" not in table.columns:
+        table.insert(table.columns.get_loc("reward_l2") + 1, "regret_under_estimate", math.nan)
     return table
 
 
@@ -49,6 +50,7 @@ def test_there_are_runs_of_every_earlier_format() -> None:
         "format-5-sweep",
         "format-5-teaching",
         "format-6-robots",
+        "format-7-ascent",
     ]
 
 
@@ -68,9 +70,10 @@ def test_a_run_of_an_earlier_format_gives_its_trial_table_in_the_current_names(r
     want = _in_current_names(logged, log_format).sort_values("trial_id").reset_index(drop=True)
     got = cirl_study.load_trials(run).sort_values("trial_id").reset_index(drop=True)
     assert list(got.columns) == list(want.columns)
-    assert set(got["robot"]) <= {"map", "literal_observer", "posterior_mean"}
+    assert set(got["robot"]) <= {"map", "literal_observer", "posterior_mean", "gradient_ascent"}
+    logged = ("regret_under_estimate",) if log_format >= "7" else ()
     for column in want.columns:
-        if column in ("regret", "kl", "reward_l2", "eta", "rationality"):
+        if column in ("regret", "kl", "reward_l2", "eta", "rationality", *logged):
             pd.testing.assert_series_equal(
                 got[column].astype(float), want[column].astype(float), rtol=1e-15
             )
@@ -81,10 +84,15 @@ def test_a_run_of_an_earlier_format_gives_its_trial_table_in_the_current_names(r
 
 
 def test_records_of_an_earlier_format_read_the_second_regret_as_missing() -> None:
-    for run in OLD_RUNS:
+    for run in (run for run in OLD_RUNS if _log_format(run) < "7"):
         rows = read_run(run).rows
         assert rows and all(row.measure("regret_under_estimate") is None for row in rows)
         assert all(row.measure("regret") >= 0 for row in rows)
+
+
+def test_a_run_of_format_7_is_analysed() -> None:
+    results = cirl_study.analyze(FIXTURES / "format-7-ascent")
+    assert results.design.robots == ["map", "gradient_ascent"]
 
 
 def test_a_run_of_format_6_is_analysed() -> None:
@@ -130,10 +138,11 @@ def test_a_log_of_an_unknown_format_is_refused_in_one_line(tmp_path: Path) -> No
 
 
 def test_every_readable_format_is_named_and_the_current_one_is_written() -> None:
-    assert versions.READABLE[-1] == versions.LOG_FORMAT == "7"
+    assert versions.READABLE[-1] == versions.LOG_FORMAT == "8"
     assert (
         versions.readable("5")
         and versions.readable("6")
+        and versions.readable("7")
         and not versions.readable("4")
         and not versions.readable("")
     )
