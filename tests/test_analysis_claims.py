@@ -57,7 +57,11 @@ def _cell(results: dict, measure: str, level: int, policy: str) -> dict:
 
 
 def _within_level_tukey(results: dict) -> list[dict]:
-    return [r for r in results["paper"]["tukey_hsd"] if r["a_num_features"] == r["b_num_features"]]
+    return [
+        r
+        for r in results["paper"]["tukey_hsd"]
+        if r["a_num_features"] == r["b_num_features"] and r["measure"] in PAPER_MEASURES
+    ]
 
 
 @pytest.fixture(scope="module")

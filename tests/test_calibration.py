@@ -222,6 +222,7 @@ def test_a_cell_whose_trials_lack_a_measure_is_missing() -> None:
             "robot": ["map", "map"],
             **{measure: [1.0, 2.0] for measure in ("regret", "kl", "reward_l2")},
             "regret_under_estimate": [float("nan"), float("nan")],
+            "order_agreement": [0.5, 1.0],
         }
     )
     means = cell_means(table)[""]

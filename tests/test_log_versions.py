@@ -42,6 +42,8 @@ def _in_current_names(table: pd.DataFrame, log_format: str) -> pd.DataFrame:
     # Format 7 logs the second reading of regret; an earlier record reads it as missing.
     if "regret_under_estimate" not in table.columns:
         table.insert(table.columns.get_loc("reward_l2") + 1, "regret_under_estimate", math.nan)
+    # Format 8 logs the feature order agreement; an earlier record reads it as missing.
+    table.insert(table.columns.get_loc("regret_under_estimate") + 1, "order_agreement", math.nan)
     return table
 
 
@@ -77,7 +79,7 @@ def test_a_run_of_an_earlier_format_gives_its_trial_table_in_the_current_names(r
             pd.testing.assert_series_equal(
                 got[column].astype(float), want[column].astype(float), rtol=1e-15
             )
-        elif column in ("universe", "regret_under_estimate"):
+        elif column in ("universe", "regret_under_estimate", "order_agreement"):
             assert got[column].isna().all() and want[column].isna().all()
         else:
             assert got[column].astype(str).tolist() == want[column].astype(str).tolist(), column
@@ -93,6 +95,20 @@ def test_records_of_an_earlier_format_read_the_second_regret_as_missing() -> Non
 def test_a_run_of_format_7_is_analysed() -> None:
     results = cirl_study.analyze(FIXTURES / "format-7-ascent")
     assert results.design.robots == ["map", "gradient_ascent"]
+
+
+def test_a_measure_a_format_did_not_log_is_left_out_and_said_so() -> None:
+    """Format 7 did not log the feature order agreement: its records read it as null, and the
+    analysis has no statistics of it, saying so."""
+    run = FIXTURES / "format-7-ascent"
+    rows = read_run(run).rows
+    assert rows and all(row.measure("order_agreement") is None for row in rows)
+    results = cirl_study.analyze(run)
+    (undefined,) = results.undefined
+    assert (undefined.measure, undefined.trials) == ("order_agreement", len(rows))
+    assert undefined.subjects == len({row.subject for row in rows})
+    assert "order_agreement" not in {row.measure for row in [*results.cells, *results.anova]}
+    assert {row.measure for row in results.cells} == {"regret", "kl", "reward_l2"}
 
 
 def test_a_run_of_format_6_is_analysed() -> None:

@@ -135,7 +135,13 @@ def test_every_missing_field_is_a_fault(field: str) -> None:
         ("gradient_ascent", {"steps": 0, "learning_rate": 0.1}, "Expected `int` >= 1"),
         (
             "measures",
-            {"regret": 1.0, "kl": 1.0, "reward_l2": -1.0, "regret_under_estimate": 1.0},
+            {
+                "regret": 1.0,
+                "kl": 1.0,
+                "reward_l2": -1.0,
+                "regret_under_estimate": 1.0,
+                "order_agreement": 0.5,
+            },
             "measures.reward_l2 is -1.0 < 0",
         ),
         ("demonstration", {"states": [[2, 2]], "actions": ["up"]}, "Invalid enum value 'up'"),

@@ -97,10 +97,12 @@ def test_every_pair_is_compared_in_every_cell(study: tuple[Path, str, dict]) -> 
     pairs = results["pairwise"]
     humans = [r for r in pairs if r["factor"] == "policy"]
     robots = [r for r in pairs if r["factor"] == "robot"]
-    assert len(humans) == 3 * 3 * 2  # measures x pairs of humans x robots
-    assert len(robots) == 3 * 1 * 3  # measures x pairs of robots x humans
+    measures = len(analysed_measures())
+    assert len(humans) == measures * 3 * 2  # measures x pairs of humans x robots
+    assert len(robots) == measures * 1 * 3  # measures x pairs of robots x humans
     assert {(r["level_a"], r["level_b"]) for r in robots} == {("map", "posterior_mean")}
-    assert all(r["n"] == 8 and r["p_holm"] >= r["p"] for r in pairs)
+    # order agreement may not differ at all between two robots: a test of no variance, p null
+    assert all(r["n"] == 8 and (r["p"] is None or r["p_holm"] >= r["p"]) for r in pairs)
     baseline = results["against_baseline"]
     assert {r["level"] for r in baseline} == {"best_response", "first_step"}
 
@@ -163,8 +165,9 @@ def test_a_human_identical_to_another_is_analysed_without_an_error(tmp_path: Pat
     assert result.stderr == ""
     results = json.loads((run / "report" / "results.json").read_text())
     policy = [row for row in results["anova"] if row["effect"] == "policy"]
-    assert len(policy) == 3 and all(row["F"] is None and row["p"] is None for row in policy)
+    measures = len(analysed_measures())
+    assert len(policy) == measures and all(row["F"] is None and row["p"] is None for row in policy)
     wilcoxon = results["paper"]["wilcoxon"]
-    assert len(wilcoxon) == 6 and all(row["p"] is None for row in wilcoxon)
+    assert len(wilcoxon) == 2 * measures and all(row["p"] is None for row in wilcoxon)
     verdicts = {claim["id"]: claim["reproduced"] for claim in results["claims"]}
     assert verdicts["policy_effect"] is False and verdicts["tukey_br_ahead"] is False

@@ -36,7 +36,7 @@ from matplotlib.lines import Line2D
 from matplotlib.textpath import TextPath
 from numpy.typing import NDArray
 
-from cirl_study.analysis.markdown import svg_name
+from cirl_study.analysis.markdown import HIGHER_IS_BETTER, svg_name
 from cirl_study.core.gridworld import feature_matrix
 from cirl_study.core.measure_registry import MEASURES, analysed_measures
 from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord
@@ -373,16 +373,21 @@ def measure_label(measure: str) -> str:
 
 
 def _titled(measure: str) -> str:
-    """A panel's title: the measure's label, and where a higher value is better, that."""
-    higher = "" if MEASURES[measure].lower_is_better else " (higher is better)"
+    """A panel's title: the measure's label, marked with
+    :data:`~cirl_study.analysis.markdown.HIGHER_IS_BETTER` where a higher value is better."""
+    higher = "" if MEASURES[measure].lower_is_better else f" {HIGHER_IS_BETTER}"
     return measure_label(measure) + higher
 
 
 def better(measures: Sequence[str]) -> str:
-    """Which way is better, for the figure of ``measures``: lower, unless a panel says so."""
-    if all(MEASURES[measure].lower_is_better for measure in measures):
+    """Which way is better, for a figure of ``measures``: lower, higher, or lower but where a
+    panel is marked as a score (:func:`_titled`)."""
+    lower = {MEASURES[measure].lower_is_better for measure in measures}
+    if lower == {True}:
         return "Lower is better"
-    return "Lower is better unless a panel says higher"
+    if lower == {False}:
+        return "Higher is better"
+    return f"Lower is better, higher where marked {HIGHER_IS_BETTER}"
 
 
 def measure_bars(cells: pd.DataFrame, measures: Sequence[str], title: str) -> Rendered:
@@ -398,7 +403,7 @@ def measure_bars(cells: pd.DataFrame, measures: Sequence[str], title: str) -> Re
     positions = np.arange(len(levels), dtype=np.float64)
     width = 0.38
     with matplotlib.style.context("default"), rc_context(STYLE):
-        figure = _new_figure(max(5.0, 10.0 * len(measures) / 3), 3.4)
+        figure = _new_figure(max(6.0, 10.0 * len(measures) / 3), 3.4)
         axes = _panels(figure, 1, len(measures), Margins(bottom=0.75, across=0.7))[0]
         for panel, measure in zip(axes, measures, strict=True):
             for offset, policy in zip((-width / 2, width / 2), PAPER_POLICIES, strict=True):
@@ -446,10 +451,10 @@ def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str
     """Every measure's mean with its 95% CI by human (groups) and robot (bars), of each measure
     the analysis tests (:func:`~cirl_study.core.measure_registry.analysed_measures`) that has a
     cell: a row of panels per feature level, the measures across; or, with more than
-    :data:`WIDE_CELLS`
-    bars a panel (up to 8 humans and 4 robots), a row per measure, the feature levels across.
-    Each panel labels its measure; a human's name is broken at its underscores, so the names
-    of 8 humans fit under a panel side by side.
+    :data:`WIDE_CELLS` bars a panel (up to 8 humans and 4 robots), a row per measure, the
+    feature levels across. The figure is 11 inches wide, wider beyond three panels across so
+    that each stays readable. Each panel labels its measure; a human's name is broken at its
+    underscores, so the names of 8 humans fit under a panel side by side.
 
     Args:
         cells: rows ``measure, num_features, policy, robot, mean, ci95_low, ci95_high``.
@@ -464,7 +469,7 @@ def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str
     if len(humans) * len(robots) > WIDE_CELLS:
         panels = [[(level, measure) for level in levels] for measure in measures]
     with matplotlib.style.context("default"), rc_context(STYLE):
-        figure = _new_figure(11.0, 2.9 * len(panels) + 0.8)
+        figure = _new_figure(max(11.0, 3.65 * len(panels[0])), 2.9 * len(panels) + 0.8)
         grid = _panels(figure, len(panels), len(panels[0]), Margins(bottom=0.95, down=0.9))
         for axes_row, panel_row in zip(grid, panels, strict=True):
             for panel, (level, measure) in zip(axes_row, panel_row, strict=True):

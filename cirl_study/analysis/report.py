@@ -102,9 +102,11 @@ def _hypothesis_space(teaching: Teaching) -> str:
 
 
 def _directions() -> str:
-    """One sentence: which measures the analysis tests are losses, and which scores."""
-    losses = [measure_name(m) for m in analysed_measures() if MEASURES[m].lower_is_better]
-    scores = [measure_name(m) for m in analysed_measures() if not MEASURES[m].lower_is_better]
+    """One sentence: the measures the analysis tests, with their units, which are losses and
+    which scores."""
+    named = {m: f"{measure_name(m)} ({MEASURES[m].unit})" for m in analysed_measures()}
+    losses = [text for m, text in named.items() if MEASURES[m].lower_is_better]
+    scores = [text for m, text in named.items() if not MEASURES[m].lower_is_better]
     sentence = f"The measures: {_listed(losses)} {'are losses' if losses[1:] else 'is a loss'} "
     sentence += "(lower is better)"
     if scores:

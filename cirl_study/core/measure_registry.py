@@ -132,6 +132,7 @@ def measure_faults(measures: Mapping[str, object]) -> list[str]:
         ...     print(fault)
         measures.x is not a registered measure
         measures has no regret_under_estimate
+        measures has no order_agreement
         measures.regret is -0.5 < 0
         measures.kl is nan, not a finite number
         measures.reward_l2 is null, but every record has a value of it
@@ -177,4 +178,11 @@ register_measure(
             label="regret under the estimate", short="regret under the estimate",
             unit="reward", minimum=0.0, analysed=False,
             undefined="in a record of a log format before 7, which did not log it"),
+)  # fmt: skip
+register_measure(
+    "order_agreement",
+    Measure("cirl_study.core.order_agreement:order_agreement", label="feature order agreement",
+            short="order agreement", unit="fraction", lower_is_better=False, minimum=0.0,
+            maximum=1.0, undefined="where theta has no two different weights, and in a record "
+            "of a log format before 8, which did not log it"),
 )  # fmt: skip

@@ -112,7 +112,7 @@ def record_payload(data: bytes, log_format: str) -> bytes:
     >>> record_payload(b'{"robot":"literal","universe":"sigma=1.5,centres=shared"}', "5")
     b'{"gradient_ascent":null,"robot":"literal_observer","universe":"sigma=1.5,centers=shared"}'
     >>> record_payload(b'{"measures":{"kl":1.5,"regret":0.25,"reward_l2":2.0}}', "6")
-    b'{"gradient_ascent":null,"measures":{"kl":1.5,"regret":0.25,"regret_under_estimate":null,"reward_l2":2.0}}'
+    b'{"gradient_ascent":null,"measures":{"kl":1.5,"order_agreement":null,"regret":0.25,"regret_under_estimate":null,"reward_l2":2.0}}'
     """
     if log_format == LOG_FORMAT:
         return data
