@@ -206,3 +206,15 @@ def test_rounding_past_a_range_is_tolerated() -> None:
     assert measure_faults(measures) == []
     del measures["kl"]
     assert measure_faults(measures) == ["measures has no kl"]
+
+
+def one_value(outcome: Outcome) -> list[float]:
+    """A computation that returns one value whatever the batch."""
+    return [1.0]
+
+
+def test_a_computation_of_another_length_is_refused() -> None:
+    measure = Measure(f"{__name__}:one_value", label="x", short="x", unit="x")
+    outcome = Outcome(game=None, theta=np.zeros((2, 3)), theta_hat=np.zeros((2, 3)))
+    with pytest.raises(ValueError, match=r"one_value returned 1 values for 2 trials"):
+        measure.computed(outcome)

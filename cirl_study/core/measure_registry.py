@@ -87,9 +87,17 @@ class Measure:
 
     def computed(self, outcome: Outcome) -> list[float | None]:
         """The measure of every trial of ``outcome``: a float (converted from the
-        computation's number) or ``None``, in order."""
+        computation's number) or ``None``, in order.
+
+        Raises:
+            ValueError: the computation returned another number of values than trials.
+        """
         module, _, function = self.compute.partition(":")
         values = getattr(importlib.import_module(module), function)(outcome)
+        if len(values) != len(outcome.theta):
+            raise ValueError(
+                f"{self.compute} returned {len(values)} values for {len(outcome.theta)} trials"
+            )
         return [None if value is None else float(value) for value in values]
 
 
