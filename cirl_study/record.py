@@ -21,12 +21,12 @@ Notation as in the paper: ``theta`` the true reward weights :math:`\\theta \\in 
 from __future__ import annotations
 
 import hashlib
-import math
 import sys
 from typing import Annotated, Literal
 
 import msgspec
 
+from cirl_study.core.measure_registry import MEASURES
 from cirl_study.features import Features
 
 MAIN, ETA_CV, LAMBDA_SWEEP = "main", "eta_cv", "lambda_sweep"
@@ -60,14 +60,6 @@ one robot whose estimate may leave :math:`[-1, 1]^K`."""
 LITERAL_OBSERVER, PRAGMATIC = "literal_observer", "pragmatic"
 """The robots of a hypothesis space: Bayes with the literal likelihood, and Bayes assuming the
 pedagogic human (Fisac et al. 2017; :mod:`cirl_study.core.teaching`)."""
-
-MEASURES: tuple[str, ...] = ("regret", "kl", "reward_l2")
-"""The three dependent measures of docs/design.md §4, in the paper's order: those the analysis
-tests."""
-
-LOGGED_MEASURES: tuple[str, ...] = (*MEASURES, "regret_under_estimate")
-"""Every measure a record logs (:class:`Measures`) and the trial table holds: the paper's three
-and the second reading of regret."""
 
 Block = Literal["main", "eta_cv", "lambda_sweep"]
 DeploymentStart = Literal["uniform", "demonstration"]
@@ -103,25 +95,23 @@ class Demonstration(msgspec.Struct, **_STRUCT):
     actions: tuple[Action, ...]
 
 
-class Measures(msgspec.Struct, **_STRUCT):
-    """The trial's dependent measures (docs/design.md §4); all finite.
+Finite = Annotated[float, msgspec.Meta(ge=-sys.float_info.max, le=sys.float_info.max)]
+"""A finite number (not an infinity, not NaN)."""
 
-    ``regret`` is :math:`V^*_\\theta - V^{\\pi_{\\hat\\theta}}_\\theta` (values under the true
-    reward), ``regret_under_estimate`` the paper's other reading,
-    :math:`V^*_{\\hat\\theta} - V^{\\pi_\\theta}_{\\hat\\theta}` (both under the estimate);
-    ``null`` in a record of a format that did not log it (before 7,
-    :mod:`cirl_study.logs.versions`).
-    """
+Measures = dict[str, Finite | None]
+"""A trial's measures (docs/design.md §4), by the names of the measure registry
+(:data:`~cirl_study.core.measure_registry.MEASURES`): each a finite number, or ``null`` where the
+trial has none (its measure is undefined for it, or its log format did not log it).
 
-    regret: float
-    kl: float
-    reward_l2: Annotated[float, msgspec.Meta(ge=0.0)]
-    regret_under_estimate: float | None
-
-    def __post_init__(self) -> None:
-        values = (self.regret, self.kl, self.reward_l2, self.regret_under_estimate)
-        if not all(value is None or math.isfinite(value) for value in values):
-            raise ValueError("every measure must be a finite number")
+A mapping, checked against the registry when a record is logged or read
+(:func:`~cirl_study.core.measure_registry.measure_faults`: every registered name and no other,
+finite values, ``null`` only where the measure allows it, values in range; a NaN, which JSON
+would write as ``null``, is refused before it is logged, naming the trial), rather than a
+Struct generated from the registry: a Struct is fixed once this module is imported, where a
+measure may be registered later (by a script, or a test), and a record of an earlier format,
+which lacks the measures added since, would need a type of its own. The JSON is the same
+object of numbers either way.
+"""
 
 
 class FitDiagnostics(msgspec.Struct, **_STRUCT):
@@ -236,7 +226,10 @@ class TrialRow(msgspec.Struct, **_STRUCT):
 
     A record holds its paths, rollouts and reward draw, a row a dozen numbers and names, so a
     run of a million trials is read one file at a time into rows (:meth:`of`) and analysed in
-    memory. ``converged``: the robot's estimate met its stopping rule (``irl.converged``; a
+    memory. ``measures``: the record's measures in the order of the registry
+    (:data:`~cirl_study.core.measure_registry.MEASURES`, as it was when the row was made; by name
+    with :meth:`measure`), a tuple rather than the record's mapping: about 100 bytes less
+    a row. ``converged``: the robot's estimate met its stopping rule (``irl.converged``; a
     record without a fit report counts as converged). ``draw``: a
     digest of the subject's reward draw (``num_features``, ``theta``, the features, the grid
     and the start cell), equal for two records exactly when their draws are (up to a
@@ -254,7 +247,7 @@ class TrialRow(msgspec.Struct, **_STRUCT):
     rationality: float
     eta: float | None
     seed: int
-    measures: Measures
+    measures: tuple[float | None, ...]
     converged: bool
     draw: str
 
@@ -273,10 +266,14 @@ class TrialRow(msgspec.Struct, **_STRUCT):
             rationality=record.rationality,
             eta=record.eta,
             seed=record.seed,
-            measures=record.measures,
+            measures=tuple(record.measures[name] for name in MEASURES),
             converged=record.irl is None or record.irl.converged,
             draw=draw_digest(record),
         )
+
+    def measure(self, name: str) -> float | None:
+        """The value of the measure ``name``, ``None`` where the trial has none."""
+        return self.measures[list(MEASURES).index(name)]
 
 
 def setting_faults(spec: TrialSpec) -> list[str]:

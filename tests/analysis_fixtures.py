@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from cirl_study.core.gridworld import Gridworld, rbf_features
+from cirl_study.core.order_agreement import agreement
 from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord, TrialRow, from_builtins
 from cirl_study.study.pipeline_file import parse_pipeline
 from cirl_study.study.spec import Pipeline
@@ -67,7 +68,8 @@ def _record(
     scale: float,
 ) -> TrialRecord:
     """One trial whose losses grow with ``scale``: regret and KL drawn around it, theta_hat
-    off theta by noise of that size, reward_l2 computed from theta and theta_hat."""
+    off theta by noise of that size, reward_l2 and order_agreement computed from theta and
+    theta_hat."""
     eta_part = "none" if eta is None else f"{eta:g}"
     theta_hat = np.clip(np.asarray(theta) + rng.normal(0, 0.3 * scale, len(theta)), -1, 1)
     return from_builtins(
@@ -94,6 +96,7 @@ def _record(
                 "kl": 2.7 * scale * float(np.exp(rng.normal(0, 0.3))),
                 "reward_l2": _reward_l2(np.asarray(theta), theta_hat, centers),
                 "regret_under_estimate": 1.5 * regret,
+                "order_agreement": agreement([theta], [theta_hat])[0],
             },
         }
     )

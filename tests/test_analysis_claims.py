@@ -15,8 +15,8 @@ from analysis_fixtures import pipeline, rows, synthetic_records
 
 from cirl_study.analysis.result_types import ClaimRow
 from cirl_study.analysis.results import analyse, with_claims
+from cirl_study.core.measure_registry import PAPER_MEASURES
 from cirl_study.errors import UserError
-from cirl_study.record import MEASURES
 
 CLAIM_IDS = [
     "policy_effect",
@@ -57,14 +57,18 @@ def _cell(results: dict, measure: str, level: int, policy: str) -> dict:
 
 
 def _within_level_tukey(results: dict) -> list[dict]:
-    return [r for r in results["paper"]["tukey_hsd"] if r["a_num_features"] == r["b_num_features"]]
+    return [
+        r
+        for r in results["paper"]["tukey_hsd"]
+        if r["a_num_features"] == r["b_num_features"] and r["measure"] in PAPER_MEASURES
+    ]
 
 
 @pytest.fixture(scope="module")
 def holding() -> dict:
     """Results of a synthetic study, edited so that every paper claim holds."""
     results = analyse(rows(synthetic_records(subjects_per_level=10)), pipeline("synthetic"))
-    for measure in MEASURES:
+    for measure in PAPER_MEASURES:
         _anova(results, measure, "policy").update(F=1000.0, p=1e-12)
         _anova(results, measure, "policy:num_features").update(p=1e-3)
         for level, gap in ((3, 2.0), (10, 1.0)):

@@ -137,8 +137,8 @@ def test_figure1_draws_every_step_and_names_each_regret(pair):
     )
     figure = figures.reward_figure(stays, best, "draw")
     true_map, stayed, moved = figure.axes[:3]
-    assert stayed.get_title().startswith(f"expert: regret {stays.measures.regret:.3g}")
-    assert moved.get_title().startswith(f"best response: regret {best.measures.regret:.3g}")
+    assert stayed.get_title().startswith(f"expert: regret {stays.measures['regret']:.3g}")
+    assert moved.get_title().startswith(f"best response: regret {best.measures['regret']:.3g}")
     assert all(axes.get_xlabel() == "x (cell)" for axes in (true_map, stayed, moved))
     # Two stays on the start cell: two rings, the second larger; the step label covers both.
     rings = [line for line in stayed.get_lines() if line.get_markerfacecolor() == "none"]

@@ -17,11 +17,12 @@ from cirl_study.analysis import report
 from cirl_study.analysis.markdown import anchor
 from cirl_study.analysis.report import write_report
 from cirl_study.analysis.table import trial_table
+from cirl_study.core.measure_registry import analysed_measures
 from cirl_study.errors import UserError
 from cirl_study.record import TrialRecord
 from cirl_study.study.eta_cv import choose_etas
 
-FIGURES = {"figure1_reward_maps", "figure2_measures", "figure2_lambda", "eta_cv"}
+FIGURES = {"figure1_reward_maps", "figure2_measures", "other_measures", "figure2_lambda", "eta_cv"}
 FILES = {
     "report.md",
     "results.json",
@@ -85,7 +86,7 @@ def test_results_json_holds_every_section_at_full_precision(reports, records):
                 row
             )
         assert {(r["measure"], r["effect"]) for r in anova} == {
-            (m, e) for m in ("regret", "kl", "reward_l2") for e in effects
+            (m, e) for m in analysed_measures() for e in effects
         }
     table = trial_table(rows(records))
     main = table[table["block"] == "main"]

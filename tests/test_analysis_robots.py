@@ -233,7 +233,7 @@ def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
         "policy:robot", "policy:robot:num_features",
     }  # fmt: skip
     regret = [r for r in robots["main"] if r["measure"] == "regret"]
-    by_cell = {(r.subject, r.policy, r.robot): r.measures.regret for r in two if r.block == MAIN}
+    by_cell = {(r.subject, r.policy, r.robot): r.measure("regret") for r in two if r.block == MAIN}
     for row in regret:
         differences = [
             by_cell[s, row["policy"], POSTERIOR_MEAN] - by_cell[s, row["policy"], MAP]

@@ -24,7 +24,7 @@ from scipy import stats
 from cirl_study.analysis import statistics
 from cirl_study.analysis.anova import repeated_measures_anova
 from cirl_study.analysis.table import trial_table
-from cirl_study.record import MEASURES
+from cirl_study.core.measure_registry import PAPER_MEASURES
 
 ANOVA_ORDER = ["num_features", "policy", "policy:num_features"]
 """The references' row order: between, within, interaction (ours too)."""
@@ -377,7 +377,7 @@ def test_eta_means_are_the_best_responses_mean_regret_per_level_and_eta():
 
 def test_lambda_sweep_has_one_row_per_measure_lambda_policy_and_level():
     table = trial_table(rows(synthetic_records(subjects_per_level=3, lambdas=(0.1, 1.0, 10.0))))
-    sweep = statistics.lambda_sweep(table[table["block"] == "lambda_sweep"], MEASURES)
+    sweep = statistics.lambda_sweep(table[table["block"] == "lambda_sweep"], PAPER_MEASURES)
     assert len(sweep) == 3 * 3 * 2 * 2
     assert set(sweep["n"]) == {3}
 

@@ -10,7 +10,8 @@ import msgspec
 import pytest
 from analysis_fixtures import rows, synthetic_records
 
-from cirl_study.analysis.table import COLUMNS, check_design, trial_table
+from cirl_study.analysis.table import check_design, columns, trial_table
+from cirl_study.core.measure_registry import MEASURES
 from cirl_study.errors import UserError
 from cirl_study.record import TrialRecord, TrialRow, from_builtins, to_builtins
 
@@ -22,15 +23,15 @@ def records() -> list[TrialRecord]:
 
 def test_one_row_per_record_with_the_documented_columns(records):
     table = trial_table(rows(records))
-    assert list(table.columns) == list(COLUMNS)
+    assert list(table.columns) == list(columns())
     assert len(table) == len(records)
     by_id = {record.trial_id: record for record in records}
     for row in table.itertuples(index=False):
         record = by_id[row.trial_id]
         assert row.subject == record.subject and row.policy == record.policy
-        assert row.regret == record.measures.regret
-        assert row.kl == record.measures.kl
-        assert row.reward_l2 == record.measures.reward_l2
+        assert row.regret == record.measures["regret"]
+        assert row.kl == record.measures["kl"]
+        assert row.reward_l2 == record.measures["reward_l2"]
         assert math.isnan(row.eta) if record.eta is None else row.eta == record.eta
 
 
@@ -54,9 +55,8 @@ def test_row_order_is_sorted_and_independent_of_record_order(records):
 @pytest.mark.parametrize(
     ("path", "value", "where"),
     [
-        (("measures",), {"regret": 1.0, "kl": 1.0}, "$.measures"),
-        (("measures", "kl"), "high", "$.measures.kl"),
-        (("measures", "kl"), math.inf, "$.measures"),
+        (("measures", "kl"), "high", "$.measures[...]"),
+        (("measures", "kl"), math.inf, "$.measures[...]"),
         (("num_features",), 2.5, "$.num_features"),
         (("rationality",), 0, "$.rationality"),
         (("eta",), "none", "$.eta"),
@@ -150,7 +150,7 @@ def test_a_row_keeps_the_identity_measures_and_a_digest_of_the_draw():
     row = TrialRow.of(first)
     for name in ("trial_id", "run_id", "block", "subject", "policy", "robot", "eta", "seed"):
         assert getattr(row, name) == getattr(first, name)
-    assert row.measures == first.measures and row.converged
+    assert {name: row.measure(name) for name in MEASURES} == first.measures and row.converged
     same_draw = msgspec.structs.replace(first, trial_id="other", theta_hat=second.theta_hat)
     assert TrialRow.of(same_draw).draw == row.draw
     for change in (

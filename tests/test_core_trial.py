@@ -8,6 +8,7 @@ import path_enumeration as bf
 import pytest
 
 from cirl_study.core.estimate import Estimate
+from cirl_study.core.measure_registry import PAPER_MEASURES
 from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot, register_human, register_robot
 from cirl_study.core.trial import (
     check_playable,
@@ -19,11 +20,9 @@ from cirl_study.core.trial import (
 from cirl_study.features import RBFFeatures
 from cirl_study.record import (
     MAP,
-    MEASURES,
     Deployment,
     FitDiagnostics,
     Grid,
-    Measures,
     TrialRecord,
     TrialSpec,
     decode,
@@ -153,8 +152,8 @@ def test_record_has_every_field_of_the_contract_and_is_plain_json(played):
         assert data["features"]["centers"] == [list(c) for c in CENTERS]
         assert record.features.sigma == SIGMA
         assert record.theta == spec.theta
-        assert isinstance(record.measures, Measures)
-        assert set(data["measures"]) >= set(MEASURES) == {"regret", "kl", "reward_l2"}
+        assert isinstance(record.measures, dict)
+        assert set(data["measures"]) >= set(PAPER_MEASURES) == {"regret", "kl", "reward_l2"}
         assert isinstance(record.irl, FitDiagnostics)
         assert set(data["irl"]) >= {"log_likelihood", "iterations", "converged"}
         assert isinstance(record.deployment, Deployment)
@@ -201,12 +200,12 @@ def test_measures_equal_the_brute_force_measures_of_the_record(played):
         measures = record.measures
         want_regret = bf.regret(width, height, features, theta, theta_hat, horizon)
         want_kl = bf.kl(width, height, features, theta, theta_hat, horizon, rationality)
-        assert measures.regret == pytest.approx(want_regret, abs=1e-12)
-        assert measures.kl == pytest.approx(want_kl, rel=1e-8, abs=1e-12)
-        assert measures.reward_l2 == pytest.approx(
+        assert measures["regret"] == pytest.approx(want_regret, abs=1e-12)
+        assert measures["kl"] == pytest.approx(want_kl, rel=1e-8, abs=1e-12)
+        assert measures["reward_l2"] == pytest.approx(
             bf.reward_l2(features, theta, theta_hat), rel=1e-12
         )
-        assert measures.regret >= -1e-12 and measures.kl >= 0.0
+        assert measures["regret"] >= -1e-12 and measures["kl"] >= 0.0
 
 
 def test_deployment_paths_are_optimal_for_theta_hat(played):
@@ -250,7 +249,7 @@ def test_the_true_reward_is_not_recovered_by_a_broken_demonstration(played):
     record = records[1]
     width, height, features, _ = _context(record)
     wrong = [-v for v in record.theta_hat]
-    assert record.measures.reward_l2 != pytest.approx(
+    assert record.measures["reward_l2"] != pytest.approx(
         bf.reward_l2(features, record.theta, wrong), rel=1e-6
     )
 

@@ -40,8 +40,10 @@ def _in_current_names(table: pd.DataFrame, log_format: str) -> pd.DataFrame:
         table["robot"] = table["robot"].replace({"literal": "literal_observer"})
     table["trial_id"] = [versions.trial_id(t, log_format) for t in table["trial_id"]]
     # Format 7 logs the second reading of regret; an earlier record reads it as missing.
-    if int(log_format) < 7:
+    if "regret_under_estimate" not in table.columns:
         table.insert(table.columns.get_loc("reward_l2") + 1, "regret_under_estimate", math.nan)
+    # Format 8 logs the feature order agreement; an earlier record reads it as missing.
+    table.insert(table.columns.get_loc("regret_under_estimate") + 1, "order_agreement", math.nan)
     return table
 
 
@@ -71,31 +73,50 @@ def test_a_run_of_an_earlier_format_gives_its_trial_table_in_the_current_names(r
     got = cirl_study.load_trials(run).sort_values("trial_id").reset_index(drop=True)
     assert list(got.columns) == list(want.columns)
     assert set(got["robot"]) <= {"map", "literal_observer", "posterior_mean", "gradient_ascent"}
-    numbers = ["regret", "kl", "reward_l2", "eta", "rationality"]
-    missing = ["universe"] + (["regret_under_estimate"] if int(log_format) < 7 else [])
+    logged = ("regret_under_estimate",) if log_format >= "7" else ()
     for column in want.columns:
-        if column in numbers or column == "regret_under_estimate" and column not in missing:
+        if column in ("regret", "kl", "reward_l2", "eta", "rationality", *logged):
             pd.testing.assert_series_equal(
                 got[column].astype(float), want[column].astype(float), rtol=1e-15
             )
-        elif column in missing:
+        elif column in ("universe", "regret_under_estimate", "order_agreement"):
             assert got[column].isna().all() and want[column].isna().all()
         else:
             assert got[column].astype(str).tolist() == want[column].astype(str).tolist(), column
 
 
 def test_records_of_an_earlier_format_read_the_second_regret_as_missing() -> None:
-    for run in [run for run in OLD_RUNS if int(_log_format(run)) < 7]:
+    for run in (run for run in OLD_RUNS if _log_format(run) < "7"):
         rows = read_run(run).rows
-        assert rows and all(row.measures.regret_under_estimate is None for row in rows)
-        assert all(row.measures.regret >= 0 for row in rows)
+        assert rows and all(row.measure("regret_under_estimate") is None for row in rows)
+        assert all(row.measure("regret") >= 0 for row in rows)
 
 
-def test_a_run_of_format_7_is_analysed_with_a_fixed_horizon_and_no_tasks() -> None:
-    run = read_run(FIXTURES / "format-7-ascent")
-    assert {row.robot for row in run.rows} == {"map", "gradient_ascent"}
+def test_a_run_of_format_7_is_analysed() -> None:
     results = cirl_study.analyze(FIXTURES / "format-7-ascent")
     assert results.design.robots == ["map", "gradient_ascent"]
+
+
+def test_a_measure_a_format_did_not_log_is_left_out_and_said_so() -> None:
+    """Format 7 did not log the feature order agreement: its records read it as null, and the
+    analysis has no statistics of it, saying so."""
+    run = FIXTURES / "format-7-ascent"
+    rows = read_run(run).rows
+    assert rows and all(row.measure("order_agreement") is None for row in rows)
+    results = cirl_study.analyze(run)
+    (undefined,) = results.undefined
+    assert (undefined.measure, undefined.trials) == ("order_agreement", len(rows))
+    assert undefined.subjects == len({row.subject for row in rows})
+    assert "order_agreement" not in {row.measure for row in [*results.cells, *results.anova]}
+    assert {row.measure for row in results.cells} == {"regret", "kl", "reward_l2"}
+
+
+def test_records_before_format_8_read_a_fixed_horizon_and_no_task() -> None:
+    for run in OLD_RUNS:
+        contents = read_run(run)
+        records = contents.records(run, {row.trial_id for row in contents.rows})
+        assert records and all(r.goals == () and r.task is None for r in records)
+        assert {r.features.kind for r in records} == {"rbf"}
 
 
 def test_a_run_of_format_6_is_analysed() -> None:

@@ -12,6 +12,7 @@ import random
 from pathlib import Path
 from typing import Any
 
+from cirl_study.core.order_agreement import agreement
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.logs.record_checks import record_faults
@@ -127,6 +128,7 @@ def make_record(
         "kl": rng.uniform(0, 3),
         "reward_l2": l2,
         "regret_under_estimate": rng.uniform(0, 2),
+        "order_agreement": agreement([record["theta"]], [record["theta_hat"]])[0],
     }
     return from_builtins(record)
 

@@ -135,8 +135,14 @@ def test_every_missing_field_is_a_fault(field: str) -> None:
         ("gradient_ascent", {"steps": 0, "learning_rate": 0.1}, "Expected `int` >= 1"),
         (
             "measures",
-            {"regret": 1.0, "kl": 1.0, "reward_l2": -1.0, "regret_under_estimate": 1.0},
-            "Expected `float` >= 0.0",
+            {
+                "regret": 1.0,
+                "kl": 1.0,
+                "reward_l2": -1.0,
+                "regret_under_estimate": 1.0,
+                "order_agreement": 0.5,
+            },
+            "measures.reward_l2 is -1.0 < 0",
         ),
         ("demonstration", {"states": [[2, 2]], "actions": ["up"]}, "Invalid enum value 'up'"),
         ("num_features", True, "Expected `int`, got `bool`"),
@@ -252,6 +258,15 @@ INCONSISTENT = {
         "measures.regret_under_estimate is -0.5 < 0",
     ),
     "reward_l2 off": (_set("measures.reward_l2", 1.0), "measures.reward_l2 is 1.0 but"),
+    "a measure missing": (lambda r: r["measures"].pop("kl"), "measures has no kl"),
+    "a measure not registered": (
+        _set("measures.happiness", 1.0),
+        "measures.happiness is not a registered measure",
+    ),
+    "a null regret": (
+        _set("measures.regret", None),
+        "measures.regret is null, but every record has a value of it",
+    ),
     "a stay the game forbids": (_stay_while_stays_are_off, "demonstrator_stays is false"),
     "rollouts away from the start": (
         _deploy_from_the_start_elsewhere,

@@ -288,10 +288,10 @@ def test_a_deployment_from_the_demonstrations_start_is_measured_there(tmp_path: 
     )
     for at_start, uniform in zip(there, everywhere, strict=True):
         assert at_start.theta_hat == uniform.theta_hat  # the same demonstration and estimate
-        assert at_start.measures.reward_l2 == uniform.measures.reward_l2
+        assert at_start.measures["reward_l2"] == uniform.measures["reward_l2"]
         assert at_start.deployment.starts == (at_start.start,)
     assert any(
-        a.measures.regret != b.measures.regret for a, b in zip(there, everywhere, strict=True)
+        a.measures["regret"] != b.measures["regret"] for a, b in zip(there, everywhere, strict=True)
     )
 
 
@@ -593,9 +593,11 @@ def test_the_regret_reading_is_an_axis_that_plays_no_trial_of_its_own(tmp_path: 
 
 def test_a_universe_judged_by_regret_under_the_estimate_reads_it_as_regret(tmp_path: Path):
     from cirl_study.analysis.multiverse import judged_rows
-    from cirl_study.record import Measures, TrialRow
+    from cirl_study.core.measure_registry import MEASURES
+    from cirl_study.record import TrialRow
 
-    measures = Measures(regret=0.25, kl=1.0, reward_l2=2.0, regret_under_estimate=0.75)
+    logged = {"regret": 0.25, "kl": 1.0, "reward_l2": 2.0, "regret_under_estimate": 0.75}
+    measures = tuple(logged.get(name) for name in MEASURES)
     row = TrialRow(
         trial_id="t", run_id="r", universe="u", block="main", subject="s", policy="expert",
         robot="map", num_features=3, rationality=1.0, eta=None, seed=1, measures=measures,
@@ -607,10 +609,10 @@ def test_a_universe_judged_by_regret_under_the_estimate_reads_it_as_regret(tmp_p
     plain, estimate = pipeline.multiverse.universes
     assert judged_rows([row], plain) == [row]
     (judged,) = judged_rows([row], estimate)
-    assert judged.universe == estimate.id and judged.measures.regret == 0.75
-    assert judged.measures.kl == 1.0 and judged.trial_id == "t"
+    assert judged.universe == estimate.id and judged.measure("regret") == 0.75
+    assert judged.measure("kl") == 1.0 and judged.trial_id == "t"
     old = msgspec.structs.replace(
-        row, measures=msgspec.structs.replace(measures, regret_under_estimate=None)
+        row, measures=tuple({**logged, "regret_under_estimate": None}.get(n) for n in MEASURES)
     )
     with pytest.raises(UserError, match="judges regret under the estimate, which trial t does"):
         judged_rows([old], estimate)

@@ -170,7 +170,9 @@ def played(spec: TrialSpec, regret: float) -> TrialRecord:
         **fields,
         theta_hat=spec.theta,
         demonstration=Demonstration(states=(spec.start,), actions=()),
-        measures=Measures(regret=regret, kl=0.0, reward_l2=0.0, regret_under_estimate=0.0),
+        measures=Measures(
+            regret=regret, kl=0.0, reward_l2=0.0, regret_under_estimate=0.0, order_agreement=1.0
+        ),
     )
 
 

@@ -29,9 +29,10 @@ from cirl_study.cli import app
 from cirl_study.core.gridworld import Gridworld
 from cirl_study.core.hypotheses import MAX_PATHS, path_count
 from cirl_study.core.maxent import Phase
+from cirl_study.core.measure_registry import MEASURES, PAPER_MEASURES
 from cirl_study.errors import UserError
 from cirl_study.logs.validate import validate_run
-from cirl_study.record import MAIN, MEASURES, Measures, TrialRecord, TrialRow, encode
+from cirl_study.record import MAIN, TrialRecord, TrialRow, encode
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.pipeline_file import parse_pipeline
 from cirl_study.study.runner import run_pipeline
@@ -506,7 +507,7 @@ def synthetic_rows(
             for human in SYNTHETIC_HUMANS:
                 for robot in SYNTHETIC_ROBOTS:
                     value = level + shift.get((human, robot), 0.0)
-                    measures = {m: value + rng.normal(0.0, 0.05) for m in MEASURES}
+                    measures = {m: value + rng.normal(0.0, 0.05) for m in PAPER_MEASURES}
                     assert min(measures.values()) > 0
                     rows.append(
                         TrialRow(
@@ -521,7 +522,7 @@ def synthetic_rows(
                             rationality=1.0,
                             eta=None,
                             seed=int(rng.integers(0, 2**53)),
-                            measures=Measures(**measures, regret_under_estimate=None),
+                            measures=tuple(measures.get(m) for m in MEASURES),
                             converged=True,
                             draw=f"draw-of-{subject}",
                         )
@@ -563,10 +564,10 @@ def test_a_crossover_whose_loss_exceeds_its_gain_is_crossover_and_robustness(
     crossover = questions["milli_dragan_crossover"]
     robustness = questions["milli_dragan_robustness"]
     assert crossover["tested"] and crossover["reproduced"] is True
-    assert crossover["values"]["by_measure"] == {m: True for m in MEASURES}
+    assert crossover["values"]["by_measure"] == {m: True for m in PAPER_MEASURES}
     assert robustness["tested"] and robustness["reproduced"] is True
-    assert robustness["values"]["by_measure"] == {m: True for m in MEASURES}
-    for measure in MEASURES:
+    assert robustness["values"]["by_measure"] == {m: True for m in PAPER_MEASURES}
+    for measure in PAPER_MEASURES:
         effects = robot_effects(results, measure)
         assert math.isclose(effects["pedagogic"], -0.3, abs_tol=0.05), effects
         assert math.isclose(effects["literal"], 0.6, abs_tol=0.05), effects
@@ -582,11 +583,11 @@ def test_a_pragmatic_robot_better_under_both_humans_is_no_crossover(tmp_path: Pa
     questions = questions_of(results)
     assert questions["milli_dragan_crossover"]["reproduced"] is False
     assert questions["milli_dragan_crossover"]["values"]["by_measure"] == {
-        m: False for m in MEASURES
+        m: False for m in PAPER_MEASURES
     }
     assert questions["milli_dragan_robustness"]["reproduced"] is False
     assert questions["milli_dragan_robustness"]["values"]["by_measure"] == {
-        m: False for m in MEASURES
+        m: False for m in PAPER_MEASURES
     }
 
 
@@ -598,7 +599,7 @@ def test_a_crossover_whose_gain_exceeds_its_loss_is_not_robustness(tmp_path: Pat
     assert questions["milli_dragan_crossover"]["reproduced"] is True
     assert questions["milli_dragan_robustness"]["reproduced"] is False
     assert questions["milli_dragan_robustness"]["values"]["by_measure"] == {
-        m: False for m in MEASURES
+        m: False for m in PAPER_MEASURES
     }
 
 

@@ -52,10 +52,11 @@ from cirl_study.analysis.result_types import (
 from cirl_study.analysis.results import analyse, with_claims
 from cirl_study.analysis.table import trial_table
 from cirl_study.analysis.tails import chi2_tail
+from cirl_study.core.measure_registry import MEASURES
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.files import read_regular_file
-from cirl_study.record import LOGGED_MEASURES, MAIN, TrialRow
+from cirl_study.record import MAIN, TrialRow
 from cirl_study.study.multiverse import base_universe, universe_pipeline, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe
 
@@ -119,9 +120,9 @@ def _target_cell(row: dict[str, str | None], where: str) -> TargetCell:
         raise UserError(f"{where}: has more fields than the header")
     field = {name: (value or "").strip() for name, value in row.items()}
     measure = field["measure"]
-    if measure not in LOGGED_MEASURES:
+    if measure not in MEASURES:
         raise UserError(
-            f"{where}: measure must be one of {', '.join(LOGGED_MEASURES)}, got {terminal(measure)}"
+            f"{where}: measure must be one of {', '.join(MEASURES)}, got {terminal(measure)}"
         )
     features = field["num_features"]
     if not features.isdigit() or int(features) < 1:
@@ -283,13 +284,14 @@ def ranked_distances(
 def cell_means(main: pd.DataFrame) -> dict[str, dict[CellKey, Measured]]:
     """Per universe id (``""`` in a single study), per cell of the trial table ``main`` (of
     the ``main`` block, each universe's rows as it analyses them): ``(n, mean, sd)`` of each
-    logged measure over the trials that hold it (``regret_under_estimate`` is missing from
-    records of log formats before 7: a cell none of whose trials holds it is left out, and
-    a target naming it is then told the universe lacks the cell)."""
+    registered measure (:data:`~cirl_study.core.measure_registry.MEASURES`) over the trials
+    that hold a value of it (a measure may be undefined for a trial, or missing from records of
+    a log format before it: a cell none of whose trials holds it is left out, and a target
+    naming it is then told the universe lacks the cell)."""
     main = main.assign(universe=main["universe"].fillna(""))
     keys = ["universe", "num_features", "policy", "robot"]
     means: dict[str, dict[CellKey, Measured]] = {}
-    for measure in LOGGED_MEASURES:
+    for measure in MEASURES:
         grouped = main.groupby(keys, sort=True)[measure].agg(["count", "mean", "std"])
         for (universe, k, policy, robot), row in grouped.iterrows():
             if row["count"] == 0:

@@ -19,7 +19,7 @@ import pandas as pd
 
 from cirl_study import escape
 from cirl_study.analysis import figures
-from cirl_study.analysis.markdown import MEASURE_NAMES, document, number, p_text, table
+from cirl_study.analysis.markdown import document, measure_name, number, p_text, table
 from cirl_study.analysis.multiverse import level_label
 from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.result_types import CalibrationResults, Refinement, UniverseDistance
@@ -101,7 +101,7 @@ def _cells(results: CalibrationResults) -> list[str]:
         compared = [u.cells[position] for u in ranked]
         rows.append(
             [
-                MEASURE_NAMES[cell.measure],
+                measure_name(cell.measure),
                 str(cell.num_features),
                 escape.markdown(cell.policy + (f" ({cell.robot})" if cell.robot else "")),
                 number(cell.value),

@@ -14,7 +14,9 @@ reproduced. Claims from another analysis (the office-supplies theory results) ar
 with :func:`external_claims`.
 
 The rules, on the paper's tests (results ``paper``, the reference robot's trials of the expert
-and the best response) unless they say otherwise:
+and the best response) unless they say otherwise, and on the paper's three measures
+(:data:`~cirl_study.core.measure_registry.PAPER_MEASURES`, each a loss), the measures every
+claim was made on, whatever else is registered:
 
 1. ``policy_effect``: for every measure the policy effect has ``p < .0001`` and the best
    response's mean over the main block is below the expert's.
@@ -59,7 +61,7 @@ from cirl_study.analysis.cells import (
     Cells,
     Design,
 )
-from cirl_study.analysis.markdown import MEASURE_NAMES, number, p_text, p_value
+from cirl_study.analysis.markdown import measure_name, number, p_text, p_value
 from cirl_study.analysis.measure_rows import plain
 from cirl_study.analysis.result_types import (
     AnovaEffect,
@@ -68,13 +70,13 @@ from cirl_study.analysis.result_types import (
     PairedDifference,
     StudyResults,
 )
+from cirl_study.core.measure_registry import PAPER_MEASURES
 from cirl_study.errors import UserError
 from cirl_study.record import (
     BEST_RESPONSE,
     EXPERT,
     LITERAL,
     MAP,
-    MEASURES,
     PEDAGOGIC,
 )
 
@@ -164,23 +166,23 @@ def _f_text(row: AnovaEffect) -> str:
 
 def _policy_effect(results: StudyResults) -> Verdict:
     values, parts, holds = {}, [], True
-    for measure in MEASURES:
+    for measure in PAPER_MEASURES:
         row = _anova(results, measure, "policy")
         expert = _policy_mean(results, measure, EXPERT)
         best = _policy_mean(results, measure, BEST_RESPONSE)
         values[measure] = {"F": row.F, "p": row.p, "mean_expert": expert, "mean_br": best}
         holds &= _below(row.p, PAPER_P) and best < expert
         parts.append(
-            f"{MEASURE_NAMES[measure]}: best response {_num(best)} vs expert {_num(expert)}, "
+            f"{measure_name(measure)}: best response {_num(best)} vs expert {_num(expert)}, "
             f"{_f_text(row)}"
         )
     return Verdict("; ".join(parts), values, holds)
 
 
 def _policy_f(results: StudyResults) -> Verdict:
-    values = {m: _anova(results, m, "policy").F for m in MEASURES}
+    values = {m: _anova(results, m, "policy").F for m in PAPER_MEASURES}
     return Verdict(
-        "; ".join(f"{MEASURE_NAMES[m]}: F = {_num(f)}" for m, f in values.items()),
+        "; ".join(f"{measure_name(m)}: F = {_num(f)}" for m, f in values.items()),
         values,
         all(f is not None and f > PAPER_F for f in values.values()),
     )
@@ -190,14 +192,14 @@ def _interaction(results: StudyResults) -> Verdict:
     levels = results.design.feature_levels
     low, high = min(levels), max(levels)
     values, parts, holds = {}, [], True
-    for measure in MEASURES:
+    for measure in PAPER_MEASURES:
         row = _anova(results, measure, "policy:num_features")
         gaps = {low: _gap(results, measure, low), high: _gap(results, measure, high)}
         values[measure] = {"F": row.F, "p": row.p, **{f"gap_{k}": g for k, g in gaps.items()}}
         if measure != "regret":
             holds &= _below(row.p, SIGNIFICANCE) and gaps[low] > gaps[high]
         parts.append(
-            f"{MEASURE_NAMES[measure]}: interaction {_f_text(row)}; gap {_num(gaps[low])} at "
+            f"{measure_name(measure)}: interaction {_f_text(row)}; gap {_num(gaps[low])} at "
             f"{low} vs {_num(gaps[high])} at {high} features"
         )
     return Verdict("; ".join(parts), values, holds)
@@ -218,7 +220,7 @@ def _tukey(results: StudyResults) -> Verdict:
     values, parts, holds = {}, [], True
     for row in results.paper.tukey_hsd:
         level = row.a_num_features
-        if level != row.b_num_features:
+        if level != row.b_num_features or row.measure not in PAPER_MEASURES:
             continue
         means = {row.a_policy: row.mean_a, row.b_policy: row.mean_b}
         holds &= means[BEST_RESPONSE] < means[EXPERT] and _below(row.p_tukey, SIGNIFICANCE)
@@ -228,7 +230,7 @@ def _tukey(results: StudyResults) -> Verdict:
             "log10_p_tukey": row.log10_p_tukey,
         }
         parts.append(
-            f"{MEASURE_NAMES[row.measure]} at {level}: best response minus expert "
+            f"{measure_name(row.measure)} at {level}: best response minus expert "
             f"{_num(means[BEST_RESPONSE] - means[EXPERT])}, p = {p_text(row.log10_p_tukey)}"
         )
     return Verdict("; ".join(parts), values, holds)
@@ -296,12 +298,12 @@ def _best_response_beats_expert(results: StudyResults) -> Verdict:
     robot = _paper_robot(results)
     effects = [
         _effect(results.against_baseline, m, robot=robot, num_features=k, level=BEST_RESPONSE)
-        for m in MEASURES
+        for m in PAPER_MEASURES
         for k in results.design.feature_levels
     ]
     return Verdict(
         "; ".join(
-            f"{MEASURE_NAMES[e.measure]} at K={e.num_features}: {_num(e.mean_diff)} "
+            f"{measure_name(e.measure)} at K={e.num_features}: {_num(e.mean_diff)} "
             f"(p_holm {p_value(e.p_holm)})"
             for e in effects
         ),
@@ -321,11 +323,11 @@ def _robot_effects(
 
 def _crossover(results: StudyResults) -> Verdict:
     crossover, measured = {}, []
-    for m in MEASURES:
+    for m in PAPER_MEASURES:
         with_pedagogic, with_literal = _robot_effects(results, m)
         crossover[m] = _signed(with_pedagogic, -1) and _signed(with_literal, 1)
         measured.append(
-            f"{MEASURE_NAMES[m]}: pragmatic - literal_observer {_num(with_pedagogic.mean_diff)} "
+            f"{measure_name(m)}: pragmatic - literal_observer {_num(with_pedagogic.mean_diff)} "
             f"(p_holm {p_value(with_pedagogic.p_holm)}) with a pedagogic human, "
             f"{_num(with_literal.mean_diff)} (p_holm {p_value(with_literal.p_holm)}) with a "
             "literal one"
@@ -335,13 +337,13 @@ def _crossover(results: StudyResults) -> Verdict:
 
 def _robustness(results: StudyResults) -> Verdict:
     robust, measured = {}, []
-    for m in MEASURES:
+    for m in PAPER_MEASURES:
         with_pedagogic, with_literal = _robot_effects(results, m)
         anova = _effect(results.milli_dragan.anova, m, effect="robot")
         mean_effect = (with_pedagogic.mean_diff + with_literal.mean_diff) / 2
         robust[m] = bool(_below(anova.p, SIGNIFICANCE) and mean_effect > 0)
         measured.append(
-            f"{MEASURE_NAMES[m]}: mean pragmatic - literal_observer {_num(mean_effect)}, robot "
+            f"{measure_name(m)}: mean pragmatic - literal_observer {_num(mean_effect)}, robot "
             f"F({anova.df1}, {anova.df2}) = {_num(anova.F)}, p = {p_value(anova.p)}"
         )
     return Verdict("; ".join(measured), {"by_measure": robust}, all(robust.values()))
@@ -351,6 +353,8 @@ def _versus(results: StudyResults) -> Verdict:
     ahead: dict[str, str] = {}
     measured = []
     for row in results.best_response_vs_pedagogic:
+        if row.measure not in PAPER_MEASURES:
+            continue
         key = f"{row.measure}:{row.robot}:{row.num_features}"
         if row.p_holm is None or row.p_holm >= SIGNIFICANCE:
             ahead[key] = "neither"

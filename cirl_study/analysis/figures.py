@@ -7,8 +7,9 @@ plus :data:`STYLE`, at a fixed size and :data:`DPI`, and saved as PNG without th
 
 - Figure 1 (:func:`reward_maps`): for one reward draw, the true reward map, and each
   policy's demonstration over the MAP reward map the robot inferred from it.
-- Figure 2 (:func:`measure_bars`, :func:`lambda_curve`): the three measures by policy and
-  feature level; the regret against the robot's rationality lambda.
+- Figure 2 (:func:`measure_bars`, :func:`lambda_curve`): the paper's three measures by policy
+  and feature level (and the other measures the analysis tests, in a figure of their own); the
+  regret against the robot's rationality lambda.
 - :func:`eta_curve`: the cross-validation of the best response's eta.
 - :func:`robot_difference_curve`: a run with two robots, the paired regret difference of
   the other robot to the reference against lambda.
@@ -35,10 +36,11 @@ from matplotlib.lines import Line2D
 from matplotlib.textpath import TextPath
 from numpy.typing import NDArray
 
-from cirl_study.analysis.markdown import svg_name
+from cirl_study.analysis.markdown import HIGHER_IS_BETTER, svg_name
 from cirl_study.core.gridworld import feature_matrix
+from cirl_study.core.measure_registry import MEASURES, analysed_measures
 from cirl_study.features import RBFFeatures, TileFeatures
-from cirl_study.record import BEST_RESPONSE, MEASURES, PAPER_POLICIES, TrialRecord
+from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord
 from cirl_study.workers import Call, call, started
 
 DPI = 120
@@ -60,11 +62,8 @@ own sans-serif."""
 
 POLICY_LABELS = {"expert": "expert", "best_response": "best response"}
 POLICY_COLOURS = {"expert": "#9e9e9e", "best_response": "#1f77b4"}
-MEASURE_LABELS = {
-    "regret": "regret",
-    "kl": "KL divergence",
-    "reward_l2": "reward L2 distance",
-}
+MEASURE_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
+"""Colours of the measures in the order of the registry (the calibration figure)."""
 LEVEL_MARKERS = ("o", "s", "^", "D", "v")
 POLICY_MARKERS = {"expert": "o", "best_response": "s"}
 DODGE = {"expert": 1 / 1.08, "best_response": 1.08}
@@ -368,8 +367,8 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
     limit = max(float(np.abs(values).max()) for values in maps) or 1.0
     titles = (
         "true reward",
-        f"expert: regret {expert.measures.regret:.3g}\n(over its MAP reward)",
-        f"best response: regret {best_response.measures.regret:.3g}\n(over its MAP reward)",
+        f"expert: regret {expert.measures['regret']:.3g}\n(over its MAP reward)",
+        f"best response: regret {best_response.measures['regret']:.3g}\n(over its MAP reward)",
     )
     with matplotlib.style.context("default"), rc_context(STYLE):
         # Square maps of MAP_SIZE inches; the colour bar to the right of the last one.
@@ -403,24 +402,51 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
         return figure
 
 
-def measure_bars(cells: pd.DataFrame) -> Rendered:
-    """Figure 2 (left, middle): each measure's mean with its 95% CI by policy and level.
+def measure_label(measure: str) -> str:
+    """A registered measure as the figures name it
+    (:attr:`~cirl_study.core.measure_registry.Measure.label`)."""
+    return MEASURES[measure].label
+
+
+def _titled(measure: str) -> str:
+    """A panel's title: the measure's label, marked with
+    :data:`~cirl_study.analysis.markdown.HIGHER_IS_BETTER` where a higher value is better."""
+    higher = "" if MEASURES[measure].lower_is_better else f" {HIGHER_IS_BETTER}"
+    return measure_label(measure) + higher
+
+
+def better(measures: Sequence[str]) -> str:
+    """Which way is better, for a figure of ``measures``: lower, higher, or lower but where a
+    panel is marked as a score (:func:`_titled`)."""
+    lower = {MEASURES[measure].lower_is_better for measure in measures}
+    if lower == {True}:
+        return "Lower is better"
+    if lower == {False}:
+        return "Higher is better"
+    return f"Lower is better, higher where marked {HIGHER_IS_BETTER}"
+
+
+def measure_bars(cells: pd.DataFrame, measures: Sequence[str], title: str) -> Rendered:
+    """Figure 2 (left, middle) of ``measures``: each one's mean with its 95% CI by policy and
+    level, one panel each (a level without a cell of a measure has no bar there).
 
     Args:
         cells: rows ``measure, num_features, policy, mean, ci95_low, ci95_high``.
+        measures: the measures drawn, in order.
+        title: the figure's title.
     """
     levels = sorted(cells["num_features"].unique())
     positions = np.arange(len(levels), dtype=np.float64)
     width = 0.38
     with matplotlib.style.context("default"), rc_context(STYLE):
-        figure = _new_figure(10.0, 3.4)
-        axes = _panels(figure, 1, len(MEASURES), Margins(bottom=0.75, across=0.7))[0]
-        for panel, measure in zip(axes, MEASURES, strict=True):
+        figure = _new_figure(max(6.0, 10.0 * len(measures) / 3), 3.4)
+        axes = _panels(figure, 1, len(measures), Margins(bottom=0.75, across=0.7))[0]
+        for panel, measure in zip(axes, measures, strict=True):
             for offset, policy in zip((-width / 2, width / 2), PAPER_POLICIES, strict=True):
                 rows = (
                     cells[(cells["measure"] == measure) & (cells["policy"] == policy)]
                     .set_index("num_features")
-                    .loc[levels]
+                    .reindex(levels)
                 )
                 errors = np.vstack(
                     [rows["mean"] - rows["ci95_low"], rows["ci95_high"] - rows["mean"]]
@@ -435,10 +461,10 @@ def measure_bars(cells: pd.DataFrame) -> Rendered:
                     label=POLICY_LABELS[policy],
                 )
             panel.set_xticks(positions, [f"{level} features" for level in levels])
-            panel.set_title(MEASURE_LABELS[measure])
-            panel.set_ylabel(f"mean {MEASURE_LABELS[measure]} (95% CI)")
+            panel.set_title(_titled(measure))
+            panel.set_ylabel(f"mean {measure_label(measure)} (95% CI)")
         _figure_legend(figure, axes[0], columns=2)
-        figure.suptitle("Lower is better: the three measures by policy and number of features")
+        figure.suptitle(title)
         return render(figure)
 
 
@@ -458,11 +484,13 @@ def cell_bars(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str])
 
 
 def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str]) -> Figure:
-    """Every measure's mean with its 95% CI by human (groups) and robot (bars): a row of
-    panels per feature level, the measures across; or, with more than :data:`WIDE_CELLS`
-    bars a panel (up to 8 humans and 4 robots), a row per measure, the feature levels across.
-    Each panel labels its measure; a human's name is broken at its underscores, so the names
-    of 8 humans fit under a panel side by side.
+    """Every measure's mean with its 95% CI by human (groups) and robot (bars), of each measure
+    the analysis tests (:func:`~cirl_study.core.measure_registry.analysed_measures`) that has a
+    cell: a row of panels per feature level, the measures across; or, with more than
+    :data:`WIDE_CELLS` bars a panel (up to 8 humans and 4 robots), a row per measure, the
+    feature levels across. The figure is 11 inches wide, wider beyond three panels across so
+    that each stays readable. Each panel labels its measure; a human's name is broken at its
+    underscores, so the names of 8 humans fit under a panel side by side.
 
     Args:
         cells: rows ``measure, num_features, policy, robot, mean, ci95_low, ci95_high``.
@@ -470,13 +498,14 @@ def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str
         robots: the robots, in the order drawn.
     """
     levels = sorted(cells["num_features"].unique())
+    measures = [m for m in analysed_measures() if m in set(cells["measure"])]
     positions = np.arange(len(humans), dtype=np.float64)
     width = 0.8 / len(robots)
-    panels = [[(level, measure) for measure in MEASURES] for level in levels]
+    panels = [[(level, measure) for measure in measures] for level in levels]
     if len(humans) * len(robots) > WIDE_CELLS:
-        panels = [[(level, measure) for level in levels] for measure in MEASURES]
+        panels = [[(level, measure) for level in levels] for measure in measures]
     with matplotlib.style.context("default"), rc_context(STYLE):
-        figure = _new_figure(11.0, 2.9 * len(panels) + 0.8)
+        figure = _new_figure(max(11.0, 3.65 * len(panels[0])), 2.9 * len(panels) + 0.8)
         grid = _panels(figure, len(panels), len(panels[0]), Margins(bottom=0.95, down=0.9))
         for axes_row, panel_row in zip(grid, panels, strict=True):
             for panel, (level, measure) in zip(axes_row, panel_row, strict=True):
@@ -488,7 +517,7 @@ def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str
                             & (cells["robot"] == robot)
                         ]
                         .set_index("policy")
-                        .loc[list(humans)]
+                        .reindex(list(humans))
                     )
                     errors = np.vstack(
                         [chosen["mean"] - chosen["ci95_low"], chosen["ci95_high"] - chosen["mean"]]
@@ -503,12 +532,12 @@ def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str
                         label=f"robot {robot}",
                     )
                 panel.set_xticks(positions, [h.replace("_", "\n") for h in humans], fontsize=8)
-                panel.set_title(f"{MEASURE_LABELS[measure]}, {level} features")
-                panel.set_ylabel(f"mean {MEASURE_LABELS[measure]} (95% CI)", fontsize=8)
+                panel.set_title(f"{_titled(measure)}, {level} features")
+                panel.set_ylabel(f"mean {measure_label(measure)} (95% CI)", fontsize=8)
         for panel in grid[-1]:
             panel.set_xlabel("human")
         _figure_legend(figure, grid[0][0], columns=len(robots))
-        figure.suptitle("Lower is better: mean (95% CI) by human and robot")
+        figure.suptitle(f"{better(measures)}: mean (95% CI) by human and robot")
         return figure
 
 
@@ -688,7 +717,7 @@ def specification_curve(
     Args:
         effects: rows ``universe, mean_diff, ci95_low, ci95_high, p`` of this measure.
         choices: one row per universe (index: its id), one column per varied axis.
-        measure: the measure's name (:data:`MEASURE_LABELS`).
+        measure: the measure's name (a registered one, its :func:`measure_label` shown).
         marked: the id of the universe to mark.
     """
     ordered = effects.sort_values(["mean_diff", "universe"], kind="mergesort").reset_index(
@@ -728,7 +757,7 @@ def specification_curve(
                 edgecolors=colours[at],
                 zorder=3,
             )
-        curve.set_ylabel(f"{MEASURE_LABELS[measure]}: best response - expert")
+        curve.set_ylabel(f"{measure_label(measure)}: best response - expert")
         keys = [
             Line2D([], [], linestyle="none", marker="o", color="#1f77b4", label="p < .05"),
             Line2D(
@@ -747,7 +776,7 @@ def specification_curve(
         dashboard.set_ylim(len(rows) - 0.5, -0.5)
         dashboard.set_xlabel("universes, by effect (red: the pipeline's own settings)")
         dashboard.set_xticks([])
-        figure.suptitle(f"Specification curve: the policy effect on {MEASURE_LABELS[measure]}")
+        figure.suptitle(f"Specification curve: the policy effect on {measure_label(measure)}")
         return render(figure)
 
 
@@ -769,7 +798,10 @@ def calibration_plot(points: pd.DataFrame) -> Rendered:
         axes.plot(line, line, color="black", linewidth=0.8)
         for factor in (0.5, 2.0):
             axes.plot(line, factor * line, color="#9e9e9e", linewidth=0.8, linestyle="--")
-        colours = dict(zip(MEASURE_LABELS, ("#1f77b4", "#ff7f0e", "#2ca02c"), strict=True))
+        colours = {
+            m: MEASURE_COLOURS[position % len(MEASURE_COLOURS)]
+            for position, m in enumerate(MEASURES)
+        }
         for rank, universe in points.groupby("rank", sort=True)["universe"].first().items():
             at = points[points["rank"] == rank]
             marker = LEVEL_MARKERS[(rank - 1) % len(LEVEL_MARKERS)]
@@ -791,7 +823,7 @@ def calibration_plot(points: pd.DataFrame) -> Rendered:
         axes.set_xlabel("target cell mean")
         axes.set_ylabel("measured cell mean")
         keys = [
-            Line2D([], [], linestyle="none", marker="o", color=colour, label=MEASURE_LABELS[m])
+            Line2D([], [], linestyle="none", marker="o", color=colour, label=measure_label(m))
             for m, colour in colours.items()
             if m in set(points["measure"])
         ]

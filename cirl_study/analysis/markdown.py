@@ -7,8 +7,25 @@ import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
-MEASURE_NAMES = {"regret": "regret", "kl": "KL", "reward_l2": "L2"}
-"""Short names of the measures in tables and measurement texts."""
+from cirl_study.core.measure_registry import MEASURES
+
+HIGHER_IS_BETTER = "↑"
+"""The mark after the name of a measure of which a higher value is better, in tables and texts
+(every other measure is a loss)."""
+
+
+def measure_name(measure: str) -> str:
+    """A registered measure as tables and measurement texts name it: its short name
+    (:attr:`~cirl_study.core.measure_registry.Measure.short`), marked with
+    :data:`HIGHER_IS_BETTER` where a higher value is better.
+
+    Examples:
+        >>> measure_name("kl")
+        'KL'
+    """
+    registered = MEASURES[measure]
+    return registered.short + ("" if registered.lower_is_better else f" {HIGHER_IS_BETTER}")
+
 
 P_VALUES = ("p", "p_holm", "p_tukey")
 """Fields of the results shown as p-values."""
@@ -104,7 +121,7 @@ def formatted(rows: Sequence[Any], columns: Sequence[Column]) -> list[list[str]]
             return column(row)
         value = getattr(row, column)
         if column == "measure":
-            return MEASURE_NAMES[value]
+            return measure_name(value)
         if column in P_VALUES:
             log10_p = getattr(row, f"log10_{column}", None)
             return p_value(value) if log10_p is None else p_text(log10_p)

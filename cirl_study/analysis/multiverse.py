@@ -9,7 +9,9 @@ and its pipeline, and returns them typed
   :func:`cirl_study.analysis.results.analyse` of its ``main`` block and the cross-validation it
   used), the cross-validated etas, the paper's mixed ANOVA, the cell means and Cronbach's
   alpha;
-* ``effects``: per universe and measure, the policy effect: the mean over every ``main``
+* ``effects``: per universe and measure of the paper's three
+  (:data:`~cirl_study.core.measure_registry.PAPER_MEASURES`, those its claims are about; so
+  ``regression`` and ``joint_test`` too), the policy effect: the mean over every ``main``
   subject (both feature levels) of ``d_s = y_{s,br} - y_{s,expert}``, with its paired-t 95%
   CI, ``t``, ``p`` and ``d_z`` (:func:`cirl_study.analysis.statistics.paired_differences`);
 * ``claims``: per claim, how many universes reproduce it (``tested`` universes only), whether
@@ -44,8 +46,9 @@ from cirl_study.analysis.result_types import (
 from cirl_study.analysis.results import analyse, with_claims
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.analysis.tails import t_tail
+from cirl_study.core.measure_registry import MEASURES, PAPER_MEASURES
 from cirl_study.errors import UserError
-from cirl_study.record import ETA_CV, EXPERT, MAIN, MEASURES, TrialRow
+from cirl_study.record import ETA_CV, EXPERT, MAIN, TrialRow
 from cirl_study.study.multiverse import base_universe, cv_universe, universe_pipeline, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe, shortest_number
 from cirl_study.workers import map_in_workers
@@ -93,14 +96,15 @@ def judged_rows(rows: list[TrialRow], universe: Universe) -> list[TrialRow]:
     if universe == universe.played:
         return rows
     judged = []
+    regret = list(MEASURES).index("regret")
     for row in rows:
-        under_estimate = row.measures.regret_under_estimate
+        under_estimate = row.measure("regret_under_estimate")
         if under_estimate is None:
             raise UserError(
                 f"universe {universe.id} judges regret under the estimate, which trial "
                 f"{row.trial_id} does not record (its log format is older than 7)"
             )
-        measures = msgspec.structs.replace(row.measures, regret=under_estimate)
+        measures = (*row.measures[:regret], under_estimate, *row.measures[regret + 1 :])
         judged.append(msgspec.structs.replace(row, universe=universe.id, measures=measures))
     return judged
 
@@ -161,8 +165,8 @@ def analyse_multiverse(
         },
         "effects": rows(effects),
         "claims": _claim_shares(per_universe, levels),
-        "regression": {m: _regression(effects, m, levels, pipeline) for m in MEASURES},
-        "joint_test": {m: _joint_test(main, m) for m in MEASURES},
+        "regression": {m: _regression(effects, m, levels, pipeline) for m in PAPER_MEASURES},
+        "joint_test": {m: _joint_test(main, m) for m in PAPER_MEASURES},
         "run_id": run_id,
     }
     return checked({**plain(across), "universes": per_universe}, MultiverseResults)
@@ -212,7 +216,7 @@ def _effects(main: pd.DataFrame) -> pd.DataFrame:
     """Per universe and measure, the paired policy effect over every ``main`` subject."""
     frames = [
         statistics.paired_differences(main, measure, "policy", EXPERT, ["universe"])
-        for measure in MEASURES
+        for measure in PAPER_MEASURES
     ]
     effects = pd.concat(frames, ignore_index=True)
     effects = effects.drop(columns=["level", "p_holm", "log10_p_holm"])

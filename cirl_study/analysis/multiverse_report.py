@@ -2,11 +2,12 @@
 
 :func:`write_multiverse_report` turns the rows of a multiverse run into a directory that reads
 well on GitHub: which of the paper's claims hold in how many universes, at which levels of
-which settings, the specification curve of the policy effect on each measure with the joint
-test of Simonsohn et al., and one line per universe. Like the paper report it is a
-deterministic function of the trials (their order does not matter). ``universes.csv`` holds
-one row per universe (its settings, its verdicts and its policy effects) in place of the paper
-report's ``trials.csv``: the trials themselves are in the run's logs.
+which settings, the specification curve of the policy effect on each of the paper's three
+measures with the joint test of Simonsohn et al., and one line per universe. Like the paper
+report it is a deterministic function of the trials (their order does not matter).
+``universes.csv`` holds one row per universe (its settings, its verdicts and its policy
+effects) in place of the paper report's ``trials.csv``: the trials themselves are in the run's
+logs.
 """
 
 from __future__ import annotations
@@ -20,11 +21,19 @@ import pandas as pd
 
 from cirl_study import escape
 from cirl_study.analysis import figures
-from cirl_study.analysis.markdown import MEASURE_NAMES, document, interval, number, p_value, table
+from cirl_study.analysis.markdown import (
+    document,
+    interval,
+    measure_name,
+    number,
+    p_value,
+    table,
+)
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
 from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.result_types import ClaimShare, LevelShare, MultiverseResults, frame
-from cirl_study.record import MEASURES, TrialRow
+from cirl_study.core.measure_registry import PAPER_MEASURES
+from cirl_study.record import TrialRow
 from cirl_study.study.spec import AXES, Pipeline
 
 CLAIM_TEXT = {
@@ -37,7 +46,7 @@ CLAIM_TEXT = {
 """Each paper claim a universe tests, in a few words (the rules: the paper report's)."""
 
 
-FIGURE_NAMES = {measure: f"specification_curve_{measure}.png" for measure in MEASURES}
+FIGURE_NAMES = {measure: f"specification_curve_{measure}.png" for measure in PAPER_MEASURES}
 """The specification curve of each measure."""
 
 
@@ -181,11 +190,11 @@ def _curves(results: MultiverseResults) -> list[str]:
         "",
     ]
     rows = []
-    for measure in MEASURES:
+    for measure in PAPER_MEASURES:
         test = results.joint_test[measure]
         rows.append(
             [
-                MEASURE_NAMES[measure],
+                measure_name(measure),
                 number(test.median_effect.observed),
                 p_value(test.median_effect.p),
                 number(test.share_significant.observed),
@@ -194,7 +203,7 @@ def _curves(results: MultiverseResults) -> list[str]:
                 p_value(test.stouffer_z.p),
             ]
         )
-    resamples = results.joint_test[MEASURES[0]].resamples
+    resamples = results.joint_test[PAPER_MEASURES[0]].resamples
     lines += [
         table(
             [
@@ -214,8 +223,8 @@ def _curves(results: MultiverseResults) -> list[str]:
         f"{1 / (resamples + 1):.2g}, the smallest such a test can give.",
         "",
     ]
-    for measure in MEASURES:
-        lines += [f"![Specification curve, {MEASURE_NAMES[measure]}]({FIGURE_NAMES[measure]})", ""]
+    for measure in PAPER_MEASURES:
+        lines += [f"![Specification curve, {measure_name(measure)}]({FIGURE_NAMES[measure]})", ""]
     return lines
 
 
@@ -230,19 +239,19 @@ def _regression(results: MultiverseResults) -> list[str]:
         "",
     ]
     shares_rows = []
-    for measure in MEASURES:
+    for measure in PAPER_MEASURES:
         fit = results.regression[measure]
         if fit.variance_shares is None:
             continue
         shares_rows.append(
             [
-                MEASURE_NAMES[measure],
+                measure_name(measure),
                 *(number(fit.variance_shares[axis], 3) for axis in fit.variance_shares),
                 number(fit.r_squared, 3),
             ]
         )
     first = next(
-        (results.regression[m] for m in MEASURES if results.regression[m].variance_shares),
+        (results.regression[m] for m in PAPER_MEASURES if results.regression[m].variance_shares),
         None,
     )
     if first is None:
@@ -252,7 +261,7 @@ def _regression(results: MultiverseResults) -> list[str]:
         table(["measure", *axes, "R²"], shares_rows, [False, *[True] * (len(axes) + 1)]),
         "",
     ]
-    for measure in MEASURES:
+    for measure in PAPER_MEASURES:
         fit = results.regression[measure]
         rows = [
             [
@@ -264,7 +273,7 @@ def _regression(results: MultiverseResults) -> list[str]:
             for c in fit.coefficients
         ]
         lines += [
-            f"**{MEASURE_NAMES[measure]}** ({fit.universes} universes, "
+            f"**{measure_name(measure)}** ({fit.universes} universes, "
             f"{int(fit.df_residual)} residual df):",
             "",
             table(["term", "estimate", "95% CI", "p"], rows, [False, True, False, True]),
@@ -281,7 +290,7 @@ def universe_table(results: MultiverseResults) -> pd.DataFrame:
         row: dict[str, Any] = {"universe": universe.id, "base": universe.base}
         row |= {axis: universe.settings[axis] for axis in AXES}
         row |= {claim: universe.claims[claim].reproduced for claim in PAPER_CLAIMS}
-        for measure in MEASURES:
+        for measure in PAPER_MEASURES:
             effect = effects.loc[(universe.id, measure)]
             row |= {
                 f"{measure}_effect": effect["mean_diff"],
@@ -301,7 +310,7 @@ def _universes(results: MultiverseResults) -> list[str]:
             ("**base** " if row["base"] else "")
             + ", ".join(f"{a} = {level_label(row[a])}" for a in varied),
             *("✅" if row[claim] else "❌" for claim in PAPER_CLAIMS),
-            *(_effect(row, measure) for measure in MEASURES),
+            *(_effect(row, measure) for measure in PAPER_MEASURES),
         ]
         for _, row in frame.iterrows()
     ]
@@ -309,9 +318,13 @@ def _universes(results: MultiverseResults) -> list[str]:
         "## Universes",
         "",
         table(
-            ["settings", *PAPER_CLAIMS, *(f"{MEASURE_NAMES[m]} effect [95% CI]" for m in MEASURES)],
+            [
+                "settings",
+                *PAPER_CLAIMS,
+                *(f"{measure_name(m)} effect [95% CI]" for m in PAPER_MEASURES),
+            ],
             rows,
-            [False, *[False] * len(PAPER_CLAIMS), *[True] * len(MEASURES)],
+            [False, *[False] * len(PAPER_CLAIMS), *[True] * len(PAPER_MEASURES)],
         ),
         "",
         "Every number of every universe (its ANOVA, cell means, etas and claim values) is in "
@@ -351,7 +364,7 @@ def render_figures(results: MultiverseResults) -> dict[str, bytes]:
                     results.base_universe,
                 ),
             )
-            for measure in MEASURES
+            for measure in PAPER_MEASURES
         }
     )
 

@@ -20,12 +20,20 @@ import msgspec
 from cirl_study import escape
 from cirl_study.analysis import figures, paper_report, study_report, teaching_report
 from cirl_study.analysis.cells import papers_own
-from cirl_study.analysis.markdown import document, number, svg_name, table
+from cirl_study.analysis.markdown import document, measure_name, number, svg_name, table
 from cirl_study.analysis.output import csv_file, write_report_directory
-from cirl_study.analysis.result_types import ClaimRow, Estimates, StudyResults, Teaching, frame
+from cirl_study.analysis.result_types import (
+    ClaimRow,
+    Estimates,
+    StudyResults,
+    Teaching,
+    Undefined,
+    frame,
+)
 from cirl_study.analysis.results import combined, estimates, tests, with_claims
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
+from cirl_study.core.measure_registry import MEASURES, PAPER_MEASURES, analysed_measures
 from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_POLICIES, TrialRecord, TrialRow
 from cirl_study.study.spec import Pipeline
 from cirl_study.workers import Call
@@ -93,6 +101,25 @@ def _hypothesis_space(teaching: Teaching) -> str:
     )
 
 
+def _directions() -> str:
+    """One sentence: the measures the analysis tests, with their units, which are losses and
+    which scores."""
+    named = {m: f"{measure_name(m)} ({MEASURES[m].unit})" for m in analysed_measures()}
+    losses = [text for m, text in named.items() if MEASURES[m].lower_is_better]
+    scores = [text for m, text in named.items() if not MEASURES[m].lower_is_better]
+    sentence = f"The measures: {_listed(losses)} {'are losses' if losses[1:] else 'is a loss'} "
+    sentence += "(lower is better)"
+    if scores:
+        sentence += f"; {_listed(scores)} {'are scores' if scores[1:] else 'is a score'} "
+        sentence += "(higher is better: the sign of a difference reads the other way)"
+    return sentence + "."
+
+
+def _listed(names: Sequence[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return " and ".join(filter(None, [", ".join(names[:-1]), names[-1]]))
+
+
 def _header(results: StudyResults) -> list[str]:
     trials, design = results.trials, results.design
     per_level = ", ".join(f"{n} at {k} features" for k, n in design.subjects_per_level.items())
@@ -116,8 +143,8 @@ def _header(results: StudyResults) -> list[str]:
         "On the gridworld of Cooperative Inverse Reinforcement Learning (Hadfield-Menell et "
         "al., NeurIPS 2016, section 4), with the paper's measures: the published claims "
         "beside what this run measured. Every human demonstrates to every robot on the same "
-        "reward draws (within subjects); the number of features varies between them. All "
-        "three measures are losses: lower is better.",
+        "reward draws (within subjects); the number of features varies between them. "
+        f"{_directions()}",
         "",
         f"- Humans: {', '.join(escape.markdown(h) for h in design.humans)} (baseline "
         f"{escape.markdown(design.baseline)}); robots: "
@@ -126,7 +153,17 @@ def _header(results: StudyResults) -> list[str]:
         f"best-response η = {etas}.",
         f"- Trials: {trials['total']} ({blocks}); reward draws {per_level}.",
         *([f"- Hypothesis space: {_hypothesis_space(space)}."] if space else []),
+        *(_undefined(row) for row in results.undefined),
     ]
+
+
+def _undefined(row: Undefined) -> str:
+    """A line of the header: a measure some trials have no value of, and what is left out."""
+    where = MEASURES[row.measure].undefined or "not logged"
+    return (
+        f"- No {measure_name(row.measure)} for {row.trials} trial(s) of {row.subjects} reward "
+        f"draw(s) ({where}): those draws are left out of its statistics."
+    )
 
 
 def _partial_title(results: StudyResults) -> list[str]:
@@ -192,6 +229,13 @@ def _figure1_records(
     return {policy: found[policy] for policy in PAPER_POLICIES}
 
 
+FIGURE2_TITLE = "Lower is better: the three measures by policy and number of features"
+"""The title of Figure 2 (left): the paper's three measures, all losses."""
+
+OTHERS_TITLE = "the other measures by policy and number of features"
+"""The title of the figure of the measures beyond the paper's, after which way is better."""
+
+
 def _drawings(
     trials: Sequence[TrialRow],
     records_of: Callable[[set[str]], Sequence[TrialRecord]],
@@ -213,10 +257,17 @@ def _drawings(
             (pair[EXPERT], pair[BEST_RESPONSE], title),
         )
         of_paper = (cells["robot"] == reference) & cells["policy"].isin(PAPER_POLICIES)
+        paper_cells = cells[of_paper].drop(columns="robot").reset_index(drop=True)
         drawings[FIGURES["figure2_measures"][0]] = (
             figures.measure_bars,
-            (cells[of_paper].drop(columns="robot").reset_index(drop=True),),
+            (paper_cells, PAPER_MEASURES, FIGURE2_TITLE),
         )
+        others = study_report.other_measures(paper_cells["measure"])
+        if others:
+            drawings[FIGURES["other_measures"][0]] = (
+                figures.measure_bars,
+                (paper_cells, others, f"{figures.better(others)}: {OTHERS_TITLE}"),
+            )
         if estimated.lambda_sweep:
             sweep = frame(estimated.lambda_sweep)
             of_paper = (sweep["robot"] == reference) & sweep["policy"].isin(PAPER_POLICIES)

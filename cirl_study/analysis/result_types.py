@@ -354,6 +354,17 @@ class StudyDesign(msgspec.Struct, **_ROW):
     teaching: Teaching | None
 
 
+class Undefined(msgspec.Struct, **_ROW):
+    """A measure ``trials`` of the analysed trials have no value of (``null`` in their records:
+    undefined for them, or not logged by their log format), of ``subjects`` reward draws: each
+    is left out of all the measure's statistics
+    (:func:`cirl_study.analysis.measure_rows.measured`)."""
+
+    measure: str
+    trials: int
+    subjects: int
+
+
 class Partial(msgspec.Struct, **_ROW):
     planned: int
     logged: int
@@ -366,7 +377,8 @@ class Estimates(msgspec.Struct, **_ROW):
     """What a study's trials measured, with confidence intervals
     (:func:`cirl_study.analysis.results.estimates`): everything its figures draw, and the part
     of :class:`StudyResults` known before any test. ``figure1`` is the paper's Figure 1 reward
-    draw, where the run has the paper's humans (``None`` otherwise)."""
+    draw, where the run has the paper's humans (``None`` otherwise); ``undefined`` is empty
+    unless some trials have no value of a measure."""
 
     pipeline: str
     trials: dict[str, int]
@@ -377,11 +389,13 @@ class Estimates(msgspec.Struct, **_ROW):
     eta_cv: EtaCrossValidation
     figure1: Figure1 | None
     robots: RobotComparison | None
+    undefined: list[Undefined] = []
 
 
 class StudyResults(msgspec.Struct, **_ROW):
     """``results.json`` of a study (:func:`cirl_study.analysis.results.analyse`, with the
-    report's ``run_id``, ``partial``, ``claims`` and ``theory``)."""
+    report's ``run_id``, ``partial``, ``claims`` and ``theory``); ``undefined`` only where
+    some trials have no value of a measure."""
 
     pipeline: str
     trials: dict[str, int]
@@ -402,6 +416,7 @@ class StudyResults(msgspec.Struct, **_ROW):
     partial: Partial | None
     claims: list[ClaimRow]
     theory: dict[str, Any] | None = None
+    undefined: list[Undefined] = []
 
 
 class UniverseClaim(msgspec.Struct, **_ROW):

@@ -6,7 +6,12 @@ One analysis serves every design of humans x robots x feature levels (``docs/pip
 (:class:`~cirl_study.analysis.result_types.StudyResults`), which the claims are judged on,
 the report reads and ``results.json`` stores. Its halves, :func:`estimates` (everything
 the figures draw) and :func:`tests`, depend only on the trials, so the report draws its
-figures in worker processes while it computes the tests. Every measure is a loss: lower is better.
+figures in worker processes while it computes the tests. Every per-measure section holds each
+measure the analysis tests (:func:`~cirl_study.core.measure_registry.analysed_measures`, in
+the registry's order), each on the trials that have a value of it
+(:func:`~cirl_study.analysis.measure_rows.measured`: a reward draw without a value of a measure
+in some trial is left out of all that measure's statistics); Cronbach's alpha, the paper's
+three (:data:`~cirl_study.core.measure_registry.PAPER_MEASURES`).
 
 The sections, by key:
 
@@ -32,10 +37,14 @@ The sections, by key:
 * ``paper``, where the run has the paper's humans (:data:`~cirl_study.analysis.cells.PAPER`):
   the paper's analyses on the reference robot's trials of the expert and the best response:
   its mixed ANOVA, the simple effects of policy, Tukey HSD as the paper ran it, Wilcoxon
-  checks and Cronbach's alpha (:func:`paper_tests`), and the reward draw of Figure 1;
+  checks (each per measure) and Cronbach's alpha of the paper's three measures
+  (:func:`paper_tests`), and the reward draw of Figure 1;
 * ``robots``, with two robots or more: every other robot against the reference, paired, in
   the main block and at every rationality of the sweep (:func:`robot_comparison`);
-* the teaching sections, where the run has their cells (:mod:`cirl_study.analysis.teaching`).
+* the teaching sections, where the run has their cells (:mod:`cirl_study.analysis.teaching`);
+* ``undefined``, only where some trials have no value of a measure: per such measure, those
+  trials and their reward draws, left out of its statistics
+  (:func:`~cirl_study.analysis.measure_rows.undefined`).
 """
 
 from __future__ import annotations
@@ -48,9 +57,18 @@ import pandas as pd
 
 from cirl_study.analysis import statistics, teaching
 from cirl_study.analysis.cells import PAPER, Design
-from cirl_study.analysis.measure_rows import anova_rows, paired_rows, pairwise_rows, plain, rows
+from cirl_study.analysis.measure_rows import (
+    anova_rows,
+    measured,
+    paired_rows,
+    pairwise_rows,
+    plain,
+    rows,
+    undefined,
+)
 from cirl_study.analysis.result_types import Estimates, Results, StudyResults, checked
 from cirl_study.analysis.table import trial_table
+from cirl_study.core.measure_registry import PAPER_MEASURES
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
 from cirl_study.record import (
@@ -60,7 +78,6 @@ from cirl_study.record import (
     EXPERT,
     LAMBDA_SWEEP,
     MAIN,
-    MEASURES,
     PAPER_POLICIES,
     TrialRow,
 )
@@ -242,7 +259,8 @@ RESULT_KEYS: tuple[str, ...] = (
     "robots",
     *teaching.SECTIONS,
 )
-"""The keys of :func:`analyse`'s results, in the order ``results.json`` lists them."""
+"""The keys of :func:`analyse`'s results, in the order ``results.json`` lists them; then
+``undefined``, where some trials have no value of a measure."""
 
 
 def analyse(trials: Sequence[TrialRow], pipeline: Pipeline) -> Results:
@@ -255,8 +273,9 @@ def analyse(trials: Sequence[TrialRow], pipeline: Pipeline) -> Results:
         pipeline: the run's pipeline (the order of its humans and robots, its name).
 
     Returns:
-        Plain data with the keys of :data:`RESULT_KEYS` (see the module docstring); a
-        section whose cells the run lacks is ``None``.
+        Plain data with the keys of :data:`RESULT_KEYS` (see the module docstring), and
+        ``undefined`` where some trials have no value of a measure; a section whose cells the
+        run lacks is ``None``.
     """
     everything = trial_table(trials)
     return combined(estimates(trials, everything, pipeline), tests(everything, pipeline))
@@ -275,7 +294,8 @@ def estimates(
 ) -> Estimates:
     """What the trials measured, with confidence intervals: everything the figures draw.
 
-    The sections ``pipeline, trials, design, cells, lambda_sweep, converged, eta_cv, robots``
+    The sections ``pipeline, trials, design, undefined, cells, lambda_sweep, converged, eta_cv,
+    robots``
     of :func:`analyse` and, where the run has the paper's humans, the paper's ``figure1``,
     from the rows and their table ``everything``
     (:func:`~cirl_study.analysis.table.trial_table`).
@@ -289,9 +309,15 @@ def estimates(
         "pipeline": pipeline.name,
         "trials": _trial_counts(everything),
         "design": _design(main, design, pipeline),
-        "cells": rows(_concat([statistics.group_means(main, m, by_cell) for m in MEASURES])),
+        "undefined": undefined(everything),
+        "cells": rows(_concat([statistics.group_means(k, m, by_cell) for m, k in measured(main)])),
         "lambda_sweep": rows(
-            _concat([statistics.group_means(sweep, m, ["rationality", *by_cell]) for m in MEASURES])
+            _concat(
+                [
+                    statistics.group_means(kept, m, ["rationality", *by_cell])
+                    for m, kept in measured(sweep)
+                ]
+            )
         )
         if not sweep.empty
         else [],
@@ -330,9 +356,10 @@ def tests(everything: pd.DataFrame, pipeline: Pipeline) -> Results:
 def paper_tests(paper_main: pd.DataFrame) -> Results:
     """The paper's tests on the ``main`` block of its humans and the reference robot
     (:func:`paper_main_block`): ``anova`` (policy within subjects, ``num_features`` between),
-    ``simple_effects``, ``tukey_hsd``, ``wilcoxon`` and ``cronbach_alpha``."""
-    alpha = statistics.cronbach_alpha(paper_main[list(MEASURES)].reset_index(drop=True))
-    alpha["items"] = list(MEASURES)
+    ``simple_effects``, ``tukey_hsd``, ``wilcoxon`` (each per measure) and ``cronbach_alpha``
+    (of the paper's three measures)."""
+    alpha = statistics.cronbach_alpha(paper_main[list(PAPER_MEASURES)].reset_index(drop=True))
+    alpha["items"] = list(PAPER_MEASURES)
     alpha["rows"] = (
         f"all {len(paper_main)} trials of the main block, one row per trial (both policies, "
         "every feature level), the three measures on their own scales"
@@ -340,10 +367,10 @@ def paper_tests(paper_main: pd.DataFrame) -> Results:
     return {
         "anova": anova_rows(paper_main, ["policy"]),
         "simple_effects": rows(
-            _concat([statistics.simple_effects(paper_main, m) for m in MEASURES])
+            _concat([statistics.simple_effects(k, m) for m, k in measured(paper_main)])
         ),
-        "tukey_hsd": rows(_concat([statistics.tukey_hsd(paper_main, m) for m in MEASURES])),
-        "wilcoxon": rows(_concat([statistics.wilcoxon(paper_main, m) for m in MEASURES])),
+        "tukey_hsd": rows(_concat([statistics.tukey_hsd(k, m) for m, k in measured(paper_main)])),
+        "wilcoxon": rows(_concat([statistics.wilcoxon(k, m) for m, k in measured(paper_main)])),
         "cronbach_alpha": plain(alpha),
     }
 
@@ -355,7 +382,10 @@ def combined(estimated: Estimates, tested: Results) -> Results:
     figure1 = measured.pop("figure1")
     paper = None if tested["paper"] is None else {**tested["paper"], "figure1": figure1}
     both = {**measured, **tested, "paper": paper}
-    return {key: both[key] for key in RESULT_KEYS}
+    results = {key: both[key] for key in RESULT_KEYS}
+    if "undefined" in both:  # only where some trials have no value of a measure
+        results["undefined"] = both["undefined"]
+    return results
 
 
 def with_claims(

@@ -33,6 +33,7 @@ HEADINGS = {
 FIGURES = {
     "figure1": ("figure1_reward_maps.png", "Figure 1"),
     "figure2_measures": ("figure2_measures.png", "Figure 2, left"),
+    "other_measures": ("other_measures.png", "the other measures"),
     "figure2_lambda": ("figure2_lambda.png", "Figure 2, right"),
     "eta_cv_curve": ("eta_cv.png", "eta curve"),
     "robots": ("robots_lambda.png", "robots against lambda"),

@@ -7,7 +7,7 @@ and returns its lines, or none when the run has nothing for it.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 
 import pandas as pd
 
@@ -32,6 +32,7 @@ from cirl_study.analysis.result_types import (
     frame,
 )
 from cirl_study.analysis.sections import FIGURES, heading
+from cirl_study.core.measure_registry import PAPER_MEASURES, analysed_measures
 from cirl_study.record import LAMBDA_SWEEP
 
 
@@ -40,9 +41,17 @@ def paper_only(results: StudyResults) -> bool:
     return papers_own(results.design.humans, results.design.robots)
 
 
+def other_measures(measures: Iterable[str]) -> tuple[str, ...]:
+    """The measures the analysis tests beyond the paper's three that are among ``measures``
+    (those of a study's cells), in the registry's order: those the figure beside Figure 2 (left)
+    draws (:data:`~cirl_study.analysis.sections.FIGURES` ``other_measures``)."""
+    present = set(measures)
+    return tuple(m for m in analysed_measures() if m not in PAPER_MEASURES and m in present)
+
+
 def cells(results: StudyResults) -> list[str]:
-    """The cell means; the paper's Figure 2 (left) and, beyond the paper's design, the cell
-    figure of every human and robot."""
+    """The cell means; the paper's Figure 2 (left) and the figure of the other measures beside
+    it, and, beyond the paper's design, the cell figure of every human and robot."""
     figures = []
     if results.paper is not None:
         file_name, _ = FIGURES["figure2_measures"]
@@ -55,6 +64,15 @@ def cells(results: StudyResults) -> list[str]:
                 file_name,
             ),
         ]
+        if other_measures(row.measure for row in results.cells if row.robot == robot):
+            file_name, _ = FIGURES["other_measures"]
+            figures += [
+                "",
+                image(
+                    f"The other measures by policy and number of features (robot {robot})",
+                    file_name,
+                ),
+            ]
     if not paper_only(results):
         file_name, _ = FIGURES["cell_means"]
         figures += ["", image("Every measure by human, robot and number of features", file_name)]

@@ -15,13 +15,14 @@ from typing import Any
 
 import pandas as pd
 
+from cirl_study.core.measure_registry import MEASURES
 from cirl_study.errors import UserError
 from cirl_study.logs.run_checks import (
     design_faults,
 )
-from cirl_study.record import LOGGED_MEASURES, MAIN, TrialRow
+from cirl_study.record import MAIN, TrialRow
 
-COLUMNS: tuple[str, ...] = (
+IDENTITY: tuple[str, ...] = (
     "trial_id",
     "run_id",
     "universe",
@@ -33,13 +34,19 @@ COLUMNS: tuple[str, ...] = (
     "rationality",
     "eta",
     "seed",
-    *LOGGED_MEASURES,
-    "converged",
 )
-"""Columns of the trial table, in order. ``universe``: the trial's multiverse universe (empty
-in a single study). ``regret_under_estimate``: NaN for a record of a format that did not log
-it (before 7). ``converged``: the robot's estimate met its stopping rule (``irl.converged``; a
-record without a fit report counts as converged)."""
+"""The trial table's first columns: the trial's identity and settings. ``universe``: the
+trial's multiverse universe (empty in a single study)."""
+
+
+def columns() -> tuple[str, ...]:
+    """Columns of the trial table, in order: :data:`IDENTITY`, every registered measure
+    (:data:`~cirl_study.core.measure_registry.MEASURES`; NaN where the trial has no value of it:
+    undefined for it, or not logged by its log format), and ``converged``: the robot's estimate
+    met its stopping rule (``irl.converged``; a record without a fit report counts as
+    converged)."""
+    return (*IDENTITY, *MEASURES, "converged")
+
 
 SORT_KEYS: tuple[str, ...] = (
     "universe",
@@ -57,16 +64,13 @@ SORT_KEYS: tuple[str, ...] = (
 
 def _columns(rows: Sequence[TrialRow]) -> dict[str, list[Any]]:
     """The table's columns, filled row by row (no per-row dict: a run may have millions)."""
-    columns = {
-        name: [getattr(row, name) for row in rows]
-        for name in COLUMNS
-        if name not in LOGGED_MEASURES and name != "eta"
-    }
-    columns["eta"] = [math.nan if row.eta is None else row.eta for row in rows]
-    for measure in LOGGED_MEASURES:
-        values = (getattr(row.measures, measure) for row in rows)
-        columns[measure] = [math.nan if value is None else value for value in values]
-    return columns
+    data = {name: [getattr(row, name) for row in rows] for name in IDENTITY if name != "eta"}
+    data["eta"] = [math.nan if row.eta is None else row.eta for row in rows]
+    for position, measure in enumerate(MEASURES):
+        values = (row.measures[position] for row in rows)
+        data[measure] = [math.nan if value is None else value for value in values]
+    data["converged"] = [row.converged for row in rows]
+    return data
 
 
 def trial_table(rows: Sequence[TrialRow]) -> pd.DataFrame:
@@ -76,11 +80,11 @@ def trial_table(rows: Sequence[TrialRow]) -> pd.DataFrame:
         rows: the trials' rows, in any order.
 
     Returns:
-        A frame with the columns :data:`COLUMNS` (``eta`` is NaN for the expert,
-        ``regret_under_estimate`` for a record that did not log it),
-        sorted by :data:`SORT_KEYS` and indexed ``0 .. n-1``.
+        A frame with the columns :func:`columns` (``eta`` is NaN for the expert, a measure
+        where the trial has no value of it), sorted by :data:`SORT_KEYS` and indexed
+        ``0 .. n-1``.
     """
-    table = pd.DataFrame(_columns(rows), columns=list(COLUMNS))
+    table = pd.DataFrame(_columns(rows), columns=list(columns()))
     return table.sort_values(list(SORT_KEYS), kind="mergesort").reset_index(drop=True)
 
 

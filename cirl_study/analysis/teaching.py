@@ -1,7 +1,8 @@
 """The teaching sections of a study's results: humans who teach and robots who read them.
 
 Each section is computed where the run has its cells (:mod:`cirl_study.analysis.cells`), and
-is ``None`` otherwise; every measure is a loss (lower is better):
+is ``None`` otherwise; its paired sections hold each measure the analysis tests, and the gap
+to the regret-optimal demonstration is in regret (a loss: lower is better):
 
 * ``milli_dragan`` (:data:`~cirl_study.analysis.cells.MILLI_DRAGAN`): the 2 x 2 of Milli &
   Dragan (2019), human {literal, pedagogic} x robot {literal_observer, pragmatic}: the

@@ -26,6 +26,10 @@ its dynamics, the trials' features and :math:`\\lambda`).
   :math:`D_T = 0`, :math:`D_t(s) = \\sum_a \\pi_t(a \\mid s)[\\log \\pi_t(a \\mid s)
   - \\log \\hat\\pi_t(a \\mid s) + D_{t+1}(s')]`.
 * ``reward_l2``: :math:`\\lVert \\Phi\\theta - \\Phi\\hat\\theta \\rVert_2` over all cells.
+
+Each is registered by name (:mod:`cirl_study.core.measure_registry`) as the function of a played
+batch (an :class:`~cirl_study.core.measure_registry.Outcome`) that ends this module
+(:func:`regret_of`, ...).
 """
 
 from __future__ import annotations
@@ -34,6 +38,7 @@ import numpy as np
 from numba import njit
 
 from cirl_study.core.maxent import MaxEnt, Phase
+from cirl_study.core.measure_registry import Outcome
 from cirl_study.core.planning import FloatArray, optimal_plan, shared_policy_values, soft_backup
 
 
@@ -127,3 +132,25 @@ def reward_l2(features: FloatArray, theta: FloatArray, theta_hat: FloatArray) ->
     nothing).
     """
     return np.linalg.norm(np.einsum("bsk,bk->bs", features, theta - theta_hat), axis=1)
+
+
+def regret_of(outcome: Outcome) -> FloatArray:
+    """:func:`regret` of a played batch: the registry's ``regret``."""
+    return regret(outcome.game.deployment, outcome.theta, outcome.theta_hat)
+
+
+def regret_under_estimate_of(outcome: Outcome) -> FloatArray:
+    """:func:`regret` of a played batch with the roles of ``theta`` and ``theta_hat`` swapped:
+    the registry's ``regret_under_estimate``."""
+    return regret(outcome.game.deployment, outcome.theta_hat, outcome.theta)
+
+
+def kl_of(outcome: Outcome) -> FloatArray:
+    """:func:`trajectory_kl` of a played batch: the registry's ``kl``."""
+    return trajectory_kl(outcome.game.deployment, outcome.theta, outcome.theta_hat)
+
+
+def reward_l2_of(outcome: Outcome) -> FloatArray:
+    """:func:`reward_l2` of a played batch on its deployment features: the registry's
+    ``reward_l2``."""
+    return reward_l2(outcome.game.deployment.features, outcome.theta, outcome.theta_hat)

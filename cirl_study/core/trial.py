@@ -12,7 +12,8 @@ reward weights :math:`\\theta`, the robot's rationality :math:`\\lambda`, the hu
 3. **Deployment phase.** The robot acts optimally for :math:`r_{\\hat\\theta}` for
    ``deployment_steps`` steps from a uniformly drawn start (``deployment_start =
    "uniform"``; the measures take the exact expectation over that start,
-   :mod:`cirl_study.core.measures`) or from the learning phase's start.
+   :mod:`cirl_study.core.measures`) or from the learning phase's start. Every registered
+   measure is computed (:data:`cirl_study.core.measure_registry.MEASURES`).
 
 :func:`play_trials` plays many trials at once, vectorised over trials that share the game's
 shape and rationality: each policy's demonstrations together, each demonstration once however
@@ -42,7 +43,7 @@ from cirl_study.core.gridworld import (
 )
 from cirl_study.core.hypotheses import HypothesisSpace, draw_hypotheses
 from cirl_study.core.maxent import MaxEnt, Phase
-from cirl_study.core.measures import regret, reward_l2, trajectory_kl
+from cirl_study.core.measure_registry import MEASURES, Outcome
 from cirl_study.core.planning import HardPlan, IntArray, follow_policy, optimal_plan
 from cirl_study.core.players import HUMANS, ROBOTS, player_faults
 from cirl_study.record import (
@@ -50,7 +51,6 @@ from cirl_study.record import (
     Demonstration,
     Deployment,
     FitDiagnostics,
-    Measures,
     TrialRecord,
     TrialSpec,
     setting_faults,
@@ -276,12 +276,8 @@ def _watched(setting: _Setting, specs: Sequence[TrialSpec], demos: np.ndarray) -
     deployment = game.deployment
     fitted = _estimates(game, specs, demos, setting.seeds)
     theta_hat = np.array([estimate.theta_hat[row] for estimate, row in fitted])
-    measures = {
-        "regret": regret(deployment, theta, theta_hat),
-        "kl": trajectory_kl(deployment, theta, theta_hat),
-        "reward_l2": reward_l2(setting.features, theta, theta_hat),
-        "regret_under_estimate": regret(deployment, theta_hat, theta),
-    }
+    outcome = Outcome(game, theta, theta_hat)
+    measured = {name: measure.computed(outcome) for name, measure in MEASURES.items()}
     phase = deployment.phase
     robot_plan = optimal_plan(
         deployment.cell_rewards(theta_hat), phase.successors, phase.horizon, phase.finishing
@@ -296,7 +292,7 @@ def _watched(setting: _Setting, specs: Sequence[TrialSpec], demos: np.ndarray) -
             **{name: getattr(spec, name) for name in TrialSpec.__struct_fields__},
             theta_hat=tuple(float(v) for v in theta_hat[b]),
             demonstration=Demonstration(states=shown[b], actions=actions[b]),
-            measures=Measures(**{name: float(values[b]) for name, values in measures.items()}),
+            measures={name: values[b] for name, values in measured.items()},
             **_fit_fields(*fitted[b]),
             deployment=Deployment(
                 starts=tuple(path[b][0] for path in rollouts),

@@ -10,8 +10,9 @@ demonstration is a path ``(s_0, ..., s_T_learn)`` of available moves from ``s_0`
 ``T_learn`` actions (with goals: at most ``T_learn``, ending on entering its first goal),
 each the move between consecutive cells, none of them ``stay`` unless
 ``demonstrator_stays``; every deployment rollout is such a path of ``T_deploy`` moves from its
-start, which is the demonstration's start when ``deployment_start`` says so; ``regret >= 0``,
-``kl >= 0`` and ``regret_under_estimate >= 0`` where logged (up to rounding);
+start, which is the demonstration's start when ``deployment_start`` says so; the measures are
+the registered ones, each finite, in its range (up to rounding) and ``null`` only where its
+measure allows (:func:`~cirl_study.core.measure_registry.measure_faults`);
 ``reward_l2 = ||Phi theta - Phi theta_hat||_2`` recomputed from the record (here, not by the
 code that logged it; the records of one grid and ``K`` in one array product). The policy and the
 robot are registered ones (:data:`~cirl_study.core.players.HUMANS`,
@@ -39,6 +40,7 @@ from cirl_study.core.gridworld import (
     Gridworld,
     action_between,
 )
+from cirl_study.core.measure_registry import measure_faults
 from cirl_study.core.players import player_faults
 from cirl_study.features import Features, feature_matrix
 from cirl_study.record import (
@@ -51,9 +53,6 @@ from cirl_study.record import (
     decode,
     setting_faults,
 )
-
-NEGATIVE_TOLERANCE = 1e-9
-"""Rounding allowed below zero for measures that are non-negative in exact arithmetic."""
 
 L2_TOLERANCE = 1e-9
 """Relative and absolute tolerance when recomputing ``reward_l2``."""
@@ -135,9 +134,15 @@ def record_faults(record: TrialRecord) -> list[str]:
 
 def records_faults(records: Sequence[TrialRecord]) -> list[list[str]]:
     """:func:`record_faults` of every record; the ``reward_l2`` checks are one array
-    product per grid and ``K`` (:func:`_reward_l2_faults`) instead of one per record."""
-    faults = [_size_faults(r) or list(_inconsistencies(r)) for r in records]
-    for index, fault in _reward_l2_faults(records):
+    product per grid and ``K`` (:func:`_reward_l2_faults`) instead of one per record, of the
+    records whose measures are sound (a ``reward_l2`` missing or out of its range is its own
+    fault)."""
+    measured = [measure_faults(r.measures) for r in records]
+    faults = [
+        _size_faults(r) or [*_inconsistencies(r), *measure]
+        for r, measure in zip(records, measured, strict=True)
+    ]
+    for index, fault in _reward_l2_faults(records, [not measure for measure in measured]):
         faults[index].append(fault)
     return faults
 
@@ -190,7 +195,7 @@ def _walk(
 
 
 def _inconsistencies(r: TrialRecord) -> Iterator[str]:
-    """Every inconsistency of ``r`` but its ``reward_l2``, each named.
+    """Every inconsistency of ``r`` but its measures', each named.
 
     Each rule is written once. A path is first walked through the grid's move table
     (:func:`_walk`, one lookup per step: the case of a sound record, which the reader meets
@@ -242,10 +247,6 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
                 yield from _path_faults(
                     f"deployment.paths[{i}]", path, start, r.deployment_steps, grid, r.goals
                 )
-    for name in ("regret", "kl", "regret_under_estimate"):
-        value = getattr(r.measures, name)
-        if value is not None and value < -NEGATIVE_TOLERANCE:
-            yield f"measures.{name} is {value} < 0"
 
 
 def _sized(r: TrialRecord) -> bool:
@@ -253,14 +254,16 @@ def _sized(r: TrialRecord) -> bool:
     return len(r.theta) == len(r.theta_hat) == r.features.count == r.num_features
 
 
-def _reward_l2_faults(records: Sequence[TrialRecord]) -> Iterator[tuple[int, str]]:
+def _reward_l2_faults(
+    records: Sequence[TrialRecord], measured: Sequence[bool]
+) -> Iterator[tuple[int, str]]:
     """``(index, fault)`` for every record whose ``reward_l2`` is not ``||Phi theta - Phi
     theta_hat||_2`` recomputed (records with ``K`` weights and centers only, within the
-    bounds); records of one grid and ``K`` are computed together, :data:`_STACKED_ENTRIES`
-    feature values at a time."""
+    bounds, whose measures are sound: ``measured``); records of one grid and ``K`` are
+    computed together, :data:`_STACKED_ENTRIES` feature values at a time."""
     together: dict[tuple[Grid, int], list[int]] = defaultdict(list)
-    for index, r in enumerate(records):
-        if _sized(r) and not _size_faults(r):
+    for index, (r, sound) in enumerate(zip(records, measured, strict=True)):
+        if sound and _sized(r) and not _size_faults(r):
             together[r.grid, r.num_features].append(index)
     for (grid, k), group in together.items():
         step = max(1, _STACKED_ENTRIES // (grid.width * grid.height * k))
@@ -277,7 +280,7 @@ def _l2_faults(records: Sequence[TrialRecord], indices: list[int]) -> Iterator[t
     theta_hat = np.array([r.theta_hat for r in chosen], dtype=np.float64)
     expected = np.linalg.norm(np.einsum("bsk,bk->bs", features, theta - theta_hat), axis=1)
     for index, r, value in zip(indices, chosen, expected.tolist(), strict=True):
-        logged = r.measures.reward_l2
+        logged = r.measures["reward_l2"]
         if not math.isclose(logged, value, rel_tol=L2_TOLERANCE, abs_tol=L2_TOLERANCE):
             yield (
                 index,

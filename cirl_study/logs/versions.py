@@ -22,9 +22,13 @@ Format 7 added fields, renaming none: the robot ``gradient_ascent``, whose recor
 settings (``gradient_ascent``: ``steps``, ``learning_rate``) and whose ``theta_hat`` may leave
 the box, so the schema no longer bounds ``theta_hat`` (the record checks do, for every other
 robot); and the second reading of regret, ``measures.regret_under_estimate``. A record of
-format 5 or 6 has neither: ``gradient_ascent`` reads as ``null``, and so does
-``regret_under_estimate``, marked missing rather than recomputed (:data:`_ADDED_MEASURES`):
-the trial table shows it as NaN.
+format 5 or 6 has neither: ``gradient_ascent`` reads as ``null``.
+
+Format 8 logs every measure of the registry (:data:`cirl_study.core.measure_registry.MEASURES`):
+``measures`` is a mapping of their names, checked against the registry, where format 7 declared
+a type of four numbers. A record of an earlier format reads every registered measure it lacks
+as ``null`` (missing, not recomputed: see :func:`record_payload`), ``regret_under_estimate``
+before format 7 among them: the trial table shows it as NaN and the analysis leaves it out.
 
 Format 8 added games of other feature kinds (a record's ``features`` is tagged by its
 ``kind``, ``rbf`` as before or ``tiles``), goal cells that end an episode (``goals``) and
@@ -41,10 +45,13 @@ from typing import Any
 
 import msgspec
 
+from cirl_study.core.measure_registry import MEASURES
+
 LOG_FORMAT = "8"
-"""The format this version writes: 8 games of any feature kind (``features.kind`` ``tiles``),
-with goal cells (``goals``) and named tasks (``task``); 7 the ``gradient_ascent`` robot and
-its settings, and ``measures.regret_under_estimate``; 6 one name per concept (see the module docstring); 5 the
+"""The format this version writes: 8 ``measures`` by the measure registry, games of any
+feature kind (``features.kind`` ``tiles``) with goal cells (``goals``) and named tasks
+(``task``); 7 the ``gradient_ascent`` robot and its settings, and
+``measures.regret_under_estimate``; 6 one name per concept (see the module docstring); 5 the
 record's ``teaching`` (hypothesis space), and ``seed`` shared by the robots of one
 demonstration; 4 the record's ``demonstrator_stays``, ``deployment_start`` and ``universe``;
 3 the run's identity and pipeline text in every file; 2 the typed record."""
@@ -98,24 +105,26 @@ _ADDED: dict[str, dict[str, Any]] = {
 }
 """The record's fields each format added, as a record of an earlier format reads them."""
 
-_ADDED_MEASURES: dict[str, Any] = {"regret_under_estimate": None}
-"""The measures that format 7 added, as a record of an earlier format reads them: missing
-(``null``), not recomputed. Recomputing would plan the deployment under both rewards for
-every record read, where the record checks recompute only what is linear in the record
-(``reward_l2``), and would load the numerical core into every reader."""
-
 
 def record_payload(data: bytes, log_format: str) -> bytes:
     """The JSON ``data`` of a trial record of a log of ``log_format``, in the current names,
-    with the fields and measures added since (:data:`_ADDED`, :data:`_ADDED_MEASURES`), and
-    canonical (keys sorted). Bytes that are not a JSON object are returned as they are, for
-    the decoder to report.
+    with the fields added since (:data:`_ADDED`) and every registered measure it lacks as
+    ``null``, and canonical (keys sorted). Bytes that are not a JSON object are returned as
+    they are, for the decoder to report.
+
+    A measure a record's format did not log is marked missing, not recomputed: recomputing
+    ``regret_under_estimate`` would plan the deployment under both rewards for every record
+    read, where the record checks recompute only what is linear in the record (``reward_l2``),
+    and would load the numerical core into every reader; and a measure of a format's own has
+    no value in its records to take.
 
     >>> msgspec.json.decode(record_payload(b'{"robot":"literal","universe":"centres=x"}', "5"))
     {'goals': [], 'gradient_ascent': None, 'robot': 'literal_observer', 'task': None, \
 'universe': 'centers=x'}
-    >>> record_payload(b'{"measures":{"regret":0.25}}', "6")[35:]
-    b'"measures":{"regret":0.25,"regret_under_estimate":null},"task":null}'
+    >>> msgspec.json.decode(record_payload(b'{"measures":{"kl":1.5,"regret":0.25}}', "6"))[
+    ...     "measures"]
+    {'kl': 1.5, 'order_agreement': None, 'regret': 0.25, 'regret_under_estimate': None, \
+'reward_l2': None}
     >>> record_payload(b'{"robot":"map"}', "7")
     b'{"goals":[],"robot":"map","task":null}'
     """
@@ -134,8 +143,8 @@ def record_payload(data: bytes, log_format: str) -> bytes:
         for name, value in fields.items()
     }
     renamed = {**added, **record}
-    if int(log_format) < 7 and isinstance(record.get("measures"), dict):
-        renamed["measures"] = {**_ADDED_MEASURES, **record["measures"]}
+    if isinstance(record.get("measures"), dict):
+        renamed["measures"] = {**dict.fromkeys(MEASURES), **record["measures"]}
     for key, rename in (("trial_id", trial_id), ("universe", _universe), ("robot", _robot)):
         if isinstance(renamed.get(key), str):
             renamed[key] = rename(renamed[key], log_format)

@@ -18,6 +18,7 @@ import mcap
 from mcap.writer import CompressionType, Writer
 
 from cirl_study import __version__
+from cirl_study.core.measure_registry import measure_faults
 from cirl_study.files import open_for_writing
 from cirl_study.logs.episode import episode_messages
 from cirl_study.logs.format import (
@@ -98,8 +99,10 @@ class TrialLogWriter:
         """Log one trial record (and its replay topics) as the next trial of the file.
 
         Raises:
-            ValueError: the record belongs to another run than the file's, or would not
-                decode again (e.g. a NaN, which JSON cannot hold): nothing of it is written.
+            ValueError: the record belongs to another run than the file's, its measures break
+                the registry (:func:`~cirl_study.core.measure_registry.measure_faults`: e.g. a
+                NaN, which JSON would hold as ``null``, the value of an undefined measure), or
+                it would not decode again: nothing of it is written.
         """
         if self._writer is None:
             raise RuntimeError("TrialLogWriter.write called outside its `with` block")
@@ -107,6 +110,10 @@ class TrialLogWriter:
             raise ValueError(
                 f"trial {record.trial_id} belongs to run {record.run_id}, the file to {self.run_id}"
             )
+        # Measures that are not a mapping at all are refused below, by decoding the payload.
+        faults = measure_faults(record.measures) if isinstance(record.measures, dict) else []
+        if faults:
+            raise ValueError(f"trial {record.trial_id} cannot be logged: {'; '.join(faults)}")
         payloads = [
             (message, encode(message.payload))
             for message in episode_messages(record, self._clock_ns)

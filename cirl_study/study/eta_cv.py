@@ -64,7 +64,7 @@ def choose_etas(rows: Iterable[TrialRow]) -> dict[tuple[str | None, str, int], E
             continue
         if row.eta is None:
             raise ValueError(f"cross-validation trial {row.trial_id} has no eta")
-        regrets[row.universe, row.policy, row.num_features][row.eta].append(row.measures.regret)
+        regrets[row.universe, row.policy, row.num_features][row.eta].append(row.measure("regret"))
     choices = {}
     for (universe, policy, k), by_eta in sorted(regrets.items(), key=_universe_first):
         sizes = {len(values) for values in by_eta.values()}
