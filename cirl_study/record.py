@@ -134,7 +134,9 @@ class Teaching(msgspec.Struct, **_STRUCT):
 
     ``hypotheses`` reward weights per subject, the true ``theta`` first when
     ``includes_truth``, the others drawn from the prior with ``hypothesis_seed`` (one per
-    subject, so all its trials share the space). ``alpha`` is the pedagogic exponent;
+    subject, so all its trials share the space); or, where the pipeline lists them
+    (``listed``: its tasks), exactly those, the trial's own ``theta`` (one of them) first and
+    the others in their listed order. ``alpha`` is the pedagogic exponent;
     ``demonstration`` whether the pedagogic human shows a path drawn from her distribution or
     its most likely path; ``search_etas`` are the trade-offs whose best responses seed the
     regret-optimal search.
@@ -146,6 +148,7 @@ class Teaching(msgspec.Struct, **_STRUCT):
     alpha: Positive
     demonstration: PedagogicChoice
     search_etas: tuple[Positive, ...]
+    listed: tuple[tuple[Weight, ...], ...] = ()
 
 
 class GradientAscent(msgspec.Struct, **_STRUCT):
@@ -308,6 +311,15 @@ def setting_faults(spec: TrialSpec) -> list[str]:
         faults.append("a goal cell is listed twice")
     if spec.start in spec.goals:
         faults.append(f"start {list(spec.start)} is a goal")
+    teaching = spec.teaching
+    if teaching is not None and teaching.listed:
+        if len(teaching.listed) != teaching.hypotheses:
+            faults.append(
+                f"teaching lists {len(teaching.listed)} hypotheses, hypotheses is "
+                f"{teaching.hypotheses}"
+            )
+        if not teaching.includes_truth or spec.theta not in teaching.listed:
+            faults.append("theta is not one of the listed hypotheses")
     if (spec.gradient_ascent is None) == (spec.robot == GRADIENT_ASCENT):
         faults.append(
             f"gradient_ascent is {'null' if spec.gradient_ascent is None else 'given'} for "

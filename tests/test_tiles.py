@@ -290,6 +290,46 @@ def test_a_bad_tile_game_or_task_is_refused_in_one_line(old: str, new: str, mess
     assert message in line, line
 
 
+@pytest.mark.parametrize(
+    ("new", "message"),
+    [
+        ('hypotheses = "tasks"\nincludes_truth = false', "teaching.includes_truth must be true"),
+        ('hypotheses = "all"', 'must be an integer of at least 2, or "tasks"'),
+    ],
+)
+def test_hypotheses_of_tasks_are_refused_in_one_line_where_wrong(new: str, message: str) -> None:
+    text = SMALL.replace("hypotheses = 4\nincludes_truth = true", new, 1)
+    with pytest.raises(UserError) as refused:
+        parse(text)
+    assert "\n" not in str(refused.value) and message in str(refused.value)
+
+
+def test_hypotheses_of_tasks_need_two_tasks() -> None:
+    text = SMALL.replace("hypotheses = 4", 'hypotheses = "tasks"', 1)
+    text = text.replace("ba = { amber = -1, blue = 0, step = -0.1 }\n", "")
+    with pytest.raises(UserError, match='may be "tasks" only in a study of two or more'):
+        parse(text)
+
+
+def test_the_hypotheses_of_tasks_are_the_tasks_the_trials_own_first() -> None:
+    """With ``hypotheses = "tasks"`` every trial's space lists the tasks, and the pedagogic
+    human's space is exactly them, her own task first."""
+    pipeline = parse(SMALL.replace("hypotheses = 4", 'hypotheses = "tasks"', 1))
+    assert pipeline.hypothesis_count == 2
+    etas = {(None, policy, 3): 1.0 for policy in pipeline.policies_with_eta}
+    specs = [spec for spec in study_trials(pipeline, etas) if spec.policy == "pedagogic"]
+    assert specs and all(spec.teaching.listed == ((0.0, -1.0, -0.1), (-1.0, 0.0, -0.1))
+                         for spec in specs)  # fmt: skip
+    from cirl_study.core.trial import _Setting
+
+    setting = _Setting.of(specs)
+    space = setting.game.space().thetas
+    for b, spec in enumerate(specs):
+        assert space[b].tolist() == [list(spec.theta)] + [
+            list(task) for task in spec.teaching.listed if task != spec.theta
+        ]
+
+
 def test_tasks_need_a_tile_game() -> None:
     rbf = (REPO / "pipelines" / "smoke.toml").read_text()
     text = rbf + "\n[tasks]\nab = { phi1 = 0 }\n"

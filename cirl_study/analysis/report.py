@@ -85,11 +85,12 @@ def _rules(results: StudyResults) -> list[str]:
 
 def _hypothesis_space(teaching: Teaching) -> str:
     hypotheses = teaching.hypotheses
-    members = (
-        f"the true theta and {hypotheses - 1} prior draws"
-        if teaching.includes_truth
-        else "all prior draws, the true theta not among them"
-    )
+    if teaching.listed:
+        members = "the pipeline's tasks, the subject's own among them"
+    elif teaching.includes_truth:
+        members = f"the true theta and {hypotheses - 1} prior draws"
+    else:
+        members = "all prior draws, the true theta not among them"
     shows = (
         "draws her demonstration"
         if teaching.demonstration == "draw"

@@ -344,10 +344,20 @@ def _fit_fields(estimate: Estimate, row: int) -> dict[str, object]:
 def _hypotheses(
     specs: Sequence[TrialSpec], learning: MaxEnt, theta: np.ndarray
 ) -> HypothesisSpace | None:
-    """The trials' hypothesis spaces, drawn from each subject's ``hypothesis_seed``."""
+    """The trials' hypothesis spaces: the listed ones, each trial's own ``theta`` first, or
+    drawn from each subject's ``hypothesis_seed``."""
     teaching = specs[0].teaching
     if teaching is None:
         return None
+    if teaching.listed:
+        thetas = np.array(
+            [
+                [spec.theta] + [listed for listed in teaching.listed if listed != spec.theta]
+                for spec in specs
+            ],
+            dtype=np.float64,
+        )
+        return HypothesisSpace(learning, thetas, teaching.includes_truth, teaching.alpha)
     seeds = np.array([spec.teaching.hypothesis_seed for spec in specs])  # type: ignore[union-attr]
     thetas = draw_hypotheses(
         theta, seeds, teaching.hypotheses, includes_truth=teaching.includes_truth

@@ -32,8 +32,9 @@ before format 7 among them: the trial table shows it as NaN and the analysis lea
 
 Format 8 added games of other feature kinds (a record's ``features`` is tagged by its
 ``kind``, ``rbf`` as before or ``tiles``), goal cells that end an episode (``goals``) and
-named tasks (``task``); a record of an earlier format reads ``goals`` as ``[]`` (a fixed
-horizon) and ``task`` as ``null``.
+named tasks (``task``), and hypothesis spaces the pipeline lists (``teaching.listed``); a
+record of an earlier format reads ``goals`` as ``[]`` (a fixed horizon), ``task`` as ``null``
+and ``teaching.listed`` as ``[]`` (drawn hypotheses).
 
 A run of format 5 is read, validated and analysed; it is resumed only by the version that wrote
 it (its pipeline text is of that version).
@@ -143,6 +144,8 @@ def record_payload(data: bytes, log_format: str) -> bytes:
         for name, value in fields.items()
     }
     renamed = {**added, **record}
+    if int(log_format) < 8 and isinstance(record.get("teaching"), dict):
+        renamed["teaching"] = {"listed": [], **record["teaching"]}
     if isinstance(record.get("measures"), dict):
         renamed["measures"] = {**dict.fromkeys(MEASURES), **record["measures"]}
     for key, rename in (("trial_id", trial_id), ("universe", _universe), ("robot", _robot)):

@@ -56,7 +56,7 @@ def batch_memory(pipeline: Pipeline) -> int:
     if teaching is None:
         return trials
     # The hypotheses' log-partitions repeat each trial's features once per hypothesis.
-    repeated = MAX_BATCH * teaching.hypotheses * cells * k * 8
+    repeated = MAX_BATCH * pipeline.hypothesis_count * cells * k * 8
     # The numerical core is loaded already: the learning paths were counted with it.
     from cirl_study.core.hypotheses import TEACHING_CACHE_BYTES
 

@@ -108,7 +108,7 @@ def parse_pipeline(
         main=main,
         lambda_sweep=lambda_sweep,
         multiverse=multiverse,
-        teaching=_teaching(top, game, main),
+        teaching=_teaching(top, game, main, tasks),
         gradient_ascent=_gradient_ascent(top, main, multiverse, ascent),
         path=path,
         text=text,
@@ -147,7 +147,9 @@ def _lambda_sweep(top: Table, main: MainSpec) -> LambdaSweepSpec | None:
     return top.spec("lambda_sweep", LambdaSweepSpec, ChainMap({"main": main}))
 
 
-def _teaching(top: Table, game: GameSpec, main: MainSpec) -> TeachingSpec | None:
+def _teaching(
+    top: Table, game: GameSpec, main: MainSpec, tasks: tuple[Task, ...] | None
+) -> TeachingSpec | None:
     """The ``[teaching]`` table: required exactly when a human or robot of ``main`` needs one."""
     from cirl_study.core.players import HUMANS, ROBOTS
 
@@ -161,7 +163,12 @@ def _teaching(top: Table, game: GameSpec, main: MainSpec) -> TeachingSpec | None
         top.fail("teaching", "must not be given with [multiverse]")
     from cirl_study.core.hypotheses import MAX_PATHS
 
-    spec = top.spec("teaching", TeachingSpec, ChainMap({"game": game}))
+    spec = top.spec("teaching", TeachingSpec, ChainMap({"game": game, "tasks": tasks}))
+    if spec.hypotheses == "tasks" and not spec.includes_truth:
+        top.fail(
+            "teaching.includes_truth",
+            'must be true with hypotheses = "tasks" (each subject\'s task is one of them)',
+        )
     if spec.learning_paths > MAX_PATHS:
         top.fail(
             "game.learning_steps",

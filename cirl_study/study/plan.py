@@ -284,8 +284,12 @@ def _teaching(pipeline: Pipeline, subject: Subject) -> Teaching | None:
     if spec is None:
         return None
     stream = random_stream(pipeline.seed, f"hypotheses:{subject.id}")
+    listed = (
+        tuple(task.weights for task in pipeline.tasks or ()) if spec.hypotheses == "tasks" else ()
+    )
     return Teaching(
-        hypotheses=spec.hypotheses,
+        hypotheses=pipeline.hypothesis_count,
+        listed=listed,
         includes_truth=spec.includes_truth,
         hypothesis_seed=int(stream.generate_state(1, np.uint64)[0] >> 11),
         alpha=spec.alpha,

@@ -94,7 +94,7 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 from cirl_study.features import TileFeatures
 from cirl_study.record import GRADIENT_ASCENT
@@ -585,6 +585,16 @@ class MainSpec:
         return reference_robot(self.robots)
 
 
+def _hypotheses(value: Any, known: Known) -> int | Literal["tasks"]:
+    """An integer of at least 2, or ``"tasks"`` in a study of two or more ``[tasks]`` (the
+    hypotheses are then the tasks)."""
+    if value != "tasks":
+        return integer_at_least(2, 'an integer of at least 2, or "tasks"')(value, known)
+    if len(known.get("tasks") or ()) < 2:
+        raise Invalid('may be "tasks" only in a study of two or more [tasks]')
+    return "tasks"
+
+
 def _learning_paths(known: Known) -> int:
     """The paths of the learning phase of ``known["game"]``."""
     # The numerical core (numba) loads only for a pipeline with a hypothesis space.
@@ -605,11 +615,14 @@ class TeachingSpec:
 
     Every subject has ``hypotheses`` reward hypotheses, the true ``theta`` among them when
     ``includes_truth`` (as in Ho et al. 2016; it flatters every learner) or all drawn from
-    the prior; ``alpha`` is the pedagogic exponent and ``demonstration`` whether the
-    pedagogic human draws her path (``draw``) or shows the most likely one (``mode``).
+    the prior; or, with ``hypotheses = "tasks"`` in a study of ``[tasks]``, exactly the tasks
+    (Ho et al.'s space: each subject's own task among them, so ``includes_truth`` must be
+    true). ``alpha`` is the pedagogic exponent and ``demonstration``
+    whether the pedagogic human draws her path (``draw``) or shows the most likely one
+    (``mode``).
     """
 
-    hypotheses: int = setting(integer_at_least(2, "an integer of at least 2"))
+    hypotheses: int | Literal["tasks"] = setting(_hypotheses)
     includes_truth: bool = setting(boolean)
     alpha: float = setting(number_in(PEDAGOGIC_ALPHA))
     demonstration: str = setting(one_of(PEDAGOGIC_CHOICES))
@@ -966,6 +979,15 @@ class Pipeline:
     universe: Universe | None = None
     teaching: TeachingSpec | None = None
     gradient_ascent: GradientAscentSpec | None = None
+
+    @property
+    def hypothesis_count(self) -> int:
+        """The number of hypotheses of each subject's space (``[teaching]``; 0 without)."""
+        if self.teaching is None:
+            return 0
+        if self.teaching.hypotheses == "tasks":
+            return len(self.tasks or ())
+        return self.teaching.hypotheses
 
     @property
     def policies_with_eta(self) -> tuple[str, ...]:
