@@ -410,7 +410,7 @@ def test_demonstration_classes_take_rows():
     rows = np.array([2, 0])
     picked = classes.take(rows)
     alone = model.take(rows).demonstration_classes(demos[rows])
-    for field in ("members", "offsets", "step", "cell", "shift"):
+    for field in ("members", "offsets", "step", "cell", "shift", "log_multiplicity"):
         np.testing.assert_array_equal(getattr(picked, field), getattr(alone, field))
 
 

@@ -57,9 +57,6 @@ from cirl_study.core.planning import (
     soft_backup,
 )
 
-MAX_CLASS_PATHS = 100_000
-"""Most paths a demonstration's count class may hold (see :func:`demonstration_classes`)."""
-
 
 @dataclass(frozen=True, eq=False)
 class Phase:
@@ -204,20 +201,32 @@ class DemonstrationClass:
     exit ``e`` at step ``t`` into cell ``s'`` carries :math:`A_e = \\phi(\\text{prefix}, s') -
     \\phi(\\tau_{demo})` (the counts so far, minus the demonstration's), so the paths through it
     have :math:`\\Delta_\\tau = A_e + X` with :math:`X` the counts still to come after ``t``.
+    The moves into one cell at one step from prefixes that took the same multiset of feature
+    vectors are one exit here, their number of prefixes its *multiplicity*: the paths through
+    them have the same :math:`A_e` and the same futures (:meth:`MaxEnt.demonstration_classes`).
 
     Attributes:
-        members: ``(B,)`` number ``m`` of paths in each trial's class.
+        members: ``(B,)`` number ``m`` of paths in each trial's class, a float. Each count
+            is a sum of non-negative counts, so it is exact while below :math:`2^{53}` and
+            beyond within a relative :math:`(T (P - 1) + N - 1)\\, 2^{-53}` (to first order;
+            ``P`` the most cells with a move into one cell, ``N`` the cells the class paths
+            end in); it overflows only for a class of :math:`2^{1024}` paths or more, which
+            needs :math:`A^T \\ge 2^{1024}` (``T > 440`` with five moves).
         offsets: ``(B + 1,)`` trial ``b``'s exits are ``offsets[b]:offsets[b + 1]``.
         step: ``(E,)`` the step ``t`` at which each exit enters its cell.
         cell: ``(E,)`` the cell ``s'`` each exit enters.
         shift: ``(E, K)`` each exit's :math:`A_e`.
+        log_multiplicity: ``(E,)`` the logarithm of each exit's multiplicity, the number of
+            class prefixes it follows, counted as ``members`` is (the logarithm of the count
+            within 2 ulp, :func:`_split_log`; 0 exactly for one prefix).
     """
 
-    members: IntArray
+    members: FloatArray
     offsets: IntArray
     step: IntArray
     cell: IntArray
     shift: FloatArray
+    log_multiplicity: FloatArray
 
     def take(self, rows: IntArray) -> DemonstrationClass:
         """The classes of the trials ``rows`` only (an index array), in that order."""
@@ -232,6 +241,7 @@ class DemonstrationClass:
             step=self.step[picked],
             cell=self.cell[picked],
             shift=self.shift[picked],
+            log_multiplicity=self.log_multiplicity[picked],
         )
 
 
@@ -337,38 +347,46 @@ class MaxEnt:
     def demonstration_classes(self, demos: IntArray) -> DemonstrationClass:
         """The count class of each trial's demonstration path ``demos[b]`` ``(B, T + 1)``.
 
-        Cells whose feature vectors are equal are interchangeable in a path's counts; the
-        class of a demonstration is every path from :math:`s_0` through the same multiset of
-        feature vectors. Its paths are enumerated depth-first in lexicographic order of their
-        cells, and the exits listed prefix by prefix in that order, each prefix's in action
-        order (:func:`_class_exits`).
+        Cells whose feature vectors are equal are of one *kind*, interchangeable in a path's
+        counts; the class of a demonstration is every path from :math:`s_0` through the same
+        multiset of kinds. It is counted, never listed, by a dynamic programme over its
+        prefixes (:func:`_demonstration_classes`): a prefix of ``t`` moves that took only
+        kinds of the demonstration, no more of each than it did, is summarised by its *node*,
+        its last cell and the multiset of kinds it took (``t`` is the multiset's size). The
+        prefixes of one node have the same counts and the same continuations, so the
+        programme carries how many reach each node, forward from :math:`s_0` (a move from
+        ``s`` at step ``t`` onto ``s'`` exists when the successor table has it and ``s'`` is
+        true in ``phase.reachable`` at ``t + 1``); backward from step ``T``, it keeps the
+        *live* nodes, those from which a class path can be completed. A move from a live node
+        that leads to no live node (onto a kind of which the prefix has no more, or into a node
+        from which no class path can be completed) is an exit, of the node's prefix count.
 
-        Raises:
-            ValueError: a class holds more than :data:`MAX_CLASS_PATHS` paths.
+        Exits into the same cell at the same step from the same multiset are merged into one,
+        their counts summed: their shifts are the same number, computed once as
+        :math:`A_e = \\phi(s') - \\sum_j (n_j - u_j) \\phi_j` (:math:`n_j` the demonstration's
+        moves onto kind ``j``, :math:`u_j` the prefix's; no counts cancel). Exits whose shifts
+        merely coincide are kept apart. There are at most :math:`S \\prod_j (n_j + 1)` nodes,
+        at most :math:`S (T / D + 1)^D` with ``D`` kinds: polynomial in ``T`` for a bounded
+        number of kinds whatever the number of paths (a 30-move class of :math:`6 \\cdot
+        10^{14}` paths on a 6 x 5 grid of five kinds has about :math:`10^5` nodes and takes
+        20 ms), and a handful for the paper's demonstrations (distinct features, nine moves).
+        Time and memory are of the order of the nodes times ``A + D`` plus the exits times
+        ``K``.
+
+        The exits of a trial are listed by step, and within a step in the order of their first
+        move: the nodes in the order they were reached (each node's moves in action order);
+        every count is a sum in that order, so the result is a function of the inputs alone,
+        the same for a trial alone as in any batch.
         """
         phase = self.phase
-        demos = np.ascontiguousarray(demos, dtype=np.int64)
-        members, offsets, steps, cells, shifts = [], [0], [], [], []
-        for b in range(len(demos)):
-            paths = _class_paths(phase.successors, phase.start_cell, demos[b], self.features[b])
-            if len(paths) > MAX_CLASS_PATHS:
-                raise ValueError(
-                    f"the demonstration's count class holds more than {MAX_CLASS_PATHS} paths"
-                )
-            step, cell, shift = _class_exits(phase.successors, paths, demos[b], self.features[b])
-            members.append(len(paths))
-            steps.append(step)
-            cells.append(cell)
-            shifts.append(shift)
-            offsets.append(offsets[-1] + len(step))
-        k = self.features.shape[2]
-        return DemonstrationClass(
-            members=np.asarray(members, dtype=np.int64),
-            offsets=np.asarray(offsets, dtype=np.int64),
-            step=np.concatenate(steps or [np.zeros(0, np.int64)]),
-            cell=np.concatenate(cells or [np.zeros(0, np.int64)]),
-            shift=np.concatenate(shifts or [np.zeros((0, k))]).reshape(-1, k),
+        members, offsets, step, cell, shift, log_multiplicity = _demonstration_classes(
+            phase.successors,
+            phase.start_cell,
+            phase.reachable,
+            np.ascontiguousarray(demos, dtype=np.int64),
+            self.features,
         )
+        return DemonstrationClass(members, offsets, step, cell, shift, log_multiplicity)
 
     def off_demonstration(
         self, theta: FloatArray, demos: DemonstrationClass, *, moments: int = 2
@@ -379,9 +397,10 @@ class MaxEnt:
         ``moments``: 0 computes :math:`\\log R` only, 1 also the mean, 2 also the covariance
         (what is not computed is zero); a line search needs only the first.
 
-        An exit ``e`` (step ``t``, cell ``s'``) carries the mass
-        :math:`w_e = e^{\\lambda\\theta^\\top A_e + V_t(s')}` of every path through it, with
-        :math:`V_t` the soft value of the steps after ``t``; so
+        An exit ``e`` (step ``t``, cell ``s'``, multiplicity :math:`n_e`) carries the mass
+        :math:`w_e = n_e\\, e^{\\lambda\\theta^\\top A_e + V_t(s')}` of every path through it,
+        with :math:`V_t` the soft value of the steps after ``t`` (its logarithm is a sum:
+        ``log_multiplicity`` enters as the scaled shift does); so
         :math:`\\log R = \\operatorname{logsumexp}_e \\log w_e`, and with
         :math:`q_e = w_e / R`, :math:`\\mu_e = A_e + F_t(s')`,
         :math:`E_q[\\Delta] = \\sum_e q_e \\mu_e` and
@@ -420,6 +439,7 @@ class MaxEnt:
             demos.step,
             demos.cell,
             demos.shift,
+            demos.log_multiplicity,
             moments,
         )
         return OffDemonstration(log_mass, mean, cov)
@@ -755,140 +775,289 @@ def _trajectory_moments(
     return log_z, mean, covariance
 
 
-@njit(cache=True)
-def _class_paths(successors, start, demo, phi):  # pragma: no cover - compiled
-    """``(m, T + 1)`` every path from ``start`` whose cells ``s_1..s_T`` carry the multiset of
-    feature vectors of ``demo``'s, in lexicographic order; stops after ``MAX_CLASS_PATHS + 1``.
+_EMPTY_SLOT = -1
+"""An unused slot of the hash tables of :func:`_demonstration_classes`."""
 
-    Cells are of one kind when their feature rows are equal; a kind is the first such cell.
-    """
-    cells, actions = successors.shape
-    k = phi.shape[1]
-    horizon = demo.shape[0] - 1
-    kind = np.empty(cells, dtype=np.int64)
-    for s in range(cells):
-        kind[s] = s
-        for r in range(s):
-            if kind[r] != r:
-                continue
+_HASH_MULTIPLIER = -7046029254386353131
+"""``0x9E3779B97F4A7C15`` (Fibonacci hashing) as a signed 64-bit integer."""
+
+
+@njit(cache=True, inline="always")
+def _slot(code, cell, cells, bits):  # pragma: no cover - compiled
+    """The first slot of the ``2^bits``-slot table for the key ``(code, cell)``, in wrapping
+    64-bit arithmetic: the key spreads the entries, it never identifies them."""
+    h = (code * cells + cell) * _HASH_MULTIPLIER
+    return (h >> (64 - bits)) & ((1 << bits) - 1)
+
+
+@njit(cache=True)
+def _grown_rows(array, rows):  # pragma: no cover - compiled
+    """A copy of the 2-D ``array`` with ``rows`` rows (at least its own), by element loops."""
+    grown = np.empty((rows, array.shape[1]), dtype=array.dtype)
+    for r in range(array.shape[0]):
+        for c in range(array.shape[1]):
+            grown[r, c] = array[r, c]
+    return grown
+
+
+@njit(cache=True)
+def _grown(array, length):  # pragma: no cover - compiled
+    """A copy of the 1-D ``array`` with ``length`` entries (at least its own)."""
+    grown = np.empty(length, dtype=array.dtype)
+    for r in range(array.shape[0]):
+        grown[r] = array[r]
+    return grown
+
+
+@njit(cache=True)
+def _demonstration_kinds(phi, demo, sample, need, kind_of):  # pragma: no cover - compiled
+    """The number ``D`` of kinds of ``demo[1:]`` (its distinct feature rows, in order of first
+    appearance); fills ``sample[j]`` (a cell of kind ``j``), ``need[j]`` (the moves onto it)
+    and ``kind_of[s]`` (the kind of each cell, ``-1`` for none of the demonstration's)."""
+    cells, k = phi.shape
+    kinds = 0
+    for t in range(1, demo.shape[0]):
+        found = -1
+        for j in range(kinds):
             same = True
             for i in range(k):
-                if phi[r, i] != phi[s, i]:
+                if phi[sample[j], i] != phi[demo[t], i]:
                     same = False
                     break
             if same:
-                kind[s] = r
+                found = j
                 break
-    left = np.zeros(cells, dtype=np.int64)  # moves still to make onto each kind
-    for t in range(1, horizon + 1):
-        left[kind[demo[t]]] += 1
-    found = np.empty((4, horizon + 1), dtype=np.int64)
-    path = np.empty(horizon + 1, dtype=np.int64)
-    path[0] = start
-    if horizon == 0:
-        found[0, 0] = start
-        return found[:1]
-    options = np.empty((horizon, actions), dtype=np.int64)
-    count = np.zeros(horizon, dtype=np.int64)
-    position = np.zeros(horizon, dtype=np.int64)
-    members = 0
-    depth = 0  # choosing path[depth + 1]
-    fresh = True
-    while depth >= 0:
-        if fresh:  # the moves from path[depth] onto a kind still to visit, by cell index
-            listed = 0
-            for a in range(actions):
-                nxt = successors[path[depth], a]
-                if nxt < 0 or left[kind[nxt]] == 0:
-                    continue
-                at = listed
-                while at > 0 and options[depth, at - 1] > nxt:
-                    options[depth, at] = options[depth, at - 1]
-                    at -= 1
-                options[depth, at] = nxt
-                listed += 1
-            count[depth], position[depth], fresh = listed, 0, False
-        if position[depth] == count[depth]:
-            depth -= 1
-            if depth >= 0:
-                left[kind[path[depth + 1]]] += 1
-            continue
-        nxt = options[depth, position[depth]]
-        position[depth] += 1
-        path[depth + 1] = nxt
-        if depth + 1 == horizon:
-            if members == found.shape[0]:
-                grown = np.empty((2 * members, horizon + 1), dtype=np.int64)
-                for m in range(members):
-                    for t in range(horizon + 1):
-                        grown[m, t] = found[m, t]
-                found = grown
-            for t in range(horizon + 1):
-                found[members, t] = path[t]
-            members += 1
-            if members > MAX_CLASS_PATHS:
+        if found < 0:
+            found = kinds
+            sample[found], need[found] = demo[t], 0
+            kinds += 1
+        need[found] += 1
+    for s in range(cells):
+        kind_of[s] = -1
+        for j in range(kinds):
+            same = True
+            for i in range(k):
+                if phi[sample[j], i] != phi[s, i]:
+                    same = False
+                    break
+            if same:
+                kind_of[s] = j
                 break
-            continue
-        left[kind[nxt]] -= 1
-        depth += 1
-        fresh = True
-    return found[:members]
+    return kinds
 
 
 @njit(cache=True)
-def _class_exits(successors, paths, demo, phi):  # pragma: no cover - compiled
-    """``(step, cell, shift)`` of every exit of the class ``paths`` (lexicographic, as from
-    :func:`_class_paths`): each prefix ``(s_0..s_{t-1})`` of a class path, in lexicographic
-    order, and each move from it, in action order, onto a cell ``s'`` that no class path
-    takes next; ``shift`` is :math:`\\phi(s_1..s_{t-1}, s') - \\phi(\\tau_{demo})`, summed
-    in path order."""
-    members, width = paths.shape
-    horizon = width - 1
+def _demonstration_classes(successors, start, needed, demos, features):  # pragma: no cover
+    """``(members, offsets, step, cell, shift, log_multiplicity)`` of each trial's count class
+    (:meth:`MaxEnt.demonstration_classes`), by a dynamic programme over its prefixes.
+
+    The demonstration's kinds ``j = 0..D-1`` (:func:`_demonstration_kinds`) are taken
+    ``n_j`` times. A node is ``(cell, used)``, ``used[j] <= n_j`` the moves its prefixes made
+    onto kind ``j``; the nodes are numbered in the order they are first reached (step by
+    step, each step's by their parents' numbers, then by action), and ``layer[t]:layer[t +
+    1]`` are those of step ``t``. A node's cell and its ``code`` :math:`\\sum_j used_j R_j`, in
+    the mixed radix :math:`R_j = \\prod_{i<j} (n_i + 1)` (wrapping past :math:`2^{64}`, where
+    two multisets may share one), place it in the step's hash table; two nodes are one when
+    their cells and ``used`` are equal (compared in full: a shared code only costs a probe).
+
+    Forward, a node's prefix count is the sum of its parents' (in their order), and
+    ``child[node, a]`` is the node move ``a`` leads to (``-1``: no move, or one onto a kind
+    with none left). Backward, a node is live when it is at step ``T`` or a move leads to a
+    live node; the parents of a live node are live, so its count is of class prefixes. Then
+    each live node's moves that lead to no live node are the exits, found again in a hash
+    table per step under ``(cell, code)`` of the node they leave: the shift
+    :math:`A_e = \\phi(s') - \\sum_j (n_j - used_j) \\phi_j` (a sum in the kinds' order) is
+    computed once, when the exit is first met. Each node and exit is written once and read a
+    bounded number of times: ``O((nodes + exits) (A + D) + S D K)`` time for a trial, and
+    ``O(nodes (A + D) + exits K)`` memory.
+    """
+    batch, cells, k = features.shape
     actions = successors.shape[1]
-    k = phi.shape[1]
-    demo_counts = np.zeros(k)
-    for t in range(1, horizon + 1):
-        for i in range(k):
-            demo_counts[i] += phi[demo[t], i]
-    # common[j]: length of the prefix path j shares with path j - 1.
-    common = np.zeros(members, dtype=np.int64)
-    for j in range(1, members):
-        while common[j] <= horizon and paths[j, common[j]] == paths[j - 1, common[j]]:
-            common[j] += 1
-    capacity = members * horizon * actions
+    horizon = demos.shape[1] - 1
+    members = np.zeros(batch)
+    offsets = np.zeros(batch + 1, dtype=np.int64)
+    # The exits of every trial, grown as they come.
+    capacity = max(16, batch * horizon * actions)
     step = np.empty(capacity, dtype=np.int64)
     cell = np.empty(capacity, dtype=np.int64)
     shift = np.empty((capacity, k))
-    prefix = np.empty(k)
+    multiplicity = np.empty(capacity)
+    exit_code = np.empty(capacity, dtype=np.int64)
+    exit_node = np.empty(capacity, dtype=np.int64)  # a node each exit leaves, for its ``used``
     exits = 0
-    for j in range(members):
-        for length in range(common[j] + 1, horizon + 1):
-            # The class paths through this prefix are j..last - 1; their next cells, sorted.
-            last = j + 1
-            while last < members and common[last] >= length:
-                last += 1
-            prefix[:] = 0.0
-            for u in range(1, length):
-                for i in range(k):
-                    prefix[i] += phi[paths[j, u], i]
-            for a in range(actions):
-                nxt = successors[paths[j, length - 1], a]
-                if nxt < 0:
+    kind_of = np.empty(cells, dtype=np.int64)
+    sample = np.empty(max(horizon, 1), dtype=np.int64)
+    need = np.zeros(max(horizon, 1), dtype=np.int64)
+    radix = np.empty(max(horizon, 1), dtype=np.int64)
+    remaining = np.empty(k)
+    # The nodes, grown as they come.
+    room = 64
+    node_cell = np.empty(room, dtype=np.int64)
+    node_code = np.empty(room, dtype=np.int64)
+    node_count = np.empty(room)
+    child = np.empty((room, actions), dtype=np.int64)
+    live = np.empty(room, dtype=np.bool_)
+    layer = np.empty(horizon + 2, dtype=np.int64)
+    bits = 6
+    table = np.full(1 << bits, _EMPTY_SLOT, dtype=np.int64)
+    taken = np.empty(1 << bits, dtype=np.int64)  # the slots in use, to empty them
+    for b in range(batch):
+        phi = features[b]
+        kinds = _demonstration_kinds(phi, demos[b], sample, need, kind_of)
+        for j in range(kinds):
+            radix[j] = 1 if j == 0 else radix[j - 1] * (need[j - 1] + 1)
+        used = np.empty((room, kinds), dtype=np.int32)
+        # Forward: the nodes of each step and their prefix counts.
+        nodes = 0
+        layer[0] = 0
+        if needed[0, start]:
+            node_cell[0], node_code[0], node_count[0] = start, 0, 1.0
+            for j in range(kinds):
+                used[0, j] = 0
+            nodes = 1
+        layer[1] = nodes
+        for t in range(horizon):
+            first, last = layer[t], layer[t + 1]
+            most = (last - first) * actions
+            if nodes + most > room:
+                room = max(2 * room, nodes + most)
+                node_cell = _grown(node_cell, room)
+                node_code = _grown(node_code, room)
+                node_count = _grown(node_count, room)
+                child = _grown_rows(child, room)
+                used = _grown_rows(used, room)
+                live = _grown(live, room)
+            while (1 << bits) < 2 * most:
+                bits += 1
+                table = np.full(1 << bits, _EMPTY_SLOT, dtype=np.int64)
+                taken = np.empty(1 << bits, dtype=np.int64)
+            held = 0
+            for p in range(first, last):
+                here = node_cell[p]
+                for a in range(actions):
+                    child[p, a] = -1
+                    nxt = successors[here, a]
+                    if nxt < 0 or not needed[t + 1, nxt]:
+                        continue
+                    j = kind_of[nxt]
+                    if j < 0 or used[p, j] == need[j]:
+                        continue
+                    code = node_code[p] + radix[j]
+                    at = _slot(code, nxt, cells, bits)
+                    while True:
+                        q = table[at]
+                        if q == _EMPTY_SLOT:
+                            q = nodes
+                            nodes += 1
+                            table[at] = q
+                            taken[held] = at
+                            held += 1
+                            node_cell[q], node_code[q], node_count[q] = nxt, code, 0.0
+                            for i in range(kinds):
+                                used[q, i] = used[p, i]
+                            used[q, j] += 1
+                            break
+                        if node_cell[q] == nxt and node_code[q] == code:
+                            same = True
+                            for i in range(kinds):
+                                if used[q, i] != used[p, i] + (1 if i == j else 0):
+                                    same = False
+                                    break
+                            if same:
+                                break
+                        at = (at + 1) & ((1 << bits) - 1)
+                    node_count[q] += node_count[p]
+                    child[p, a] = q
+            for h in range(held):
+                table[taken[h]] = _EMPTY_SLOT
+            layer[t + 2] = nodes
+        # Backward: the nodes from which the moves complete a class path.
+        for p in range(nodes - 1, -1, -1):
+            live[p] = p >= layer[horizon]
+            if not live[p]:
+                for a in range(actions):
+                    q = child[p, a]
+                    if q >= 0 and live[q]:
+                        live[p] = True
+                        break
+        total = 0.0
+        for p in range(layer[horizon], nodes):
+            total += node_count[p]
+        members[b] = total
+        # The exits: the moves of each live node that lead to no live node.
+        for t in range(horizon):
+            first, last = layer[t], layer[t + 1]
+            most = (last - first) * actions
+            while (1 << bits) < 2 * most:
+                bits += 1
+                table = np.full(1 << bits, _EMPTY_SLOT, dtype=np.int64)
+                taken = np.empty(1 << bits, dtype=np.int64)
+            if exits + most > capacity:
+                capacity = max(2 * capacity, exits + most)
+                step = _grown(step, capacity)
+                cell = _grown(cell, capacity)
+                shift = _grown_rows(shift, capacity)
+                multiplicity = _grown(multiplicity, capacity)
+                exit_code = _grown(exit_code, capacity)
+                exit_node = _grown(exit_node, capacity)
+            held = 0
+            for p in range(first, last):
+                if not live[p]:
                     continue
-                low, high = j, last  # binary search for nxt among paths[j:last, length]
-                while low < high:
-                    middle = (low + high) // 2
-                    if paths[middle, length] < nxt:
-                        low = middle + 1
-                    else:
-                        high = middle
-                if low < last and paths[low, length] == nxt:
-                    continue
-                step[exits], cell[exits] = length, nxt
-                for i in range(k):
-                    shift[exits, i] = (prefix[i] + phi[nxt, i]) - demo_counts[i]
-                exits += 1
-    return step[:exits], cell[:exits], shift[:exits]
+                here = node_cell[p]
+                for a in range(actions):
+                    nxt = successors[here, a]
+                    if nxt < 0 or not needed[t + 1, nxt]:
+                        continue
+                    q = child[p, a]
+                    if q >= 0 and live[q]:
+                        continue
+                    code = node_code[p]
+                    at = _slot(code, nxt, cells, bits)
+                    while True:
+                        e = table[at]
+                        if e == _EMPTY_SLOT:
+                            e = exits
+                            exits += 1
+                            table[at] = e
+                            taken[held] = at
+                            held += 1
+                            step[e], cell[e], multiplicity[e] = t + 1, nxt, 0.0
+                            exit_code[e], exit_node[e] = code, p
+                            for i in range(k):
+                                remaining[i] = 0.0
+                            for j in range(kinds):
+                                left = need[j] - used[p, j]
+                                if left != 0:
+                                    for i in range(k):
+                                        remaining[i] += left * phi[sample[j], i]
+                            for i in range(k):
+                                shift[e, i] = phi[nxt, i] - remaining[i]
+                            break
+                        if cell[e] == nxt and exit_code[e] == code:
+                            same = True
+                            for i in range(kinds):
+                                if used[exit_node[e], i] != used[p, i]:
+                                    same = False
+                                    break
+                            if same:
+                                break
+                        at = (at + 1) & ((1 << bits) - 1)
+                    multiplicity[e] += node_count[p]
+            for h in range(held):
+                table[taken[h]] = _EMPTY_SLOT
+        offsets[b + 1] = exits
+    log_multiplicity = np.empty(exits)
+    for e in range(exits):
+        log_multiplicity[e] = _split_log(multiplicity[e], 0.0)
+    return (
+        members,
+        offsets,
+        step[:exits].copy(),
+        cell[:exits].copy(),
+        shift[:exits].copy(),
+        log_multiplicity,
+    )
 
 
 @njit(cache=True)
@@ -903,6 +1072,7 @@ def _off_demonstration(
     step,
     cell,
     shift,
+    log_multiplicity,
     moments,
 ):  # pragma: no cover - compiled
     # Every sum is a plain loop in a fixed order: the result is the same on every CPU.
@@ -933,7 +1103,7 @@ def _off_demonstration(
             total = 0.0
             for i in range(k):
                 total += theta[b, i] * shift[e, i]
-            exit_scaled[e] = rationality * total
+            exit_scaled[e] = rationality * total + log_multiplicity[e]
         soft_backup(scaled, successors, horizon, values, log_policy, policy, needed)
         if moments >= 1:
             backward_future_counts(policy, successors, phi, future, needed)
