@@ -15,6 +15,7 @@ import path_enumeration as bf
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from scipy.optimize import minimize
 
 from cirl_study.core.humans import best_response_paths, expert_paths
 from cirl_study.core.maxent import MaxEnt, Phase
@@ -154,13 +155,18 @@ def test_regret_and_kl_equal_enumeration_over_the_non_goal_starts(rationality: f
         assert got_kl[b] == pytest.approx(math.fsum(divergences) / len(starts), rel=1e-8, abs=1e-10)
 
 
-@pytest.mark.parametrize("rationality", [1e-4, 1e-1, 1.0, 10.0, 1e4])
+@pytest.mark.parametrize("rationality", [1e-4, 1e-1, 1.0, 10.0, 1e2, 1e4])
 def test_the_map_estimate_of_a_goal_demonstration_maximises_the_enumerated_likelihood(
     rationality: float,
 ) -> None:
-    """The MAP in the box: the projected gradient of the enumerated log-likelihood vanishes
-    at the estimate (each coordinate free with zero slope, or at a bound pushed outward)."""
-    horizon = 6
+    """The MAP in the box. A certified fit (``converged``) satisfies the optimality conditions
+    of the enumerated log-likelihood (each coordinate free with zero slope, or at a bound
+    pushed outward); every fit reports the enumerated likelihood at its estimate, and none is
+    beaten by a bounded quasi-Newton search of the enumerated likelihood. (A demonstration on
+    a face of the counts' hull has its supremum at the box's edge, flat to rounding at large
+    lambda: such a fit is not certified, and the docs say so.) Seven moves: the goal is five
+    away, so paths of five and seven moves both reach it and the step count varies."""
+    horizon = 7
     phase = _phase(horizon, False)
     paths = bf.episode_paths(_table(False), START, horizon, (GOAL,))
     counts = bf.episode_counts(paths, PHI)
@@ -168,12 +174,26 @@ def test_the_map_estimate_of_a_goal_demonstration_maximises_the_enumerated_likel
     padded = np.array([list(p) + [phase.sink] * (horizon + 1 - len(p)) for p in demos])
     model = MaxEnt(phase, np.broadcast_to(PHI, (3, *PHI.shape)), rationality)
     fit = map_estimate(model, padded)
-    assert fit.converged.all()
+    if rationality <= 10:
+        assert fit.converged.all()
     for b, demo in enumerate(demos):
         theta = fit.theta_hat[b]
+        demo_counts = PHI[list(demo[1:])].sum(axis=0)
+
+        def log_likelihood(point, demo_counts=demo_counts):
+            return rationality * point @ demo_counts - bf.logsumexp(rationality * counts @ point)
+
+        assert fit.log_likelihood[b] == pytest.approx(log_likelihood(theta), abs=1e-9)
+        rival = minimize(
+            lambda point: -log_likelihood(point), np.zeros(3), method="L-BFGS-B",
+            bounds=[(-1, 1)] * 3,
+        )  # fmt: skip
+        assert fit.log_likelihood[b] >= -rival.fun - 1e-9
+        if not fit.converged[b]:
+            continue
         scores = rationality * counts @ theta
         p = np.exp(scores - bf.logsumexp(scores))
-        slope = PHI[list(demo[1:])].sum(axis=0) - p @ counts
+        slope = demo_counts - p @ counts
         for k in range(3):
             if -1 < theta[k] < 1:
                 assert abs(slope[k]) < 1e-6 * (1 + np.abs(counts).max())

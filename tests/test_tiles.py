@@ -481,16 +481,6 @@ def test_a_tile_layout_reads_into_one_hot_features_and_the_step(table) -> None:
                 assert row[-1] == 1.0
 
 
-GOAL_CLASSES = pytest.mark.xfail(
-    strict=True,
-    reason=(
-        "the core's count classes of a demonstration (MaxEnt.demonstration_classes: "
-        "_class_paths, _class_exits) ignore the phase's reachable mask in a game with goals: "
-        "the class holds paths that miss the goal and its exits read undefined soft values, "
-        "so the MAP fit is wrong and gradient ascent's measures are not finite"
-    ),
-)
-"""Until the core fixes its count classes for goal games; strict, so the fix shows here."""
 
 
 @pytest.fixture(scope="module")
@@ -503,7 +493,6 @@ def small_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-@GOAL_CLASSES
 def test_a_small_tile_study_runs_validates_and_is_analysed(small_run: Path) -> None:
     result = CliRunner().invoke(app, ["validate", str(small_run)])
     assert result.exit_code == 0, result.output
@@ -515,7 +504,6 @@ def test_a_small_tile_study_runs_validates_and_is_analysed(small_run: Path) -> N
     assert cirl_study.analyze(small_run).design.humans == ["expert", "best_response", "pedagogic"]
 
 
-@GOAL_CLASSES
 def test_every_tile_record_ends_in_the_goal_and_names_its_task(small_run: Path) -> None:
     records = run_records(small_run)
     for record in records:
@@ -525,7 +513,6 @@ def test_every_tile_record_ends_in_the_goal_and_names_its_task(small_run: Path) 
         assert (record.task is None) == (record.block != MAIN)
 
 
-@GOAL_CLASSES
 def test_the_map_robot_reports_the_exact_likelihood_of_its_estimate(small_run: Path) -> None:
     """Each MAP fit's logged log-likelihood is the MaxEnt model's at its estimate, by the
     backward recursion over the paths that reach the goal in time."""

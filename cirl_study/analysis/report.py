@@ -85,7 +85,7 @@ def _rules(results: StudyResults) -> list[str]:
 
 def _hypothesis_space(teaching: Teaching) -> str:
     hypotheses = teaching.hypotheses
-    if teaching.listed:
+    if teaching.of_tasks:
         members = "the pipeline's tasks, the subject's own among them"
     elif teaching.includes_truth:
         members = f"the true theta and {hypotheses - 1} prior draws"
@@ -97,7 +97,8 @@ def _hypothesis_space(teaching: Teaching) -> str:
         else "shows her most likely demonstration"
     )
     return (
-        f"{hypotheses} reward hypotheses per reward draw ({members}), pedagogic exponent "
+        f"{hypotheses} reward hypotheses per {'task' if teaching.of_tasks else 'reward draw'} "
+        f"({members}), pedagogic exponent "
         f"alpha = {number(teaching.alpha)}, the pedagogic human {shows}"
     )
 

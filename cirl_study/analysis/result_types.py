@@ -331,11 +331,15 @@ class ClaimRow(msgspec.Struct, **_ROW):
 
 
 class Teaching(msgspec.Struct, **_ROW):
+    """The pipeline's ``[teaching]``: ``hypotheses`` per subject, drawn from the prior or, with
+    ``of_tasks``, the pipeline's tasks."""
+
     hypotheses: int
     includes_truth: bool
     alpha: float
     demonstration: str
     learning_paths: int
+    of_tasks: bool = False
 
 
 class StudyDesign(msgspec.Struct, **_ROW):

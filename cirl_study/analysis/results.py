@@ -82,7 +82,7 @@ from cirl_study.record import (
     TrialRow,
 )
 from cirl_study.study.eta_cv import choose_etas
-from cirl_study.study.spec import Pipeline
+from cirl_study.study.spec import Pipeline, TeachingSpec
 
 
 def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
@@ -153,7 +153,17 @@ def _design(main: pd.DataFrame, design: Design, pipeline: Pipeline) -> dict[str,
             for level, etas in main.groupby("num_features")["eta"]
         },
         "sweep_rationalities": list(design.sweep_rationalities),
-        "teaching": None if spec is None else vars(spec),
+        "teaching": None if spec is None else _teaching(spec, pipeline),
+    }
+
+
+def _teaching(spec: TeachingSpec, pipeline: Pipeline) -> dict[str, Any]:
+    """The ``[teaching]`` of the results: its settings, with the number of hypotheses."""
+    of_tasks = spec.hypotheses == "tasks"
+    return {
+        **vars(spec),
+        "hypotheses": pipeline.hypothesis_count,
+        **({"of_tasks": True} if of_tasks else {}),
     }
 
 
