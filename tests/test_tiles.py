@@ -17,6 +17,7 @@ import cirl_study
 from cirl_study.cli import app
 from cirl_study.core.gridworld import Gridworld
 from cirl_study.core.maxent import MaxEnt, Phase
+from cirl_study.core.trial import check_playable
 from cirl_study.errors import UserError
 from cirl_study.features import TileFeatures, feature_matrix
 from cirl_study.record import MAIN, MAP
@@ -312,15 +313,23 @@ def test_hypotheses_of_tasks_need_two_tasks() -> None:
 
 
 def test_the_hypotheses_of_tasks_are_the_tasks_the_trials_own_first() -> None:
-    """With ``hypotheses = "tasks"`` every trial's space lists the tasks, and the pedagogic
-    human's space is exactly them, her own task first."""
+    """With ``hypotheses = "tasks"`` every task's trial lists the tasks, and the pedagogic
+    human's space is exactly them, her own task first; a cross-validation draw, no task,
+    draws its space and plays."""
     pipeline = parse(SMALL.replace("hypotheses = 4", 'hypotheses = "tasks"', 1))
     assert pipeline.hypothesis_count == 2
+    cv = eta_cv_trials(pipeline)
+    assert cv and all(spec.teaching.listed == () and spec.task is None for spec in cv)
+    for spec in cv:
+        check_playable(spec)
     etas = {(None, policy, 3): 1.0 for policy in pipeline.policies_with_eta}
     specs = [spec for spec in study_trials(pipeline, etas) if spec.policy == "pedagogic"]
     assert specs and all(spec.teaching.listed == ((0.0, -1.0, -0.1), (-1.0, 0.0, -0.1))
                          for spec in specs)  # fmt: skip
     from cirl_study.core.trial import _Setting
+
+    for spec in specs:
+        check_playable(spec)
 
     setting = _Setting.of(specs)
     space = setting.game.space().thetas

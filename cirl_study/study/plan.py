@@ -279,13 +279,17 @@ def _block_and_id(pipeline: Pipeline, cell: Cell) -> tuple[str, str]:
 
 
 def _teaching(pipeline: Pipeline, subject: Subject) -> Teaching | None:
-    """The subject's hypothesis space and the pipeline's teaching settings, if it has them."""
+    """The subject's hypothesis space and the pipeline's teaching settings, if it has them:
+    with ``hypotheses = "tasks"``, a task's subject lists the tasks; a reward drawn from the
+    prior (the eta cross-validation's, which no teaching player watches) draws as many."""
     spec = pipeline.teaching
     if spec is None:
         return None
     stream = random_stream(pipeline.seed, f"hypotheses:{subject.id}")
     listed = (
-        tuple(task.weights for task in pipeline.tasks or ()) if spec.hypotheses == "tasks" else ()
+        tuple(task.weights for task in pipeline.tasks or ())
+        if spec.hypotheses == "tasks" and subject.task is not None
+        else ()
     )
     return Teaching(
         hypotheses=pipeline.hypothesis_count,
