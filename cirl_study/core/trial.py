@@ -1,17 +1,19 @@
 """One trial of the study: the whole two-phase apprenticeship game (docs/design.md §1-4, §7).
 
-A trial (:class:`~cirl_study.record.TrialSpec`) fixes a gridworld, RBF features, the true
-reward weights :math:`\\theta`, the robot's rationality :math:`\\lambda`, the human's policy
-(with its trade-off :math:`\\eta` where it has one), the robot and the two horizons. It plays:
+A trial (:class:`~cirl_study.record.TrialSpec`) fixes a gridworld, its features (of any kind,
+:mod:`cirl_study.features`), the true reward weights :math:`\\theta`, the robot's rationality
+:math:`\\lambda`, the human's policy (with its trade-off :math:`\\eta` where it has one), the
+robot, the two horizons and the goal cells, if any (:func:`phases`). It plays:
 
 1. **Learning phase.** The human demonstrates a ``learning_steps`` path from the fixed start
    cell (:data:`cirl_study.core.players.HUMANS`), without the ``stay`` action unless
-   ``demonstrator_stays``; the robot's model of the phase has the same moves.
+   ``demonstrator_stays``; the robot's model of the phase has the same moves. In a game with
+   goals the path ends on entering one, within at most ``learning_steps`` moves.
 2. **Inference.** The robot estimates :math:`\\hat\\theta` from the demonstration
    (:data:`cirl_study.core.players.ROBOTS`).
 3. **Deployment phase.** The robot acts optimally for :math:`r_{\\hat\\theta}` for
-   ``deployment_steps`` steps from a uniformly drawn start (``deployment_start =
-   "uniform"``; the measures take the exact expectation over that start,
+   ``deployment_steps`` steps (at most, with goals) from a uniformly drawn start
+   (``deployment_start = "uniform"``; the measures take the exact expectation over that start,
    :mod:`cirl_study.core.measures`) or from the learning phase's start. Every registered
    measure is computed (:data:`cirl_study.core.measure_registry.MEASURES`).
 
@@ -244,11 +246,10 @@ def demonstrations(specs: Sequence[TrialSpec]) -> np.ndarray:
 
 @dataclasses.dataclass(frozen=True)
 class _Setting:
-    """What trials played together share: their grid and features, the game, and per trial
-    its true ``theta`` ``(B, K)`` and ``seed`` ``(B,)``."""
+    """What trials played together share: their grid, the game (which carries the trials'
+    features), and per trial its true ``theta`` ``(B, K)`` and ``seed`` ``(B,)``."""
 
     grid: Gridworld
-    features: np.ndarray
     game: Apprenticeship
     theta: np.ndarray
     seeds: np.ndarray
@@ -266,7 +267,7 @@ class _Setting:
         hypotheses = _hypotheses(specs, learning, theta)
         game = Apprenticeship(learning, deployment, hypotheses, first.teaching)
         seeds = np.array([spec.seed for spec in specs], dtype=np.int64)
-        return cls(grid, features, game, theta, seeds)
+        return cls(grid, game, theta, seeds)
 
 
 def _watched(setting: _Setting, specs: Sequence[TrialSpec], demos: np.ndarray) -> list[TrialRecord]:
