@@ -70,7 +70,7 @@ def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
     The columns are those of ``trials.csv`` (``docs/pipelines.md``, *The trial table*):
     ``trial_id, run_id, universe, block, subject, policy, robot, num_features, rationality,
     eta, seed``, a column per registered measure
-    (:data:`cirl_study.core.measure_registry.MEASURES`: ``regret, kl, reward_l2,
+    (:data:`cirl_study.measure_registry.MEASURES`: ``regret, kl, reward_l2,
     regret_under_estimate, ...``; NaN where a trial has no value of it), ``converged``; rows in a
     fixed order whatever the order of the logs. The run may be incomplete: it holds what the
     logs hold.

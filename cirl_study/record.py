@@ -26,8 +26,8 @@ from typing import Annotated, Literal
 
 import msgspec
 
-from cirl_study.core.measure_registry import MEASURES
 from cirl_study.features import Features
+from cirl_study.measure_registry import MEASURES
 
 MAIN, ETA_CV, LAMBDA_SWEEP = "main", "eta_cv", "lambda_sweep"
 """The blocks of docs/design.md §5."""
@@ -100,11 +100,11 @@ Finite = Annotated[float, msgspec.Meta(ge=-sys.float_info.max, le=sys.float_info
 
 Measures = dict[str, Finite | None]
 """A trial's measures (docs/design.md §4), by the names of the measure registry
-(:data:`~cirl_study.core.measure_registry.MEASURES`): each a finite number, or ``null`` where the
+(:data:`~cirl_study.measure_registry.MEASURES`): each a finite number, or ``null`` where the
 trial has none (its measure is undefined for it, or its log format did not log it).
 
 A mapping, checked against the registry when a record is logged or read
-(:func:`~cirl_study.core.measure_registry.measure_faults`: every registered name and no other,
+(:func:`~cirl_study.measure_registry.measure_faults`: every registered name and no other,
 finite values, ``null`` only where the measure allows it, values in range; a NaN, which JSON
 would write as ``null``, is refused before it is logged, naming the trial), rather than a
 Struct generated from the registry: a Struct is fixed once this module is imported, where a
@@ -230,7 +230,7 @@ class TrialRow(msgspec.Struct, **_STRUCT):
     A record holds its paths, rollouts and reward draw, a row a dozen numbers and names, so a
     run of a million trials is read one file at a time into rows (:meth:`of`) and analysed in
     memory. ``measures``: the record's measures in the order of the registry
-    (:data:`~cirl_study.core.measure_registry.MEASURES`, as it was when the row was made; by name
+    (:data:`~cirl_study.measure_registry.MEASURES`, as it was when the row was made; by name
     with :meth:`measure`), a tuple rather than the record's mapping: about 100 bytes less
     a row. ``converged``: the robot's estimate met its stopping rule (``irl.converged``; a
     record without a fit report counts as converged). ``draw``: a

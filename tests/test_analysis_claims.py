@@ -15,8 +15,8 @@ from analysis_fixtures import pipeline, rows, synthetic_records
 
 from cirl_study.analysis.result_types import ClaimRow
 from cirl_study.analysis.results import analyse, with_claims
-from cirl_study.core.measure_registry import PAPER_MEASURES
 from cirl_study.errors import UserError
+from cirl_study.measure_registry import PAPER_MEASURES
 
 CLAIM_IDS = [
     "policy_effect",

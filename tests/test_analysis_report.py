@@ -17,8 +17,8 @@ from cirl_study.analysis import report
 from cirl_study.analysis.markdown import anchor
 from cirl_study.analysis.report import write_report
 from cirl_study.analysis.table import trial_table
-from cirl_study.core.measure_registry import analysed_measures
 from cirl_study.errors import UserError
+from cirl_study.measure_registry import analysed_measures
 from cirl_study.record import TrialRecord
 from cirl_study.study.eta_cv import choose_etas
 

@@ -24,7 +24,7 @@ from scipy import stats
 from cirl_study.analysis import statistics
 from cirl_study.analysis.anova import repeated_measures_anova
 from cirl_study.analysis.table import trial_table
-from cirl_study.core.measure_registry import PAPER_MEASURES
+from cirl_study.measure_registry import PAPER_MEASURES
 
 ANOVA_ORDER = ["num_features", "policy", "policy:num_features"]
 """The references' row order: between, within, interaction (ours too)."""

@@ -11,8 +11,8 @@ import pytest
 from analysis_fixtures import rows, synthetic_records
 
 from cirl_study.analysis.table import check_design, columns, trial_table
-from cirl_study.core.measure_registry import MEASURES
 from cirl_study.errors import UserError
+from cirl_study.measure_registry import MEASURES
 from cirl_study.record import TrialRecord, TrialRow, from_builtins, to_builtins
 
 

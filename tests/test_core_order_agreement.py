@@ -11,8 +11,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from test_logs_helpers import run_records
 
-from cirl_study.core.measure_registry import MEASURES, analysed_measures
 from cirl_study.core.order_agreement import agreement
+from cirl_study.measure_registry import MEASURES, analysed_measures
 
 
 def one(theta: list[float], theta_hat: list[float]) -> float | None:

@@ -8,7 +8,6 @@ import path_enumeration as bf
 import pytest
 
 from cirl_study.core.estimate import Estimate
-from cirl_study.core.measure_registry import PAPER_MEASURES
 from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot, register_human, register_robot
 from cirl_study.core.trial import (
     check_playable,
@@ -18,6 +17,7 @@ from cirl_study.core.trial import (
     play_watched,
 )
 from cirl_study.features import RBFFeatures
+from cirl_study.measure_registry import PAPER_MEASURES
 from cirl_study.record import (
     MAP,
     Deployment,

@@ -18,19 +18,19 @@ import cirl_study
 from cirl_study.analysis.anova import repeated_measures_anova
 from cirl_study.analysis.report import write_report
 from cirl_study.analysis.table import check_design
+from cirl_study.core.apprenticeship import Outcome
 from cirl_study.core.gridworld import feature_matrix
-from cirl_study.core.measure_registry import (
+from cirl_study.logs.reader import read_run, read_trials
+from cirl_study.logs.record_checks import record_faults
+from cirl_study.logs.validate import validate_run
+from cirl_study.measure_registry import (
     MEASURES,
     PAPER_MEASURES,
     Measure,
-    Outcome,
     analysed_measures,
     measure_faults,
     register_measure,
 )
-from cirl_study.logs.reader import read_run, read_trials
-from cirl_study.logs.record_checks import record_faults
-from cirl_study.logs.validate import validate_run
 from cirl_study.study.audit import analysed_run
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"

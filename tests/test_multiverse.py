@@ -593,7 +593,7 @@ def test_the_regret_reading_is_an_axis_that_plays_no_trial_of_its_own(tmp_path: 
 
 def test_a_universe_judged_by_regret_under_the_estimate_reads_it_as_regret(tmp_path: Path):
     from cirl_study.analysis.multiverse import judged_rows
-    from cirl_study.core.measure_registry import MEASURES
+    from cirl_study.measure_registry import MEASURES
     from cirl_study.record import TrialRow
 
     logged = {"regret": 0.25, "kl": 1.0, "reward_l2": 2.0, "regret_under_estimate": 0.75}

@@ -18,9 +18,9 @@ from typer.testing import CliRunner
 from cirl_study.analysis import figures
 from cirl_study.cli import app
 from cirl_study.core.apprenticeship import Apprenticeship
-from cirl_study.core.measure_registry import analysed_measures
 from cirl_study.core.players import HUMANS, Human, register_human
 from cirl_study.logs.validate import validate_run
+from cirl_study.measure_registry import analysed_measures
 
 HUMAN_NAMES = '["expert", "best_response", "first_step"]'
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"

@@ -29,9 +29,9 @@ from cirl_study.cli import app
 from cirl_study.core.gridworld import Gridworld
 from cirl_study.core.hypotheses import MAX_PATHS, path_count
 from cirl_study.core.maxent import Phase
-from cirl_study.core.measure_registry import MEASURES, PAPER_MEASURES
 from cirl_study.errors import UserError
 from cirl_study.logs.validate import validate_run
+from cirl_study.measure_registry import MEASURES, PAPER_MEASURES
 from cirl_study.record import MAIN, TrialRecord, TrialRow, encode
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.pipeline_file import parse_pipeline

@@ -52,10 +52,10 @@ from cirl_study.analysis.result_types import (
 from cirl_study.analysis.results import analyse, with_claims
 from cirl_study.analysis.table import trial_table
 from cirl_study.analysis.tails import chi2_tail
-from cirl_study.core.measure_registry import MEASURES
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.files import read_regular_file
+from cirl_study.measure_registry import MEASURES
 from cirl_study.record import MAIN, TrialRow
 from cirl_study.study.multiverse import base_universe, universe_pipeline, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe
@@ -284,7 +284,7 @@ def ranked_distances(
 def cell_means(main: pd.DataFrame) -> dict[str, dict[CellKey, Measured]]:
     """Per universe id (``""`` in a single study), per cell of the trial table ``main`` (of
     the ``main`` block, each universe's rows as it analyses them): ``(n, mean, sd)`` of each
-    registered measure (:data:`~cirl_study.core.measure_registry.MEASURES`) over the trials
+    registered measure (:data:`~cirl_study.measure_registry.MEASURES`) over the trials
     that hold a value of it (a measure may be undefined for a trial, or missing from records of
     a log format before it: a cell none of whose trials holds it is left out, and a target
     naming it is then told the universe lacks the cell)."""

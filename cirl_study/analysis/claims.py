@@ -15,7 +15,7 @@ with :func:`external_claims`.
 
 The rules, on the paper's tests (results ``paper``, the reference robot's trials of the expert
 and the best response) unless they say otherwise, and on the paper's three measures
-(:data:`~cirl_study.core.measure_registry.PAPER_MEASURES`, each a loss), the measures every
+(:data:`~cirl_study.measure_registry.PAPER_MEASURES`, each a loss), the measures every
 claim was made on, whatever else is registered:
 
 1. ``policy_effect``: for every measure the policy effect has ``p < .0001`` and the best
@@ -70,8 +70,8 @@ from cirl_study.analysis.result_types import (
     PairedDifference,
     StudyResults,
 )
-from cirl_study.core.measure_registry import PAPER_MEASURES
 from cirl_study.errors import UserError
+from cirl_study.measure_registry import PAPER_MEASURES
 from cirl_study.record import (
     BEST_RESPONSE,
     EXPERT,

@@ -38,8 +38,8 @@ from numpy.typing import NDArray
 
 from cirl_study.analysis.markdown import HIGHER_IS_BETTER, svg_name
 from cirl_study.core.gridworld import feature_matrix
-from cirl_study.core.measure_registry import MEASURES, analysed_measures
 from cirl_study.features import RBFFeatures, TileFeatures
+from cirl_study.measure_registry import MEASURES, analysed_measures
 from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord
 from cirl_study.workers import Call, call, started
 
@@ -404,7 +404,7 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
 
 def measure_label(measure: str) -> str:
     """A registered measure as the figures name it
-    (:attr:`~cirl_study.core.measure_registry.Measure.label`)."""
+    (:attr:`~cirl_study.measure_registry.Measure.label`)."""
     return MEASURES[measure].label
 
 
@@ -485,7 +485,7 @@ def cell_bars(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str])
 
 def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str]) -> Figure:
     """Every measure's mean with its 95% CI by human (groups) and robot (bars), of each measure
-    the analysis tests (:func:`~cirl_study.core.measure_registry.analysed_measures`) that has a
+    the analysis tests (:func:`~cirl_study.measure_registry.analysed_measures`) that has a
     cell: a row of panels per feature level, the measures across; or, with more than
     :data:`WIDE_CELLS` bars a panel (up to 8 humans and 4 robots), a row per measure, the
     feature levels across. The figure is 11 inches wide, wider beyond three panels across so

@@ -7,7 +7,7 @@ import re
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from cirl_study.core.measure_registry import MEASURES
+from cirl_study.measure_registry import MEASURES
 
 HIGHER_IS_BETTER = "↑"
 """The mark after the name of a measure of which a higher value is better, in tables and texts
@@ -16,7 +16,7 @@ HIGHER_IS_BETTER = "↑"
 
 def measure_name(measure: str) -> str:
     """A registered measure as tables and measurement texts name it: its short name
-    (:attr:`~cirl_study.core.measure_registry.Measure.short`), marked with
+    (:attr:`~cirl_study.measure_registry.Measure.short`), marked with
     :data:`HIGHER_IS_BETTER` where a higher value is better.
 
     Examples:

@@ -2,7 +2,7 @@
 
 :func:`plain` turns numpy scalars and NaN into JSON data; the others run one test of
 :mod:`cirl_study.analysis.statistics` or :mod:`cirl_study.analysis.anova` for each measure the
-analysis tests (:func:`~cirl_study.core.measure_registry.analysed_measures`) and return its
+analysis tests (:func:`~cirl_study.measure_registry.analysed_measures`) and return its
 rows, measures in the registry's order, each on the trials that have a value of it
 (:func:`measured`).
 """
@@ -19,8 +19,8 @@ import pandas as pd
 
 from cirl_study.analysis import statistics
 from cirl_study.analysis.anova import repeated_measures_anova
-from cirl_study.core.measure_registry import analysed_measures
 from cirl_study.errors import UserError
+from cirl_study.measure_registry import analysed_measures
 
 
 def plain(value: Any) -> Any:

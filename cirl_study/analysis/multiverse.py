@@ -10,7 +10,7 @@ and its pipeline, and returns them typed
   used), the cross-validated etas, the paper's mixed ANOVA, the cell means and Cronbach's
   alpha;
 * ``effects``: per universe and measure of the paper's three
-  (:data:`~cirl_study.core.measure_registry.PAPER_MEASURES`, those its claims are about; so
+  (:data:`~cirl_study.measure_registry.PAPER_MEASURES`, those its claims are about; so
   ``regression`` and ``joint_test`` too), the policy effect: the mean over every ``main``
   subject (both feature levels) of ``d_s = y_{s,br} - y_{s,expert}``, with its paired-t 95%
   CI, ``t``, ``p`` and ``d_z`` (:func:`cirl_study.analysis.statistics.paired_differences`);
@@ -46,8 +46,8 @@ from cirl_study.analysis.result_types import (
 from cirl_study.analysis.results import analyse, with_claims
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.analysis.tails import t_tail
-from cirl_study.core.measure_registry import MEASURES, PAPER_MEASURES
 from cirl_study.errors import UserError
+from cirl_study.measure_registry import MEASURES, PAPER_MEASURES
 from cirl_study.record import ETA_CV, EXPERT, MAIN, TrialRow
 from cirl_study.study.multiverse import base_universe, cv_universe, universe_pipeline, universes
 from cirl_study.study.spec import AXES, Pipeline, Universe, shortest_number

@@ -32,7 +32,7 @@ from cirl_study.analysis.markdown import (
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
 from cirl_study.analysis.output import write_report_directory
 from cirl_study.analysis.result_types import ClaimShare, LevelShare, MultiverseResults, frame
-from cirl_study.core.measure_registry import PAPER_MEASURES
+from cirl_study.measure_registry import PAPER_MEASURES
 from cirl_study.record import TrialRow
 from cirl_study.study.spec import AXES, Pipeline
 

@@ -33,7 +33,7 @@ from cirl_study.analysis.result_types import (
 from cirl_study.analysis.results import combined, estimates, tests, with_claims
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
-from cirl_study.core.measure_registry import MEASURES, PAPER_MEASURES, analysed_measures
+from cirl_study.measure_registry import MEASURES, PAPER_MEASURES, analysed_measures
 from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_POLICIES, TrialRecord, TrialRow
 from cirl_study.study.spec import Pipeline
 from cirl_study.workers import Call

@@ -7,11 +7,11 @@ One analysis serves every design of humans x robots x feature levels (``docs/pip
 the report reads and ``results.json`` stores. Its halves, :func:`estimates` (everything
 the figures draw) and :func:`tests`, depend only on the trials, so the report draws its
 figures in worker processes while it computes the tests. Every per-measure section holds each
-measure the analysis tests (:func:`~cirl_study.core.measure_registry.analysed_measures`, in
+measure the analysis tests (:func:`~cirl_study.measure_registry.analysed_measures`, in
 the registry's order), each on the trials that have a value of it
 (:func:`~cirl_study.analysis.measure_rows.measured`: a reward draw without a value of a measure
 in some trial is left out of all that measure's statistics); Cronbach's alpha, the paper's
-three (:data:`~cirl_study.core.measure_registry.PAPER_MEASURES`).
+three (:data:`~cirl_study.measure_registry.PAPER_MEASURES`).
 
 The sections, by key:
 
@@ -68,9 +68,9 @@ from cirl_study.analysis.measure_rows import (
 )
 from cirl_study.analysis.result_types import Estimates, Results, StudyResults, checked
 from cirl_study.analysis.table import trial_table
-from cirl_study.core.measure_registry import PAPER_MEASURES
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
+from cirl_study.measure_registry import PAPER_MEASURES
 from cirl_study.record import (
     BEST_RESPONSE,
     BLOCKS,

@@ -32,7 +32,7 @@ from cirl_study.analysis.result_types import (
     frame,
 )
 from cirl_study.analysis.sections import FIGURES, heading
-from cirl_study.core.measure_registry import PAPER_MEASURES, analysed_measures
+from cirl_study.measure_registry import PAPER_MEASURES, analysed_measures
 from cirl_study.record import LAMBDA_SWEEP
 
 

@@ -15,11 +15,11 @@ from typing import Any
 
 import pandas as pd
 
-from cirl_study.core.measure_registry import MEASURES
 from cirl_study.errors import UserError
 from cirl_study.logs.run_checks import (
     design_faults,
 )
+from cirl_study.measure_registry import MEASURES
 from cirl_study.record import MAIN, TrialRow
 
 IDENTITY: tuple[str, ...] = (
@@ -41,7 +41,7 @@ trial's multiverse universe (empty in a single study)."""
 
 def columns() -> tuple[str, ...]:
     """Columns of the trial table, in order: :data:`IDENTITY`, every registered measure
-    (:data:`~cirl_study.core.measure_registry.MEASURES`; NaN where the trial has no value of it:
+    (:data:`~cirl_study.measure_registry.MEASURES`; NaN where the trial has no value of it:
     undefined for it, or not logged by its log format), and ``converged``: the robot's estimate
     met its stopping rule (``irl.converged``; a record without a fit report counts as
     converged)."""

@@ -12,7 +12,7 @@
 - :mod:`~cirl_study.core.hypotheses`: a finite hypothesis space; literal and pedagogic models.
 - :mod:`~cirl_study.core.teaching`: the teaching humans and the robots that read them.
 - :mod:`~cirl_study.core.players`: every human and robot by name.
-- :mod:`~cirl_study.core.measure_registry`: every measure by name.
+- :mod:`~cirl_study.measure_registry`: every measure by name.
 - :mod:`~cirl_study.core.measures`: regret, trajectory KL and reward L2.
 - :mod:`~cirl_study.core.order_agreement`: the feature order agreement.
 - :mod:`~cirl_study.core.trial`: a batch of trial specs played into trial records.

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 from cirl_study.core.hypotheses import HypothesisSpace
 from cirl_study.core.maxent import MaxEnt
-from cirl_study.core.planning import IntArray
+from cirl_study.core.planning import FloatArray, IntArray
 from cirl_study.record import GradientAscent, Teaching
 
 
@@ -66,3 +66,20 @@ class Apprenticeship:
         if self.gradient_ascent is None:
             raise ValueError("this game has no gradient_ascent settings")
         return self.gradient_ascent
+
+
+@dataclass(frozen=True)
+class Outcome:
+    """What a batch of ``B`` played trials is measured on (every measure of
+    :data:`cirl_study.measure_registry.MEASURES`).
+
+    Attributes:
+        game: the batch's two-phase game: the deployment phase's MaxEnt model, the trials'
+            features ``(B, S, K)`` and the robot's rationality.
+        theta: the true reward weights, ``(B, K)``.
+        theta_hat: the robot's estimates, ``(B, K)``.
+    """
+
+    game: Apprenticeship
+    theta: FloatArray
+    theta_hat: FloatArray

@@ -27,8 +27,8 @@ its dynamics, the trials' features and :math:`\\lambda`).
   - \\log \\hat\\pi_t(a \\mid s) + D_{t+1}(s')]`.
 * ``reward_l2``: :math:`\\lVert \\Phi\\theta - \\Phi\\hat\\theta \\rVert_2` over all cells.
 
-Each is registered by name (:mod:`cirl_study.core.measure_registry`) as the function of a played
-batch (an :class:`~cirl_study.core.measure_registry.Outcome`) that ends this module
+Each is registered by name (:mod:`cirl_study.measure_registry`) as the function of a played
+batch (an :class:`~cirl_study.measure_registry.Outcome`) that ends this module
 (:func:`regret_of`, ...).
 """
 
@@ -37,8 +37,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from cirl_study.core.apprenticeship import Outcome
 from cirl_study.core.maxent import MaxEnt, Phase
-from cirl_study.core.measure_registry import Outcome
 from cirl_study.core.planning import FloatArray, optimal_plan, shared_policy_values, soft_backup
 
 

@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from cirl_study.core.measure_registry import Outcome
+    from cirl_study.core.apprenticeship import Outcome
     from cirl_study.core.planning import FloatArray
 
 

@@ -15,7 +15,7 @@ robot, the two horizons and the goal cells, if any (:func:`phases`). It plays:
    ``deployment_steps`` steps (at most, with goals) from a uniformly drawn start
    (``deployment_start = "uniform"``; the measures take the exact expectation over that start,
    :mod:`cirl_study.core.measures`) or from the learning phase's start. Every registered
-   measure is computed (:data:`cirl_study.core.measure_registry.MEASURES`).
+   measure is computed (:data:`cirl_study.measure_registry.MEASURES`).
 
 :func:`play_trials` plays many trials at once, vectorised over trials that share the game's
 shape and rationality: each policy's demonstrations together, each demonstration once however
@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 from msgspec.structs import replace
 
-from cirl_study.core.apprenticeship import Apprenticeship
+from cirl_study.core.apprenticeship import Apprenticeship, Outcome
 from cirl_study.core.estimate import Estimate
 from cirl_study.core.gridworld import (
     Gridworld,
@@ -45,9 +45,9 @@ from cirl_study.core.gridworld import (
 )
 from cirl_study.core.hypotheses import HypothesisSpace, draw_hypotheses
 from cirl_study.core.maxent import MaxEnt, Phase
-from cirl_study.core.measure_registry import MEASURES, Outcome
 from cirl_study.core.planning import HardPlan, IntArray, follow_policy, optimal_plan
 from cirl_study.core.players import HUMANS, ROBOTS, player_faults
+from cirl_study.measure_registry import MEASURES
 from cirl_study.record import (
     Cell,
     Demonstration,

@@ -12,7 +12,7 @@ each the move between consecutive cells, none of them ``stay`` unless
 ``demonstrator_stays``; every deployment rollout is such a path of ``T_deploy`` moves from its
 start, which is the demonstration's start when ``deployment_start`` says so; the measures are
 the registered ones, each finite, in its range (up to rounding) and ``null`` only where its
-measure allows (:func:`~cirl_study.core.measure_registry.measure_faults`);
+measure allows (:func:`~cirl_study.measure_registry.measure_faults`);
 ``reward_l2 = ||Phi theta - Phi theta_hat||_2`` recomputed from the record (here, not by the
 code that logged it; the records of one grid and ``K`` in one array product). The policy and the
 robot are registered ones (:data:`~cirl_study.core.players.HUMANS`,
@@ -40,9 +40,9 @@ from cirl_study.core.gridworld import (
     Gridworld,
     action_between,
 )
-from cirl_study.core.measure_registry import measure_faults
 from cirl_study.core.players import player_faults
 from cirl_study.features import Features, feature_matrix
+from cirl_study.measure_registry import measure_faults
 from cirl_study.record import (
     GRADIENT_ASCENT,
     Cell,

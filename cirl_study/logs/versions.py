@@ -24,7 +24,7 @@ the box, so the schema no longer bounds ``theta_hat`` (the record checks do, for
 robot); and the second reading of regret, ``measures.regret_under_estimate``. A record of
 format 5 or 6 has neither: ``gradient_ascent`` reads as ``null``.
 
-Format 8 logs every measure of the registry (:data:`cirl_study.core.measure_registry.MEASURES`):
+Format 8 logs every measure of the registry (:data:`cirl_study.measure_registry.MEASURES`):
 ``measures`` is a mapping of their names, checked against the registry, where format 7 declared
 a type of four numbers. A record of an earlier format reads every registered measure it lacks
 as ``null`` (missing, not recomputed: see :func:`record_payload`), ``regret_under_estimate``
@@ -46,7 +46,7 @@ from typing import Any
 
 import msgspec
 
-from cirl_study.core.measure_registry import MEASURES
+from cirl_study.measure_registry import MEASURES
 
 LOG_FORMAT = "8"
 """The format this version writes: 8 ``measures`` by the measure registry, games of any

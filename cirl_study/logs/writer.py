@@ -18,7 +18,6 @@ import mcap
 from mcap.writer import CompressionType, Writer
 
 from cirl_study import __version__
-from cirl_study.core.measure_registry import measure_faults
 from cirl_study.files import open_for_writing
 from cirl_study.logs.episode import episode_messages
 from cirl_study.logs.format import (
@@ -32,6 +31,7 @@ from cirl_study.logs.format import (
 )
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.schemas import CHANNELS
+from cirl_study.measure_registry import measure_faults
 from cirl_study.record import DecodeError, TrialRecord, decode, encode
 
 #: Chunks are closed once they hold this many uncompressed bytes; a truncated file loses at
@@ -100,7 +100,7 @@ class TrialLogWriter:
 
         Raises:
             ValueError: the record belongs to another run than the file's, its measures break
-                the registry (:func:`~cirl_study.core.measure_registry.measure_faults`: e.g. a
+                the registry (:func:`~cirl_study.measure_registry.measure_faults`: e.g. a
                 NaN, which JSON would hold as ``null``, the value of an undefined measure), or
                 it would not decode again: nothing of it is written.
         """

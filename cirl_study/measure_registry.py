@@ -1,11 +1,12 @@
 """The measures by name: what every trial's record logs, and how the reports read it.
 
 A measure is a :class:`Measure`: the function that computes it for a batch of played trials
-(an :class:`Outcome`), how the reports print it (its ``label`` in figures, its ``short`` name
-in tables, its ``unit``), which way is better, the range its values lie in, where it has no
-value, and whether the analysis tests it. The built-in ones are registered here, in the order
-every record's row, the trial table's columns and every section of the results list them; a new
-measure is one module holding its computation and one line here::
+(an :class:`~cirl_study.core.apprenticeship.Outcome`), how the reports print it (its
+``label`` in figures, its ``short`` name in tables, its ``unit``), which way is better, the
+range its values lie in, where it has no value, and whether the analysis tests it. The
+built-in ones are registered here, in the order every record's row, the trial table's columns
+and every section of the results list them; a new measure is one module holding its
+computation and one line here::
 
     register_measure("order_agreement", Measure("cirl_study.core.order_agreement:order_agreement",
                      label="feature order agreement", ...))
@@ -31,28 +32,7 @@ import importlib
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from cirl_study.core.apprenticeship import Apprenticeship
-    from cirl_study.core.planning import FloatArray
-
-
-@dataclass(frozen=True)
-class Outcome:
-    """What a batch of ``B`` played trials is measured on.
-
-    Attributes:
-        game: the batch's two-phase game (:class:`~cirl_study.core.apprenticeship.
-            Apprenticeship`): the deployment phase's MaxEnt model, the trials' features
-            ``(B, S, K)`` and the robot's rationality.
-        theta: the true reward weights, ``(B, K)``.
-        theta_hat: the robot's estimates, ``(B, K)``.
-    """
-
-    game: Apprenticeship
-    theta: FloatArray
-    theta_hat: FloatArray
+from typing import Any
 
 
 @dataclass(frozen=True)
@@ -85,7 +65,7 @@ class Measure:
     undefined: str | None = None
     analysed: bool = True
 
-    def computed(self, outcome: Outcome) -> list[float | None]:
+    def computed(self, outcome: Any) -> list[float | None]:
         """The measure of every trial of ``outcome``: a float (converted from the
         computation's number) or ``None``, in order.
 
