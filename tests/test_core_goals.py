@@ -128,7 +128,7 @@ def test_the_expert_and_best_response_are_the_enumerated_optima(seed, horizon, s
         assert distance == pytest.approx(((counts - target[b]) ** 2).sum(axis=1).min(), abs=1e-9)
 
 
-@pytest.mark.parametrize("rationality", [1e-2, 1.0, 1e2])
+@pytest.mark.parametrize("rationality", [1e-4, 1e-2, 1.0, 1e2, 1e4])
 def test_regret_and_kl_equal_enumeration_over_the_non_goal_starts(rationality: float) -> None:
     horizon = 5
     table = _table(True)
