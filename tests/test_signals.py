@@ -58,19 +58,23 @@ def _pipeline(directory: Path) -> Path:
     return path
 
 
+_AT_DEFAULT = {signal.SIGINT: signal.default_int_handler, signal.SIGHUP: signal.SIG_DFL}
+"""The signals a terminal's foreground job starts with at their defaults, and those defaults."""
+
+
 @pytest.fixture(scope="module", autouse=True)
-def _ctrl_c_reaches_the_commands() -> Iterator[None]:
-    """The commands start as a terminal's foreground job does, Ctrl-C at its default, also
-    when the suite runs with SIGINT ignored (``pytest &`` in a script), which a command would
-    inherit and, rightly, keep."""
-    if signal.getsignal(signal.SIGINT) != signal.SIG_IGN:
-        yield
-        return
-    signal.signal(signal.SIGINT, signal.default_int_handler)
+def _signals_reach_the_commands() -> Iterator[None]:
+    """The commands start as a terminal's foreground job does, Ctrl-C and hang-up at their
+    defaults, also when the suite runs with them ignored (``pytest &`` in a script ignores
+    SIGINT, ``nohup`` SIGHUP), which a command would inherit and, rightly, keep."""
+    ignored = [number for number in _AT_DEFAULT if signal.getsignal(number) == signal.SIG_IGN]
+    for number in ignored:
+        signal.signal(number, _AT_DEFAULT[number])
     try:
         yield
     finally:
-        signal.signal(signal.SIGINT, signal.SIG_IGN)
+        for number in ignored:
+            signal.signal(number, signal.SIG_IGN)
 
 
 @pytest.fixture(scope="module")
