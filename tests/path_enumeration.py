@@ -410,15 +410,21 @@ def regret(
 ) -> float:
     """Mean over all starts of ``V*_theta(s) - V^{pi_theta_hat}_theta(s)``.
 
-    ``pi_theta_hat`` is ``actions`` if given, else :func:`greedy_actions` for ``theta_hat``.
+    ``pi_theta_hat`` is ``actions`` if given, else the optimal policy for ``theta_hat`` that
+    shares its mass evenly among tied moves (:func:`shared_policy_value`, docs/design.md §1).
     """
-    if actions is None:
-        actions = greedy_actions(width, height, features, theta_hat, horizon)
     best = optimal_values(width, height, features, theta, horizon)
-    gaps = [
-        best[s] - policy_value(width, height, features, theta, actions, s)
-        for s in range(width * height)
-    ]
+    if actions is None:
+        table = move_table(width, height)
+        true, planned = features @ np.asarray(theta), features @ np.asarray(theta_hat)
+        achieved = [
+            shared_policy_value(table, true, planned, s, horizon, ()) for s in range(len(best))
+        ]
+    else:
+        achieved = [
+            policy_value(width, height, features, theta, actions, s) for s in range(len(best))
+        ]
+    gaps = [best[s] - achieved[s] for s in range(len(best))]
     return math.fsum(gaps) / len(gaps)
 
 

@@ -128,11 +128,12 @@ def test_regret_ignores_the_rationality_and_averages_the_fixed_starts(rationalit
 def _regret_under_estimate_by_enumeration(features, theta, theta_hat, width, height, horizon):
     """``mean_s V*_theta_hat(s) - V^{pi_theta}_theta_hat(s)``: the best value under
     ``theta_hat`` by a maximum over every path from each start, minus the value under
-    ``theta_hat`` of rolling out the hard-max policy for ``theta`` (ties to the lowest action)."""
+    ``theta_hat`` of the hard-max policy for ``theta`` that shares ties, by its tie tree."""
     best = bf.optimal_values(width, height, features, theta_hat, horizon)
-    policy = bf.greedy_actions(width, height, features, theta, horizon)
+    table = bf.move_table(width, height)
+    estimated, true = features @ theta_hat, features @ theta
     gaps = [
-        best[s] - bf.policy_value(width, height, features, theta_hat, policy, s)
+        best[s] - bf.shared_policy_value(table, estimated, true, s, horizon, ())
         for s in range(width * height)
     ]
     return float(np.mean(gaps))
