@@ -28,7 +28,7 @@ its dynamics, the trials' features and :math:`\\lambda`).
 * ``reward_l2``: :math:`\\lVert \\Phi\\theta - \\Phi\\hat\\theta \\rVert_2` over all cells.
 
 Each is registered by name (:mod:`cirl_study.measure_registry`) as the function of a played
-batch (an :class:`~cirl_study.measure_registry.Outcome`) that ends this module
+batch (an :class:`~cirl_study.core.apprenticeship.Outcome`) that ends this module
 (:func:`regret_of`, ...).
 """
 
@@ -119,10 +119,10 @@ def over_starts(values: FloatArray, phase: Phase) -> FloatArray:
     (:attr:`~cirl_study.core.maxent.Phase.starts`): ``(B,)``."""
     if phase.start is not None:
         return values[:, phase.start]
-    starts = phase.starts
-    if starts.all():
-        return values[:, : phase.cells].mean(axis=1)
-    return values[:, : phase.cells][:, starts].mean(axis=1)
+    # ``compress`` keeps the rows C-contiguous, so the mean over every cell sums in the same
+    # order, to the bit, as ``values.mean(axis=1)``; a boolean index would lay them out by
+    # column and sum in another order.
+    return values[:, : phase.cells].compress(phase.starts, axis=1).mean(axis=1)
 
 
 def reward_l2(features: FloatArray, theta: FloatArray, theta_hat: FloatArray) -> FloatArray:

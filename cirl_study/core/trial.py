@@ -379,12 +379,10 @@ def _deployment_rollouts(
     if phase.start is not None:
         return [follow_policy(phase.successors, np.full(len(specs), phase.start), plan.actions)]
     candidates = np.flatnonzero(phase.starts)
-    if len(candidates) == phase.cells:
-        candidates = phase.cells  # the same draws as from every cell's index
     starts = np.array(
         [
             np.random.default_rng(spec.seed).choice(
-                candidates, size=min(DEPLOYMENT_ROLLOUTS, phase.starts.sum()), replace=False
+                candidates, size=min(DEPLOYMENT_ROLLOUTS, len(candidates)), replace=False
             )
             for spec in specs
         ]
