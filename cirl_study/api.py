@@ -15,16 +15,16 @@ Examples:
     >>> import cirl_study
     >>> out = cirl_study.run("smoke", Path(tempfile.mkdtemp()) / "smoke")
     >>> trials = cirl_study.load_trials(out)
-    >>> len(trials), sorted(trials["policy"].unique()), sorted(trials["block"].unique())
+    >>> len(trials), sorted(trials["human"].unique()), sorted(trials["block"].unique())
     (82, ['best_response', 'expert'], ['eta_cv', 'lambda_sweep', 'main'])
     >>> main = trials[trials["block"] == "main"]
-    >>> main.groupby(["num_features", "policy"])["regret"].count().tolist()
+    >>> main.groupby(["num_features", "human"])["regret"].count().tolist()
     [4, 4, 4, 4]
     >>> results = cirl_study.analyze(out)
     >>> results.design.humans, results.design.robots
     (['expert', 'best_response'], ['map'])
     >>> [row.effect for row in results.anova if row.measure == "regret"]
-    ['num_features', 'policy', 'policy:num_features']
+    ['num_features', 'human', 'human:num_features']
     >>> claim = next(c for c in results.claims if c.id == "lambda_intermediate")
     >>> claim.tested, type(claim.reproduced).__name__
     (True, 'bool')
@@ -68,7 +68,7 @@ def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
     whether its robot's estimate met its stopping rule.
 
     The columns are those of ``trials.csv`` (``docs/pipelines.md``, *The trial table*):
-    ``trial_id, run_id, universe, block, subject, policy, robot, num_features, rationality,
+    ``trial_id, run_id, universe, block, subject, human, robot, num_features, rationality,
     eta, seed``, a column per registered measure
     (:data:`cirl_study.measure_registry.MEASURES`: ``regret, kl, reward_l2,
     regret_under_estimate, ...``; NaN where a trial has no value of it), ``converged``; rows in a

@@ -36,7 +36,7 @@ BLOCKS: tuple[str, ...] = (MAIN, LAMBDA_SWEEP, ETA_CV)
 """Every block, in the order the report lists them."""
 
 EXPERT, BEST_RESPONSE = "expert", "best_response"
-"""The paper's human policies: demonstration by expert, and the instructive best response."""
+"""The paper's humans: demonstration by expert, and the instructive best response."""
 
 LITERAL = "literal"
 """The Boltzmann-rational demonstrator of Ho et al. (2016), who draws her path from the robot's
@@ -46,8 +46,8 @@ PEDAGOGIC, REGRET_OPTIMAL = "pedagogic", "regret_optimal"
 """The teaching humans: Ho et al.'s pedagogic shower, and the demonstration that minimises the
 MAP robot's regret (:mod:`cirl_study.core.teaching`)."""
 
-PAPER_POLICIES: tuple[str, ...] = (EXPERT, BEST_RESPONSE)
-"""The levels of the paper's within-subjects factor ``policy``, baseline first."""
+PAPER_HUMANS: tuple[str, ...] = (EXPERT, BEST_RESPONSE)
+"""The levels of the paper's within-subjects factor ``human``, baseline first."""
 
 MAP, POSTERIOR_MEAN = "map", "posterior_mean"
 """The robots: the paper's MAP estimate of MaxEnt IRL, and the Bayes-optimal posterior mean."""
@@ -162,7 +162,7 @@ class GradientAscent(msgspec.Struct, **_STRUCT):
 class TrialSpec(msgspec.Struct, **_STRUCT):
     """Identity and inputs of one trial: everything needed to play it.
 
-    ``eta`` is ``None`` exactly for a policy without a trade-off (the expert); ``robot``
+    ``eta`` is ``None`` exactly for a human without a trade-off (the expert); ``robot``
     names the estimator (:mod:`cirl_study.core.robot`). The game is common knowledge:
     ``grid``, the learning phase's ``start`` and the two horizons, the ``features``, whether
     the human may ``stay`` while demonstrating (``demonstrator_stays``) and where the robot's
@@ -180,7 +180,7 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
     run_id: NonEmptyText
     block: Block
     subject: NonEmptyText
-    policy: NonEmptyText
+    human: NonEmptyText
     num_features: PositiveInt
     rationality: Positive
     eta: Positive | None
@@ -244,7 +244,7 @@ class TrialRow(msgspec.Struct, **_STRUCT):
     universe: str | None
     block: Block
     subject: str
-    policy: str
+    human: str
     robot: str
     num_features: int
     rationality: float
@@ -263,7 +263,7 @@ class TrialRow(msgspec.Struct, **_STRUCT):
             universe=None if record.universe is None else sys.intern(record.universe),
             block=sys.intern(record.block),
             subject=record.subject,
-            policy=sys.intern(record.policy),
+            human=sys.intern(record.human),
             robot=sys.intern(record.robot),
             num_features=record.num_features,
             rationality=record.rationality,
@@ -290,7 +290,7 @@ def setting_faults(spec: TrialSpec) -> list[str]:
     Examples:
         >>> from cirl_study.features import RBFFeatures
         >>> spec = TrialSpec(trial_id="t", run_id="r", block="main", subject="s",
-        ...     policy="expert", robot="map", num_features=1, rationality=1.0, eta=None,
+        ...     human="expert", robot="map", num_features=1, rationality=1.0, eta=None,
         ...     seed=0, grid=Grid(width=2, height=2), start=(2, 0), learning_steps=1,
         ...     deployment_steps=1, features=RBFFeatures(centers=((0.0, 0.0),), sigma=1.0),
         ...     theta=(0.5, 0.1), demonstrator_stays=True, deployment_start="uniform")

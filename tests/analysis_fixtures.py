@@ -2,7 +2,7 @@
 
 The measures are drawn, not computed from a game: they only need the structure the
 analysis relies on (paired subjects, unique subject ids across feature levels, a
-policy effect, a lambda curve with an interior minimum, an eta curve with a known
+human effect, a lambda curve with an interior minimum, an eta curve with a known
 minimum). Everything is a deterministic function of the arguments. Each record is built
 as plain data and validated into a :class:`~cirl_study.record.TrialRecord`.
 """
@@ -18,7 +18,7 @@ import numpy as np
 
 from cirl_study.core.gridworld import Gridworld, rbf_features
 from cirl_study.core.order_agreement import agreement
-from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord, TrialRow, from_builtins
+from cirl_study.record import BEST_RESPONSE, PAPER_HUMANS, TrialRecord, TrialRow, from_builtins
 from cirl_study.study.pipeline_file import parse_pipeline
 from cirl_study.study.spec import Pipeline
 
@@ -59,7 +59,7 @@ def _record(
     *,
     block: str,
     subject: str,
-    policy: str,
+    human: str,
     num_features: int,
     rationality: float,
     eta: float | None,
@@ -74,11 +74,11 @@ def _record(
     theta_hat = np.clip(np.asarray(theta) + rng.normal(0, 0.3 * scale, len(theta)), -1, 1)
     return from_builtins(
         {
-            "trial_id": f"{block}/{subject}/{policy}/lambda={rationality:g}/eta={eta_part}",
+            "trial_id": f"{block}/{subject}/{human}/lambda={rationality:g}/eta={eta_part}",
             "run_id": "synthetic-run",
             "block": block,
             "subject": subject,
-            "policy": policy,
+            "human": human,
             "num_features": num_features,
             "rationality": rationality,
             "eta": eta,
@@ -109,7 +109,7 @@ def synthetic_records(
     lambdas: tuple[float, ...] = (1e-2, 1.0, 1e2),
     etas: tuple[float, ...] = (0.1, 1.0, 10.0),
     cv_subjects: int = 4,
-    policy_effect: float = 0.8,
+    human_effect: float = 0.8,
 ) -> list[TrialRecord]:
     """Records of a small study: ``main``, ``lambda_sweep`` and ``eta_cv`` blocks.
 
@@ -122,23 +122,23 @@ def synthetic_records(
         lambdas: the sweep's rationalities; every loss is lowest at lambda = 1.
         etas: the cross-validation grid; every loss is lowest at eta = 1.
         cv_subjects: reward draws per feature level in ``eta_cv`` (disjoint ids).
-        policy_effect: log-ratio by which the best response lowers every loss; the gap is
+        human_effect: log-ratio by which the best response lowers every loss; the gap is
             1.5 times larger at the smallest feature level.
     """
     rng = np.random.default_rng(seed)
     records: list[TrialRecord] = []
     for level in levels:
-        gap = policy_effect * (1.5 if level == min(levels) else 1.0)
+        gap = human_effect * (1.5 if level == min(levels) else 1.0)
         for index in range(subjects_per_level):
             subject = f"k{level}-s{index:03d}"
             theta = [float(v) for v in rng.uniform(-1, 1, level)]
             centers = _centers(rng, level)
             base = rng.normal(0, 0.5)
-            for policy in PAPER_POLICIES:
-                best = policy == BEST_RESPONSE
+            for human in PAPER_HUMANS:
+                best = human == BEST_RESPONSE
                 common = dict(
                     subject=subject,
-                    policy=policy,
+                    human=human,
                     num_features=level,
                     eta=1.0 if best else None,
                     theta=theta,
@@ -166,7 +166,7 @@ def synthetic_records(
                         rng,
                         block="eta_cv",
                         subject=f"cv-k{level}-s{index:03d}",
-                        policy=BEST_RESPONSE,
+                        human=BEST_RESPONSE,
                         num_features=level,
                         rationality=1.0,
                         eta=eta,
@@ -190,14 +190,14 @@ def records_of(records: list[TrialRecord]) -> Callable[[set[str]], list[TrialRec
 
 def pipeline(
     name: str = "paper",
-    policies: Sequence[str] = PAPER_POLICIES,
+    humans: Sequence[str] = PAPER_HUMANS,
     robots: Sequence[str] = ("map",),
 ) -> Pipeline:
-    """The smoke pipeline named ``name``, playing ``policies`` with ``robots``: the order of
+    """The smoke pipeline named ``name``, playing ``humans`` with ``robots``: the order of
     the humans and robots the analysis of synthetic records follows."""
     text = SMOKE.read_text(encoding="utf-8").replace('name = "smoke"', f'name = "{name}"')
     text = text.replace(
-        'policies = ["expert", "best_response"]', f"policies = {json.dumps(list(policies))}"
+        'humans = ["expert", "best_response"]', f"humans = {json.dumps(list(humans))}"
     )
     text = text.replace('robots = ["map"]', f"robots = {json.dumps(list(robots))}")
     return parse_pipeline(text, Path(f"{name}.toml"))

@@ -188,9 +188,9 @@ def test_rows_are_typed() -> None:
 
 
 def as_study_columns(data: pd.DataFrame) -> pd.DataFrame:
-    """A fixture's factors under the trial table's names: human -> policy, group ->
+    """A fixture's factors under the trial table's names: human -> human, group ->
     num_features (g1 -> 1, ...), a constant robot or feature level where the design has none."""
-    frame = data.rename(columns={"human": "policy"})
+    frame = data.rename(columns={"human": "human"})
     if "robot" not in frame:
         frame["robot"] = "r"
     frame["num_features"] = frame["group"].str[1:].astype(int) if "group" in frame else 1
@@ -201,7 +201,7 @@ def as_study_columns(data: pd.DataFrame) -> pd.DataFrame:
 def test_pairwise_comparisons_equal_r_paired_t_tests_with_holm(design: str) -> None:
     frame = as_study_columns(read_fixture(f"{design}_data.csv"))
     expected = read_fixture(f"{design}_paired.csv")
-    for factor, column in (("human", "policy"), ("robot", "robot")):
+    for factor, column in (("human", "human"), ("robot", "robot")):
         theirs = expected[expected["factor"] == factor]
         if theirs.empty:
             continue
@@ -210,7 +210,7 @@ def test_pairwise_comparisons_equal_r_paired_t_tests_with_holm(design: str) -> N
         assert len(ours) == len(theirs)
         found = {}
         for row in ours:
-            cell = {"robot": row.robot, "human": row.policy, "group": f"g{row.num_features}"}
+            cell = {"robot": row.robot, "human": row.human, "group": f"g{row.num_features}"}
             found[(row.level_a, row.level_b, frozenset(cell.items()))] = row
         for reference in theirs.itertuples():
             by = dict(part.split("=") for part in reference.by.split(",") if part)
@@ -238,7 +238,7 @@ def test_pairwise_comparisons_equal_r_paired_t_tests_with_holm(design: str) -> N
 def test_pairwise_comparisons_equal_pingouin() -> None:
     data = read_fixture("rm_human3_robot2_data.csv")
     frame = as_study_columns(data)
-    ours = pairwise_differences(frame, "y", "policy", ["h1", "h2", "h3"])
+    ours = pairwise_differences(frame, "y", "human", ["h1", "h2", "h3"])
     theirs = pg.pairwise_tests(
         data=data, dv="y", within=["robot", "human"], subject="subject", padjust="none"
     )
@@ -291,7 +291,7 @@ def test_pairwise_differences_are_emmeans_contrasts(design: str) -> None:
     expected = read_fixture(f"{design}_pairwise.csv")
     within_only = "group" not in read_fixture(f"{design}_data.csv")
     checked = 0
-    for factor, column in (("human", "policy"), ("robot", "robot")):
+    for factor, column in (("human", "human"), ("robot", "robot")):
         theirs = expected[(expected["factor"] == factor) & (expected["by"] != "")]
         if factor == "human" and theirs.empty:  # one within factor: the marginal is the simple
             theirs = expected[expected["factor"] == factor]
@@ -305,7 +305,7 @@ def test_pairwise_differences_are_emmeans_contrasts(design: str) -> None:
                 for r in ours
                 if (r.level_a, r.level_b) == (reference.level_a, reference.level_b)
                 and by.get("robot", r.robot) == r.robot
-                and by.get("human", r.policy) == r.policy
+                and by.get("human", r.human) == r.human
                 and by.get("group", f"g{r.num_features}") == f"g{r.num_features}"
             ]
             assert close(row.mean_diff, reference.estimate)

@@ -19,8 +19,8 @@ from cirl_study.errors import UserError
 from cirl_study.measure_registry import PAPER_MEASURES
 
 CLAIM_IDS = [
-    "policy_effect",
-    "policy_f_above_962",
+    "human_effect",
+    "human_f_above_962",
     "interaction_kl_l2",
     "cronbach_alpha",
     "tukey_br_ahead",
@@ -48,11 +48,11 @@ def _anova(results: dict, measure: str, effect: str) -> dict:
     )
 
 
-def _cell(results: dict, measure: str, level: int, policy: str) -> dict:
+def _cell(results: dict, measure: str, level: int, human: str) -> dict:
     return next(
         r
         for r in results["cells"]
-        if r["measure"] == measure and r["num_features"] == level and r["policy"] == policy
+        if r["measure"] == measure and r["num_features"] == level and r["human"] == human
     )
 
 
@@ -69,8 +69,8 @@ def holding() -> dict:
     """Results of a synthetic study, edited so that every paper claim holds."""
     results = analyse(rows(synthetic_records(subjects_per_level=10)), pipeline("synthetic"))
     for measure in PAPER_MEASURES:
-        _anova(results, measure, "policy").update(F=1000.0, p=1e-12)
-        _anova(results, measure, "policy:num_features").update(p=1e-3)
+        _anova(results, measure, "human").update(F=1000.0, p=1e-12)
+        _anova(results, measure, "human:num_features").update(p=1e-3)
         for level, gap in ((3, 2.0), (10, 1.0)):
             best = _cell(results, measure, level, "best_response")["mean"]
             _cell(results, measure, level, "expert")["mean"] = best + gap
@@ -104,8 +104,8 @@ def test_a_claim_whose_cells_the_run_lacks_is_not_tested(holding):
         assert claims[claim].measurement.startswith("not tested: the run lacks the human")
 
 
-def _policy_p(results):
-    _anova(results, "kl", "policy")["p"] = 2e-4
+def _human_p(results):
+    _anova(results, "kl", "human")["p"] = 2e-4
 
 
 def _expert_better(results):
@@ -115,11 +115,11 @@ def _expert_better(results):
 
 
 def _small_f(results):
-    _anova(results, "regret", "policy")["F"] = 961.0
+    _anova(results, "regret", "human")["F"] = 961.0
 
 
 def _no_interaction(results):
-    _anova(results, "reward_l2", "policy:num_features")["p"] = 0.2
+    _anova(results, "reward_l2", "human:num_features")["p"] = 0.2
 
 
 def _gap_larger_with_more_features(results):
@@ -155,9 +155,9 @@ def _lambda_minimum_not_clear(results):
 @pytest.mark.parametrize(
     ("edit", "flipped"),
     [
-        (_policy_p, "policy_effect"),
-        (_expert_better, "policy_effect"),
-        (_small_f, "policy_f_above_962"),
+        (_human_p, "human_effect"),
+        (_expert_better, "human_effect"),
+        (_small_f, "human_f_above_962"),
         (_no_interaction, "interaction_kl_l2"),
         (_gap_larger_with_more_features, "interaction_kl_l2"),
         (_alpha_elsewhere, "cronbach_alpha"),
@@ -175,7 +175,7 @@ def test_breaking_one_condition_flips_only_its_claim(holding, edit: Callable, fl
 
 def test_the_regret_interaction_does_not_decide_the_kl_l2_claim(holding):
     results = copy.deepcopy(holding)
-    _anova(results, "regret", "policy:num_features")["p"] = 0.9
+    _anova(results, "regret", "human:num_features")["p"] = 0.9
     assert _verdicts(results)["interaction_kl_l2"]
 
 

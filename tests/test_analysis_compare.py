@@ -22,7 +22,7 @@ RESULTS = {
     "claims": [{"reproduced": True, "verdict": "✅ reproduced"}],
     "figure1": {"subject": "main-k03-s0042", "regret_expert": 0.25, "note": None},
 }
-TRIALS = "trial_id,policy,eta,regret\nmain:a,expert,,0.5\nmain:a,best_response,0.316,0.125\n"
+TRIALS = "trial_id,human,eta,regret\nmain:a,expert,,0.5\nmain:a,best_response,0.316,0.125\n"
 
 
 def report(directory: Path, results: object = None, trials: str = TRIALS) -> Path:
@@ -85,7 +85,7 @@ def test_an_expected_report_without_its_text_is_a_difference(tmp_path: Path) -> 
             "results.json.claims[0].reproduced: True != False",
         ),
         (RESULTS, TRIALS.replace("0.125", "0.25"), "trials.csv row 3 (main:a): regret 0.125"),
-        (RESULTS, TRIALS.replace("expert,", "oracle,"), "trials.csv row 2 (main:a): policy"),
+        (RESULTS, TRIALS.replace("expert,", "oracle,"), "trials.csv row 2 (main:a): human"),
         (RESULTS, TRIALS.rsplit("\n", 2)[0] + "\n", "trials.csv: 2 rows != 1 rows"),
     ],
 )

@@ -91,16 +91,16 @@ def test_a_record_without_a_drawable_reward_map_is_refused_before_it_becomes_a_r
 
 
 def _identical_sweep() -> pd.DataFrame:
-    """Both policies with the very same regret at every lambda: the case that hid one line."""
+    """Both humans with the very same regret at every lambda: the case that hid one line."""
     rows = [
-        {"measure": "regret", "rationality": lam, "policy": policy, "num_features": k,
+        {"measure": "regret", "rationality": lam, "human": human, "num_features": k,
          "mean": 1.0 + k / 10, "ci95_low": 0.9, "ci95_high": 1.1 + k / 10}
-        for k in (3, 10) for lam in (1e-2, 1.0, 1e2) for policy in ("expert", "best_response")
+        for k in (3, 10) for lam in (1e-2, 1.0, 1e2) for human in ("expert", "best_response")
     ]  # fmt: skip
     return pd.DataFrame(rows)
 
 
-def test_both_policies_are_visible_at_every_lambda_even_where_they_coincide():
+def test_both_humans_are_visible_at_every_lambda_even_where_they_coincide():
     figure = figures.lambda_figure(_identical_sweep())
     panels = [axes for axes in figure.axes if axes.get_title()]
     assert [axes.get_title() for axes in panels] == ["3 features", "10 features"]
@@ -181,7 +181,7 @@ def test_the_cell_figure_labels_its_axes_and_its_human_names_do_not_collide(huma
     robots = ["map", "literal_observer", "pragmatic"]
     cells = pd.DataFrame(
         [
-            {"measure": m, "num_features": k, "policy": h, "robot": r, "mean": 1.0,
+            {"measure": m, "num_features": k, "human": h, "robot": r, "mean": 1.0,
              "ci95_low": 0.5, "ci95_high": 1.5}
             for m in ("regret", "kl", "reward_l2") for k in (3, 10) for h in names for r in robots
         ]

@@ -79,7 +79,7 @@ def test_results_json_holds_every_section_at_full_precision(reports, records):
     paper = results["paper"]
     assert {"raw", "standardised", "ci95", "rows"} <= set(paper["cronbach_alpha"])
     assert "main block" in paper["cronbach_alpha"]["rows"]
-    effects = ("num_features", "policy", "policy:num_features")
+    effects = ("num_features", "human", "human:num_features")
     for anova in (results["anova"], paper["anova"]):
         for row in anova:
             assert {"measure", "effect", "df1", "df2", "F", "p", "log10_p", "np2", "ges"} <= set(
@@ -91,10 +91,10 @@ def test_results_json_holds_every_section_at_full_precision(reports, records):
     table = trial_table(rows(records))
     main = table[table["block"] == "main"]
     expected = pg.mixed_anova(
-        data=main, dv="kl", within="policy", between="num_features", subject="subject"
+        data=main, dv="kl", within="human", between="num_features", subject="subject"
     ).set_index("Source")
     got = {r["effect"]: r for r in paper["anova"] if r["measure"] == "kl"}
-    for effect, source in zip(effects, ("num_features", "policy", "Interaction"), strict=True):
+    for effect, source in zip(effects, ("num_features", "human", "Interaction"), strict=True):
         assert got[effect]["F"] == pytest.approx(expected.at[source, "F"], rel=1e-12)
         assert got[effect]["p"] == pytest.approx(expected.at[source, "p_unc"], rel=1e-9)
     assert results["anova"] == paper["anova"]  # the paper's design: one robot, its two humans
@@ -126,7 +126,7 @@ def test_a_main_block_played_with_another_eta_is_flagged(records, tmp_path):
     """The main block's best response at 10 features played with eta = 10, cross-validated 1."""
     changed = [
         msgspec.structs.replace(r, eta=10.0)
-        if r.block == "main" and r.policy == "best_response" and r.num_features == 10
+        if r.block == "main" and r.human == "best_response" and r.num_features == 10
         else r
         for r in records
     ]

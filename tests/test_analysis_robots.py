@@ -43,20 +43,20 @@ def _plain_report(*args, **kwargs) -> dict:
 
 
 def split_plot_data(seed: int, subjects: int, levels: int = 2) -> pd.DataFrame:
-    """Random scores of ``subjects`` per group, 2 groups, within factors robot and policy."""
+    """Random scores of ``subjects`` per group, 2 groups, within factors robot and human."""
     rng = np.random.default_rng(seed)
     rows = []
     for group in range(levels):
         for s in range(subjects):
             person = rng.normal()
-            for robot, policy in itertools.product(("map", "pm"), ("expert", "best")):
-                effect = 0.4 * (robot == "pm") * (group == 0) + 0.7 * (policy == "best")
+            for robot, human in itertools.product(("map", "pm"), ("expert", "best")):
+                effect = 0.4 * (robot == "pm") * (group == 0) + 0.7 * (human == "best")
                 rows.append(
                     {
                         "subject": f"g{group}-s{s:03d}",
                         "num_features": 3 + 7 * group,
                         "robot": robot,
-                        "policy": policy,
+                        "human": human,
                         "y": person + effect + rng.normal(),
                     }
                 )
@@ -70,15 +70,15 @@ def anova_frame(data: pd.DataFrame, within: list[str]) -> pd.DataFrame:
 
 def test_one_within_factor_matches_pingouin() -> None:
     data = split_plot_data(1, 9)
-    one = data.groupby(["subject", "num_features", "policy"], as_index=False)["y"].mean()
-    ours = anova_frame(one, ["policy"])
-    arguments = dict(data=one, dv="y", within="policy", between="num_features", subject="subject")
+    one = data.groupby(["subject", "num_features", "human"], as_index=False)["y"].mean()
+    ours = anova_frame(one, ["human"])
+    arguments = dict(data=one, dv="y", within="human", between="num_features", subject="subject")
     partial = pg.mixed_anova(**arguments, effsize="np2").set_index("Source")
     general = pg.mixed_anova(**arguments, effsize="ng2").set_index("Source")
     names = {
         "num_features": "num_features",
-        "policy": "policy",
-        "policy:num_features": "Interaction",
+        "human": "human",
+        "human:num_features": "Interaction",
     }
     for effect, source in names.items():
         assert ours.at[effect, "SS"] == pytest.approx(partial.at[source, "SS"], rel=1e-12)
@@ -93,7 +93,7 @@ def test_one_within_factor_matches_pingouin() -> None:
 def contrast_f(data: pd.DataFrame, weights: dict[tuple[str, str], float]) -> tuple[float, float]:
     """F of a within contrast's mean (pooled within-group error) and of its group effect."""
     wide = data.pivot_table(
-        index=["num_features", "subject"], columns=["robot", "policy"], values="y"
+        index=["num_features", "subject"], columns=["robot", "human"], values="y"
     )
     contrast = sum(weight * wide[cell] for cell, weight in weights.items())
     groups = [values.to_numpy() for _, values in contrast.groupby(level="num_features")]
@@ -106,18 +106,18 @@ def contrast_f(data: pd.DataFrame, weights: dict[tuple[str, str], float]) -> tup
 @given(seed=st.integers(0, 2**32 - 1), subjects=st.integers(3, 12))
 def test_two_within_factors_match_the_contrast_tests(seed: int, subjects: int) -> None:
     data = split_plot_data(seed, subjects)
-    ours = anova_frame(data, ["robot", "policy"])
+    ours = anova_frame(data, ["robot", "human"])
     robot = {("pm", "expert"): 1, ("pm", "best"): 1, ("map", "expert"): -1, ("map", "best"): -1}
-    policy = {("pm", "best"): 1, ("map", "best"): 1, ("pm", "expert"): -1, ("map", "expert"): -1}
+    human = {("pm", "best"): 1, ("map", "best"): 1, ("pm", "expert"): -1, ("map", "expert"): -1}
     both = {("pm", "best"): 1, ("map", "expert"): 1, ("pm", "expert"): -1, ("map", "best"): -1}
-    for name, weights in (("robot", robot), ("policy", policy), ("robot:policy", both)):
+    for name, weights in (("robot", robot), ("human", human), ("robot:human", both)):
         main_f, group_f = contrast_f(data, weights)
         assert ours.at[name, "F"] == pytest.approx(main_f, rel=1e-9)
         assert ours.at[f"{name}:num_features", "F"] == pytest.approx(group_f, rel=1e-9)
     # The effects and the four error terms (one per within subset) partition the total SS.
     error_ss = sum(
         ours.at[e, "MS"] / ours.at[e, "F"] * ours.at[e, "df2"]
-        for e in ("num_features", "robot", "policy", "robot:policy")
+        for e in ("num_features", "robot", "human", "robot:human")
     )
     total = ((data["y"] - data["y"].mean()) ** 2).sum()
     assert ours["SS"].sum() + error_ss == pytest.approx(total, rel=1e-9)
@@ -126,16 +126,16 @@ def test_two_within_factors_match_the_contrast_tests(seed: int, subjects: int) -
 def test_the_anova_refuses_an_incomplete_subject() -> None:
     data = split_plot_data(3, 5)
     with pytest.raises(ValueError, match="exactly one observation in every within cell"):
-        repeated_measures_anova(data.iloc[1:], "y", ["robot", "policy"], "num_features")
+        repeated_measures_anova(data.iloc[1:], "y", ["robot", "human"], "num_features")
 
 
 def test_paired_differences_are_paired_t_tests_with_holm() -> None:
     data = split_plot_data(4, 10)
-    rows = paired_differences(data, "y", "robot", "map", ["num_features", "policy"])
+    rows = paired_differences(data, "y", "robot", "map", ["num_features", "human"])
     assert len(rows) == 4 and set(rows["level"]) == {"pm"}
     raw = []
     for row in rows.itertuples():
-        cell = data[(data["num_features"] == row.num_features) & (data["policy"] == row.policy)]
+        cell = data[(data["num_features"] == row.num_features) & (data["human"] == row.human)]
         wide = cell.pivot(index="subject", columns="robot", values="y")
         test = stats.ttest_rel(wide["pm"], wide["map"])
         assert row.t == pytest.approx(test.statistic, rel=1e-12)
@@ -161,7 +161,7 @@ def test_the_plan_puts_every_robot_on_the_same_demonstrations(tmp_path: Path) ->
     )
     cells: dict[tuple, set[str]] = {}
     for t in study:
-        cells.setdefault((t.block, t.subject, t.policy, t.rationality, t.eta), set()).add(t.robot)
+        cells.setdefault((t.block, t.subject, t.human, t.rationality, t.eta), set()).add(t.robot)
     assert set(map(frozenset, cells.values())) == {frozenset({MAP, POSTERIOR_MEAN})}
     counts = trial_counts(pipeline)
     assert counts == {"eta_cv": 18, "main": 32, "lambda_sweep": 96}
@@ -192,7 +192,7 @@ def test_the_map_trials_of_a_two_robot_run_are_those_of_the_map_run(
     assert {r.robot for r in two if r.block == ETA_CV} == {MAP}
 
     def key(record):
-        return (record.block, record.subject, record.policy, record.rationality, record.eta)
+        return (record.block, record.subject, record.human, record.rationality, record.eta)
 
     alone = {key(r): r for r in one}
     beside = {key(r): r for r in two if r.robot == MAP}
@@ -229,16 +229,16 @@ def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
     robots = both["robots"]
     assert (robots["reference"], robots["others"]) == (MAP, [POSTERIOR_MEAN])
     assert {row["effect"] for row in both["anova"]} == {
-        "num_features", "policy", "policy:num_features", "robot", "robot:num_features",
-        "policy:robot", "policy:robot:num_features",
+        "num_features", "human", "human:num_features", "robot", "robot:num_features",
+        "human:robot", "human:robot:num_features",
     }  # fmt: skip
     regret = [r for r in robots["main"] if r["measure"] == "regret"]
-    by_cell = {(r.subject, r.policy, r.robot): r.measure("regret") for r in two if r.block == MAIN}
+    by_cell = {(r.subject, r.human, r.robot): r.measure("regret") for r in two if r.block == MAIN}
     for row in regret:
         differences = [
-            by_cell[s, row["policy"], POSTERIOR_MEAN] - by_cell[s, row["policy"], MAP]
-            for (s, policy, robot) in by_cell
-            if robot == MAP and policy == row["policy"] and f"-k{row['num_features']:02d}-" in s
+            by_cell[s, row["human"], POSTERIOR_MEAN] - by_cell[s, row["human"], MAP]
+            for (s, human, robot) in by_cell
+            if robot == MAP and human == row["human"] and f"-k{row['num_features']:02d}-" in s
         ]
         assert row["mean_diff"] == pytest.approx(np.mean(differences), rel=1e-12)
     text = (tmp_path / "two" / "report.md").read_text()

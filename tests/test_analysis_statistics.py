@@ -2,7 +2,7 @@
 
 Two kinds of check: published reference values for datasets bundled with pingouin
 (computed by JASP, JAMOVI and R, as quoted in pingouin's own test-suite), and an
-independent computation of the mixed ANOVA for two policies from t-tests on the
+independent computation of the mixed ANOVA for two humans from t-tests on the
 per-subject differences and means.
 """
 
@@ -26,19 +26,19 @@ from cirl_study.analysis.anova import repeated_measures_anova
 from cirl_study.analysis.table import trial_table
 from cirl_study.measure_registry import PAPER_MEASURES
 
-ANOVA_ORDER = ["num_features", "policy", "policy:num_features"]
+ANOVA_ORDER = ["num_features", "human", "human:num_features"]
 """The references' row order: between, within, interaction (ours too)."""
 
 
 def mixed_anova(data: pd.DataFrame) -> pd.DataFrame:
-    """The ANOVA of ``score``: ``policy`` within subjects, ``num_features`` between."""
-    effects = repeated_measures_anova(data, "score", ["policy"], "num_features")
+    """The ANOVA of ``score``: ``human`` within subjects, ``num_features`` between."""
+    effects = repeated_measures_anova(data, "score", ["human"], "num_features")
     return pd.DataFrame([msgspec.structs.asdict(row) for row in effects]).set_index("effect")
 
 
 def _as_study(data: pd.DataFrame, score: str, within: str, between: str, subject: str):
     return data.rename(
-        columns={score: "score", within: "policy", between: "num_features", subject: "subject"}
+        columns={score: "score", within: "human", between: "num_features", subject: "subject"}
     )
 
 
@@ -68,17 +68,17 @@ def test_mixed_anova_matches_jasp_on_the_unbalanced_dataset():
     np.testing.assert_allclose(anova["ges"], [0.0371, 0.0566, 0.0587], atol=5e-5)
 
 
-def _two_policy_study(sizes: tuple[int, int], seed: int) -> pd.DataFrame:
+def _two_human_study(sizes: tuple[int, int], seed: int) -> pd.DataFrame:
     """A random split-plot data set with feature levels 3 and 10 of the given sizes."""
     rng = np.random.default_rng(seed)
     rows = []
     for level, size, shift in ((3, sizes[0], 0.0), (10, sizes[1], rng.normal())):
         for index in range(size):
             person = rng.normal(shift, 1.0)
-            for policy, effect in (("expert", 0.0), ("best_response", rng.normal(-0.5, 0.3))):
+            for human, effect in (("expert", 0.0), ("best_response", rng.normal(-0.5, 0.3))):
                 score = person + effect + rng.normal(0, 0.7)
-                rows.append((f"{level}-{index}", level, policy, score))
-    return pd.DataFrame(rows, columns=["subject", "num_features", "policy", "score"])
+                rows.append((f"{level}-{index}", level, human, score))
+    return pd.DataFrame(rows, columns=["subject", "num_features", "human", "score"])
 
 
 def _from_t_tests(data: pd.DataFrame) -> dict[str, dict[str, float]]:
@@ -86,10 +86,10 @@ def _from_t_tests(data: pd.DataFrame) -> dict[str, dict[str, float]]:
 
     ``d = y_br - y_expert`` and ``m = (y_br + y_expert) / 2`` per subject. The interaction
     is the two-sample (pooled) t-test of ``d`` between the levels, the between effect
-    the same on ``m``, and the policy effect the test of ``mean(d) = 0`` against the
+    the same on ``m``, and the human effect the test of ``mean(d) = 0`` against the
     pooled within-level variance of ``d``; each ``F = t^2``.
     """
-    wide = data.pivot(index="subject", columns="policy", values="score")
+    wide = data.pivot(index="subject", columns="human", values="score")
     level = data.groupby("subject")["num_features"].first().loc[wide.index]
     d = wide["best_response"] - wide["expert"]
     m = (wide["best_response"] + wide["expert"]) / 2
@@ -98,14 +98,14 @@ def _from_t_tests(data: pd.DataFrame) -> dict[str, dict[str, float]]:
     within_d = d - d.groupby(level).transform("mean")
     within_m = m - m.groupby(level).transform("mean")
     t = {
-        "policy": d.mean() / np.sqrt((within_d**2).sum() / (n - 2) / n),
+        "human": d.mean() / np.sqrt((within_d**2).sum() / (n - 2) / n),
         "num_features": stats.ttest_ind(m[low], m[high]).statistic,
-        "policy:num_features": stats.ttest_ind(d[low], d[high]).statistic,
+        "human:num_features": stats.ttest_ind(d[low], d[high]).statistic,
     }
     ss = {
-        "policy": n * d.mean() ** 2 / 2,
+        "human": n * d.mean() ** 2 / 2,
         "num_features": 2 * (m.groupby(level).transform("mean") - m.mean()).pow(2).sum(),
-        "policy:num_features": (d.groupby(level).transform("mean") - d.mean()).pow(2).sum() / 2,
+        "human:num_features": (d.groupby(level).transform("mean") - d.mean()).pow(2).sum() / 2,
     }
     ss_subjects, ss_residual = 2 * (within_m**2).sum(), (within_d**2).sum() / 2
     return {
@@ -122,7 +122,7 @@ def _from_t_tests(data: pd.DataFrame) -> dict[str, dict[str, float]]:
 @settings(max_examples=10, deadline=None)
 @given(sizes=st.tuples(st.integers(3, 12), st.integers(3, 12)), seed=st.integers(0, 2**32 - 1))
 def test_mixed_anova_equals_t_tests_on_differences_and_means(sizes, seed):
-    data = _two_policy_study(sizes, seed)
+    data = _two_human_study(sizes, seed)
     anova = mixed_anova(data)
     expected = _from_t_tests(data)
     for effect in ANOVA_ORDER:
@@ -142,7 +142,7 @@ def test_simple_effects_are_paired_t_tests_with_holm_and_d_z(main):
     frame = statistics.simple_effects(main, "regret").set_index("num_features")
     for level in (3, 10):
         wide = main[main["num_features"] == level].pivot(
-            index="subject", columns="policy", values="regret"
+            index="subject", columns="human", values="regret"
         )
         d = (wide["best_response"] - wide["expert"]).to_numpy()
         n, mean, sd = len(d), d.mean(), d.std(ddof=1)
@@ -171,13 +171,13 @@ def test_tukey_hsd_matches_r_tukeyhsd_on_the_penguins():
     data = pd.DataFrame(
         {
             "num_features": penguins["species"].map({"Adelie": 1, "Chinstrap": 2, "Gentoo": 3}),
-            "policy": penguins["sex"].map({"female": "best_response", "male": "expert"}),
+            "human": penguins["sex"].map({"female": "best_response", "male": "expert"}),
             "mass": penguins["body_mass_g"],
         }
     )
     tukey = statistics.tukey_hsd(data, "mass")
     assert len(tukey) == 15
-    assert tuple(tukey.loc[0, ["a_num_features", "a_policy", "b_num_features", "b_policy"]]) == (
+    assert tuple(tukey.loc[0, ["a_num_features", "a_human", "b_num_features", "b_human"]]) == (
         1,
         "best_response",
         1,
@@ -197,15 +197,15 @@ def test_tukey_hsd_is_pingouins_but_for_the_p_values():
     data = pd.DataFrame(
         {
             "num_features": penguins["species"].map({"Adelie": 1, "Chinstrap": 2, "Gentoo": 3}),
-            "policy": penguins["sex"].map({"female": "best_response", "male": "expert"}),
+            "human": penguins["sex"].map({"female": "best_response", "male": "expert"}),
             "mass": penguins["body_mass_g"],
         }
     )
     data.loc[data.index[::40], "mass"] = np.nan  # dropped, as pingouin drops them
     ours = statistics.tukey_hsd(data, "mass")
-    theirs = pg.pairwise_tukey(data=data, dv="mass", between=["num_features", "policy"])
-    assert list(zip(ours["a_num_features"], ours["a_policy"], strict=True)) == list(theirs["A"])
-    assert list(zip(ours["b_num_features"], ours["b_policy"], strict=True)) == list(theirs["B"])
+    theirs = pg.pairwise_tukey(data=data, dv="mass", between=["num_features", "human"])
+    assert list(zip(ours["a_num_features"], ours["a_human"], strict=True)) == list(theirs["A"])
+    assert list(zip(ours["b_num_features"], ours["b_human"], strict=True)) == list(theirs["B"])
     for column, theirs_column in [("mean_a", "mean_A"), ("mean_b", "mean_B"), ("diff", "diff"),
                                   ("se", "se"), ("T", "T"), ("hedges", "hedges")]:  # fmt: skip
         np.testing.assert_allclose(ours[column], theirs[theirs_column], rtol=1e-13)
@@ -218,7 +218,7 @@ def test_wilcoxon_tests_the_paired_differences_per_level(main):
     frame = statistics.wilcoxon(main, "kl").set_index("num_features")
     for level in (3, 10):
         wide = main[main["num_features"] == level].pivot(
-            index="subject", columns="policy", values="kl"
+            index="subject", columns="human", values="kl"
         )
         expected = stats.wilcoxon(wide["best_response"] - wide["expert"])
         assert frame.at[level, "W"] == expected.statistic
@@ -302,7 +302,7 @@ def test_wilcoxon_equals_pingouins(n, seed, decimals):
     main = pd.DataFrame(
         {
             "subject": [f"s{i:03d}" for i in range(n)] * 2,
-            "policy": ["best_response"] * n + ["expert"] * n,
+            "human": ["best_response"] * n + ["expert"] * n,
             "num_features": 3,
             "regret": np.concatenate([best, expert]),
         }
@@ -359,7 +359,7 @@ def test_eta_means_are_the_best_responses_mean_regret_per_level_and_eta():
     # The choice of eta is cirl_study.study.eta_cv.choose_etas; here only the curve.
     cv = pd.DataFrame(
         {
-            "policy": ["best_response"] * 8 + ["expert"],
+            "human": ["best_response"] * 8 + ["expert"],
             "num_features": [3, 3, 3, 3, 10, 10, 10, 10, 3],
             "eta": [0.1, 0.1, 1.0, 1.0, 0.1, 0.1, 1.0, 1.0, np.nan],
             "regret": [1.0, 3.0, 1.5, 2.5, 1.0, 2.0, 0.5, 1.5, 0.0],
@@ -375,7 +375,7 @@ def test_eta_means_are_the_best_responses_mean_regret_per_level_and_eta():
     assert means.equals(statistics.group_means(cv.iloc[:8], "regret", ["num_features", "eta"]))
 
 
-def test_lambda_sweep_has_one_row_per_measure_lambda_policy_and_level():
+def test_lambda_sweep_has_one_row_per_measure_lambda_human_and_level():
     table = trial_table(rows(synthetic_records(subjects_per_level=3, lambdas=(0.1, 1.0, 10.0))))
     sweep = statistics.lambda_sweep(table[table["block"] == "lambda_sweep"], PAPER_MEASURES)
     assert len(sweep) == 3 * 3 * 2 * 2

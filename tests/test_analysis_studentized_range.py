@@ -246,16 +246,16 @@ def test_the_report_calls_take_few_outer_nodes(monkeypatch):
 
 
 def _tukey_frame() -> pd.DataFrame:
-    """Feature levels 3 and 10 (30 subjects each), two policies, one far-apart pair."""
+    """Feature levels 3 and 10 (30 subjects each), two humans, one far-apart pair."""
     rng = np.random.default_rng(7)
     centers = {(3, "best_response"): 0.0, (3, "expert"): 0.3, (10, "best_response"): 0.5}
     rows = []
     for level in (3, 10):
         for index in range(30):
-            for policy in ("best_response", "expert"):
-                center = centers.get((level, policy), 3.5)
-                rows.append((f"{level}-{index}", level, policy, rng.normal(center, 1.0)))
-    frame = pd.DataFrame(rows, columns=["subject", "num_features", "policy", "regret"])
+            for human in ("best_response", "expert"):
+                center = centers.get((level, human), 3.5)
+                rows.append((f"{level}-{index}", level, human, rng.normal(center, 1.0)))
+    frame = pd.DataFrame(rows, columns=["subject", "num_features", "human", "regret"])
     frame.loc[5, "regret"] = np.nan  # pingouin drops it: N = 119, df = 115
     return frame
 
@@ -265,7 +265,7 @@ def test_tukey_hsd_uses_the_accurate_tail():
     tukey = statistics.tukey_hsd(frame, "regret")
     expected = [studentized_range_sf(math.sqrt(2) * abs(t), 4, 119 - 4) for t in tukey["T"]]
     assert list(tukey["p_tukey"]) == expected
-    pingouin = pg.pairwise_tukey(data=frame, dv="regret", between=["num_features", "policy"])
+    pingouin = pg.pairwise_tukey(data=frame, dv="regret", between=["num_features", "human"])
     np.testing.assert_array_equal(tukey["T"], pingouin["T"])
     moderate = pingouin["p_tukey"] > 1e-3
     assert moderate.sum() >= 2

@@ -28,7 +28,7 @@ def test_one_row_per_record_with_the_documented_columns(records):
     by_id = {record.trial_id: record for record in records}
     for row in table.itertuples(index=False):
         record = by_id[row.trial_id]
-        assert row.subject == record.subject and row.policy == record.policy
+        assert row.subject == record.subject and row.human == record.human
         assert row.regret == record.measures["regret"]
         assert row.kl == record.measures["kl"]
         assert row.reward_l2 == record.measures["reward_l2"]
@@ -47,7 +47,7 @@ def test_row_order_is_sorted_and_independent_of_record_order(records):
     random.Random(7).shuffle(shuffled)
     assert trial_table(rows(shuffled)).equals(table)
     keys = list(
-        zip(table["block"], table["num_features"], table["subject"], table["policy"], strict=True)
+        zip(table["block"], table["num_features"], table["subject"], table["human"], strict=True)
     )
     assert keys == sorted(keys)
 
@@ -93,7 +93,7 @@ def _refused(records, pattern: str) -> str:
 
 def test_check_design_names_the_subjects_of_a_missing_cell(records):
     kept = _without(
-        records, lambda r: r.block == "main" and r.policy == "expert" and r.num_features == 10
+        records, lambda r: r.block == "main" and r.human == "expert" and r.num_features == 10
     )
     message = _refused(kept, r"main block incomplete: 3 subject\(s\)")
     assert "k10-s000 has {'best_response/map': 1}" in message
@@ -101,7 +101,7 @@ def test_check_design_names_the_subjects_of_a_missing_cell(records):
 
 def test_check_design_names_an_unpaired_subject(records):
     kept = _without(
-        records, lambda r: r.block == "main" and r.subject == "k3-s001" and r.policy == "expert"
+        records, lambda r: r.block == "main" and r.subject == "k3-s001" and r.human == "expert"
     )
     _refused(
         kept, r"main block incomplete: 1 subject\(s\) .*k3-s001 has \{'best_response/map': 1\}"
@@ -132,15 +132,15 @@ def test_check_design_takes_any_humans_and_levels_but_needs_two_cells(records):
     """One feature level, one human or a human of the user's own: analysed like the paper's
     design; a main block of one cell, or none, is refused."""
     check_design(rows(_without(records, lambda r: r.num_features == 10)))
-    check_design(rows(_without(records, lambda r: r.block == "main" and r.policy == "expert")))
+    check_design(rows(_without(records, lambda r: r.block == "main" and r.human == "expert")))
     renamed = [
-        msgspec.structs.replace(r, policy="random")
-        if r.block == "main" and r.policy == "expert"
+        msgspec.structs.replace(r, human="random")
+        if r.block == "main" and r.human == "expert"
         else r
         for r in records
     ]
     check_design(rows(renamed))
-    one_cell = _without(records, lambda r: r.num_features == 10 or r.policy == "expert")
+    one_cell = _without(records, lambda r: r.num_features == 10 or r.human == "expert")
     _refused(one_cell, r"the main block has one cell \(one human, one robot, one feature level\)")
     _refused(_without(records, lambda r: r.block == "main"), "no trials in the main block")
 
@@ -148,7 +148,7 @@ def test_check_design_takes_any_humans_and_levels_but_needs_two_cells(records):
 def test_a_row_keeps_the_identity_measures_and_a_digest_of_the_draw():
     first, second = synthetic_records(subjects_per_level=1)[:2]
     row = TrialRow.of(first)
-    for name in ("trial_id", "run_id", "block", "subject", "policy", "robot", "eta", "seed"):
+    for name in ("trial_id", "run_id", "block", "subject", "human", "robot", "eta", "seed"):
         assert getattr(row, name) == getattr(first, name)
     assert {name: row.measure(name) for name in MEASURES} == first.measures and row.converged
     same_draw = msgspec.structs.replace(first, trial_id="other", theta_hat=second.theta_hat)

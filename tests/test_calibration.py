@@ -25,7 +25,7 @@ from cirl_study.logs.reader import read_run
 from cirl_study.study.audit import analysed_run
 
 ROOT = Path(__file__).resolve().parent.parent
-HEADER = "measure,num_features,policy,value,se\n"
+HEADER = "measure,num_features,human,value,se\n"
 
 
 def _target(tmp_path: Path, text: str) -> Path:
@@ -37,7 +37,7 @@ def _target(tmp_path: Path, text: str) -> Path:
 def test_a_target_reads_its_cells_and_their_log_scale_uncertainty(tmp_path: Path) -> None:
     path = _target(
         tmp_path,
-        "measure,num_features,policy,robot,value,se,ci95_low,ci95_high\n"
+        "measure,num_features,human,robot,value,se,ci95_low,ci95_high\n"
         "regret,3,expert,,0.5,0.05,,\n"
         "kl,10,best_response,map,2.0,,1.0,4.0\n"
         "reward_l2,3,expert,,3.0,,,\n",
@@ -45,7 +45,7 @@ def test_a_target_reads_its_cells_and_their_log_scale_uncertainty(tmp_path: Path
     cells, sha256 = read_target(path)
     assert len(sha256) == 64
     assert cells[0] == TargetCell(
-        measure="regret", num_features=3, policy="expert", robot=None, value=0.5, log_se=0.1
+        measure="regret", num_features=3, human="expert", robot=None, value=0.5, log_se=0.1
     )
     assert cells[1].robot == "map"
     assert cells[1].log_se == pytest.approx(math.log(4.0) / (2 * Z_95), rel=1e-15)
@@ -55,13 +55,13 @@ def test_a_target_reads_its_cells_and_their_log_scale_uncertainty(tmp_path: Path
 @pytest.mark.parametrize(
     ("text", "message"),
     [
-        ("measure,num_features,policy,value,colour\n", "column colour is not one of"),
-        ("measure,num_features,value\n", "has no column policy"),
+        ("measure,num_features,human,value,colour\n", "column colour is not one of"),
+        ("measure,num_features,value\n", "has no column human"),
         (HEADER, "holds no cell"),
         (HEADER + "regrets,3,expert,0.5,\n", "line 2: measure must be one of regret, kl"),
         (HEADER + "regret,0,expert,0.5,\n", "line 2: num_features must be a positive integer"),
         (HEADER + "regret,3.5,expert,0.5,\n", "num_features must be a positive integer"),
-        (HEADER + "regret,3,,0.5,\n", "line 2: policy is empty"),
+        (HEADER + "regret,3,,0.5,\n", "line 2: human is empty"),
         (HEADER + "regret,3,expert,0,\n", "value must be positive (distances are on the log"),
         (HEADER + "regret,3,expert,nan,\n", "value must be finite"),
         (HEADER + "regret,3,expert,x,\n", "value must be a number, got x"),
@@ -69,15 +69,15 @@ def test_a_target_reads_its_cells_and_their_log_scale_uncertainty(tmp_path: Path
         (HEADER + "regret,3,expert,0.5,\nregret,3,expert,0.7,\n", "line 3: repeats the cell"),
         (HEADER + "regret,3,expert,0.5,,7\n", "line 2: has more fields than the header"),
         (
-            "measure,num_features,policy,value,ci95_low,ci95_high\nkl,3,expert,2,3,4\n",
+            "measure,num_features,human,value,ci95_low,ci95_high\nkl,3,expert,2,3,4\n",
             "the 95% interval [3, 4] must hold the value",
         ),
         (
-            "measure,num_features,policy,value,ci95_low\nkl,3,expert,2,1\n",
+            "measure,num_features,human,value,ci95_low\nkl,3,expert,2,1\n",
             "needs both ci95_low and ci95_high",
         ),
         (
-            "measure,num_features,policy,value,se,ci95_low,ci95_high\nkl,3,expert,2,1,1,3\n",
+            "measure,num_features,human,value,se,ci95_low,ci95_high\nkl,3,expert,2,1,1,3\n",
             "gives both se and a 95% interval",
         ),
     ],
@@ -101,9 +101,9 @@ def test_a_target_that_is_not_a_regular_file_or_not_text_is_refused(tmp_path: Pa
         read_target(tmp_path / "link.csv")
 
 
-def _cell(measure: str, k: int, policy: str, value: float, log_se: float | None) -> TargetCell:
+def _cell(measure: str, k: int, human: str, value: float, log_se: float | None) -> TargetCell:
     return TargetCell(
-        measure=measure, num_features=k, policy=policy, robot=None, value=value, log_se=log_se
+        measure=measure, num_features=k, human=human, robot=None, value=value, log_se=log_se
     )
 
 
@@ -150,7 +150,7 @@ def test_calibration_recovers_each_committed_universe_from_its_own_noisy_means()
     assert len(universes) >= 20
     means = {
         u["id"]: {
-            (c["measure"], c["num_features"], c["policy"], c["robot"]): (c["n"], c["mean"], c["sd"])
+            (c["measure"], c["num_features"], c["human"], c["robot"]): (c["n"], c["mean"], c["sd"])
             for c in u["cells"]
         }
         for u in universes
@@ -159,8 +159,8 @@ def test_calibration_recovers_each_committed_universe_from_its_own_noisy_means()
     rng = np.random.default_rng(29)
     for truth in universes:
         target = [
-            _cell(measure, k, policy, mean * math.exp(rng.normal(0.0, NOISE)), NOISE)
-            for (measure, k, policy, _), (_, mean, _) in means[truth["id"]].items()
+            _cell(measure, k, human, mean * math.exp(rng.normal(0.0, NOISE)), NOISE)
+            for (measure, k, human, _), (_, mean, _) in means[truth["id"]].items()
         ]
         nearest = ranked_distances(means, studies, target, base=None)[0]
         assert nearest.id == truth["id"]
@@ -175,8 +175,8 @@ def test_a_single_study_is_calibrated_as_one_universe(smoke_run: Path, tmp_path:
 
     table = load_trials(smoke_run)
     cell = table[(table["block"] == "main") & (table["num_features"] == 3)]
-    expert = float(cell[cell["policy"] == "expert"]["kl"].mean())
-    target = _target(tmp_path, f"measure,num_features,policy,value\nkl,3,expert,{2 * expert!r}\n")
+    expert = float(cell[cell["human"] == "expert"]["kl"].mean())
+    target = _target(tmp_path, f"measure,num_features,human,value\nkl,3,expert,{2 * expert!r}\n")
     out = tmp_path / "calibration"
     command = ["calibrate", str(smoke_run), "--target", str(target), "--out", str(out)]
     result = CliRunner().invoke(app, command)
@@ -195,12 +195,12 @@ def test_a_single_study_is_calibrated_on_regret_under_the_estimate(
 
     table = load_trials(smoke_run)
     cell = table[(table["block"] == "main") & (table["num_features"] == 3)]
-    expert = cell[cell["policy"] == "expert"]
+    expert = cell[cell["human"] == "expert"]
     measured = float(expert["regret_under_estimate"].mean())
     assert measured > 0 and measured != float(expert["regret"].mean())
     target = _target(
         tmp_path,
-        f"measure,num_features,policy,value\nregret_under_estimate,3,expert,{3 * measured!r}\n",
+        f"measure,num_features,human,value\nregret_under_estimate,3,expert,{3 * measured!r}\n",
     )
     cells, _ = read_target(target)
     contents = read_run(smoke_run)
@@ -218,7 +218,7 @@ def test_a_cell_whose_trials_lack_a_measure_is_missing() -> None:
         {
             "universe": [None, None],
             "num_features": [3, 3],
-            "policy": ["expert", "expert"],
+            "human": ["expert", "expert"],
             "robot": ["map", "map"],
             **{measure: [1.0, 2.0] for measure in ("regret", "kl", "reward_l2")},
             "regret_under_estimate": [float("nan"), float("nan")],
@@ -242,10 +242,10 @@ def test_the_calibrate_command_reports_a_target_on_regret_under_the_estimate(
 
     table = load_trials(smoke_run)
     cell = table[(table["block"] == "main") & (table["num_features"] == 10)]
-    measured = float(cell[cell["policy"] == "best_response"]["regret_under_estimate"].mean())
+    measured = float(cell[cell["human"] == "best_response"]["regret_under_estimate"].mean())
     target = _target(
         tmp_path,
-        "measure,num_features,policy,value\n"
+        "measure,num_features,human,value\n"
         f"regret_under_estimate,10,best_response,{measured / 2!r}\n",
     )
     out = tmp_path / "calibration"

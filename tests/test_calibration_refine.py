@@ -218,12 +218,12 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     )
     run_pipeline(load_pipeline(source), directory / "source", LocalEngine(1))
     table = load_trials(directory / "source")
-    rows = ["measure,num_features,policy,value"]
-    for (k, policy), cell in table[table["block"] == "main"].groupby(["num_features", "policy"]):
+    rows = ["measure,num_features,human,value"]
+    for (k, human), cell in table[table["block"] == "main"].groupby(["num_features", "human"]):
         for measure in ("regret", "kl", "reward_l2"):
             mean = float(cell[measure].mean())
             if mean > 0:
-                rows.append(f"{measure},{k},{policy},{mean!r}")
+                rows.append(f"{measure},{k},{human},{mean!r}")
     target = directory / "target.csv"
     target.write_text("\n".join(rows) + "\n")
     pipeline = directory / "mv.toml"

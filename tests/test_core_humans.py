@@ -263,7 +263,7 @@ def test_the_paper_s_humans_are_registered_by_name():
     )
 
 
-def test_a_policy_name_is_registered_once():
+def test_a_human_name_is_registered_once():
     expert = HUMANS[EXPERT]
     with pytest.raises(ValueError):
         register_human(EXPERT, Human(lambda game, theta, eta, seeds: None, takes_eta=False))

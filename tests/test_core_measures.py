@@ -128,7 +128,7 @@ def test_regret_ignores_the_rationality_and_averages_the_fixed_starts(rationalit
 def _regret_under_estimate_by_enumeration(features, theta, theta_hat, width, height, horizon):
     """``mean_s V*_theta_hat(s) - V^{pi_theta}_theta_hat(s)``: the best value under
     ``theta_hat`` by a maximum over every path from each start, minus the value under
-    ``theta_hat`` of the hard-max policy for ``theta`` that shares ties, by its tie tree."""
+    ``theta_hat`` of the hard-max human for ``theta`` that shares ties, by its tie tree."""
     best = bf.optimal_values(width, height, features, theta_hat, horizon)
     table = bf.move_table(width, height)
     estimated, true = features @ theta_hat, features @ theta

@@ -31,7 +31,7 @@ def paper_trials(
     sweep: tuple[float, ...] = SWEEP,
     robot: str = "map",
 ) -> list[TrialSpec]:
-    """``count`` draws of the paper's game (10 x 10, 9 steps, K = 10) x both policies x sweep."""
+    """``count`` draws of the paper's game (10 x 10, 9 steps, K = 10) x both humans x sweep."""
     rng = np.random.default_rng(2016)
     specs = []
     for index in range(count):
@@ -39,14 +39,14 @@ def paper_trials(
         theta = rng.uniform(-1, 1, size=10)
         centers = centers + perturbation * rng.choice([-1.0, 1.0], size=centers.shape)
         for rationality in sweep:
-            for policy, eta in (("expert", None), ("best_response", 0.316)):
+            for human, eta in (("expert", None), ("best_response", 0.316)):
                 specs.append(
                     TrialSpec(
-                        trial_id=f"{index}:{policy}:{rationality}",
+                        trial_id=f"{index}:{human}:{rationality}",
                         run_id="stability",
                         block="lambda_sweep",
                         subject=f"s{index}",
-                        policy=policy,
+                        human=human,
                         num_features=10,
                         rationality=rationality,
                         eta=eta,
@@ -70,7 +70,7 @@ def estimates(records) -> dict[str, tuple[list[float], bool]]:
 
 
 def posterior_trials() -> list[TrialSpec]:
-    """Two draws of the paper's game x both policies x lambda 1, 100, 1000, posterior mean."""
+    """Two draws of the paper's game x both humans x lambda 1, 100, 1000, posterior mean."""
     return paper_trials(2, sweep=(1.0, 1e2, 1e3), robot="posterior_mean")
 
 

@@ -45,7 +45,7 @@ TOP_LEVEL = {
     "run_id",
     "block",
     "subject",
-    "policy",
+    "human",
     "num_features",
     "rationality",
     "eta",
@@ -65,16 +65,16 @@ TOP_LEVEL = {
 }
 
 
-def _spec(policy, theta, *, eta=0.5, rationality=1.0, trial_id=None, game=None):
+def _spec(human, theta, *, eta=0.5, rationality=1.0, trial_id=None, game=None):
     return TrialSpec(
-        trial_id=trial_id or f"t-{policy}-{theta[0]:.3f}-{rationality:g}",
+        trial_id=trial_id or f"t-{human}-{theta[0]:.3f}-{rationality:g}",
         run_id="run-test",
         block="main",
         subject="s-1",
-        policy=policy,
+        human=human,
         num_features=len(theta),
         rationality=rationality,
-        eta=eta if policy == "best_response" else None,
+        eta=eta if human == "best_response" else None,
         seed=7,
         theta=tuple(float(v) for v in theta),
         **(game or GAME),
@@ -137,12 +137,12 @@ def test_record_has_every_field_of_the_contract_and_is_plain_json(played):
         assert json.loads(json.dumps(to_builtins(record), allow_nan=False)) == data
         assert decode(encode(record)) == record  # valid against the record's schema
         assert record.spec() == spec
-        assert record.trial_id == spec.trial_id and record.policy == spec.policy
+        assert record.trial_id == spec.trial_id and record.human == spec.human
         assert record.run_id == spec.run_id and record.subject == spec.subject
         assert record.block == spec.block and record.seed == spec.seed
         assert record.num_features == 3 == len(record.theta) == len(record.theta_hat)
         assert record.rationality == spec.rationality
-        assert record.eta == (spec.eta if spec.policy == "best_response" else None)
+        assert record.eta == (spec.eta if spec.human == "best_response" else None)
         assert record.robot == MAP
         assert record.grid == Grid(width=4, height=4)
         assert data["grid"] == {"width": 4, "height": 4}
@@ -174,7 +174,7 @@ def test_demonstration_is_the_policy_s_optimal_path(played):
         counts = bf.feature_counts(bf.enumerate_paths(width, height, start, horizon), features)
         got = bf.feature_counts([states], features)
         theta = np.array(record.theta)
-        if record.policy == "expert":
+        if record.human == "expert":
             _, best = bf.expert(counts, theta)
             assert got[0] @ theta == pytest.approx(best, rel=1e-12, abs=1e-12)
         else:
@@ -266,9 +266,9 @@ def _best_response():
 
 
 UNPLAYABLE = {
-    "unknown policy": (
+    "unknown human": (
         lambda: _spec("novice", (0.4, -0.7, 0.1)),
-        "policy 'novice' is not a known human policy",
+        "human 'novice' is not a known human",
     ),
     "unknown robot": (
         lambda: msgspec.structs.replace(_expert(), robot="bayes"),
@@ -336,7 +336,7 @@ def test_an_unplayable_spec_is_refused(case):
         play_trials([_expert(), spec, _best_response()])
 
 
-# ---- a human policy added by registration ---------------------------------------------------
+# ---- a human added by registration ----------------------------------------------------------
 
 LAST_PATH, STAY_PUT = "test-last-path", "test-stay-put"
 
@@ -357,7 +357,7 @@ def _last_path(game, theta, eta, seeds):
 
 @pytest.fixture
 def toy_humans():
-    """Register two toy policies for one test; yields the etas the one with a trade-off got."""
+    """Register two toy humans for one test; yields the etas the one with a trade-off got."""
     received = []
 
     def stay_put(game, theta, eta, seeds):
@@ -387,14 +387,14 @@ def test_a_registered_human_is_played_by_name(toy_humans):
 
     width, height, _, start = _context(last)
     want = bf.enumerate_paths(width, height, start, last.learning_steps)[-1]
-    assert last.policy == LAST_PATH and last.eta is None
+    assert last.human == LAST_PATH and last.eta is None
     assert last.demonstration.states == tuple(bf.xy(width, s) for s in want)
     assert want != (start,) * (last.learning_steps + 1)  # it is not the trivial path
     for here, there, name in zip(want[:-1], want[1:], last.demonstration.actions, strict=True):
         assert bf.move(width, height, here, name) == there
 
     for record in (stay_1, stay_2):
-        assert record.policy == STAY_PUT
+        assert record.human == STAY_PUT
         assert record.demonstration.states == (record.start,) * (record.learning_steps + 1)
         assert record.demonstration.actions == ("stay",) * record.learning_steps
     assert (stay_1.eta, stay_2.eta) == (0.3, 2.0)
@@ -412,13 +412,13 @@ def test_a_registered_human_is_checked_like_the_paper_s(toy_humans):
     with pytest.raises(ValueError, match="eta"):
         check_playable(msgspec.structs.replace(_spec(LAST_PATH, theta), eta=0.3))
     with pytest.raises(ValueError, match="eta"):
-        check_playable(_spec(STAY_PUT, theta))  # eta is None for a policy that needs it
+        check_playable(_spec(STAY_PUT, theta))  # eta is None for a human that needs it
     with pytest.raises(ValueError):
         register_human(LAST_PATH, Human(_last_path, takes_eta=False))
 
 
 def test_each_demonstration_is_played_once_for_every_robot_that_watches_it(toy_humans):
-    # Three robots watch two demonstrations (seeds 7 and 8) of the same policy: the human is
+    # Three robots watch two demonstrations (seeds 7 and 8) of the same human: the human is
     # asked once, for the two distinct ones, and every robot's record holds its demonstration.
     theta = (0.4, -0.7, 0.1)
     shown = [

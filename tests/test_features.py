@@ -157,7 +157,7 @@ def test_a_new_kind_is_one_class_and_one_registry_entry(tmp_path) -> None:
         from cirl_study.core.trial import play_trials
         from cirl_study.logs.record_checks import record_faults
         spec = record.TrialSpec(trial_id="t", run_id="r", block="main", subject="s",
-            policy="expert", robot="map", num_features=2, rationality=1.0, eta=None, seed=1,
+            human="expert", robot="map", num_features=2, rationality=1.0, eta=None, seed=1,
             grid=record.Grid(width=3, height=3), start=(1, 1), learning_steps=2,
             deployment_steps=2, features=CheckerFeatures(), theta=(0.5, -0.5))
         played = play_trials([spec])[0]

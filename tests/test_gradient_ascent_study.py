@@ -43,7 +43,7 @@ rationality = 1.0
 [main]
 subjects = 3
 rationality = 1.0
-policies = ["expert", "best_response"]
+humans = ["expert", "best_response"]
 robots = ["map", "gradient_ascent"]
 
 [lambda_sweep]
@@ -86,7 +86,7 @@ def test_every_gradient_ascent_record_carries_its_settings_and_its_estimate(run:
     }
     assert all(r.irl.iterations == 40 and r.irl.converged for r in ascent)
     # The expert's estimate leaves the box, which the record checks accepted.
-    assert max(np.abs(r.theta_hat).max() for r in ascent if r.policy == "expert") > 1.0
+    assert max(np.abs(r.theta_hat).max() for r in ascent if r.human == "expert") > 1.0
     grid = Gridworld(5, 5)
     for r in ascent:
         phi = rbf_features(grid, r.features.centers, r.features.sigma)[None]
@@ -100,7 +100,7 @@ def test_both_robots_watch_the_same_demonstrations(run: Path) -> None:
     records = [r for r in run_records(run) if r.block != "eta_cv"]
     shown: dict[tuple, set] = {}
     for r in records:
-        key = (r.block, r.subject, r.policy, r.rationality, r.eta)
+        key = (r.block, r.subject, r.human, r.rationality, r.eta)
         shown.setdefault(key, set()).add((r.robot, r.demonstration.states))
     for watched in shown.values():
         assert {robot for robot, _ in watched} == {MAP, GRADIENT_ASCENT}
@@ -122,8 +122,8 @@ def test_every_record_logs_both_readings_of_regret(run: Path) -> None:
         }
         for name, (reward, planner) in readings.items():
             best = bf.optimal_values(5, 5, features, reward, 4)
-            policy = bf.greedy_actions(5, 5, features, planner, 4)
-            gaps = [best[s] - bf.policy_value(5, 5, features, reward, policy, s) for s in range(25)]
+            human = bf.greedy_actions(5, 5, features, planner, 4)
+            gaps = [best[s] - bf.policy_value(5, 5, features, reward, human, s) for s in range(25)]
             scale = max(1.0, float(np.abs(reward).max()))
             assert r.measures[name] == pytest.approx(np.mean(gaps), abs=1e-12 * scale)
             assert table.at[r.trial_id, name] == r.measures[name]

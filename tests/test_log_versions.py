@@ -35,7 +35,7 @@ def _log_format(run: Path) -> str:
 
 def _in_current_names(table: pd.DataFrame, log_format: str) -> pd.DataFrame:
     """A trial table of ``log_format`` as the current version names it."""
-    table = table.rename(columns={"certified": "converged"})
+    table = table.rename(columns={"certified": "converged", "policy": "human"})
     if log_format == "5":
         table["robot"] = table["robot"].replace({"literal": "literal_observer"})
     table["trial_id"] = [versions.trial_id(t, log_format) for t in table["trial_id"]]
@@ -43,7 +43,10 @@ def _in_current_names(table: pd.DataFrame, log_format: str) -> pd.DataFrame:
     if "regret_under_estimate" not in table.columns:
         table.insert(table.columns.get_loc("reward_l2") + 1, "regret_under_estimate", math.nan)
     # Format 8 logs the feature order agreement; an earlier record reads it as missing.
-    table.insert(table.columns.get_loc("regret_under_estimate") + 1, "order_agreement", math.nan)
+    if "order_agreement" not in table.columns:
+        table.insert(
+            table.columns.get_loc("regret_under_estimate") + 1, "order_agreement", math.nan
+        )
     return table
 
 
@@ -53,6 +56,7 @@ def test_there_are_runs_of_every_earlier_format() -> None:
         "format-5-teaching",
         "format-6-robots",
         "format-7-ascent",
+        "format-8-tiles",
     ]
 
 
@@ -73,13 +77,14 @@ def test_a_run_of_an_earlier_format_gives_its_trial_table_in_the_current_names(r
     got = cirl_study.load_trials(run).sort_values("trial_id").reset_index(drop=True)
     assert list(got.columns) == list(want.columns)
     assert set(got["robot"]) <= {"map", "literal_observer", "posterior_mean", "gradient_ascent"}
-    logged = ("regret_under_estimate",) if log_format >= "7" else ()
+    logged = ("regret_under_estimate", "order_agreement")[: max(0, int(log_format) - 6)]
     for column in want.columns:
         if column in ("regret", "kl", "reward_l2", "eta", "rationality", *logged):
             pd.testing.assert_series_equal(
                 got[column].astype(float), want[column].astype(float), rtol=1e-15
             )
         elif column in ("universe", "regret_under_estimate", "order_agreement"):
+            assert column not in logged
             assert got[column].isna().all() and want[column].isna().all()
         else:
             assert got[column].astype(str).tolist() == want[column].astype(str).tolist(), column
@@ -112,11 +117,25 @@ def test_a_measure_a_format_did_not_log_is_left_out_and_said_so() -> None:
 
 
 def test_records_before_format_8_read_a_fixed_horizon_and_no_task() -> None:
-    for run in OLD_RUNS:
+    for run in (run for run in OLD_RUNS if _log_format(run) < "8"):
         contents = read_run(run)
         records = contents.records(run, {row.trial_id for row in contents.rows})
         assert records and all(r.goals == () and r.task is None for r in records)
         assert {r.features.kind for r in records} == {"rbf"}
+
+
+def test_a_run_of_format_8_reads_its_policies_as_humans() -> None:
+    """Format 8 called the player who demonstrates ``policy``, in the record and in the
+    pipeline's ``main.policies``; read now, both are the ``human``."""
+    run = FIXTURES / "format-8-tiles"
+    contents = read_run(run)
+    assert {row.human for row in contents.rows} == {"expert", "best_response"}
+    assert contents.identity.pipeline.main.humans == ("expert", "best_response")
+    results = cirl_study.analyze(run)
+    assert results.design.humans == ["expert", "best_response"]
+    assert {r.task for r in contents.records(run, {row.trial_id for row in contents.rows})} == {
+        "oo", "ox", "xo", None
+    }
 
 
 def test_a_run_of_format_6_is_analysed() -> None:
@@ -141,7 +160,7 @@ def test_a_run_of_format_5_is_not_resumed(tmp_path: Path) -> None:
     assert "game.centres is not a known key" in one_line_error(result)
     renamed = run / "renamed.toml"
     text = (run / "pipeline.toml").read_text()
-    renamed.write_text(text.replace("centres =", "centers ="))
+    renamed.write_text(text.replace("centres =", "centers =").replace("policies =", "humans ="))
     result = CliRunner().invoke(app, ["run", str(renamed), "--out", str(run)])
     assert "made from another text" in one_line_error(result)
     assert sorted(path.name for path in run.glob("*.mcap")) == before  # nothing written
@@ -162,11 +181,12 @@ def test_a_log_of_an_unknown_format_is_refused_in_one_line(tmp_path: Path) -> No
 
 
 def test_every_readable_format_is_named_and_the_current_one_is_written() -> None:
-    assert versions.READABLE[-1] == versions.LOG_FORMAT == "8"
+    assert versions.READABLE[-1] == versions.LOG_FORMAT == "9"
     assert (
         versions.readable("5")
         and versions.readable("6")
         and versions.readable("7")
+        and versions.readable("8")
         and not versions.readable("4")
         and not versions.readable("")
     )

@@ -71,7 +71,7 @@ def brute_force_reward(features: dict[str, Any], theta: list[float], x: int, y: 
 
 def make_record(
     subject: int = 0,
-    policy: str = "expert",
+    human: str = "expert",
     *,
     block: str = "main",
     num_features: int = 3,
@@ -89,20 +89,20 @@ def make_record(
         for _ in range(num_features)
     ]
     theta = [draw.uniform(-1, 1) for _ in range(num_features)]
-    rng = random.Random(f"{subject}/{num_features}/{policy}/{block}")
+    rng = random.Random(f"{subject}/{num_features}/{human}/{block}")
     start = [width // 2, height // 2]
     states, actions = _walk(rng, start, learning_steps, width, height)
     starts = [[rng.randrange(width), rng.randrange(height)] for _ in range(rollouts)]
     paths = [_walk(rng, s, deployment_steps, width, height)[0] for s in starts]
     record: dict[str, Any] = {
-        "trial_id": f"{block}/k{num_features}/s{subject:04d}/{policy}",
+        "trial_id": f"{block}/k{num_features}/s{subject:04d}/{human}",
         "run_id": run_id,
         "block": block,
         "subject": f"k{num_features}-s{subject:04d}",
-        "policy": policy,
+        "human": human,
         "num_features": num_features,
         "rationality": 1.0,
-        "eta": None if policy == "expert" else 0.5,
+        "eta": None if human == "expert" else 0.5,
         "seed": rng.randrange(2**32),
         "grid": {"width": width, "height": height},
         "start": start,
@@ -134,12 +134,12 @@ def make_record(
 
 
 def make_study(subjects: int = 3, num_features: tuple[int, ...] = (3, 10)) -> list[TrialRecord]:
-    """A complete small main block: every subject under both policies."""
+    """A complete small main block: every subject under both humans."""
     return [
-        make_record(subject, policy, num_features=k)
+        make_record(subject, human, num_features=k)
         for k in num_features
         for subject in range(subjects)
-        for policy in ("expert", "best_response")
+        for human in ("expert", "best_response")
     ]
 
 

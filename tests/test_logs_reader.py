@@ -145,7 +145,7 @@ def test_a_trial_in_two_files_is_refused(run: Path) -> None:
 
 
 def test_a_faulty_record_is_refused(run: Path) -> None:
-    record = msgspec.structs.replace(make_record(1), policy="oracle")
+    record = msgspec.structs.replace(make_record(1), human="oracle")
     write(run / "a.mcap", [record])
     with pytest.raises(UserError, match=r"unusable \(trial .*'oracle' is not a known human"):
         read_run(run)

@@ -20,7 +20,7 @@ from cirl_study.logs.schemas import CHANNELS
 from cirl_study.record import TRIAL_SCHEMA, TrialRecord, encode
 
 REQUIRED = [
-    "trial_id", "run_id", "block", "subject", "policy", "num_features", "rationality", "eta",
+    "trial_id", "run_id", "block", "subject", "human", "num_features", "rationality", "eta",
     "seed", "grid", "start", "learning_steps", "deployment_steps", "features", "theta",
     "theta_hat", "demonstration", "measures",
 ]  # fmt: skip
@@ -129,7 +129,7 @@ def test_every_missing_field_is_a_fault(field: str) -> None:
 @pytest.mark.parametrize(
     ("path", "value", "message"),
     [
-        ("policy", "", "Expected `str` of length >= 1"),
+        ("human", "", "Expected `str` of length >= 1"),
         ("block", "warmup", "Invalid enum value 'warmup'"),
         ("rationality", 0.0, "Expected `float` > 0.0"),
         ("gradient_ascent", {"steps": 0, "learning_rate": 0.1}, "Expected `int` >= 1"),
@@ -232,12 +232,12 @@ def _estimated(record: dict[str, Any], theta_hat: list[float]) -> None:
 
 
 INCONSISTENT = {
-    "unknown policy": (_set("policy", "oracle"), "policy 'oracle' is not a known human policy"),
+    "unknown human": (_set("human", "oracle"), "human 'oracle' is not a known human"),
     "unknown robot": (_set("robot", "oracle"), "robot 'oracle' is not a known robot"),
-    "eta for the expert": (_set("eta", 0.5), "eta is 0.5 for policy expert"),
+    "eta for the expert": (_set("eta", 0.5), "eta is 0.5 for human expert"),
     "no eta for best response": (
-        lambda r: r.update(policy="best_response"),
-        "eta is None for policy best_response",
+        lambda r: r.update(human="best_response"),
+        "eta is None for human best_response",
     ),
     "theta too long": (_append_theta, "theta has 4 entries, num_features is 3"),
     "theta_hat too short": (
@@ -319,10 +319,10 @@ def test_rounding_below_zero_is_tolerated() -> None:
     assert faults_of(record) == []
 
 
-def test_records_of_both_policies_pass() -> None:
-    for policy in ("expert", "best_response"):
+def test_records_of_both_humans_pass() -> None:
+    for human in ("expert", "best_response"):
         for k in (1, 3, 10):
-            assert faults_of(plain_record(4, policy, num_features=k)) == []
+            assert faults_of(plain_record(4, human, num_features=k)) == []
 
 
 def test_the_documented_example_record_is_valid() -> None:
@@ -338,14 +338,14 @@ def _cell(width: int, height: int) -> st.SearchStrategy[list[int]]:
 
 
 @settings(max_examples=400, deadline=None)
-@given(data=st.data(), policy=st.sampled_from(["expert", "best_response"]))
+@given(data=st.data(), human=st.sampled_from(["expert", "best_response"]))
 def test_the_move_table_walk_agrees_with_the_named_path_faults(
-    data: st.DataObject, policy: str
+    data: st.DataObject, human: str
 ) -> None:
     """The record checks walk each path through the grid's move table and name its faults
     cell by cell only when that walk fails: the walk fails exactly when the named checks find
     a fault, whatever cells, moves, steps or players the record holds."""
-    record = plain_record(data.draw(st.integers(0, 50)), policy, rollouts=2)
+    record = plain_record(data.draw(st.integers(0, 50)), human, rollouts=2)
     width, height = record["grid"]["width"], record["grid"]["height"]
     demonstration, deployment = record["demonstration"], record["deployment"]
     for _ in range(data.draw(st.integers(0, 3))):
@@ -366,7 +366,7 @@ def test_the_move_table_walk_agrees_with_the_named_path_faults(
             key = data.draw(st.sampled_from(["learning_steps", "deployment_steps"]))
             record[key] = data.draw(st.integers(1, 6))
         elif change == "player":
-            record["policy"] = data.draw(st.sampled_from(["expert", "best_response", "oracle"]))
+            record["human"] = data.draw(st.sampled_from(["expert", "best_response", "oracle"]))
             record["robot"] = data.draw(st.sampled_from(["map", "posterior_mean", "pragmatic"]))
             record["eta"] = data.draw(st.sampled_from([None, 0.5]))
         elif change == "stays":
@@ -402,8 +402,8 @@ def test_reward_l2_is_checked_record_by_record_in_a_batch() -> None:
     """Records of several grids and feature counts are checked together, and each fault
     stays with its own record."""
     records = [
-        plain_record(subject, policy, num_features=k, width=width)
-        for subject, (policy, k, width) in enumerate(
+        plain_record(subject, human, num_features=k, width=width)
+        for subject, (human, k, width) in enumerate(
             [("expert", 3, 5), ("best_response", 10, 5), ("expert", 3, 6), ("expert", 1, 5)]
         )
     ]

@@ -120,8 +120,8 @@ def test_an_inconsistent_record_fails(tmp_path: Path) -> None:
     record = msgspec.structs.replace(make_record(1), eta=2.0)
     verdict = validate_file(write(tmp_path / "a.mcap", [record]))
     assert verdict.faults == (
-        f"trial {record.trial_id}: eta is 2.0 for policy expert "
-        "(null exactly for a policy without a trade-off)",
+        f"trial {record.trial_id}: eta is 2.0 for human expert "
+        "(null exactly for a human without a trade-off)",
     )
 
 
@@ -158,7 +158,7 @@ def test_a_duplicate_trial_across_files_fails(run: Path) -> None:
 
 def test_an_incomplete_design_fails(run: Path) -> None:
     study = make_study(subjects=2)
-    write(run / "a.mcap", [r for r in study if r.subject != "k3-s0001" or r.policy == "expert"])
+    write(run / "a.mcap", [r for r in study if r.subject != "k3-s0001" or r.human == "expert"])
     (fault,) = validate_run(run).faults
     assert fault == (
         "main block incomplete: 1 subject(s) without exactly one trial of each of "

@@ -127,7 +127,7 @@ def test_replay_steps_follow_the_record(tmp_path: Path) -> None:
     demo = [json.loads(m.data) for _, _, m in topics[DEMONSTRATION_TOPIC]]
     assert [tuple(step["cell"]) for step in demo] == list(record.demonstration.states)
     assert [step["action"] for step in demo] == [None, *record.demonstration.actions]
-    assert {step["policy"] for step in demo} == {"best_response"}
+    assert {step["human"] for step in demo} == {"best_response"}
     deploy = [json.loads(m.data) for _, _, m in topics[DEPLOYMENT_TOPIC]]
     paths = record.deployment.paths
     assert [step["cells"] for step in deploy] == [
@@ -205,7 +205,7 @@ def test_collect_provenance() -> None:
     assert all(isinstance(k, str) and isinstance(v, str) for k, v in provenance.items())
     assert provenance["pipeline_name"] == "smoke" and provenance["run_id"] == identity.run_id
     assert provenance["pipeline_toml"] == 'name = "smoke"\n'
-    assert provenance["log_format"] == "8"
+    assert provenance["log_format"] == "9"
     # sha256 of the 15 bytes above, computed independently with `sha256sum`
     assert provenance["pipeline_sha256"] == (
         "69b1f260376d9e58171da83a305b3b2da7f22ab722ca729c9af53174ce8cd422"

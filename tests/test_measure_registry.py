@@ -112,17 +112,17 @@ class TestARegisteredMeasure:
         cells = [row for row in results.cells if row.measure == "reward_l1"]
         assert cells
         for row in cells:
-            cell = kept[(kept["num_features"] == row.num_features) & (kept["policy"] == row.policy)]
+            cell = kept[(kept["num_features"] == row.num_features) & (kept["human"] == row.human)]
             assert (row.n, row.mean) == (len(cell), pytest.approx(cell["reward_l1"].mean(), 1e-12))
         between = "num_features" if kept["num_features"].nunique() > 1 else None
-        want = repeated_measures_anova(kept, "reward_l1", ["policy"], between)
+        want = repeated_measures_anova(kept, "reward_l1", ["human"], between)
         assert [row for row in results.anova if row.measure == "reward_l1"] == want
         assert {row.measure for row in results.paper.simple_effects} == set(analysed_measures())
         assert {row.measure for row in results.paper.tukey_hsd} == set(analysed_measures())
         # The paper's three alone make Cronbach's alpha and the claims.
         assert results.paper.cronbach_alpha.items == list(PAPER_MEASURES)
-        policy_effect = next(claim for claim in results.claims if claim.id == "policy_effect")
-        assert list(policy_effect.values) == list(PAPER_MEASURES)
+        human_effect = next(claim for claim in results.claims if claim.id == "human_effect")
+        assert list(human_effect.values) == list(PAPER_MEASURES)
 
     def test_the_report_draws_the_measure_and_says_which_draws_it_leaves_out(
         self, run: Path, tmp_path: Path

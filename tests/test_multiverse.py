@@ -77,9 +77,9 @@ def multiverse(tmp_path: Path, tables: str = MULTIVERSE, name: str = "mv") -> Pa
 
 
 def etas_for(pipeline):
-    """The same eta for every cross-validation universe, policy and feature level."""
+    """The same eta for every cross-validation universe, human and feature level."""
     return {
-        (trial.universe, trial.policy, trial.num_features): 1.0 for trial in eta_cv_trials(pipeline)
+        (trial.universe, trial.human, trial.num_features): 1.0 for trial in eta_cv_trials(pipeline)
     }
 
 
@@ -370,11 +370,11 @@ def test_calibrate_finds_the_universe_a_target_was_taken_from(tmp_path: Path, mu
     pipeline = load_pipeline(multiverse_run.parent / "mv.toml")
     source = pipeline.multiverse.universes[2]
     main = table[(table["block"] == MAIN) & (table["universe"] == source.id)]
-    rows = ["measure,num_features,policy,value,se"]
-    for (k, policy), cell in main.groupby(["num_features", "policy"]):
+    rows = ["measure,num_features,human,value,se"]
+    for (k, human), cell in main.groupby(["num_features", "human"]):
         for measure in ("regret", "kl", "reward_l2"):
             values = cell[measure]
-            rows.append(f"{measure},{k},{policy},{float(values.mean())!r},{float(values.sem())!r}")
+            rows.append(f"{measure},{k},{human},{float(values.mean())!r},{float(values.sem())!r}")
     target = tmp_path / "target.csv"
     target.write_text("\n".join(rows) + "\n")
     out = tmp_path / "calibration"
@@ -390,7 +390,7 @@ def test_calibrate_finds_the_universe_a_target_was_taken_from(tmp_path: Path, mu
     for universe in others:  # ranked farther, or not ranked for a reason
         assert (universe.mean_squared_log_ratio or 0) > 0 or universe.missing, universe
     assert {claim.id for claim in results.nearest_claims} <= {
-        "policy_effect", "policy_f_above_962", "interaction_kl_l2", "cronbach_alpha",
+        "human_effect", "human_f_above_962", "interaction_kl_l2", "cronbach_alpha",
         "tukey_br_ahead",
     }  # fmt: skip
     ranked = [u for u in results.universes if u.mean_squared_log_ratio is not None]
@@ -403,7 +403,7 @@ def test_calibrate_finds_the_universe_a_target_was_taken_from(tmp_path: Path, mu
     assert text.startswith("# Calibration: `mv` against `target.csv`")
     assert f"| 1 | `{source.id}` |" in text
     # a target of a cell no universe has is refused in one line, and the report is kept
-    target.write_text("measure,num_features,policy,value\nregret,7,expert,0.5\n")
+    target.write_text("measure,num_features,human,value\nregret,7,expert,0.5\n")
     refused = CliRunner().invoke(app, command)
     assert refused.exit_code == 2
     assert refused.stderr.strip() == (
@@ -599,7 +599,7 @@ def test_a_universe_judged_by_regret_under_the_estimate_reads_it_as_regret(tmp_p
     logged = {"regret": 0.25, "kl": 1.0, "reward_l2": 2.0, "regret_under_estimate": 0.75}
     measures = tuple(logged.get(name) for name in MEASURES)
     row = TrialRow(
-        trial_id="t", run_id="r", universe="u", block="main", subject="s", policy="expert",
+        trial_id="t", run_id="r", universe="u", block="main", subject="s", human="expert",
         robot="map", num_features=3, rationality=1.0, eta=None, seed=1, measures=measures,
         converged=True, draw="d",
     )  # fmt: skip

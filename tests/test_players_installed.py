@@ -66,16 +66,16 @@ def test_installed_players_are_found_by_name_and_play_in_a_pipeline(installed, t
     assert "shy" in HUMANS and isinstance(ROBOTS["stubborn"], Robot)
     assert list(ROBOTS)[-1] == "stubborn" and players.reference_robot(["stubborn", "map"]) == "map"
     text = SMOKE.read_text(encoding="utf-8")
-    text = text.replace('policies = ["expert", "best_response"]', 'policies = ["expert", "shy"]')
+    text = text.replace('humans = ["expert", "best_response"]', 'humans = ["expert", "shy"]')
     text = text.replace('robots = ["map"]', 'robots = ["map", "stubborn"]')
     pipeline = parse_pipeline(text, tmp_path / "mine.toml")
-    assert pipeline.main.policies == ("expert", "shy") and pipeline.policies_with_eta == ()
+    assert pipeline.main.humans == ("expert", "shy") and pipeline.humans_with_eta == ()
 
 
 def test_an_unknown_name_lists_the_installed_players_too(installed, tmp_path) -> None:
     installed(shy=lambda: Human(nobody, takes_eta=False))
     text = SMOKE.read_text(encoding="utf-8").replace('"best_response"]', '"bold"]')
-    with pytest.raises(UserError, match=r"human policies \(expert, .*regret_optimal, .*shy\)"):
+    with pytest.raises(UserError, match=r"humans \(expert, .*regret_optimal, .*shy\)"):
         parse_pipeline(text, tmp_path / "mine.toml")
 
 

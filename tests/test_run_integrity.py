@@ -73,7 +73,7 @@ def smoke_variant(tmp_path: Path, old: str, new: str) -> Path:
 OUT_OF_RANGE = {
     "lambda 1e308": ("rationalities = [0.1, 1.0, 10.0]", "rationalities = [1e308, 1.0]",
                      "lambda_sweep.rationalities must be a non-empty list of numbers in [0.0001"),
-    "lambda tiny": ("rationality = 1.0\npolicies", "rationality = 1e-300\npolicies",
+    "lambda tiny": ("rationality = 1.0\nhumans", "rationality = 1e-300\nhumans",
                     "main.rationality must be a number in [0.0001, 10000]"),
     "eta 1e308": ("etas = [0.1, 1.0, 10.0]", "etas = [0.1, 1e308]",
                   "eta_cv.etas must be a non-empty list of numbers in [1e-06, 1e+06]"),

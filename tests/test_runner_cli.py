@@ -110,7 +110,7 @@ def test_a_study_of_humans_without_a_trade_off_plays_no_cross_validation(tmp_pat
     assert result.exit_code == 0, result.output
     assert "64 trials logged" in result.stdout  # main 16 + lambda_sweep 48, no eta_cv
     assert (
-        result.stdout.splitlines()[2] == "eta by cross-validation: none (no policy has a trade-off)"
+        result.stdout.splitlines()[2] == "eta by cross-validation: none (no human has a trade-off)"
     )
 
 

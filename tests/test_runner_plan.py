@@ -53,7 +53,7 @@ def test_the_audits_ids_are_the_plans(name: str) -> None:
     pipeline = load_pipeline(SMOKE.parent / f"{name}.toml")
     cv_trials = eta_cv_trials(pipeline)
     assert eta_cv_trial_ids(pipeline) == [t.trial_id for t in cv_trials]
-    cv = {(t.universe, t.policy, t.num_features) for t in cv_trials}
+    cv = {(t.universe, t.human, t.num_features) for t in cv_trials}
     etas = {key: 0.1 * (position + 1) for position, key in enumerate(sorted(cv, key=str))}
     trials = study_trials(pipeline, etas)
     assert study_trial_ids(pipeline, etas) == [(t.block, t.trial_id) for t in trials]
@@ -104,11 +104,11 @@ def test_draws_lie_in_their_ranges(smoke: Pipeline) -> None:
         assert (t.robot,) == smoke.main.robots == ("map",)
 
 
-def test_policies_and_etas(smoke: Pipeline) -> None:
+def test_humans_and_etas(smoke: Pipeline) -> None:
     for t in eta_cv_trials(smoke):
-        assert t.policy == "best_response" and t.eta in smoke.eta_cv.etas
+        assert t.human == "best_response" and t.eta in smoke.eta_cv.etas
     for t in study_trials(smoke, ETAS):
-        assert t.eta == ETAS.get((None, t.policy, t.num_features))
+        assert t.eta == ETAS.get((None, t.human, t.num_features))
         assert t.rationality in (smoke.main.rationality, *smoke.lambda_sweep.rationalities)
 
 

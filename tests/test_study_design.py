@@ -46,7 +46,7 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str,
         for old, new in (
             ('name = "smoke"', 'name = "three-humans"'),
             ("feature_levels = [3, 10]", "feature_levels = [3]"),
-            ('policies = ["expert", "best_response"]', f"policies = {HUMAN_NAMES}"),
+            ('humans = ["expert", "best_response"]', f"humans = {HUMAN_NAMES}"),
             ('robots = ["map"]', 'robots = ["map", "posterior_mean"]'),
             ("[main]\nsubjects = 4", "[main]\nsubjects = 8"),
         ):  # fmt: skip
@@ -80,22 +80,22 @@ def test_the_anova_has_both_within_factors_and_corrects_the_three_level_one(
     _, _, results = study
     for measure in analysed_measures():
         rows = {r["effect"]: r for r in results["anova"] if r["measure"] == measure}
-        assert set(rows) == {"policy", "robot", "policy:robot"}  # one level: no between factor
-        assert (rows["policy"]["df1"], rows["policy"]["df2"]) == (2, 14)
+        assert set(rows) == {"human", "robot", "human:robot"}  # one level: no between factor
+        assert (rows["human"]["df1"], rows["human"]["df2"]) == (2, 14)
         assert (rows["robot"]["df1"], rows["robot"]["df2"]) == (1, 7)
         assert rows["robot"]["sphericity"] is None
-        sphericity = rows["policy"]["sphericity"]
+        sphericity = rows["human"]["sphericity"]
         assert 0.5 <= sphericity["gg_epsilon"] <= 1.0
-        row, epsilon = rows["policy"], sphericity["gg_epsilon"]
+        row, epsilon = rows["human"], sphericity["gg_epsilon"]
         corrected = stats.f.sf(row["F"], epsilon * row["df1"], epsilon * row["df2"])
         assert sphericity["gg"]["p"] == pytest.approx(corrected, rel=1e-12)
-        assert rows["policy"]["log10_p"] == pytest.approx(np.log10(rows["policy"]["p"]))
+        assert rows["human"]["log10_p"] == pytest.approx(np.log10(rows["human"]["p"]))
 
 
 def test_every_pair_is_compared_in_every_cell(study: tuple[Path, str, dict]) -> None:
     _, _, results = study
     pairs = results["pairwise"]
-    humans = [r for r in pairs if r["factor"] == "policy"]
+    humans = [r for r in pairs if r["factor"] == "human"]
     robots = [r for r in pairs if r["factor"] == "robot"]
     measures = len(analysed_measures())
     assert len(humans) == measures * 3 * 2  # measures x pairs of humans x robots
@@ -121,10 +121,10 @@ def test_the_report_shows_the_design_and_the_figure(study: tuple[Path, str, dict
     ):
         assert heading in report
     claims = {claim["id"]: claim for claim in results["claims"]}
-    assert claims["paper_best_response"]["tested"] and claims["policy_effect"]["tested"]
+    assert claims["paper_best_response"]["tested"] and claims["human_effect"]["tested"]
     assert not claims["interaction_kl_l2"]["tested"]  # one feature level
     assert "at least 2 feature levels" in claims["interaction_kl_l2"]["measurement"]
-    assert {r["policy"] for r in results["lambda_sweep"]} == {
+    assert {r["human"] for r in results["lambda_sweep"]} == {
         "expert",
         "best_response",
         "first_step",
@@ -139,7 +139,7 @@ def test_the_cell_figure_keeps_its_panels_readable(humans: int, robots: int, lev
     robot_names = [f"robot_{i}" for i in range(robots)]
     cells = pd.DataFrame(
         {
-            "measure": m, "num_features": 3 + 7 * k, "policy": h, "robot": r,
+            "measure": m, "num_features": 3 + 7 * k, "human": h, "robot": r,
             "mean": 0.5, "ci95_low": 0.4, "ci95_high": 0.6,
         }
         for m in analysed_measures() for k in range(levels) for h in names for r in robot_names
@@ -164,10 +164,10 @@ def test_a_human_identical_to_another_is_analysed_without_an_error(tmp_path: Pat
     assert result.exit_code == 0, result.output
     assert result.stderr == ""
     results = json.loads((run / "report" / "results.json").read_text())
-    policy = [row for row in results["anova"] if row["effect"] == "policy"]
+    human = [row for row in results["anova"] if row["effect"] == "human"]
     measures = len(analysed_measures())
-    assert len(policy) == measures and all(row["F"] is None and row["p"] is None for row in policy)
+    assert len(human) == measures and all(row["F"] is None and row["p"] is None for row in human)
     wilcoxon = results["paper"]["wilcoxon"]
     assert len(wilcoxon) == 2 * measures and all(row["p"] is None for row in wilcoxon)
     verdicts = {claim["id"]: claim["reproduced"] for claim in results["claims"]}
-    assert verdicts["policy_effect"] is False and verdicts["tukey_br_ahead"] is False
+    assert verdicts["human_effect"] is False and verdicts["tukey_br_ahead"] is False

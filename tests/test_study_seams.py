@@ -1,4 +1,4 @@
-"""A new human policy or robot is one function and one registry line: play a pipeline with them."""
+"""A new human or robot is one function and one registry line: play a pipeline with them."""
 
 from __future__ import annotations
 
@@ -50,36 +50,36 @@ def registered() -> Iterator[None]:
     del HUMANS["stay_put"], ROBOTS["prior_mean"]
 
 
-def pipeline_text(policies: str, robots: str) -> str:
+def pipeline_text(humans: str, robots: str) -> str:
     text = SMOKE.read_text()
-    text = text.replace('policies = ["expert", "best_response"]', f"policies = {policies}")
+    text = text.replace('humans = ["expert", "best_response"]', f"humans = {humans}")
     return text.replace('robots = ["map"]', f"robots = {robots}")
 
 
 @pytest.mark.parametrize("workers", [1, 2])
-def test_a_registered_policy_and_robot_play_a_pipeline(
+def test_a_registered_human_and_robot_play_a_pipeline(
     registered: None, tmp_path: Path, workers: int
 ) -> None:
     path = tmp_path / "seams.toml"
     path.write_text(pipeline_text('["stay_put", "best_response"]', '["prior_mean"]'))
     pipeline = load_pipeline(path)
-    assert pipeline.policies_with_eta == ("best_response",)
+    assert pipeline.humans_with_eta == ("best_response",)
     result = run_pipeline(pipeline, tmp_path / "run", LocalEngine(workers))
     assert result.played == result.total == 82
     assert validate_run(tmp_path / "run").ok
     records = run_records(tmp_path / "run")
-    assert {r.policy for r in records} == {"stay_put", "best_response"}
+    assert {r.human for r in records} == {"stay_put", "best_response"}
     assert {r.robot for r in records} == {"prior_mean"}
     for record in records:
         assert all(v == 0.0 for v in record.theta_hat)
-        if record.policy == "stay_put":
+        if record.human == "stay_put":
             assert record.eta is None
             assert set(record.demonstration.states) == {record.start}
             assert set(record.demonstration.actions) == {"stay"}
 
 
 def test_unknown_names_are_refused_before_anything_runs(tmp_path: Path) -> None:
-    with pytest.raises(UserError, match=r"main.policies must be a non-empty list of distinct"):
+    with pytest.raises(UserError, match=r"main.humans must be a non-empty list of distinct"):
         parse_pipeline(pipeline_text('["stay_put"]', '["map"]'), tmp_path / "x.toml")
     with pytest.raises(UserError, match=r"main.robots must be a non-empty list of distinct known"):
         parse_pipeline(pipeline_text('["expert"]', '["oracle"]'), tmp_path / "x.toml")

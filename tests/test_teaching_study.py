@@ -55,25 +55,25 @@ steps = [5]
 """
 """A valid ``[multiverse]`` table for the smoke pipeline (one robot, equal horizons)."""
 
-POLICIES = '["expert", "best_response", "literal", "pedagogic", "regret_optimal"]'
+HUMANS = '["expert", "best_response", "literal", "pedagogic", "regret_optimal"]'
 ROBOTS = '["map", "literal_observer", "pragmatic"]'
 
 
 def smoke_text(
     *,
-    policies: str | None = None,
+    humans: str | None = None,
     robots: str | None = None,
     sweep: bool = True,
     extra: str = "",
 ) -> str:
-    """``pipelines/smoke.toml`` with ``main.policies`` and ``main.robots`` replaced, its
+    """``pipelines/smoke.toml`` with ``main.humans`` and ``main.robots`` replaced, its
     ``[lambda_sweep]`` kept or cut (it is the file's last table) and ``extra`` appended."""
     text = SMOKE.read_text()
     assert text.count("[lambda_sweep]") == 1 and text.rstrip().endswith("]")
-    if policies is not None:
-        old = 'policies = ["expert", "best_response"]'
+    if humans is not None:
+        old = 'humans = ["expert", "best_response"]'
         assert old in text
-        text = text.replace(old, f"policies = {policies}")
+        text = text.replace(old, f"humans = {humans}")
     if robots is not None:
         assert 'robots = ["map"]' in text
         text = text.replace('robots = ["map"]', f"robots = {robots}")
@@ -114,7 +114,7 @@ def paths_of(width: int, height: int, start: tuple[int, int], steps: int) -> int
 
 def big_grid_text() -> str:
     """A teaching pipeline on the paper's 10x10 grid with 12 learning steps: too many paths."""
-    text = smoke_text(policies='["expert", "pedagogic"]', sweep=False, extra=TEACHING)
+    text = smoke_text(humans='["expert", "pedagogic"]', sweep=False, extra=TEACHING)
     for old, new in [
         ("width = 5", "width = 10"),
         ("height = 5", "height = 10"),
@@ -129,12 +129,12 @@ def big_grid_text() -> str:
 REFUSALS: list[tuple[str, Callable[[], str], str]] = [
     (
         "a teaching human without [teaching]",
-        lambda: smoke_text(policies='["expert", "pedagogic"]'),
+        lambda: smoke_text(humans='["expert", "pedagogic"]'),
         "teaching is missing (pedagogic need a hypothesis space)",
     ),
     (
         "the regret-optimal human without [teaching]",
-        lambda: smoke_text(policies='["expert", "regret_optimal"]'),
+        lambda: smoke_text(humans='["expert", "regret_optimal"]'),
         "teaching is missing (regret_optimal need a hypothesis space)",
     ),
     (
@@ -149,34 +149,34 @@ REFUSALS: list[tuple[str, Callable[[], str], str]] = [
     ),
     (
         "[teaching] with [lambda_sweep]",
-        lambda: smoke_text(policies='["expert", "pedagogic"]', extra=TEACHING),
+        lambda: smoke_text(humans='["expert", "pedagogic"]', extra=TEACHING),
         "lambda_sweep must not be given with [teaching] (its study has no sweep)",
     ),
     (
         "[teaching] with [multiverse]",
         lambda: (
-            smoke_text(policies='["expert", "pedagogic"]', sweep=False, extra=TEACHING) + MULTIVERSE
+            smoke_text(humans='["expert", "pedagogic"]', sweep=False, extra=TEACHING) + MULTIVERSE
         ),
         "teaching must not be given with [multiverse]",
     ),
     (
         "one hypothesis",
         lambda: smoke_text(
-            policies='["expert", "pedagogic"]', sweep=False, extra=teaching_text(hypotheses="1")
+            humans='["expert", "pedagogic"]', sweep=False, extra=teaching_text(hypotheses="1")
         ),
         "teaching.hypotheses must be an integer of at least 2, or \"tasks\", got 1",
     ),
     (
         "alpha = 0",
         lambda: smoke_text(
-            policies='["expert", "pedagogic"]', sweep=False, extra=teaching_text(alpha="0")
+            humans='["expert", "pedagogic"]', sweep=False, extra=teaching_text(alpha="0")
         ),
         "teaching.alpha must be a number in [0.001, 1000]",
     ),
     (
         "alpha a string",
         lambda: smoke_text(
-            policies='["expert", "pedagogic"]', sweep=False, extra=teaching_text(alpha='"1.0"')
+            humans='["expert", "pedagogic"]', sweep=False, extra=teaching_text(alpha='"1.0"')
         ),
         "teaching.alpha must be a number in [0.001, 1000] (from a choice all but uniform to all "
         'but the mode), got "1.0"',
@@ -184,7 +184,7 @@ REFUSALS: list[tuple[str, Callable[[], str], str]] = [
     (
         "an unknown demonstration",
         lambda: smoke_text(
-            policies='["expert", "pedagogic"]',
+            humans='["expert", "pedagogic"]',
             sweep=False,
             extra=teaching_text(demonstration='"best"'),
         ),
@@ -193,7 +193,7 @@ REFUSALS: list[tuple[str, Callable[[], str], str]] = [
     (
         "an unknown key",
         lambda: smoke_text(
-            policies='["expert", "pedagogic"]', sweep=False, extra=TEACHING + "prior = 2\n"
+            humans='["expert", "pedagogic"]', sweep=False, extra=TEACHING + "prior = 2\n"
         ),
         "teaching.prior is not a known key (expected one of: hypotheses, includes_truth, "
         "alpha, demonstration)",
@@ -228,7 +228,7 @@ def test_the_path_limit_lies_between_the_paper_phase_and_the_refused_one() -> No
 def test_a_valid_teaching_pipeline_parses_into_its_spec(tmp_path: Path) -> None:
     """``[teaching]`` becomes ``pipeline.teaching``, and the study has no lambda sweep."""
     text = smoke_text(
-        policies='["expert", "pedagogic"]',
+        humans='["expert", "pedagogic"]',
         robots='["map", "literal_observer", "pragmatic"]',
         sweep=False,
         extra=teaching_text(
@@ -261,7 +261,7 @@ def small_teaching_text() -> str:
     """The small teaching pipeline: 5x5, 4 learning steps, 3 draws per level (2 for eta),
     every human with every robot, 8 hypotheses."""
     text = smoke_text(
-        policies=POLICIES,
+        humans=HUMANS,
         robots=ROBOTS,
         sweep=False,
         extra=teaching_text(hypotheses="8"),
@@ -347,12 +347,12 @@ def test_every_trial_carries_its_subjects_hypothesis_space(teaching_runs: Teachi
 
 
 def test_every_robot_watches_the_same_demonstration(teaching_runs: TeachingRuns) -> None:
-    """Records of one subject, block, policy (and eta) but different robots show the same
+    """Records of one subject, block, human (and eta) but different robots show the same
     demonstration: the robot is a within-subjects factor (a design property)."""
     records = run_records(teaching_runs.two_workers)
     shown: dict[tuple[Any, ...], dict[str, bytes]] = defaultdict(dict)
     for record in records:
-        key = (record.block, record.subject, record.policy, record.rationality, record.eta)
+        key = (record.block, record.subject, record.human, record.rationality, record.eta)
         shown[key][record.robot] = encode(record.demonstration)
     main = {key: by_robot for key, by_robot in shown.items() if key[0] == MAIN}
     assert len(main) == 2 * 3 * 5
@@ -413,7 +413,7 @@ def test_analyze_writes_the_teaching_report(teaching_report: tuple[Path, str]) -
     assert set(claims) >= QUESTIONS
     assert all(claims[question]["tested"] for question in QUESTIONS)
     design = results["design"]
-    assert design["humans"] == json.loads(POLICIES) and design["robots"] == json.loads(ROBOTS)
+    assert design["humans"] == json.loads(HUMANS) and design["robots"] == json.loads(ROBOTS)
     assert design["feature_levels"] == [3, 10]
     assert design["subjects_per_level"] == {"3": 3, "10": 3}
     assert results["trials"] == {"total": 102, "main": 90, "eta_cv": 12}
@@ -452,9 +452,9 @@ def test_no_demonstration_beats_the_regret_optimal_one(teaching_report: tuple[Pa
     out, _ = teaching_report
     results = json.loads((out / "results.json").read_text(encoding="utf-8"))
     gaps = results["regret_optimal"]["gaps"]
-    checked = [g for g in gaps if g["policy"] in ("expert", "best_response")]
-    assert {(g["policy"], g["num_features"]) for g in checked} == {
-        (policy, k) for policy in ("expert", "best_response") for k in (3, 10)
+    checked = [g for g in gaps if g["human"] in ("expert", "best_response")]
+    assert {(g["human"], g["num_features"]) for g in checked} == {
+        (human, k) for human in ("expert", "best_response") for k in (3, 10)
     }
     for gap in checked:
         assert gap["n"] == 3
@@ -472,7 +472,7 @@ SYNTHETIC_ROBOTS = ("map", "literal_observer", "pragmatic")
 def synthetic_pipeline(tmp_path: Path) -> Pipeline:
     """A teaching pipeline naming the synthetic study's humans and robots."""
     text = smoke_text(
-        policies=json.dumps(list(SYNTHETIC_HUMANS)),
+        humans=json.dumps(list(SYNTHETIC_HUMANS)),
         robots=json.dumps(list(SYNTHETIC_ROBOTS)),
         sweep=False,
         extra=TEACHING,
@@ -516,7 +516,7 @@ def synthetic_rows(
                             universe=None,
                             block="main",
                             subject=subject,
-                            policy=human,
+                            human=human,
                             robot=robot,
                             num_features=k,
                             rationality=1.0,
@@ -544,7 +544,7 @@ def questions_of(results: dict[str, Any]) -> dict[str, dict[str, Any]]:
 def robot_effects(results: dict[str, Any], measure: str) -> dict[str, float]:
     """The pooled simple effect ``pragmatic - literal_observer`` robot of ``measure``, by human."""
     return {
-        row["policy"]: row["mean_diff"]
+        row["human"]: row["mean_diff"]
         for row in results["milli_dragan"]["robot_effect"]
         if row["measure"] == measure
     }
@@ -626,7 +626,7 @@ def test_a_hypothesis_space_too_large_for_a_batch_is_refused_before_anything_run
     """The log-partitions repeat each trial's features once per hypothesis: 200,000 hypotheses
     on the 5 x 5 grid at K = 10 would need about 93 GiB for one batch."""
     text = smoke_text(
-        policies='["expert", "pedagogic"]',
+        humans='["expert", "pedagogic"]',
         robots='["map"]',
         sweep=False,
         extra=teaching_text(

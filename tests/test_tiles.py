@@ -63,7 +63,7 @@ rationality = 1.0
 
 [main]
 rationality = 1.0
-policies = ["expert", "best_response", "pedagogic"]
+humans = ["expert", "best_response", "pedagogic"]
 robots = ["map", "gradient_ascent"]
 
 [teaching]
@@ -264,8 +264,8 @@ BAD = [
         "tasks.ab must be a table of weights",
     ),
     (
-        "rationality = 1.0\npolicies",
-        "subjects = 2\nrationality = 1.0\npolicies",
+        "rationality = 1.0\nhumans",
+        "subjects = 2\nrationality = 1.0\nhumans",
         "main.subjects must not be given with [tasks] (each task is one subject)",
     ),
     (
@@ -322,8 +322,8 @@ def test_the_hypotheses_of_tasks_are_the_tasks_the_trials_own_first() -> None:
     assert cv and all(spec.teaching.listed == () and spec.task is None for spec in cv)
     for spec in cv:
         check_playable(spec)
-    etas = {(None, policy, 3): 1.0 for policy in pipeline.policies_with_eta}
-    specs = [spec for spec in study_trials(pipeline, etas) if spec.policy == "pedagogic"]
+    etas = {(None, human, 3): 1.0 for human in pipeline.humans_with_eta}
+    specs = [spec for spec in study_trials(pipeline, etas) if spec.human == "pedagogic"]
     assert specs and all(spec.teaching.listed == ((0.0, -1.0, -0.1), (-1.0, 0.0, -0.1))
                          for spec in specs)  # fmt: skip
     from cirl_study.core.trial import _Setting
@@ -386,7 +386,7 @@ def test_the_shipped_tiles_pipeline_is_ho_et_als_task() -> None:
 def test_the_plan_of_tiles_has_goals_tasks_and_tile_features() -> None:
     pipeline = load_pipeline(TILES)
     cv = eta_cv_trials(pipeline)
-    etas = {(None, policy, 4): 1.0 for policy in pipeline.policies_with_eta}
+    etas = {(None, human, 4): 1.0 for human in pipeline.humans_with_eta}
     study = study_trials(pipeline, etas)
     assert cv and study
     for spec in cv + study:

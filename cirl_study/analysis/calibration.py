@@ -1,7 +1,7 @@
 """Which universe made the published numbers: a run's cell means held against a target table.
 
 A *target* is a CSV of published cell means (:func:`read_target`): per row a ``measure``, a
-``num_features`` and a ``policy`` (the human), optionally a ``robot``, the ``value``, and
+``num_features`` and a ``human``, optionally a ``robot``, the ``value``, and
 optionally its uncertainty, as a standard error ``se`` or a 95% interval ``ci95_low``,
 ``ci95_high``. :func:`calibrate` compares every universe of a multiverse run (a single study
 is one universe) with it, cell by cell, on the log scale, where a factor of 2 is the same
@@ -63,9 +63,9 @@ from cirl_study.study.spec import AXES, Pipeline, Universe
 MAX_TARGET_BYTES = 1 << 20
 """Largest target file read."""
 
-TARGET_COLUMNS = ("measure", "num_features", "policy", "robot", "value", "se", "ci95_low",
+TARGET_COLUMNS = ("measure", "num_features", "human", "robot", "value", "se", "ci95_low",
                   "ci95_high")  # fmt: skip
-"""The columns a target may have; ``measure``, ``num_features``, ``policy`` and ``value``
+"""The columns a target may have; ``measure``, ``num_features``, ``human`` and ``value``
 are required, the others optional (and may be left empty in a row)."""
 
 Z_95 = 1.959963984540054
@@ -80,7 +80,7 @@ def read_target(path: Path) -> tuple[list[TargetCell], str]:
         UserError: the file cannot be read, is not UTF-8 CSV with a header of
             :data:`TARGET_COLUMNS` (required ones present), or a row is not a cell: an
             unknown measure, a feature count that is not a positive integer, an empty
-            policy, a value that is not a positive number (distances are on the log scale),
+            human, a value that is not a positive number (distances are on the log scale),
             an uncertainty that is not positive, an interval that does not hold its value,
             or a cell given twice. One line, naming the file and the row.
     """
@@ -97,14 +97,14 @@ def read_target(path: Path) -> tuple[list[TargetCell], str]:
         raise UserError(
             f"{label}: column {terminal(unknown[0])} is not one of {', '.join(TARGET_COLUMNS)}"
         )
-    for required in ("measure", "num_features", "policy", "value"):
+    for required in ("measure", "num_features", "human", "value"):
         if required not in header:
             raise UserError(f"{label}: has no column {required}")
     cells: list[TargetCell] = []
     seen: set[tuple[str, int, str, str | None]] = set()
     for line, row in enumerate(reader, start=2):
         cell = _target_cell(row, f"{label} line {line}")
-        key = (cell.measure, cell.num_features, cell.policy, cell.robot)
+        key = (cell.measure, cell.num_features, cell.human, cell.robot)
         if key in seen:
             raise UserError(f"{label} line {line}: repeats the cell of an earlier line")
         seen.add(key)
@@ -129,8 +129,8 @@ def _target_cell(row: dict[str, str | None], where: str) -> TargetCell:
         raise UserError(
             f"{where}: num_features must be a positive integer, got {terminal(features)}"
         )
-    if not field["policy"]:
-        raise UserError(f"{where}: policy is empty")
+    if not field["human"]:
+        raise UserError(f"{where}: human is empty")
     value = _positive(field["value"], "value", where)
     log_se = None
     if field.get("se"):
@@ -150,7 +150,7 @@ def _target_cell(row: dict[str, str | None], where: str) -> TargetCell:
     return TargetCell(
         measure=measure,
         num_features=int(features),
-        policy=field["policy"],
+        human=field["human"],
         robot=field.get("robot") or None,
         value=value,
         log_se=log_se,
@@ -240,7 +240,7 @@ def _settings(pipeline: Pipeline) -> dict[str, tuple[dict[str, Any], str]]:
 
 
 CellKey = tuple[str, int, str, str]
-"""A cell of a run: ``(measure, num_features, policy, robot)``."""
+"""A cell of a run: ``(measure, num_features, human, robot)``."""
 
 Measured = tuple[int, float, float]
 """A cell's ``(n, mean, sd)`` over its subjects."""
@@ -289,14 +289,14 @@ def cell_means(main: pd.DataFrame) -> dict[str, dict[CellKey, Measured]]:
     a log format before it: a cell none of whose trials holds it is left out, and a target
     naming it is then told the universe lacks the cell)."""
     main = main.assign(universe=main["universe"].fillna(""))
-    keys = ["universe", "num_features", "policy", "robot"]
+    keys = ["universe", "num_features", "human", "robot"]
     means: dict[str, dict[CellKey, Measured]] = {}
     for measure in MEASURES:
         grouped = main.groupby(keys, sort=True)[measure].agg(["count", "mean", "std"])
-        for (universe, k, policy, robot), row in grouped.iterrows():
+        for (universe, k, human, robot), row in grouped.iterrows():
             if row["count"] == 0:
                 continue
-            means.setdefault(str(universe), {})[(measure, int(k), str(policy), str(robot))] = (
+            means.setdefault(str(universe), {})[(measure, int(k), str(human), str(robot))] = (
                 int(row["count"]),
                 float(row["mean"]),
                 float(row["std"]),
@@ -305,12 +305,12 @@ def cell_means(main: pd.DataFrame) -> dict[str, dict[CellKey, Measured]]:
 
 
 def _key(cell: TargetCell, reference: str) -> CellKey:
-    return (cell.measure, cell.num_features, cell.policy, cell.robot or reference)
+    return (cell.measure, cell.num_features, cell.human, cell.robot or reference)
 
 
 def _cell_name(cell: TargetCell) -> str:
     robot = f", {cell.robot}" if cell.robot else ""
-    return f"({cell.measure}, K={cell.num_features}, {terminal(cell.policy)}{robot})"
+    return f"({cell.measure}, K={cell.num_features}, {terminal(cell.human)}{robot})"
 
 
 def _distance(
@@ -336,7 +336,7 @@ def _distance(
             CellComparison(
                 measure=cell.measure,
                 num_features=cell.num_features,
-                policy=cell.policy,
+                human=cell.human,
                 robot=key[3],
                 target=cell.value,
                 target_log_se=cell.log_se,

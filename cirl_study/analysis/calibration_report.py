@@ -94,7 +94,7 @@ def _nearest(results: CalibrationResults) -> list[str]:
 
 def _cells(results: CalibrationResults) -> list[str]:
     ranked = [u for u in results.universes if u.mean_squared_log_ratio is not None][:3]
-    header = ["measure", "K", "policy", "target"]
+    header = ["measure", "K", "human", "target"]
     header += [f"#{rank} measured" for rank in range(1, len(ranked) + 1)]
     rows = []
     for position, cell in enumerate(results.target):
@@ -103,7 +103,7 @@ def _cells(results: CalibrationResults) -> list[str]:
             [
                 measure_name(cell.measure),
                 str(cell.num_features),
-                escape.markdown(cell.policy + (f" ({cell.robot})" if cell.robot else "")),
+                escape.markdown(cell.human + (f" ({cell.robot})" if cell.robot else "")),
                 number(cell.value),
                 *[f"{number(c.measured)} (x{math.exp(c.log_ratio):.3g})" for c in compared],
             ]

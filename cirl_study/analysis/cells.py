@@ -37,7 +37,7 @@ def papers_own(humans: Sequence[str], robots: Sequence[str]) -> bool:
         >>> papers_own(["best_response", "expert"], ["map"]), papers_own(["expert"], ["map"])
         (True, False)
     """
-    return sorted(humans) == sorted(record.PAPER_POLICIES) and len(robots) == 1
+    return sorted(humans) == sorted(record.PAPER_HUMANS) and len(robots) == 1
 
 
 @dataclass(frozen=True)
@@ -73,7 +73,7 @@ class Cells:
         return "; ".join(missing) or None
 
 
-PAPER = Cells(humans=record.PAPER_POLICIES)
+PAPER = Cells(humans=record.PAPER_HUMANS)
 """The paper's own analysis (Hadfield-Menell et al. 2016, section 4): expert and best response,
 watched by the reference robot."""
 

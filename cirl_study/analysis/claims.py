@@ -18,10 +18,10 @@ and the best response) unless they say otherwise, and on the paper's three measu
 (:data:`~cirl_study.measure_registry.PAPER_MEASURES`, each a loss), the measures every
 claim was made on, whatever else is registered:
 
-1. ``policy_effect``: for every measure the policy effect has ``p < .0001`` and the best
+1. ``human_effect``: for every measure the human effect has ``p < .0001`` and the best
    response's mean over the main block is below the expert's.
-2. ``policy_f_above_962``: every measure's policy ``F`` exceeds 962.
-3. ``interaction_kl_l2``: for KL and L2, the policy x num_features interaction has
+2. ``human_f_above_962``: every measure's human ``F`` exceeds 962.
+3. ``interaction_kl_l2``: for KL and L2, the human x num_features interaction has
    ``p < .05`` and the gap ``mean(expert) - mean(best_response)`` is larger at the smallest
    feature level than at the largest.
 4. ``cronbach_alpha``: the paper's .47 lies inside the 95% (Feldt) interval of our raw alpha.
@@ -88,15 +88,15 @@ SIGNIFICANCE = 0.05
 Holm-adjusted p-values where a rule compares several cells)."""
 
 PAPER_P = 1e-4
-"""The paper's bound on the p-values of the policy effect."""
+"""The paper's bound on the p-values of the human effect."""
 
 PAPER_F = 962.0
-"""The paper's lower bound on the F statistics of the policy effect."""
+"""The paper's lower bound on the F statistics of the human effect."""
 
 PAPER_ALPHA = 0.47
 """The paper's Cronbach's alpha across the three measures."""
 
-SECTION_POLICY = "paper, section 4.2"
+SECTION_HUMAN = "paper, section 4.2"
 SECTION_LAMBDA = "paper, section 4.3"
 MILLI_DRAGAN_2019 = "Milli & Dragan (2019)"
 HO_2016 = "Ho et al. (2016), against the paper's best response"
@@ -146,17 +146,17 @@ def _paper_cells(results: StudyResults, measure: str) -> list[CellMean]:
     return [
         row
         for row in results.cells
-        if row.measure == measure and row.robot == robot and row.policy in (EXPERT, BEST_RESPONSE)
+        if row.measure == measure and row.robot == robot and row.human in (EXPERT, BEST_RESPONSE)
     ]
 
 
-def _policy_mean(results: StudyResults, measure: str, policy: str) -> float:
-    cells = [row for row in _paper_cells(results, measure) if row.policy == policy]
+def _human_mean(results: StudyResults, measure: str, human: str) -> float:
+    cells = [row for row in _paper_cells(results, measure) if row.human == human]
     return sum(row.n * row.mean for row in cells) / sum(row.n for row in cells)
 
 
 def _gap(results: StudyResults, measure: str, level: int) -> float:
-    means = {(r.num_features, r.policy): r.mean for r in _paper_cells(results, measure)}
+    means = {(r.num_features, r.human): r.mean for r in _paper_cells(results, measure)}
     return means[(level, EXPERT)] - means[(level, BEST_RESPONSE)]
 
 
@@ -164,12 +164,12 @@ def _f_text(row: AnovaEffect) -> str:
     return f"F({row.df1}, {row.df2}) = {_num(row.F)}, p = {p_text(row.log10_p)}"
 
 
-def _policy_effect(results: StudyResults) -> Verdict:
+def _human_effect(results: StudyResults) -> Verdict:
     values, parts, holds = {}, [], True
     for measure in PAPER_MEASURES:
-        row = _anova(results, measure, "policy")
-        expert = _policy_mean(results, measure, EXPERT)
-        best = _policy_mean(results, measure, BEST_RESPONSE)
+        row = _anova(results, measure, "human")
+        expert = _human_mean(results, measure, EXPERT)
+        best = _human_mean(results, measure, BEST_RESPONSE)
         values[measure] = {"F": row.F, "p": row.p, "mean_expert": expert, "mean_br": best}
         holds &= _below(row.p, PAPER_P) and best < expert
         parts.append(
@@ -179,8 +179,8 @@ def _policy_effect(results: StudyResults) -> Verdict:
     return Verdict("; ".join(parts), values, holds)
 
 
-def _policy_f(results: StudyResults) -> Verdict:
-    values = {m: _anova(results, m, "policy").F for m in PAPER_MEASURES}
+def _human_f(results: StudyResults) -> Verdict:
+    values = {m: _anova(results, m, "human").F for m in PAPER_MEASURES}
     return Verdict(
         "; ".join(f"{measure_name(m)}: F = {_num(f)}" for m, f in values.items()),
         values,
@@ -193,7 +193,7 @@ def _interaction(results: StudyResults) -> Verdict:
     low, high = min(levels), max(levels)
     values, parts, holds = {}, [], True
     for measure in PAPER_MEASURES:
-        row = _anova(results, measure, "policy:num_features")
+        row = _anova(results, measure, "human:num_features")
         gaps = {low: _gap(results, measure, low), high: _gap(results, measure, high)}
         values[measure] = {"F": row.F, "p": row.p, **{f"gap_{k}": g for k, g in gaps.items()}}
         if measure != "regret":
@@ -222,7 +222,7 @@ def _tukey(results: StudyResults) -> Verdict:
         level = row.a_num_features
         if level != row.b_num_features or row.measure not in PAPER_MEASURES:
             continue
-        means = {row.a_policy: row.mean_a, row.b_policy: row.mean_b}
+        means = {row.a_human: row.mean_a, row.b_human: row.mean_b}
         holds &= means[BEST_RESPONSE] < means[EXPERT] and _below(row.p_tukey, SIGNIFICANCE)
         values[f"{row.measure}@{level}"] = {
             "diff_br_minus_expert": means[BEST_RESPONSE] - means[EXPERT],
@@ -240,7 +240,7 @@ def _lambda_minimum(results: StudyResults) -> Verdict:
     robot = _reference(results)
     curves: dict[int, list[CellMean]] = {}
     for row in results.lambda_sweep:
-        if row.measure == "regret" and row.policy == BEST_RESPONSE and row.robot == robot:
+        if row.measure == "regret" and row.human == BEST_RESPONSE and row.robot == robot:
             curves.setdefault(row.num_features, []).append(row)
     values, parts, holds = {}, [], True
     for level, curve in sorted(curves.items()):
@@ -318,7 +318,7 @@ def _robot_effects(
     """The 2 x 2's simple effects of the robot on ``measure``: with the pedagogic human, and
     with the literal one (pooled over the feature levels)."""
     effects = results.milli_dragan.robot_effect
-    return _effect(effects, measure, policy=PEDAGOGIC), _effect(effects, measure, policy=LITERAL)
+    return _effect(effects, measure, human=PEDAGOGIC), _effect(effects, measure, human=LITERAL)
 
 
 def _crossover(results: StudyResults) -> Verdict:
@@ -369,10 +369,10 @@ def _versus(results: StudyResults) -> Verdict:
 
 
 def _optimal_gap(results: StudyResults) -> Verdict:
-    gaps = [g for g in results.regret_optimal.gaps if g.policy == BEST_RESPONSE]
+    gaps = [g for g in results.regret_optimal.gaps if g.human == BEST_RESPONSE]
     return Verdict(
         "; ".join(
-            f"K={g.num_features}: regret {_num(g.mean_policy)} vs "
+            f"K={g.num_features}: regret {_num(g.mean_human)} vs "
             f"{_num(g.mean_regret_optimal)}, gap {_num(g.mean_gap)} "
             f"[{_num(g.ci95_low)}, {_num(g.ci95_high)}], "
             f"as good as the best found for {100 * g.share_optimal:.1f}% of draws"
@@ -386,30 +386,30 @@ def _optimal_gap(results: StudyResults) -> Verdict:
 
 CLAIMS: tuple[Claim, ...] = (
     Claim(
-        "policy_effect",
-        SECTION_POLICY,
+        "human_effect",
+        SECTION_HUMAN,
         "Best response outperforms demonstration-by-expert on all three measures "
-        "(significant effect of policy, p < .0001).",
-        f"every measure: policy effect p < {PAPER_P:g} and the best response's mean below "
+        "(significant effect of human, p < .0001).",
+        f"every measure: human effect p < {PAPER_P:g} and the best response's mean below "
         "the expert's",
         PAPER,
         ("paper.anova", "cells", "figure2_measures"),
-        _policy_effect,
+        _human_effect,
     ),
     Claim(
-        "policy_f_above_962",
-        SECTION_POLICY,
-        "The effect of policy has F > 962 on every measure.",
-        f"every measure: policy effect F > {PAPER_F:g}",
+        "human_f_above_962",
+        SECTION_HUMAN,
+        "The effect of human has F > 962 on every measure.",
+        f"every measure: human effect F > {PAPER_F:g}",
         PAPER,
         ("paper.anova",),
-        _policy_f,
+        _human_f,
     ),
     Claim(
         "interaction_kl_l2",
-        SECTION_POLICY,
-        "An interaction of policy with num_features for KL and L2: the gap between the "
-        "policies is larger with fewer features.",
+        SECTION_HUMAN,
+        "An interaction of human with num_features for KL and L2: the gap between the "
+        "humans is larger with fewer features.",
         f"KL and L2: interaction p < {SIGNIFICANCE:g} and the gap mean(expert) - "
         "mean(best response) larger at the smallest feature level than at the largest "
         "(regret shown for context)",
@@ -419,7 +419,7 @@ CLAIMS: tuple[Claim, ...] = (
     ),
     Claim(
         "cronbach_alpha",
-        SECTION_POLICY,
+        SECTION_HUMAN,
         "Relatively little correlation between the measures: Cronbach's alpha of .47.",
         f"{PAPER_ALPHA:g} inside the 95% Feldt interval of our raw alpha",
         PAPER,
@@ -428,7 +428,7 @@ CLAIMS: tuple[Claim, ...] = (
     ),
     Claim(
         "tukey_br_ahead",
-        SECTION_POLICY,
+        SECTION_HUMAN,
         "Post-hoc Tukey HSD shows the best response outperforming the expert in every cell.",
         f"every measure and feature level: Tukey HSD (ignoring the pairing) p < {SIGNIFICANCE:g} "
         "and the best response's mean lower",

@@ -6,8 +6,8 @@ plus :data:`STYLE`, at a fixed size and :data:`DPI`, and saved as PNG without th
 ``Software`` metadata entry (PNG files carry no timestamp) and as SVG without a date.
 
 - Figure 1 (:func:`reward_maps`): for one reward draw, the true reward map, and each
-  policy's demonstration over the MAP reward map the robot inferred from it.
-- Figure 2 (:func:`measure_bars`, :func:`lambda_curve`): the paper's three measures by policy
+  human's demonstration over the MAP reward map the robot inferred from it.
+- Figure 2 (:func:`measure_bars`, :func:`lambda_curve`): the paper's three measures by human
   and feature level (and the other measures the analysis tests, in a figure of their own); the
   regret against the robot's rationality lambda.
 - :func:`eta_curve`: the cross-validation of the best response's eta.
@@ -40,7 +40,7 @@ from cirl_study.analysis.markdown import HIGHER_IS_BETTER, svg_name
 from cirl_study.core.gridworld import feature_matrix
 from cirl_study.features import RBFFeatures, TileFeatures
 from cirl_study.measure_registry import MEASURES, analysed_measures
-from cirl_study.record import BEST_RESPONSE, PAPER_POLICIES, TrialRecord
+from cirl_study.record import BEST_RESPONSE, PAPER_HUMANS, TrialRecord
 from cirl_study.workers import Call, call, started
 
 DPI = 120
@@ -60,14 +60,14 @@ STYLE: dict[str, Any] = {
 time less than tracing every glyph as a path; a viewer without DejaVu Sans shows it in its
 own sans-serif."""
 
-POLICY_LABELS = {"expert": "expert", "best_response": "best response"}
-POLICY_COLOURS = {"expert": "#9e9e9e", "best_response": "#1f77b4"}
+HUMAN_LABELS = {"expert": "expert", "best_response": "best response"}
+HUMAN_COLOURS = {"expert": "#9e9e9e", "best_response": "#1f77b4"}
 MEASURE_COLOURS = ("#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd", "#8c564b")
 """Colours of the measures in the order of the registry (the calibration figure)."""
 LEVEL_MARKERS = ("o", "s", "^", "D", "v")
-POLICY_MARKERS = {"expert": "o", "best_response": "s"}
+HUMAN_MARKERS = {"expert": "o", "best_response": "s"}
 DODGE = {"expert": 1 / 1.08, "best_response": 1.08}
-"""Factors that shift each policy's points sideways on a log x axis."""
+"""Factors that shift each human's points sideways on a log x axis."""
 
 
 @dataclass(frozen=True)
@@ -427,11 +427,11 @@ def better(measures: Sequence[str]) -> str:
 
 
 def measure_bars(cells: pd.DataFrame, measures: Sequence[str], title: str) -> Rendered:
-    """Figure 2 (left, middle) of ``measures``: each one's mean with its 95% CI by policy and
+    """Figure 2 (left, middle) of ``measures``: each one's mean with its 95% CI by human and
     level, one panel each (a level without a cell of a measure has no bar there).
 
     Args:
-        cells: rows ``measure, num_features, policy, mean, ci95_low, ci95_high``.
+        cells: rows ``measure, num_features, human, mean, ci95_low, ci95_high``.
         measures: the measures drawn, in order.
         title: the figure's title.
     """
@@ -442,9 +442,9 @@ def measure_bars(cells: pd.DataFrame, measures: Sequence[str], title: str) -> Re
         figure = _new_figure(max(6.0, 10.0 * len(measures) / 3), 3.4)
         axes = _panels(figure, 1, len(measures), Margins(bottom=0.75, across=0.7))[0]
         for panel, measure in zip(axes, measures, strict=True):
-            for offset, policy in zip((-width / 2, width / 2), PAPER_POLICIES, strict=True):
+            for offset, human in zip((-width / 2, width / 2), PAPER_HUMANS, strict=True):
                 rows = (
-                    cells[(cells["measure"] == measure) & (cells["policy"] == policy)]
+                    cells[(cells["measure"] == measure) & (cells["human"] == human)]
                     .set_index("num_features")
                     .reindex(levels)
                 )
@@ -457,8 +457,8 @@ def measure_bars(cells: pd.DataFrame, measures: Sequence[str], title: str) -> Re
                     width,
                     yerr=errors,
                     capsize=4,
-                    color=POLICY_COLOURS[policy],
-                    label=POLICY_LABELS[policy],
+                    color=HUMAN_COLOURS[human],
+                    label=HUMAN_LABELS[human],
                 )
             panel.set_xticks(positions, [f"{level} features" for level in levels])
             panel.set_title(_titled(measure))
@@ -493,7 +493,7 @@ def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str
     underscores, so the names of 8 humans fit under a panel side by side.
 
     Args:
-        cells: rows ``measure, num_features, policy, robot, mean, ci95_low, ci95_high``.
+        cells: rows ``measure, num_features, human, robot, mean, ci95_low, ci95_high``.
         humans: the humans, in the order drawn.
         robots: the robots, in the order drawn.
     """
@@ -516,7 +516,7 @@ def cell_figure(cells: pd.DataFrame, humans: Sequence[str], robots: Sequence[str
                             & (cells["num_features"] == level)
                             & (cells["robot"] == robot)
                         ]
-                        .set_index("policy")
+                        .set_index("human")
                         .reindex(list(humans))
                     )
                     errors = np.vstack(
@@ -590,14 +590,14 @@ def lambda_curve(sweep: pd.DataFrame) -> Rendered:
 def lambda_figure(sweep: pd.DataFrame) -> Figure:
     """Figure 2 (right): regret against the robot's rationality lambda, log axis.
 
-    One panel per feature level; in each, both policies in their colours and markers (expert
+    One panel per feature level; in each, both humans in their colours and markers (expert
     circles, best response squares), dodged sideways so that neither hides the other where
     they coincide; bars are 95% CIs. A star above its interval marks the lambda at which the
     best response's mean regret is lowest, the point of the paper's claim. Every panel has
     its own regret scale, labelled.
 
     Args:
-        sweep: rows ``measure, rationality, policy, num_features, mean, ci95_low, ci95_high``.
+        sweep: rows ``measure, rationality, human, num_features, mean, ci95_low, ci95_high``.
     """
     regret = sweep[sweep["measure"] == "regret"]
     levels = sorted(regret["num_features"].unique())
@@ -606,8 +606,8 @@ def lambda_figure(sweep: pd.DataFrame) -> Figure:
         panels = _panels(figure, 1, len(levels))[0]
         for axes, level in zip(panels, levels, strict=True):
             at_level = regret[regret["num_features"] == level]
-            _curves(axes, at_level, "rationality", _policy_series(at_level))
-            best = at_level[at_level["policy"] == BEST_RESPONSE]
+            _curves(axes, at_level, "rationality", _human_series(at_level))
+            best = at_level[at_level["human"] == BEST_RESPONSE]
             lowest = best.loc[best["mean"].idxmin()]
             _star_above(axes, lowest["rationality"] * DODGE[BEST_RESPONSE],
                         lowest["ci95_high"], "lowest best-response regret")  # fmt: skip
@@ -619,17 +619,17 @@ def lambda_figure(sweep: pd.DataFrame) -> Figure:
         return figure
 
 
-def _policy_series(rows: pd.DataFrame) -> list[tuple[str, pd.DataFrame, dict[str, Any]]]:
-    """Each policy's rows, dodged along a log x axis, in the policy's colour and marker."""
+def _human_series(rows: pd.DataFrame) -> list[tuple[str, pd.DataFrame, dict[str, Any]]]:
+    """Each human's rows, dodged along a log x axis, in the human's colour and marker."""
     return [
         (
-            POLICY_LABELS[policy],
-            rows[rows["policy"] == policy].assign(
-                rationality=rows.loc[rows["policy"] == policy, "rationality"] * DODGE[policy]
+            HUMAN_LABELS[human],
+            rows[rows["human"] == human].assign(
+                rationality=rows.loc[rows["human"] == human, "rationality"] * DODGE[human]
             ),
-            {"color": POLICY_COLOURS[policy], "marker": POLICY_MARKERS[policy], "markersize": 6},
+            {"color": HUMAN_COLOURS[human], "marker": HUMAN_MARKERS[human], "markersize": 6},
         )
-        for policy in PAPER_POLICIES
+        for human in PAPER_HUMANS
     ]
 
 
@@ -648,8 +648,8 @@ def eta_curve(means: pd.DataFrame, choice: pd.DataFrame) -> Rendered:
     """
     levels = sorted(means["num_features"].unique())
     style = {
-        "color": POLICY_COLOURS[BEST_RESPONSE],
-        "marker": POLICY_MARKERS[BEST_RESPONSE],
+        "color": HUMAN_COLOURS[BEST_RESPONSE],
+        "marker": HUMAN_MARKERS[BEST_RESPONSE],
         "markersize": 5,
     }
     with matplotlib.style.context("default"), rc_context(STYLE):
@@ -657,7 +657,7 @@ def eta_curve(means: pd.DataFrame, choice: pd.DataFrame) -> Rendered:
         panels = _panels(figure, 1, len(levels))[0]
         for axes, level in zip(panels, levels, strict=True):
             rows = means[means["num_features"] == level]
-            _curves(axes, rows, "eta", [(POLICY_LABELS[BEST_RESPONSE], rows, style)])
+            _curves(axes, rows, "eta", [(HUMAN_LABELS[BEST_RESPONSE], rows, style)])
             row = choice[choice["num_features"] == level]
             if not row.empty:
                 line = float(row["mean"].iloc[0] + row["se"].iloc[0])
@@ -677,12 +677,12 @@ def eta_curve(means: pd.DataFrame, choice: pd.DataFrame) -> Rendered:
 def robot_difference_curve(sweep: pd.DataFrame, reference: str, other: str) -> Rendered:
     """Mean paired regret difference ``other - reference`` against lambda, per feature level.
 
-    One panel per feature level, one line per policy (the policy's colour; the policies
+    One panel per feature level, one line per human (the human's colour; the humans
     are dodged sideways so their intervals do not hide each other); bars are 95% CIs of
     the mean difference; below the zero line the other robot did better.
 
     Args:
-        sweep: rows ``measure, rationality, num_features, policy, mean_diff, ci95_low,
+        sweep: rows ``measure, rationality, num_features, human, mean_diff, ci95_low,
             ci95_high`` (:func:`cirl_study.analysis.statistics.paired_differences`).
         reference: the reference robot's name.
         other: the other robot's name.
@@ -695,7 +695,7 @@ def robot_difference_curve(sweep: pd.DataFrame, reference: str, other: str) -> R
         for axes, level in zip(panels, levels, strict=True):
             axes.axhline(0.0, color="black", linewidth=0.8)
             at_level = regret[regret["num_features"] == level]
-            _curves(axes, at_level, "rationality", _policy_series(at_level))
+            _curves(axes, at_level, "rationality", _human_series(at_level))
             axes.set_title(f"{level} features")
             axes.set_xlabel("robot's rationality λ")
         panels[0].set_ylabel(f"regret, {other} minus {reference} (95% CI)")
@@ -709,7 +709,7 @@ def specification_curve(
 ) -> Rendered:
     """The specification curve of one measure (Simonsohn, Simmons & Nelson 2020).
 
-    Top: each universe's policy effect (mean of ``best response - expert``, 95% CI), sorted
+    Top: each universe's human effect (mean of ``best response - expert``, 95% CI), sorted
     by size; filled where ``p < .05``, hollow otherwise; the universe ``marked`` (the
     pipeline's own, the paper's reading) in red. Below: the dashboard, one row per level of
     every axis that varies, a mark where the universe above made that choice.
@@ -776,7 +776,7 @@ def specification_curve(
         dashboard.set_ylim(len(rows) - 0.5, -0.5)
         dashboard.set_xlabel("universes, by effect (red: the pipeline's own settings)")
         dashboard.set_xticks([])
-        figure.suptitle(f"Specification curve: the policy effect on {measure_label(measure)}")
+        figure.suptitle(f"Specification curve: the human effect on {measure_label(measure)}")
         return render(figure)
 
 

@@ -11,12 +11,12 @@ and its pipeline, and returns them typed
   alpha;
 * ``effects``: per universe and measure of the paper's three
   (:data:`~cirl_study.measure_registry.PAPER_MEASURES`, those its claims are about; so
-  ``regression`` and ``joint_test`` too), the policy effect: the mean over every ``main``
+  ``regression`` and ``joint_test`` too), the human effect: the mean over every ``main``
   subject (both feature levels) of ``d_s = y_{s,br} - y_{s,expert}``, with its paired-t 95%
   CI, ``t``, ``p`` and ``d_z`` (:func:`cirl_study.analysis.statistics.paired_differences`);
 * ``claims``: per claim, how many universes reproduce it (``tested`` universes only), whether
   the base universe does, and the share reproduced at each level of each axis;
-* ``regression``: per measure, an OLS regression of the universes' policy effects on the axis
+* ``regression``: per measure, an OLS regression of the universes' human effects on the axis
   levels (treatment coding, each axis's base level as the reference), with each axis's share
   of the effect's variance across universes (type II sums of squares over the total);
 * ``joint_test``: per measure, the joint test of Simonsohn et al. that the best response beats
@@ -54,8 +54,8 @@ from cirl_study.study.spec import AXES, Pipeline, Universe, shortest_number
 from cirl_study.workers import map_in_workers
 
 PAPER_CLAIMS: tuple[str, ...] = (
-    "policy_effect",
-    "policy_f_above_962",
+    "human_effect",
+    "human_f_above_962",
     "interaction_kl_l2",
     "cronbach_alpha",
     "tukey_br_ahead",
@@ -213,9 +213,9 @@ def _axes(pipeline: Pipeline) -> dict[str, list[Any]]:
 
 
 def _effects(main: pd.DataFrame) -> pd.DataFrame:
-    """Per universe and measure, the paired policy effect over every ``main`` subject."""
+    """Per universe and measure, the paired human effect over every ``main`` subject."""
     frames = [
-        statistics.paired_differences(main, measure, "policy", EXPERT, ["universe"])
+        statistics.paired_differences(main, measure, "human", EXPERT, ["universe"])
         for measure in PAPER_MEASURES
     ]
     effects = pd.concat(frames, ignore_index=True)
@@ -259,7 +259,7 @@ def _claim_shares(
 def _regression(
     effects: pd.DataFrame, measure: str, levels: dict[str, list[Any]], pipeline: Pipeline
 ) -> dict[str, Any]:
-    """OLS of the universes' policy effects on the axis ``levels`` (:func:`_axes`), and each
+    """OLS of the universes' human effects on the axis ``levels`` (:func:`_axes`), and each
     axis's share of the effect's variance (type II SS over the total SS); ``None`` parts when
     the universes are too few for the model (no residual degrees of freedom). A nested axis
     (:attr:`~cirl_study.study.spec.Axis.nested`) is left out: its levels are confounded with
@@ -328,10 +328,10 @@ def _term(name: str, axes: list[str]) -> tuple[str | None, str | None]:
 def _joint_test(main: pd.DataFrame, measure: str) -> dict[str, Any]:
     """:func:`~cirl_study.analysis.statistics.joint_sign_flip_test` on the ``main`` block."""
     wide = main.pivot_table(
-        index="universe", columns=["subject", "policy"], values=measure, aggfunc="first"
+        index="universe", columns=["subject", "human"], values=measure, aggfunc="first"
     ).sort_index()
     differences = (
-        wide.xs("best_response", axis=1, level="policy") - wide.xs(EXPERT, axis=1, level="policy")
+        wide.xs("best_response", axis=1, level="human") - wide.xs(EXPERT, axis=1, level="human")
     ).sort_index(axis=1)
     if differences.isna().to_numpy().any():
         raise ValueError("the universes do not all play the same subjects")

@@ -2,10 +2,10 @@
 
 :func:`write_multiverse_report` turns the rows of a multiverse run into a directory that reads
 well on GitHub: which of the paper's claims hold in how many universes, at which levels of
-which settings, the specification curve of the policy effect on each of the paper's three
+which settings, the specification curve of the human effect on each of the paper's three
 measures with the joint test of Simonsohn et al., and one line per universe. Like the paper
 report it is a deterministic function of the trials (their order does not matter).
-``universes.csv`` holds one row per universe (its settings, its verdicts and its policy
+``universes.csv`` holds one row per universe (its settings, its verdicts and its human
 effects) in place of the paper report's ``trials.csv``: the trials themselves are in the run's
 logs.
 """
@@ -37,9 +37,9 @@ from cirl_study.record import TrialRow
 from cirl_study.study.spec import AXES, Pipeline
 
 CLAIM_TEXT = {
-    "policy_effect": "best response beats expert on every measure, p < .0001",
-    "policy_f_above_962": "policy F > 962 on every measure",
-    "interaction_kl_l2": "KL and L2: policy x features interaction, gap larger at fewer features",
+    "human_effect": "best response beats expert on every measure, p < .0001",
+    "human_f_above_962": "human F > 962 on every measure",
+    "interaction_kl_l2": "KL and L2: human x features interaction, gap larger at fewer features",
     "cronbach_alpha": "Cronbach's alpha of the measures is .47",
     "tukey_br_ahead": "Tukey HSD: best response ahead in every cell",
 }
@@ -62,7 +62,7 @@ def _header(results: MultiverseResults) -> list[str]:
     lines = [
         f"# Multiverse report: {escape.markdown(results.pipeline)}",
         "",
-        f"The paper's study (the eta cross-validation and the main policy x num_features "
+        f"The paper's study (the eta cross-validation and the main human x num_features "
         f"design) played in **{len(universes)} universes**, each a choice of the settings the "
         f"paper leaves open, on the same reward draws ({results.trials['total']} trials). "
         "Each universe's claims are judged with the paper report's own rules; the lambda claim "
@@ -179,7 +179,7 @@ def _holds(results: MultiverseResults) -> list[str]:
 
 def _curves(results: MultiverseResults) -> list[str]:
     lines = [
-        "## The policy effect across universes",
+        "## The human effect across universes",
         "",
         "Per measure, the mean over every main-block subject of best response minus expert "
         "(negative: the best response did better), universes sorted by it, with the joint test "
@@ -232,7 +232,7 @@ def _regression(results: MultiverseResults) -> list[str]:
     lines = [
         "## What moves the effect",
         "",
-        "Per measure, an OLS regression of the universes' policy effects on the settings "
+        "Per measure, an OLS regression of the universes' human effects on the settings "
         "(each setting's base level the reference): each setting's share of the effect's "
         "variance across universes (type II sums of squares over the total), then the "
         "coefficients.",
@@ -283,7 +283,7 @@ def _regression(results: MultiverseResults) -> list[str]:
 
 
 def universe_table(results: MultiverseResults) -> pd.DataFrame:
-    """One row per universe: its settings, its verdicts and its policy effect per measure."""
+    """One row per universe: its settings, its verdicts and its human effect per measure."""
     effects = frame(results.effects).set_index(["universe", "measure"])
     rows = []
     for universe in results.universes:

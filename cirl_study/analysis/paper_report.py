@@ -1,5 +1,5 @@
 """The sections of ``report.md`` on the paper's own analyses and on the robots: the paper's
-mixed ANOVA, the simple effects of policy, Tukey HSD as the paper ran it, the Wilcoxon checks,
+mixed ANOVA, the simple effects of human, Tukey HSD as the paper ran it, the Wilcoxon checks,
 Cronbach's alpha and Figure 1 (results ``paper``), and every other robot against the
 reference (results ``robots``). Each is a function of the results alone and returns its
 lines, or none when the run has nothing for it.
@@ -28,9 +28,9 @@ def paper_anova(results: StudyResults) -> list[str]:
         heading(3, "paper.anova"),
         "",
         f"On the trials of `expert` and `best_response` watched by "
-        f"`{results.design.reference_robot}`, per measure: within subjects `policy`, "
+        f"`{results.design.reference_robot}`, per measure: within subjects `human`, "
         "between subjects `num_features` (a subject is one reward draw, at one feature level "
-        "only). With two policies sphericity holds, so the p-values are uncorrected. The "
+        "only). With two humans sphericity holds, so the p-values are uncorrected. The "
         "paper's claims are judged on it.",
         "",
         anova_table(results.paper.anova),
@@ -38,7 +38,7 @@ def paper_anova(results: StudyResults) -> list[str]:
 
 
 def simple_effects(results: StudyResults) -> list[str]:
-    """The paired simple effects of policy within each feature level."""
+    """The paired simple effects of human within each feature level."""
     columns: list[md.Column] = [
         "measure",
         "num_features",
@@ -79,12 +79,12 @@ def simple_effects(results: StudyResults) -> list[str]:
 
 
 def tukey(results: StudyResults) -> list[str]:
-    """Tukey HSD over the policy x features cells, as the paper ran it."""
+    """Tukey HSD over the human x features cells, as the paper ran it."""
 
     def cell(side: str) -> md.Column:
         def label(row: TukeyRow) -> str:
-            policy = getattr(row, f"{side}_policy")
-            return f"{md.name(policy)}, {getattr(row, f'{side}_num_features')}"
+            human = getattr(row, f"{side}_human")
+            return f"{md.name(human)}, {getattr(row, f'{side}_num_features')}"
 
         return label
 
@@ -97,10 +97,10 @@ def tukey(results: StudyResults) -> list[str]:
     return [
         heading(3, "paper.tukey_hsd"),
         "",
-        "As the paper ran it: all pairs of the policy × features cells, error pooled over the "
-        "cells. **This ignores the pairing** of the two policies within a reward draw, so it "
+        "As the paper ran it: all pairs of the human × features cells, error pooled over the "
+        "cells. **This ignores the pairing** of the two humans within a reward draw, so it "
         "treats within-subject comparisons as if they were between independent groups; the "
-        "simple effects above are the paired analysis. Cells are named `policy, features`. "
+        "simple effects above are the paired analysis. Cells are named `human, features`. "
         "p (Tukey) is the studentized range's upper tail computed in log space without "
         "cancellation, accurate to about 1e-13 relative, also below the smallest double "
         "(scipy's tail, used by pingouin, is 0 from q = 10.5 on).",
@@ -181,7 +181,7 @@ def _robot_sweep_summary(robots: RobotComparison, humans: list[str]) -> list[str
                 cell = [
                     r
                     for r in regret
-                    if r.level == other and r.num_features == level and r.policy == human
+                    if r.level == other and r.num_features == level and r.human == human
                 ]
                 found = {
                     verdict: ", ".join(
@@ -207,7 +207,7 @@ def robots(results: StudyResults) -> list[str]:
     lambdas = ", ".join(f"{value:g}" for value in results.design.main_rationality)
     main_regret = [row for row in compared.main if row.measure == "regret"]
     answers = [
-        f"- `{row.level}`, {md.name(row.policy)}, {row.num_features} features: "
+        f"- `{row.level}`, {md.name(row.human)}, {row.num_features} features: "
         f"{_robot_verdict(row)} (regret {md.number(row.mean_level)} against "
         f"{md.number(row.mean_baseline)}; difference {md.number(row.mean_diff)} "
         f"{md.interval(row.ci95_low, row.ci95_high)}, Holm p {md.p_value(row.p_holm)})"
@@ -216,7 +216,7 @@ def robots(results: StudyResults) -> list[str]:
     paired_columns: list[md.Column] = [
         "measure",
         "num_features",
-        lambda row: md.name(row.policy),
+        lambda row: md.name(row.human),
         "level",
         "n",
         "mean_baseline",

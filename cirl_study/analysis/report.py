@@ -34,7 +34,7 @@ from cirl_study.analysis.results import combined, estimates, tests, with_claims
 from cirl_study.analysis.sections import FIGURES, heading, link
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.measure_registry import MEASURES, PAPER_MEASURES, analysed_measures
-from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_POLICIES, TrialRecord, TrialRow
+from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_HUMANS, TrialRecord, TrialRow
 from cirl_study.study.spec import Pipeline
 from cirl_study.workers import Call
 
@@ -221,20 +221,20 @@ def _figure1_records(
     subject: str,
     robot: str,
 ) -> dict[str, TrialRecord]:
-    """The ``main``-block records of ``subject`` watched by ``robot``, by policy."""
+    """The ``main``-block records of ``subject`` watched by ``robot``, by human."""
     wanted = {
         row.trial_id
         for row in trials
         if row.block == MAIN and row.subject == subject and row.robot == robot
     }
-    found = {record.policy: record for record in records_of(wanted)}
-    return {policy: found[policy] for policy in PAPER_POLICIES}
+    found = {record.human: record for record in records_of(wanted)}
+    return {human: found[human] for human in PAPER_HUMANS}
 
 
-FIGURE2_TITLE = "Lower is better: the three measures by policy and number of features"
+FIGURE2_TITLE = "Lower is better: the three measures by human and number of features"
 """The title of Figure 2 (left): the paper's three measures, all losses."""
 
-OTHERS_TITLE = "the other measures by policy and number of features"
+OTHERS_TITLE = "the other measures by human and number of features"
 """The title of the figure of the measures beyond the paper's, after which way is better."""
 
 
@@ -258,7 +258,7 @@ def _drawings(
             figures.reward_maps,
             (pair[EXPERT], pair[BEST_RESPONSE], title),
         )
-        of_paper = (cells["robot"] == reference) & cells["policy"].isin(PAPER_POLICIES)
+        of_paper = (cells["robot"] == reference) & cells["human"].isin(PAPER_HUMANS)
         paper_cells = cells[of_paper].drop(columns="robot").reset_index(drop=True)
         drawings[FIGURES["figure2_measures"][0]] = (
             figures.measure_bars,
@@ -272,7 +272,7 @@ def _drawings(
             )
         if estimated.lambda_sweep:
             sweep = frame(estimated.lambda_sweep)
-            of_paper = (sweep["robot"] == reference) & sweep["policy"].isin(PAPER_POLICIES)
+            of_paper = (sweep["robot"] == reference) & sweep["human"].isin(PAPER_HUMANS)
             drawings[FIGURES["figure2_lambda"][0]] = (
                 figures.lambda_curve,
                 (sweep[of_paper].drop(columns="robot").reset_index(drop=True),),
@@ -292,7 +292,7 @@ def _drawings(
         robots is not None
         and robots.lambda_sweep
         and len(robots.others) == 1
-        and tuple(design.humans) == PAPER_POLICIES
+        and tuple(design.humans) == PAPER_HUMANS
     ):
         drawings[FIGURES["robots"][0]] = (
             figures.robot_difference_curve,

@@ -44,7 +44,7 @@ class CellMean(msgspec.Struct, **_ROW):
 
     measure: str
     num_features: int
-    policy: str
+    human: str
     robot: str
     n: int
     mean: Number
@@ -112,7 +112,7 @@ class PairedComparison(PairedT, **_ROW):
     """One paired comparison of two levels of a within factor in one cell of the others
     (:func:`cirl_study.analysis.statistics.pairwise_differences`).
 
-    ``policy`` and ``robot`` name the cell (``None`` for the factor compared); the
+    ``human`` and ``robot`` name the cell (``None`` for the factor compared); the
     difference is ``level_a - level_b``; ``p_holm`` is Holm's adjustment over the family,
     computed from ``log10_p`` (so it never underflows to 0 where ``p`` does not).
     """
@@ -121,7 +121,7 @@ class PairedComparison(PairedT, **_ROW):
     factor: str
     level_a: str
     level_b: str
-    policy: str | None
+    human: str | None
     robot: str | None
     num_features: int
     n: int
@@ -133,8 +133,8 @@ class PairedComparison(PairedT, **_ROW):
 
 class PairedDifference(PairedT, **_ROW):
     """One row of :func:`cirl_study.analysis.statistics.paired_differences`: ``level`` against
-    the baseline in one group (its keys among ``policy, robot, num_features, rationality,
-    pooled, universe``); a multiverse's policy effects have neither ``level`` nor Holm."""
+    the baseline in one group (its keys among ``human, robot, num_features, rationality,
+    pooled, universe``); a multiverse's human effects have neither ``level`` nor Holm."""
 
     measure: str
     n: int
@@ -143,7 +143,7 @@ class PairedDifference(PairedT, **_ROW):
     level: str | None = None
     p_holm: Number = None
     log10_p_holm: Number = None
-    policy: str | None = None
+    human: str | None = None
     robot: str | None = None
     num_features: int | None = None
     rationality: float | None = None
@@ -152,7 +152,7 @@ class PairedDifference(PairedT, **_ROW):
 
 
 class SimpleEffect(PairedT, **_ROW):
-    """The simple effect of policy at one feature level, with its BCa bootstrap intervals
+    """The simple effect of human at one feature level, with its BCa bootstrap intervals
     (:func:`cirl_study.analysis.statistics.simple_effects`)."""
 
     measure: str
@@ -171,9 +171,9 @@ class SimpleEffect(PairedT, **_ROW):
 class TukeyRow(msgspec.Struct, **_ROW):
     measure: str
     a_num_features: int
-    a_policy: str
+    a_human: str
     b_num_features: int
-    b_policy: str
+    b_human: str
     mean_a: Number
     mean_b: Number
     diff: Number
@@ -299,10 +299,10 @@ class MilliDragan(msgspec.Struct, **_ROW):
 
 class RegretGap(msgspec.Struct, **_ROW):
     num_features: int
-    policy: str
+    human: str
     n: int
     mean_regret_optimal: Number
-    mean_policy: Number
+    mean_human: Number
     mean_gap: Number
     ci95_low: Number
     ci95_high: Number
@@ -468,7 +468,7 @@ class Coefficient(msgspec.Struct, **_ROW):
 
 
 class Regression(msgspec.Struct, **_ROW):
-    """The OLS regression of the universes' policy effects on the axes (none without
+    """The OLS regression of the universes' human effects on the axes (none without
     residual degrees of freedom)."""
 
     universes: int
@@ -511,14 +511,14 @@ class MultiverseResults(msgspec.Struct, **_ROW):
 
 class TargetCell(msgspec.Struct, **_ROW):
     """One published cell of a calibration target (:func:`cirl_study.analysis.calibration.
-    read_target`): a measure's mean in one ``num_features`` x ``policy`` cell, of ``robot``
+    read_target`): a measure's mean in one ``num_features`` x ``human`` cell, of ``robot``
     (``None``: the reference robot of each universe), and its uncertainty on the log scale
     (``log_se``: the standard error of :math:`\\ln` of the value; ``None`` when the target
     gives none)."""
 
     measure: str
     num_features: int
-    policy: str
+    human: str
     robot: str | None
     value: float
     log_se: float | None
@@ -531,7 +531,7 @@ class CellComparison(msgspec.Struct, **_ROW):
 
     measure: str
     num_features: int
-    policy: str
+    human: str
     robot: str
     target: float
     target_log_se: float | None

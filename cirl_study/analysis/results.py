@@ -21,7 +21,7 @@ The sections, by key:
   and etas, the sweep's rationalities, the teaching players' hypothesis space;
 * ``cells``: each measure's mean with its t-based 95% CI per feature level, human and robot
   (:func:`cirl_study.analysis.statistics.group_means`);
-* ``anova``: per measure, the repeated-measures ANOVA with ``policy`` (the human) and, with
+* ``anova``: per measure, the repeated-measures ANOVA with ``human`` and, with
   two robots or more, ``robot`` within subjects and ``num_features`` between (with two levels
   or more), sphericity tested and corrected
   (:func:`cirl_study.analysis.anova.repeated_measures_anova`);
@@ -36,7 +36,7 @@ The sections, by key:
   the robot's stopping rule;
 * ``paper``, where the run has the paper's humans (:data:`~cirl_study.analysis.cells.PAPER`):
   the paper's analyses on the reference robot's trials of the expert and the best response:
-  its mixed ANOVA, the simple effects of policy, Tukey HSD as the paper ran it, Wilcoxon
+  its mixed ANOVA, the simple effects of human, Tukey HSD as the paper ran it, Wilcoxon
   checks (each per measure) and Cronbach's alpha of the paper's three measures
   (:func:`paper_tests`), and the reward draw of Figure 1;
 * ``robots``, with two robots or more: every other robot against the reference, paired, in
@@ -78,7 +78,7 @@ from cirl_study.record import (
     EXPERT,
     LAMBDA_SWEEP,
     MAIN,
-    PAPER_POLICIES,
+    PAPER_HUMANS,
     TrialRow,
 )
 from cirl_study.study.eta_cv import choose_etas
@@ -94,10 +94,10 @@ def design_of(table: pd.DataFrame, pipeline: Pipeline) -> Design:
     in the order of ``pipeline``: the humans and robots its ``main`` block plays, its feature
     levels, and the rationalities of its sweep."""
     main = table[table["block"] == MAIN]
-    humans, robots = set(main["policy"]), set(main["robot"])
+    humans, robots = set(main["human"]), set(main["robot"])
     sweep = table.loc[table["block"] == LAMBDA_SWEEP, "rationality"]
     return Design(
-        humans=tuple(h for h in pipeline.main.policies if h in humans),
+        humans=tuple(h for h in pipeline.main.humans if h in humans),
         robots=tuple(r for r in pipeline.main.robots if r in robots),
         feature_levels=tuple(sorted(int(k) for k in main["num_features"].unique())),
         sweep_rationalities=tuple(sorted(float(value) for value in sweep.unique())),
@@ -188,10 +188,10 @@ def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> dict[str, Any]:
         choices = choose_etas(trials)
     except ValueError as error:
         raise UserError(f"eta cross-validation: {error}") from None
-    chosen = {k: choice for (_, policy, k), choice in choices.items() if policy == BEST_RESPONSE}
+    chosen = {k: choice for (_, human, k), choice in choices.items() if human == BEST_RESPONSE}
     played: dict[int, set[float]] = {}
     for row in trials:
-        if row.block == MAIN and row.policy == BEST_RESPONSE and row.eta is not None:
+        if row.block == MAIN and row.human == BEST_RESPONSE and row.eta is not None:
             played.setdefault(row.num_features, set()).add(row.eta)
     levels = sorted({row.num_features for row in trials if row.block == MAIN})
     main_block = []
@@ -236,14 +236,14 @@ def robot_comparison(table: pd.DataFrame, reference: str) -> dict[str, Any]:
     """Every other robot against the reference, on the same demonstrations.
 
     ``main``: per measure, the paired difference ``other - reference`` within each feature
-    level and policy, Holm over the measure's cells
+    level and human, Holm over the measure's cells
     (:func:`~cirl_study.analysis.statistics.paired_differences`). ``lambda_sweep``: the same
-    per rationality, feature level and policy of the sweep, Holm over the measure's whole
+    per rationality, feature level and human of the sweep, Holm over the measure's whole
     sweep. A negative difference means the other robot did better.
     """
     main = table[table["block"] == MAIN]
     sweep = table[table["block"] == LAMBDA_SWEEP]
-    cells = ["num_features", "policy"]
+    cells = ["num_features", "human"]
     return {
         "reference": reference,
         "others": sorted(set(main["robot"]) - {reference}),
@@ -296,7 +296,7 @@ def paper_main_block(everything: pd.DataFrame, design: Design) -> pd.DataFrame:
     table the paper's tests read."""
     main = everything[everything["block"] == MAIN]
     reference = reference_robot(design.robots)
-    return main[(main["robot"] == reference) & main["policy"].isin(PAPER_POLICIES)]
+    return main[(main["robot"] == reference) & main["human"].isin(PAPER_HUMANS)]
 
 
 def estimates(
@@ -314,7 +314,7 @@ def estimates(
     reference = reference_robot(design.robots)
     main = everything[everything["block"] == MAIN]
     sweep = everything[everything["block"] == LAMBDA_SWEEP]
-    by_cell = ["num_features", "policy", "robot"]
+    by_cell = ["num_features", "human", "robot"]
     estimated = {
         "pipeline": pipeline.name,
         "trials": _trial_counts(everything),
@@ -348,12 +348,12 @@ def tests(everything: pd.DataFrame, pipeline: Pipeline) -> Results:
     design = design_of(everything, pipeline)
     main = everything[everything["block"] == MAIN]
     within = [
-        f for f, levels in (("policy", design.humans), ("robot", design.robots)) if levels[1:]
+        f for f, levels in (("human", design.humans), ("robot", design.robots)) if levels[1:]
     ]
     return {
         "anova": anova_rows(main, within),
-        "pairwise": pairwise_rows(main, {"policy": design.humans, "robot": design.robots}),
-        "against_baseline": paired_rows(main, "policy", design.baseline, ["robot", "num_features"])
+        "pairwise": pairwise_rows(main, {"human": design.humans, "robot": design.robots}),
+        "against_baseline": paired_rows(main, "human", design.baseline, ["robot", "num_features"])
         if design.humans[1:]
         else [],
         "paper": None
@@ -365,17 +365,17 @@ def tests(everything: pd.DataFrame, pipeline: Pipeline) -> Results:
 
 def paper_tests(paper_main: pd.DataFrame) -> Results:
     """The paper's tests on the ``main`` block of its humans and the reference robot
-    (:func:`paper_main_block`): ``anova`` (policy within subjects, ``num_features`` between),
+    (:func:`paper_main_block`): ``anova`` (human within subjects, ``num_features`` between),
     ``simple_effects``, ``tukey_hsd``, ``wilcoxon`` (each per measure) and ``cronbach_alpha``
     (of the paper's three measures)."""
     alpha = statistics.cronbach_alpha(paper_main[list(PAPER_MEASURES)].reset_index(drop=True))
     alpha["items"] = list(PAPER_MEASURES)
     alpha["rows"] = (
-        f"all {len(paper_main)} trials of the main block, one row per trial (both policies, "
+        f"all {len(paper_main)} trials of the main block, one row per trial (both humans, "
         "every feature level), the three measures on their own scales"
     )
     return {
-        "anova": anova_rows(paper_main, ["policy"]),
+        "anova": anova_rows(paper_main, ["human"]),
         "simple_effects": rows(
             _concat([statistics.simple_effects(k, m) for m, k in measured(paper_main)])
         ),

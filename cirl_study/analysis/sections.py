@@ -15,7 +15,7 @@ HEADINGS = {
     "pairwise": "Pairwise comparisons",
     "against_baseline": "Every human against the baseline",
     "paper.anova": "The paper's mixed ANOVA",
-    "paper.simple_effects": "Simple effects of policy",
+    "paper.simple_effects": "Simple effects of human",
     "paper.tukey_hsd": "Tukey HSD",
     "paper.wilcoxon": "Wilcoxon signed-rank tests",
     "paper.cronbach_alpha": "Cronbach's alpha",

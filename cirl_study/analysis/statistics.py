@@ -2,7 +2,7 @@
 
 Every function takes a slice of the trial table (:func:`cirl_study.analysis.table.trial_table`)
 and returns a tidy :class:`pandas.DataFrame` (or a dict) at full precision. Notation:
-``y_{s,p}`` is a measure of subject (reward draw) ``s`` under policy ``p``, subject ``s``
+``y_{s,p}`` is a measure of subject (reward draw) ``s`` under human ``p``, subject ``s``
 belongs to exactly one feature level ``g(s)``; ``d_s = y_{s,br} - y_{s,expert}`` is its
 paired difference (negative: the best response did better, since every measure is a loss).
 
@@ -27,7 +27,7 @@ from scipy import special, stats
 from cirl_study.analysis.result_types import PairedComparison
 from cirl_study.analysis.studentized_range import studentized_range_log10_sf
 from cirl_study.analysis.tails import NORMAL_TAIL, p_from_log10, t_tail
-from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_POLICIES
+from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_HUMANS
 
 CONFIDENCE = 0.95
 """Level of every confidence interval."""
@@ -85,7 +85,7 @@ def pairwise_differences(
     frame: pd.DataFrame, measure: str, factor: str, levels: Sequence[str]
 ) -> list[PairedComparison]:
     """Paired t-tests of every pair of ``levels`` of the within factor ``factor``, within
-    each cell of the other factors (``policy``, ``robot`` and ``num_features``).
+    each cell of the other factors (``human``, ``robot`` and ``num_features``).
 
     For the levels ``a`` before ``b`` in ``levels`` and subject ``s``: ``d_s = y_{s,a} -
     y_{s,b}``; ``t = mean(d) / (sd(d) / sqrt(n))`` on ``n - 1`` degrees of freedom (R's
@@ -101,7 +101,7 @@ def pairwise_differences(
     Returns:
         One row per cell and pair, cells sorted, pairs in the order of ``levels``.
     """
-    cells = [c for c in ("policy", "robot", "num_features") if c != factor]
+    cells = [c for c in ("human", "robot", "num_features") if c != factor]
     rows = []
     for key, group in frame.groupby(cells, sort=True):
         cell = dict(zip(cells, key, strict=True))
@@ -117,7 +117,7 @@ def pairwise_differences(
                     "factor": factor,
                     "level_a": a,
                     "level_b": b,
-                    "policy": cell.get("policy"),
+                    "human": cell.get("human"),
                     "robot": cell.get("robot"),
                     "num_features": int(cell["num_features"]),
                     "n": len(first),
@@ -161,10 +161,10 @@ def holm_log10(log10_p: np.ndarray) -> np.ndarray:
 
 
 def paired_by_subject(main: pd.DataFrame, measure: str, level: int) -> pd.DataFrame:
-    """Subjects x policies frame of ``measure`` at one feature level, subjects sorted."""
+    """Subjects x humans frame of ``measure`` at one feature level, subjects sorted."""
     cell = main[main["num_features"] == level]
-    paired = cell.pivot(index="subject", columns="policy", values=measure)
-    return paired[list(PAPER_POLICIES)].sort_index()
+    paired = cell.pivot(index="subject", columns="human", values=measure)
+    return paired[list(PAPER_HUMANS)].sort_index()
 
 
 def _d_z(differences: np.ndarray, axis: int = -1) -> np.ndarray:
@@ -313,7 +313,7 @@ def _bca(replicates: np.ndarray, estimate: float, jackknife: np.ndarray) -> tupl
 
 
 def simple_effects(main: pd.DataFrame, measure: str) -> pd.DataFrame:
-    """Simple effects of ``policy`` within each feature level: paired t-tests.
+    """Simple effects of ``human`` within each feature level: paired t-tests.
 
     At level ``g``: ``t = mean(d) / (sd(d) / sqrt(n))`` with ``n - 1`` degrees of freedom,
     Holm-adjusted over the feature levels of this measure; effect size
@@ -377,13 +377,13 @@ def holm(p_values: np.ndarray) -> np.ndarray:
 
 
 def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
-    """Tukey HSD over the ``num_features x policy`` cells, as the paper did it.
+    """Tukey HSD over the ``num_features x human`` cells, as the paper did it.
 
     Every pair of cells is compared with ``q = sqrt(2) |mean_A - mean_B| / sqrt(MSE (1/n_A
     + 1/n_B)) = sqrt(2) |T|`` against the studentized range distribution of ``k`` cells on
     ``N - k`` degrees of freedom (``N`` observations), ``MSE = sum_i (n_i - 1) s_i^2 / (N - k)``
     pooled over all cells. This treats the cells as independent groups: it IGNORES THE PAIRING
-    of the two policies within a subject, so its within-level comparisons are conservative
+    of the two humans within a subject, so its within-level comparisons are conservative
     compared with :func:`simple_effects`.
 
     ``pingouin.pairwise_tukey`` (checked against R ``TukeyHSD``) without its p-values: the
@@ -401,10 +401,10 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
         ``pingouin.pairwise_tukey``.
 
     Returns:
-        One row per pair of cells: ``measure, a_num_features, a_policy, b_num_features,
-        b_policy, mean_a, mean_b, diff, se, T, p_tukey, log10_p_tukey, hedges``.
+        One row per pair of cells: ``measure, a_num_features, a_human, b_num_features,
+        b_human, mean_a, mean_b, diff, se, T, p_tukey, log10_p_tukey, hedges``.
     """
-    cells = ["num_features", "policy"]
+    cells = ["num_features", "human"]
     observed = main[[measure, *cells]].dropna()
     groups = {
         cell: values.to_numpy(dtype=np.float64)
@@ -427,9 +427,9 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
         {
             "measure": measure,
             "a_num_features": [int(labels[a][0]) for a in first],
-            "a_policy": [labels[a][1] for a in first],
+            "a_human": [labels[a][1] for a in first],
             "b_num_features": [int(labels[b][0]) for b in second],
-            "b_policy": [labels[b][1] for b in second],
+            "b_human": [labels[b][1] for b in second],
             "mean_a": means[first],
             "mean_b": means[second],
             "diff": diff,
@@ -599,13 +599,13 @@ def cronbach_alpha(items: pd.DataFrame) -> dict[str, float | int | list[float]]:
 
 
 def lambda_sweep(sweep: pd.DataFrame, measures: tuple[str, ...]) -> pd.DataFrame:
-    """Mean of each measure with its CI per rationality ``lambda``, policy and feature level.
+    """Mean of each measure with its CI per rationality ``lambda``, human and feature level.
 
     Returns:
-        :func:`group_means` rows grouped by ``rationality, policy, num_features``, one
+        :func:`group_means` rows grouped by ``rationality, human, num_features``, one
         block per measure.
     """
-    by = ["rationality", "policy", "num_features"]
+    by = ["rationality", "human", "num_features"]
     return pd.concat([group_means(sweep, measure, by) for measure in measures], ignore_index=True)
 
 
@@ -630,7 +630,7 @@ def eta_choice_uncertainty(cv: pd.DataFrame, chosen: Mapping[int, float]) -> pd.
         mean_diff, ci95_low, ci95_high, t, df, p, d_z, within_one_se`` (``within_one_se`` a
         sorted list of etas; the test columns are NaN with a single eta).
     """
-    best = cv[(cv["policy"] == BEST_RESPONSE) & cv["eta"].notna()]
+    best = cv[(cv["human"] == BEST_RESPONSE) & cv["eta"].notna()]
     rows = []
     for level, group in best.groupby("num_features", sort=True):
         if int(level) not in chosen:
@@ -667,7 +667,7 @@ def eta_means(cv: pd.DataFrame) -> pd.DataFrame:
         :func:`group_means` of regret by ``num_features, eta`` over the best-response
         trials of ``cv``.
     """
-    best = cv[(cv["policy"] == BEST_RESPONSE) & cv["eta"].notna()]
+    best = cv[(cv["human"] == BEST_RESPONSE) & cv["eta"].notna()]
     return group_means(best, "regret", ["num_features", "eta"])
 
 

@@ -59,7 +59,7 @@ def cells(results: StudyResults) -> list[str]:
         figures += [
             "",
             image(
-                "Figure 2, left: the three measures by policy and number of features "
+                "Figure 2, left: the three measures by human and number of features "
                 f"(robot {robot})",
                 file_name,
             ),
@@ -69,7 +69,7 @@ def cells(results: StudyResults) -> list[str]:
             figures += [
                 "",
                 image(
-                    f"The other measures by policy and number of features (robot {robot})",
+                    f"The other measures by human and number of features (robot {robot})",
                     file_name,
                 ),
             ]
@@ -84,7 +84,7 @@ def cells(results: StudyResults) -> list[str]:
             formatted(
                 results.cells,
                 [
-                    "measure", "num_features", lambda r: name(r.policy), "robot", "n", "mean",
+                    "measure", "num_features", lambda r: name(r.human), "robot", "n", "mean",
                     ci,
                 ],
             ),
@@ -131,7 +131,7 @@ def anova(results: StudyResults) -> list[str]:
     paper's design (where it is the paper's mixed ANOVA)."""
     if paper_only(results):
         return []
-    within = "`policy` (the human)" + (", `robot`" if results.design.robots[1:] else "")
+    within = "`human`" + (", `robot`" if results.design.robots[1:] else "")
     between = (
         ", between subjects `num_features` (a subject is one reward draw, at one feature level "
         "only)"
@@ -152,14 +152,14 @@ def anova(results: StudyResults) -> list[str]:
 
 def pairwise(results: StudyResults) -> list[str]:
     """Every pair of humans (and of robots) in every cell of the other factors, beyond the
-    paper's design (where it is the simple effects of policy)."""
+    paper's design (where it is the simple effects of human)."""
     if not results.pairwise or paper_only(results):
         return []
 
     def cell(row: PairedComparison) -> str:
-        if row.factor == "policy":
+        if row.factor == "human":
             return f"robot `{row.robot}`"
-        return f"human `{row.policy}`"
+        return f"human `{row.human}`"
 
     return [
         heading(3, "pairwise"),
@@ -256,7 +256,7 @@ def lambda_sweep(results: StudyResults) -> list[str]:
         (
             f"{name(human)}, {level}",
             lambda at, level=level, human=human: (
-                (at["num_features"] == level) & (at["policy"] == human)
+                (at["num_features"] == level) & (at["human"] == human)
             ),
         )
         for level in sorted(regret["num_features"].unique())

@@ -28,7 +28,7 @@ IDENTITY: tuple[str, ...] = (
     "universe",
     "block",
     "subject",
-    "policy",
+    "human",
     "robot",
     "num_features",
     "rationality",
@@ -53,7 +53,7 @@ SORT_KEYS: tuple[str, ...] = (
     "block",
     "num_features",
     "subject",
-    "policy",
+    "human",
     "robot",
     "rationality",
     "eta",
@@ -100,7 +100,7 @@ def check_design(rows: Sequence[TrialRow]) -> None:
         UserError: one line naming every fault found.
     """
     faults = design_faults(rows)
-    cells = {(row.policy, row.robot, row.num_features) for row in rows if row.block == MAIN}
+    cells = {(row.human, row.robot, row.num_features) for row in rows if row.block == MAIN}
     if len(cells) == 1:
         faults.append("the main block has one cell (one human, one robot, one feature level)")
     if faults:

@@ -57,22 +57,22 @@ def sections(main: pd.DataFrame, design: Design) -> dict[str, Any]:
 
     def milli_dragan() -> dict[str, Any]:
         square = main[
-            main["policy"].isin([LITERAL, PEDAGOGIC])
+            main["human"].isin([LITERAL, PEDAGOGIC])
             & main["robot"].isin([LITERAL_OBSERVER, PRAGMATIC])
         ]
         return {
-            "anova": anova_rows(square, ["policy", "robot"]),
+            "anova": anova_rows(square, ["human", "robot"]),
             "robot_effect": paired_rows(
-                square.assign(pooled="all"), "robot", LITERAL_OBSERVER, ["policy", "pooled"]
+                square.assign(pooled="all"), "robot", LITERAL_OBSERVER, ["human", "pooled"]
             ),
             "robot_effect_by_level": paired_rows(
-                square, "robot", LITERAL_OBSERVER, ["policy", "num_features"]
+                square, "robot", LITERAL_OBSERVER, ["human", "num_features"]
             ),
         }
 
     def versus() -> list[dict[str, Any]]:
-        pair = main[main["policy"].isin([BEST_RESPONSE, PEDAGOGIC])]
-        return paired_rows(pair, "policy", PEDAGOGIC, ["robot", "num_features"])
+        pair = main[main["human"].isin([BEST_RESPONSE, PEDAGOGIC])]
+        return paired_rows(pair, "human", PEDAGOGIC, ["robot", "num_features"])
 
     made: dict[str, tuple[Any, Callable[[], Any]]] = {
         "milli_dragan": (MILLI_DRAGAN, milli_dragan),
@@ -91,26 +91,26 @@ def _regret_optimal(with_map: pd.DataFrame) -> dict[str, Any]:
     """Each human's regret gap to the regret-optimal demonstration (MAP robot), per level."""
     gaps = []
     for (level,), group in with_map.groupby(["num_features"], sort=True):
-        paired = group.pivot(index="subject", columns="policy", values="regret").sort_index()
+        paired = group.pivot(index="subject", columns="human", values="regret").sort_index()
         best = paired[REGRET_OPTIMAL].to_numpy()
         for human in paired.columns:
             if human == REGRET_OPTIMAL:
                 continue
             gap = paired[human].to_numpy() - best
             test = statistics.paired_differences(
-                group[group["policy"].isin([human, REGRET_OPTIMAL])],
+                group[group["human"].isin([human, REGRET_OPTIMAL])],
                 "regret",
-                "policy",
+                "human",
                 REGRET_OPTIMAL,
                 ["num_features"],
             ).iloc[0]
             gaps.append(
                 {
                     "num_features": int(level),
-                    "policy": human,
+                    "human": human,
                     "n": len(gap),
                     "mean_regret_optimal": float(best.mean()),
-                    "mean_policy": float(paired[human].mean()),
+                    "mean_human": float(paired[human].mean()),
                     "mean_gap": float(gap.mean()),
                     "ci95_low": float(test["ci95_low"]),
                     "ci95_high": float(test["ci95_high"]),

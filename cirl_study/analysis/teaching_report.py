@@ -33,7 +33,7 @@ def milli_dragan(results: StudyResults) -> list[str]:
         anova_table(square.anova),
         "The robot's simple effect, `pragmatic - literal_observer`, under each human (negative: "
         "the pragmatic robot does better), pooled over the feature levels and at each:",
-        paired_table([*square.robot_effect, *square.robot_effect_by_level], "policy", "robot"),
+        paired_table([*square.robot_effect, *square.robot_effect_by_level], "human", "robot"),
     )
 
 
@@ -69,7 +69,7 @@ def regret_optimal(results: StudyResults) -> list[str]:
             formatted(
                 optimal.gaps,
                 [
-                    "num_features", "policy", "n", "mean_policy", "mean_regret_optimal",
+                    "num_features", "human", "n", "mean_human", "mean_regret_optimal",
                     "mean_gap", ci, "p", "smallest_gap",
                     lambda g: f"{100 * g.share_optimal:.1f}%",
                 ],

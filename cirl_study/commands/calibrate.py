@@ -36,7 +36,7 @@ TargetOption = Annotated[
     typer.Option(
         "--target",
         metavar="TABLE",
-        help="CSV of published cell means: columns measure, num_features, policy and value, "
+        help="CSV of published cell means: columns measure, num_features, human and value, "
         "optionally robot, and se or ci95_low and ci95_high (docs/multiverse.md, Calibration).",
         show_default=False,
     ),

@@ -39,14 +39,14 @@ def _summary(result: RunResult, engine: str) -> str:
     floor = result.play_seconds / result.workers
     universes = {universe for universe, _, _ in result.etas} - {None}
     if not result.etas:
-        etas = "none (no policy has a trade-off)"
+        etas = "none (no human has a trade-off)"
     elif universes:
         etas = f"{len(result.etas)} choices in {len(universes)} universes (see the report)"
     else:
         etas = "; ".join(
-            f"{policy} at K={k} -> {choice.eta:g} "
+            f"{human} at K={k} -> {choice.eta:g} "
             f"(mean regret {choice.mean_regret[choice.eta]:.4g})"
-            for (_, policy, k), choice in sorted(result.etas.items())
+            for (_, human, k), choice in sorted(result.etas.items())
         )
     return "\n".join(
         [

@@ -8,7 +8,7 @@
 - :mod:`~cirl_study.core.robot`: the MAP robot.
 - :mod:`~cirl_study.core.posterior`: the posterior-mean robot (Monte Carlo).
 - :mod:`~cirl_study.core.path_search`: the exact nearest-feature-count path search.
-- :mod:`~cirl_study.core.humans`: the paper's human policies, and the literal demonstrator.
+- :mod:`~cirl_study.core.humans`: the paper's humans, and the literal demonstrator.
 - :mod:`~cirl_study.core.hypotheses`: a finite hypothesis space; literal and pedagogic models.
 - :mod:`~cirl_study.core.teaching`: the teaching humans and the robots that read them.
 - :mod:`~cirl_study.core.players`: every human and robot by name.

@@ -1,4 +1,4 @@
-"""The human's demonstration policies (paper sections 3.3-3.4; docs/design.md §3).
+"""The humans' demonstrations (paper sections 3.3-3.4; docs/design.md §3).
 
 * **Demonstration by expert** (:math:`\\pi^E`): the human greedily maximises her own
   reward, ignoring what the robot will learn:
@@ -25,10 +25,10 @@
 
 Each is a function of the robot's MaxEnt model of the learning phase
 (:class:`cirl_study.core.maxent.MaxEnt`, which carries the dynamics, the features and the
-robot's :math:`\\lambda`), the true :math:`\\theta`, for a policy with a trade-off its
-:math:`\\eta`, and for a policy that draws the trials' seeds (:func:`human_generator`). Paths
+robot's :math:`\\lambda`), the true :math:`\\theta`, for a human with a trade-off its
+:math:`\\eta`, and for a human that draws the trials' seeds (:func:`human_generator`). Paths
 are returned as ``(B, T + 1)`` arrays of flat cell indices, starting at :math:`s_0`. The
-teaching humans are in :mod:`cirl_study.core.teaching`; every policy is registered by name in
+teaching humans are in :mod:`cirl_study.core.teaching`; every human is registered by name in
 :data:`cirl_study.core.players.HUMANS`.
 """
 

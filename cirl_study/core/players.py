@@ -1,6 +1,6 @@
-"""The players by name: every human policy and every robot a pipeline may name.
+"""The players by name: every human and every robot a pipeline may name.
 
-A human policy is a :class:`Human`; a robot is a :class:`Robot` (an
+A human is a :class:`Human`; a robot is a :class:`Robot` (an
 :data:`~cirl_study.core.estimate.Estimator`). Both read the batch's game
 (:class:`~cirl_study.core.apprenticeship.Apprenticeship`). The built-in ones are registered
 here; a package of your own adds players without editing this one, by declaring each as an
@@ -49,13 +49,13 @@ if TYPE_CHECKING:
 
 @dataclass(frozen=True)
 class Human:
-    """A human policy: how she demonstrates, and whether she trades reward against teaching.
+    """A human: how she demonstrates, and whether she trades reward against teaching.
 
     Attributes:
         demonstrate: ``demonstrate(game, theta, eta, seeds)`` returns the ``(B, T + 1)``
             paths; ``eta`` is ``(B,)`` when :attr:`takes_eta`, else ``None``; ``seeds`` are the
             trials' seeds.
-        takes_eta: whether the policy has the trade-off :math:`\\eta`, chosen by
+        takes_eta: whether the human has the trade-off :math:`\\eta`, chosen by
             cross-validation before the test trials (docs/design.md §3).
         needs_hypotheses: whether she needs the trials' hypothesis space (a pipeline's
             ``[teaching]``).
@@ -108,7 +108,7 @@ class Registry(dict[str, Player], Generic[Player]):
 
 
 HUMANS: Registry[Human] = Registry()
-"""Every human policy, by the name a pipeline and a trial record use (``policy``)."""
+"""Every human, by the name a pipeline and a trial record use (``human``)."""
 
 ROBOTS: Registry[Robot] = Registry()
 """Every robot, by the name a pipeline and a trial record use (``robot``)."""
@@ -153,9 +153,9 @@ def _load_installed_players() -> None:
 
 
 def register_human(name: str, human: Human) -> None:
-    """Make ``human`` playable as the policy ``name``."""
+    """Make ``human`` playable as the human ``name``."""
     if dict.__contains__(HUMANS, name):
-        raise ValueError(f"a human policy named {name!r} is already registered")
+        raise ValueError(f"a human named {name!r} is already registered")
     HUMANS[name] = human
 
 
@@ -166,7 +166,7 @@ def register_robot(name: str, robot: Robot) -> None:
     ROBOTS[name] = robot
 
 
-def player_faults(policy: str, robot: str, eta: float | None, has_teaching: bool) -> list[str]:
+def player_faults(name: str, robot: str, eta: float | None, has_teaching: bool) -> list[str]:
     """What a trial's players make wrong in it, each named (empty when nothing): the human
     and the robot must be registered, ``eta`` given exactly for a human with a trade-off
     (:attr:`Human.takes_eta`), and a hypothesis space (``teaching``) for a player that
@@ -178,20 +178,20 @@ def player_faults(policy: str, robot: str, eta: float | None, has_teaching: bool
         >>> player_faults("expert", "map", None, False)
         []
         >>> player_faults("expert", "map", 0.5, False)
-        ['eta is 0.5 for policy expert (null exactly for a policy without a trade-off)']
+        ['eta is 0.5 for human expert (null exactly for a human without a trade-off)']
     """
     faults = []
-    human, machine = HUMANS.get(policy), ROBOTS.get(robot)
+    human, machine = HUMANS.get(name), ROBOTS.get(robot)
     if human is None:
-        faults.append(f"policy {policy!r} is not a known human policy ({', '.join(HUMANS)})")
+        faults.append(f"human {name!r} is not a known human ({', '.join(HUMANS)})")
     elif (eta is None) == human.takes_eta:
         faults.append(
-            f"eta is {eta} for policy {policy} (null exactly for a policy without a trade-off)"
+            f"eta is {eta} for human {name} (null exactly for a human without a trade-off)"
         )
     if machine is None:
         faults.append(f"robot {robot!r} is not a known robot ({', '.join(ROBOTS)})")
-    players = ((policy, human), (robot, machine))
-    needing = [name for name, player in players if player and player.needs_hypotheses]
+    players = ((name, human), (robot, machine))
+    needing = [who for who, player in players if player and player.needs_hypotheses]
     if needing and not has_teaching:
         faults.append(f"{' and '.join(needing)} need a hypothesis space, and teaching is null")
     return faults

@@ -1,6 +1,6 @@
 """Teaching humans and the robots that read them, on a finite hypothesis space.
 
-Humans (levels of ``policy``):
+Humans (levels of ``human``):
 
 * ``pedagogic`` (Ho, Littman, MacGlashan, Cushman & Austerweil 2016, "Showing versus
   doing"): she shows :math:`\\tau` with probability :math:`P_P(\\tau \\mid \\theta) \\propto

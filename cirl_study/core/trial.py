@@ -2,7 +2,7 @@
 
 A trial (:class:`~cirl_study.record.TrialSpec`) fixes a gridworld, its features (of any kind,
 :mod:`cirl_study.features`), the true reward weights :math:`\\theta`, the robot's rationality
-:math:`\\lambda`, the human's policy (with its trade-off :math:`\\eta` where it has one), the
+:math:`\\lambda`, the human (with its trade-off :math:`\\eta` where it has one), the
 robot, the two horizons and the goal cells, if any (:func:`phases`). It plays:
 
 1. **Learning phase.** The human demonstrates a ``learning_steps`` path from the fixed start
@@ -18,7 +18,7 @@ robot, the two horizons and the goal cells, if any (:func:`phases`). It plays:
    measure is computed (:data:`cirl_study.measure_registry.MEASURES`).
 
 :func:`play_trials` plays many trials at once, vectorised over trials that share the game's
-shape and rationality: each policy's demonstrations together, each demonstration once however
+shape and rationality: each human's demonstrations together, each demonstration once however
 many robots watch it, then each robot's estimates together. It returns one
 :class:`~cirl_study.record.TrialRecord` per trial. A record depends only on its own spec,
 never on the other trials in the batch.
@@ -64,10 +64,10 @@ DEPLOYMENT_ROLLOUTS = 4
 
 
 def check_playable(spec: TrialSpec) -> None:
-    """Raise ``ValueError`` unless ``spec`` is well-typed, names a known policy and robot and
+    """Raise ``ValueError`` unless ``spec`` is well-typed, names a known human and robot and
     fits its game."""
     validated(spec)
-    faults = player_faults(spec.policy, spec.robot, spec.eta, spec.teaching is not None)
+    faults = player_faults(spec.human, spec.robot, spec.eta, spec.teaching is not None)
     faults += setting_faults(spec)
     if not faults:
         faults += _game_faults(spec)
@@ -106,7 +106,7 @@ def phases(spec: TrialSpec) -> tuple[Phase, Phase]:
 
 def _group_key(spec: TrialSpec) -> Hashable:
     """What the trials played together share: the game's shape and dynamics, its rationality
-    and the teaching settings (every policy and robot of a subject are played in one group)."""
+    and the teaching settings (every human and robot of a subject are played in one group)."""
     return (
         spec.grid, spec.start, spec.goals, spec.learning_steps, spec.deployment_steps,
         spec.num_features, spec.rationality, spec.demonstrator_stays, spec.deployment_start,
@@ -192,17 +192,17 @@ def _demonstrations(
 ) -> np.ndarray:
     """Every trial's demonstration ``(B, T + 1)``, each distinct one played once.
 
-    Trials of one policy with the same seed (the demonstration's, see
+    Trials of one human with the same seed (the demonstration's, see
     :func:`cirl_study.study.plan.trial_seed`) and ``eta`` show the same path, whichever robot
     watches: it is computed for the first of them and shared.
     """
     demos = np.empty((len(specs), game.learning.phase.horizon + 1), dtype=np.int64)
-    for policy, rows in _by(specs, "policy").items():
+    for name, rows in _by(specs, "human").items():
         first: dict[tuple[int, float | None], int] = {}
         for row in rows:
             first.setdefault((specs[row].seed, specs[row].eta), int(row))
         distinct = np.array(list(first.values()), dtype=np.int64)
-        human = HUMANS[policy]
+        human = HUMANS[name]
         eta = (
             np.array([specs[row].eta for row in distinct], dtype=np.float64)
             if human.takes_eta

@@ -54,7 +54,7 @@ def episode_messages(record: TrialRecord, start_ns: int) -> list[LogMessage]:
     for t, cell in enumerate(record.demonstration.states):
         step = DemonstrationStep(
             trial_id=record.trial_id,
-            policy=record.policy,
+            human=record.human,
             step=t,
             cell=cell,
             action=actions[t - 1] if t > 0 else None,
@@ -65,7 +65,7 @@ def episode_messages(record: TrialRecord, start_ns: int) -> list[LogMessage]:
     for t in range(min((len(path) for path in paths), default=0)):
         step = DeploymentStep(
             trial_id=record.trial_id,
-            policy=record.policy,
+            human=record.human,
             step=t,
             cells=tuple(path[t] for path in paths),
             actions=tuple(

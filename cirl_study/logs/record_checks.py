@@ -14,9 +14,9 @@ start, which is the demonstration's start when ``deployment_start`` says so; the
 the registered ones, each finite, in its range (up to rounding) and ``null`` only where its
 measure allows (:func:`~cirl_study.measure_registry.measure_faults`);
 ``reward_l2 = ||Phi theta - Phi theta_hat||_2`` recomputed from the record (here, not by the
-code that logged it; the records of one grid and ``K`` in one array product). The policy and the
+code that logged it; the records of one grid and ``K`` in one array product). The human and the
 robot are registered ones (:data:`~cirl_study.core.players.HUMANS`,
-:data:`~cirl_study.core.players.ROBOTS`), ``eta`` is null exactly for a policy without a
+:data:`~cirl_study.core.players.ROBOTS`), ``eta`` is null exactly for a human without a
 trade-off, and a record with a teaching human or robot has its hypothesis space (``teaching``).
 A record's grid and feature matrix are bounded (:data:`MAX_GRID_CELLS`,
 :data:`MAX_FEATURE_ENTRIES`) before anything is computed per cell; a record past a bound, or
@@ -202,7 +202,7 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
     most); only a path that fails it is examined cell by cell (:func:`_path_faults`) to name
     what breaks.
     """
-    yield from player_faults(r.policy, r.robot, r.eta, r.teaching is not None)
+    yield from player_faults(r.human, r.robot, r.eta, r.teaching is not None)
     yield from setting_faults(r)
     if len(r.theta_hat) != r.num_features:
         yield f"theta_hat has {len(r.theta_hat)} entries, num_features is {r.num_features}"

@@ -7,7 +7,7 @@
   digest; so a subject lies at one feature level). In a multiverse this holds within each
   universe (:func:`subject_in_universe`): universes differ in the features by design.
 * The ``main`` block is non-empty, complete and within subjects: every subject in it has
-  exactly one trial of every (robot, policy) pair the block plays.
+  exactly one trial of every (robot, human) pair the block plays.
 * Cross-validation draws are disjoint from the test draws: no ``eta_cv`` subject appears in
   another block.
 
@@ -115,7 +115,7 @@ def _subject_faults(rows: Iterable[TrialRow]) -> list[str]:
 
 def _main_block_faults(rows: Sequence[TrialRow]) -> list[str]:
     if not any(row.block == MAIN for row in rows):
-        return ["no trials in the main block: the policy x num_features study is missing"]
+        return ["no trials in the main block: the human x num_features study is missing"]
     cells, incomplete = incomplete_main_subjects(rows)
     if not incomplete:
         return []
@@ -132,7 +132,7 @@ def _main_block_faults(rows: Sequence[TrialRow]) -> list[str]:
 def incomplete_main_subjects(
     rows: Iterable[TrialRow],
 ) -> tuple[list[str], dict[str, Counter[str]]]:
-    """The ``main`` block's within-subjects cells (``policy/robot``, sorted), and each subject
+    """The ``main`` block's within-subjects cells (``human/robot``, sorted), and each subject
     (:func:`subject_in_universe`) that lacks exactly one trial of every cell its universe
     plays, with its trials per cell."""
     trials: dict[str, Counter[str]] = defaultdict(Counter)
@@ -153,8 +153,8 @@ def incomplete_main_subjects(
 
 
 def _cell(row: TrialRow) -> str:
-    """The within-subjects cell of a ``main`` trial: ``policy/robot``."""
-    return f"{row.policy}/{row.robot}"
+    """The within-subjects cell of a ``main`` trial: ``human/robot``."""
+    return f"{row.human}/{row.robot}"
 
 
 def _shared_draws(rows: Iterable[TrialRow]) -> list[str]:
@@ -181,7 +181,7 @@ def _examples(items: Sequence[str]) -> str:
 def complete_main_subjects(rows: Sequence[TrialRow]) -> tuple[list[TrialRow], list[str]]:
     """The trials without the ``main``-block trials of subjects that lack a cell.
 
-    For a partial run: a ``main`` subject must have exactly one trial in every (policy,
+    For a partial run: a ``main`` subject must have exactly one trial in every (human,
     robot) cell the block plays to enter the within-subjects analysis
     (:func:`incomplete_main_subjects`). Returns the rows kept
     and the ids of the subjects whose ``main`` trials were left out.

@@ -35,7 +35,7 @@ class DemonstrationStep(msgspec.Struct, frozen=True, kw_only=True):
     into it (``None`` at ``t = 0``)."""
 
     trial_id: str
-    policy: str
+    human: str
     step: int
     cell: Cell
     action: Action | None
@@ -46,7 +46,7 @@ class DeploymentStep(msgspec.Struct, frozen=True, kw_only=True):
     moves into them (all ``None`` at ``t = 0``)."""
 
     trial_id: str
-    policy: str
+    human: str
     step: int
     cells: tuple[Cell, ...]
     actions: tuple[Action | None, ...]

@@ -36,6 +36,19 @@ named tasks (``task``), and hypothesis spaces the pipeline lists (``teaching.lis
 record of an earlier format reads ``goals`` as ``[]`` (a fixed horizon), ``task`` as ``null``
 and ``teaching.listed`` as ``[]`` (drawn hypotheses).
 
+Format 9 calls the player who demonstrates the *human* everywhere, where format 8 and earlier
+called it ``policy``; a log of format 8 or earlier is renamed so:
+
+===================================== ========================== ==========================
+what                                  format 5 to 8              format 9
+===================================== ========================== ==========================
+a trial record's player who shows     ``policy``                 ``human``
+the pipeline's humans                 ``main.policies``          ``main.humans``
+===================================== ========================== ==========================
+
+The episode topics (``/cirl/demonstration``, ``/cirl/deployment``) are replay views that no
+reader decodes; their messages keep the name they were logged with.
+
 A run of format 5 is read, validated and analysed; it is resumed only by the version that wrote
 it (its pipeline text is of that version).
 """
@@ -48,8 +61,9 @@ import msgspec
 
 from cirl_study.measure_registry import MEASURES
 
-LOG_FORMAT = "8"
-"""The format this version writes: 8 ``measures`` by the measure registry, games of any
+LOG_FORMAT = "9"
+"""The format this version writes: 9 the player who demonstrates named ``human`` (see the
+module docstring); 8 ``measures`` by the measure registry, games of any
 feature kind (``features.kind`` ``tiles``) with goal cells (``goals``) and named tasks
 (``task``); 7 the ``gradient_ascent`` robot and its settings, and
 ``measures.regret_under_estimate``; 6 one name per concept (see the module docstring); 5 the
@@ -57,11 +71,14 @@ record's ``teaching`` (hypothesis space), and ``seed`` shared by the robots of o
 demonstration; 4 the record's ``demonstrator_stays``, ``deployment_start`` and ``universe``;
 3 the run's identity and pipeline text in every file; 2 the typed record."""
 
-READABLE = ("5", "6", "7", LOG_FORMAT)
+READABLE = ("5", "6", "7", "8", LOG_FORMAT)
 """The formats this version reads."""
 
 _RENAMING = ("5",)
 """The formats whose names :data:`_ROBOTS` and :data:`_AXES` rename."""
+
+_HUMAN_SINCE = 9
+"""The first format naming the player who demonstrates ``human`` (``policy`` before)."""
 
 _ROBOTS = {"literal": "literal_observer"}
 _AXES = {"centres": "centers"}
@@ -80,10 +97,16 @@ def pipeline_table(data: dict[str, Any], log_format: str) -> dict[str, Any]:
 
     >>> pipeline_table({"game": {"centres": "shared"}, "main": {"robots": ["literal"]}}, "5")
     {'game': {'centers': 'shared'}, 'main': {'robots': ['literal_observer']}}
+    >>> pipeline_table({"main": {"policies": ["expert"], "robots": ["map"]}}, "8")
+    {'main': {'humans': ['expert'], 'robots': ['map']}}
     """
-    if log_format not in _RENAMING:
-        return data
-    return {key: _pipeline_value(key, value) for key, value in data.items()}
+    if log_format in _RENAMING:
+        data = {key: _pipeline_value(key, value) for key, value in data.items()}
+    main = data.get("main")
+    if int(log_format) < _HUMAN_SINCE and isinstance(main, dict) and "policies" in main:
+        humans = {("humans" if key == "policies" else key): value for key, value in main.items()}
+        data = {**data, "main": humans}
+    return data
 
 
 def _pipeline_value(key: str, value: Any) -> Any:
@@ -128,6 +151,8 @@ def record_payload(data: bytes, log_format: str) -> bytes:
 'reward_l2': None}
     >>> record_payload(b'{"robot":"map"}', "7")
     b'{"goals":[],"robot":"map","task":null}'
+    >>> record_payload(b'{"policy":"expert","robot":"map"}', "8")
+    b'{"human":"expert","robot":"map"}'
     """
     if log_format == LOG_FORMAT:
         return data
@@ -144,6 +169,8 @@ def record_payload(data: bytes, log_format: str) -> bytes:
         for name, value in fields.items()
     }
     renamed = {**added, **record}
+    if int(log_format) < _HUMAN_SINCE and "policy" in renamed:
+        renamed["human"] = renamed.pop("policy")
     if int(log_format) < 8 and isinstance(record.get("teaching"), dict):
         renamed["teaching"] = {"listed": [], **record["teaching"]}
     if isinstance(record.get("measures"), dict):

@@ -1,6 +1,6 @@
 """The cross-validated choice of eta (docs/design.md §3): one function for the run and the report.
 
-Before the test trials, each policy with a trade-off (the best response) is played on the
+Before the test trials, each human with a trade-off (the best response) is played on the
 cross-validation draws (block ``eta_cv``, disjoint from the test draws) at every eta of a
 grid; per feature level, the eta with the lowest mean regret is chosen. The run plays the
 main block and the lambda sweep with that eta, and the report re-derives it from the same
@@ -24,12 +24,12 @@ from cirl_study.record import ETA_CV, TrialRow
 
 @dataclass(frozen=True)
 class EtaChoice:
-    """The cross-validated eta of one policy at one feature level.
+    """The cross-validated eta of one human at one feature level.
 
     Attributes:
         universe: the id of the multiverse universe whose cross-validation this is, ``None``
             in a single study.
-        policy: the policy whose trade-off was chosen.
+        human: the human whose trade-off was chosen.
         num_features: the feature level ``K``.
         eta: the eta with the lowest mean regret (ties to the smaller eta).
         mean_regret: mean regret over the cross-validation draws of every eta tried.
@@ -37,7 +37,7 @@ class EtaChoice:
     """
 
     universe: str | None
-    policy: str
+    human: str
     num_features: int
     eta: float
     mean_regret: Mapping[float, float]
@@ -45,7 +45,7 @@ class EtaChoice:
 
 
 def choose_etas(rows: Iterable[TrialRow]) -> dict[tuple[str | None, str, int], EtaChoice]:
-    """Per ``(universe, policy, num_features)``, the eta with the lowest mean regret over
+    """Per ``(universe, human, num_features)``, the eta with the lowest mean regret over
     ``eta_cv`` trials (``universe`` is ``None`` in a single study).
 
     ``rows`` are the trials' :class:`~cirl_study.record.TrialRow`; other blocks are ignored.
@@ -64,22 +64,22 @@ def choose_etas(rows: Iterable[TrialRow]) -> dict[tuple[str | None, str, int], E
             continue
         if row.eta is None:
             raise ValueError(f"cross-validation trial {row.trial_id} has no eta")
-        regrets[row.universe, row.policy, row.num_features][row.eta].append(row.measure("regret"))
+        regrets[row.universe, row.human, row.num_features][row.eta].append(row.measure("regret"))
     choices = {}
-    for (universe, policy, k), by_eta in sorted(regrets.items(), key=_universe_first):
+    for (universe, human, k), by_eta in sorted(regrets.items(), key=_universe_first):
         sizes = {len(values) for values in by_eta.values()}
         if len(sizes) != 1:
             where = "" if universe is None else f" in universe {universe}"
             raise ValueError(
-                f"cross-validation of {policy} at K={k}{where}: the etas were played on "
+                f"cross-validation of {human} at K={k}{where}: the etas were played on "
                 f"different numbers of draws ({', '.join(map(str, sorted(sizes)))})"
             )
         means = {eta: math.fsum(values) / len(values) for eta, values in sorted(by_eta.items())}
         best = min(means, key=lambda eta: (means[eta], eta))
-        choices[universe, policy, k] = EtaChoice(universe, policy, k, best, means, sizes.pop())
+        choices[universe, human, k] = EtaChoice(universe, human, k, best, means, sizes.pop())
     return choices
 
 
 def _universe_first(item: tuple[tuple[str | None, str, int], object]) -> tuple[str, str, int]:
-    (universe, policy, k), _ = item
-    return (universe or "", policy, k)
+    (universe, human, k), _ = item
+    return (universe or "", human, k)

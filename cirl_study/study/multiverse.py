@@ -3,7 +3,7 @@
 The paper leaves much of its game unstated; a pipeline fixes each open setting by argument.
 A multiverse pipeline (``[multiverse]``, :func:`cirl_study.study.pipeline_file.parse_pipeline`)
 names alternative levels of the settings :data:`~cirl_study.study.spec.AXES`, and the study (the
-eta cross-validation and the ``main`` block's policy x num_features design) is played in
+eta cross-validation and the ``main`` block's human x num_features design) is played in
 every *universe*, one choice of every setting (Steegen, Tuerlinckx, Gelman & Vanpaemel 2016,
 "Increasing transparency through a multiverse analysis"; Simonsohn, Simmons & Nelson 2020,
 "Specification curve analysis").

@@ -153,7 +153,7 @@ def _teaching(
     """The ``[teaching]`` table: required exactly when a human or robot of ``main`` needs one."""
     from cirl_study.core.players import HUMANS, ROBOTS
 
-    teaching = [p for p in main.policies if HUMANS[p].needs_hypotheses]
+    teaching = [p for p in main.humans if HUMANS[p].needs_hypotheses]
     teaching += [r for r in main.robots if ROBOTS[r].needs_hypotheses]
     if "teaching" not in top.data:
         if teaching:

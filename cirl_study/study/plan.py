@@ -4,11 +4,11 @@ Identity. A *subject* is one reward draw; its id names the group it belongs to (
 the cross-validation draws, ``main`` for the test draws shared by the main study and the
 lambda sweep), the number of features and a 1-based index, e.g. ``main-k03-s0001``, so it
 is unique across feature levels and the two groups never share a draw. A *trial* is a
-subject played in one block with one policy (and its ``eta``), rationality ``lambda`` and
+subject played in one block with one human (and its ``eta``), rationality ``lambda`` and
 robot; its id spells all of these out, e.g.
 ``lambda_sweep:main-k10-s0042:best_response:lambda=0.001:eta=0.316:robot=map`` (floats in
 Python's shortest round-trip form; an expert trial has no ``eta`` part). Every robot of the
-pipeline watches the same subjects under the same policies: the robot is a within-subjects
+pipeline watches the same subjects under the same humans: the robot is a within-subjects
 factor of the ``main`` and ``lambda_sweep`` blocks, and the eta cross-validation is played by
 the reference robot alone (:attr:`cirl_study.study.spec.MainSpec.reference_robot`). In a
 multiverse (:mod:`cirl_study.study.multiverse`) a trial's id ends with ``@`` and its universe's
@@ -22,7 +22,7 @@ seed as entropy and, as spawn key, the BLAKE2b hash of the identity string
 (``subject:<subject id>`` or ``trial:<trial id>``). Nothing depends on the order in which
 trials are planned, batched or played. A subject's stream draws, in this order, ``K`` RBF
 centers uniformly over the continuous extent ``[0, width-1] x [0, height-1]`` and then
-``theta ~ Uniform[-1, 1]^K``; every trial of the subject (both policies, every lambda) sees
+``theta ~ Uniform[-1, 1]^K``; every trial of the subject (both humans, every lambda) sees
 the same centers and ``theta``; in a tile game the layout's features are every subject's
 and the stream draws ``theta`` alone, and a task's subject takes its task's weights. The
 centers drawn are the subject's own when
@@ -34,7 +34,7 @@ is the same draw under every placement. A trial's
 the robot and the universe (:func:`demonstration_id`; an integer that every JSON reader holds
 exactly). So every robot watches the same demonstration, drawn once from that seed, also from
 a human who draws (``literal``, ``pedagogic``); and the trials of a subject are planned next to
-each other (feature level, subject, policy, robot), so a batch plays a demonstration once for
+each other (feature level, subject, human, robot), so a batch plays a demonstration once for
 all its robots. A subject's reward hypotheses (a pipeline with
 ``[teaching]``) are drawn from the stream ``hypotheses:<subject id>`` (its first 53 bits are
 the trials' ``teaching.hypothesis_seed``), so every trial of the subject shares them.
@@ -95,19 +95,19 @@ def task_subject_id(num_features: int, task: str) -> str:
 
 
 def demonstration_id(
-    block: str, subject: str, policy: str, rationality: float, eta: float | None
+    block: str, subject: str, human: str, rationality: float, eta: float | None
 ) -> str:
     """Stable id of a demonstration: who shows what to a robot of rationality ``lambda``."""
     eta_part = "" if eta is None else f":eta={float(eta)!r}"
-    return f"{block}:{subject}:{policy}:lambda={float(rationality)!r}{eta_part}"
+    return f"{block}:{subject}:{human}:lambda={float(rationality)!r}{eta_part}"
 
 
 def trial_id(
-    block: str, subject: str, policy: str, rationality: float, eta: float | None, robot: str
+    block: str, subject: str, human: str, rationality: float, eta: float | None, robot: str
 ) -> str:
     """Stable id of a trial of a single study, spelling out its whole identity: its
     demonstration's id and the robot that watches it."""
-    return f"{demonstration_id(block, subject, policy, rationality, eta)}:robot={robot}"
+    return f"{demonstration_id(block, subject, human, rationality, eta)}:robot={robot}"
 
 
 def in_universe(trial: str, universe: Universe | None) -> str:
@@ -131,7 +131,7 @@ class Cell(NamedTuple):
 
     block: str
     subject: Subject
-    policy: str
+    human: str
     rationality: float
     eta: float | None
     robot: str
@@ -240,15 +240,15 @@ def _subjects(pipeline: Pipeline, group: str, num_features: int, count: int) -> 
 
 
 def _trial(pipeline: Pipeline, cell: Cell) -> TrialSpec:
-    block, subject, policy, rationality, eta, robot = cell
-    shown = demonstration_id(block, subject.id, policy, rationality, eta)
+    block, subject, human, rationality, eta, robot = cell
+    shown = demonstration_id(block, subject.id, human, rationality, eta)
     game = pipeline.game
     return TrialSpec(
         trial_id=_block_and_id(pipeline, cell)[1],
         run_id=pipeline.run_id,
         block=block,
         subject=subject.id,
-        policy=policy,
+        human=human,
         num_features=subject.num_features,
         rationality=rationality,
         eta=eta,
@@ -272,9 +272,9 @@ def _trial(pipeline: Pipeline, cell: Cell) -> TrialSpec:
 
 def _block_and_id(pipeline: Pipeline, cell: Cell) -> tuple[str, str]:
     """The block and id of the trial :func:`_trial` builds from the same cell."""
-    block, subject, policy, rationality, eta, robot = cell
+    block, subject, human, rationality, eta, robot = cell
     return block, in_universe(
-        trial_id(block, subject.id, policy, rationality, eta, robot), pipeline.universe
+        trial_id(block, subject.id, human, rationality, eta, robot), pipeline.universe
     )
 
 
@@ -312,7 +312,7 @@ def gradient_ascent_settings(pipeline: Pipeline, robot: str) -> GradientAscent |
 
 
 def eta_cv_trials(pipeline: Pipeline) -> list[TrialSpec]:
-    """Block ``eta_cv``: each policy with a trade-off at every eta of the grid, on ``cv`` draws,
+    """Block ``eta_cv``: each human with a trade-off at every eta of the grid, on ``cv`` draws,
     watched by the reference robot; in a multiverse, that of every cross-validation universe
     (:func:`~cirl_study.study.multiverse.cv_universe`)."""
     return _eta_cv_plan(pipeline, _trial)
@@ -340,8 +340,8 @@ def _eta_cv_plan(
     for k in pipeline.game.feature_levels:
         subjects = _subjects(pipeline, CV_GROUP, k, cv.subjects)
         trials += [
-            planned(pipeline, Cell(ETA_CV, subject, policy, cv.rationality, eta, robot))
-            for policy in pipeline.policies_with_eta
+            planned(pipeline, Cell(ETA_CV, subject, human, cv.rationality, eta, robot))
+            for human in pipeline.humans_with_eta
             for eta in cv.etas
             for subject in subjects
         ]
@@ -354,7 +354,7 @@ def study_trials(
     """Blocks ``main`` and ``lambda_sweep`` on the ``main`` draws, for every robot (and in a
     multiverse, block ``main`` of every universe).
 
-    A policy with a trade-off plays at feature level ``K`` with ``etas[universe, policy, K]``
+    A human with a trade-off plays at feature level ``K`` with ``etas[universe, human, K]``
     (the cross-validated choice, :func:`cirl_study.study.eta_cv.choose_etas`; ``universe`` is
     the id of the cross-validation universe, ``None`` in a single study); the sweep plays the
     first ``lambda_sweep.subjects`` draws of the main block.
@@ -403,28 +403,28 @@ def _single_study_plan(
     levels = pipeline.game.feature_levels
     subjects = {k: _subjects(pipeline, TEST_GROUP, k, main.subjects) for k in levels}
 
-    with_eta = pipeline.policies_with_eta
+    with_eta = pipeline.humans_with_eta
 
-    def eta_of(policy: str, k: int) -> float | None:
-        return etas[cv, policy, k] if policy in with_eta else None
+    def eta_of(human: str, k: int) -> float | None:
+        return etas[cv, human, k] if human in with_eta else None
 
     main_block = [
-        planned(pipeline, Cell(MAIN, subject, policy, main.rationality, eta_of(policy, k), robot))
+        planned(pipeline, Cell(MAIN, subject, human, main.rationality, eta_of(human, k), robot))
         for k in levels
         for subject in subjects[k]
-        for policy in main.policies
+        for human in main.humans
         for robot in main.robots
     ]
     if sweep is None:
         return main_block
     sweep_block = [
         planned(
-            pipeline, Cell(LAMBDA_SWEEP, subject, policy, rationality, eta_of(policy, k), robot)
+            pipeline, Cell(LAMBDA_SWEEP, subject, human, rationality, eta_of(human, k), robot)
         )
         for k in levels
         for rationality in sweep.rationalities
         for subject in subjects[k][: sweep.subjects]
-        for policy in main.policies
+        for human in main.humans
         for robot in main.robots
     ]
     return main_block + sweep_block
@@ -433,7 +433,7 @@ def _single_study_plan(
 def trial_counts(pipeline: Pipeline) -> dict[str, int]:
     """Number of trials of each block (known before eta is chosen)."""
     if pipeline.multiverse is not None:
-        # Every universe plays the same subjects, levels and policies, with one robot.
+        # Every universe plays the same subjects, levels and humans, with one robot.
         base = trial_counts(universe_pipeline(pipeline, pipeline.multiverse.base))
         return {
             ETA_CV: base[ETA_CV] * len(_cv_universes(pipeline)),
@@ -441,15 +441,15 @@ def trial_counts(pipeline: Pipeline) -> dict[str, int]:
             LAMBDA_SWEEP: 0,
         }
     levels = len(pipeline.game.feature_levels)
-    policies = len(pipeline.main.policies) * len(pipeline.main.robots)
+    humans = len(pipeline.main.humans) * len(pipeline.main.robots)
     sweep = pipeline.lambda_sweep
     cv = pipeline.eta_cv
     return {
-        ETA_CV: levels * cv.subjects * len(cv.etas) * len(pipeline.policies_with_eta),
-        MAIN: levels * pipeline.main.subjects * policies,
+        ETA_CV: levels * cv.subjects * len(cv.etas) * len(pipeline.humans_with_eta),
+        MAIN: levels * pipeline.main.subjects * humans,
         LAMBDA_SWEEP: 0
         if sweep is None
-        else levels * sweep.subjects * len(sweep.rationalities) * policies,
+        else levels * sweep.subjects * len(sweep.rationalities) * humans,
     }
 
 

@@ -98,7 +98,7 @@ class ProgressHooks:
 
 
 def warm_up(pipeline: Pipeline) -> None:
-    """Play one throw-away trial per (policy, robot) of ``pipeline`` in this process.
+    """Play one throw-away trial per (human, robot) of ``pipeline`` in this process.
 
     The first run on a machine compiles the numerical kernels (numba; cached on disk
     afterwards, so later runs load them in a fraction of a second). Doing it here, before
@@ -121,15 +121,15 @@ def warm_up(pipeline: Pipeline) -> None:
     trials = [
         msgspec.structs.replace(
             base,
-            policy=policy,
-            eta=1.0 if HUMANS[policy].takes_eta else None,
+            human=human,
+            eta=1.0 if HUMANS[human].takes_eta else None,
             robot=robot,
             gradient_ascent=gradient_ascent_settings(pipeline, robot),
         )
-        for policy in pipeline.main.policies
+        for human in pipeline.main.humans
         for robot in pipeline.main.robots
     ]
-    watching = [trial for trial in trials if trial.policy == trials[0].policy]
+    watching = [trial for trial in trials if trial.human == trials[0].human]
     first = [trial for trial in watching if trial.robot == watching[0].robot]
     with aside(_watch_stand_ins, first):
         demonstrations(trials)

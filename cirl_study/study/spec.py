@@ -25,13 +25,13 @@ shape, with every key required::
     etas = [0.01, ..., 100.0]
     rationality = 1.0         # lambda during cross-validation
 
-    [main]                    # the policy x num_features study
+    [main]                    # the human x num_features study
     subjects = 500
     rationality = 1.0
-    policies = ["expert", "best_response"]   # human policies, within subjects
+    humans = ["expert", "best_response"]   # humans, within subjects
     robots = ["map"]          # robots, within subjects (map, if listed, plays eta_cv)
 
-    [lambda_sweep]            # both policies at every lambda, on the main block's draws
+    [lambda_sweep]            # both humans at every lambda, on the main block's draws
     subjects = 500            # the first `subjects` reward draws of the main block
     rationalities = [1e-4, ..., 1e3]
 
@@ -476,7 +476,7 @@ class GameSpec:
 
 @dataclass(frozen=True)
 class EtaCVSpec:
-    """Cross-validation of eta: each policy with a trade-off on ``subjects`` draws per level."""
+    """Cross-validation of eta: each human with a trade-off on ``subjects`` draws per level."""
 
     subjects: int = setting(POSITIVE_INTEGER)
     etas: tuple[float, ...] = setting(numbers_in(ETA))
@@ -559,14 +559,14 @@ def _without_tasks(known: Known) -> str | None:
 
 @dataclass(frozen=True)
 class MainSpec:
-    """The main study: every policy of ``policies`` on ``subjects`` draws per feature level.
+    """The main study: every human of ``humans`` on ``subjects`` draws per feature level.
 
-    ``policies`` are names of :data:`cirl_study.core.players.HUMANS` (within subjects, in the
+    ``humans`` are names of :data:`cirl_study.core.players.HUMANS` (within subjects, in the
     order the report compares them: baseline first); ``robots`` are names of
     :data:`cirl_study.core.players.ROBOTS`, also within subjects: every robot watches the same
     demonstrations of the ``main`` and ``lambda_sweep`` blocks. One of them is the
     *reference* (:func:`cirl_study.core.players.reference_robot`: ``map`` when present): it
-    plays the eta cross-validation, so each policy's eta, and with it the human's
+    plays the eta cross-validation, so each human's eta, and with it her
     demonstration, is the same whichever robot watches.
     """
 
@@ -574,7 +574,7 @@ class MainSpec:
         POSITIVE_INTEGER, only=_without_tasks, otherwise=lambda known: len(known["tasks"])
     )
     rationality: float = setting(number_in(RATIONALITY))
-    policies: tuple[str, ...] = setting(names(_humans, "human policies"))
+    humans: tuple[str, ...] = setting(names(_humans, "humans"))
     robots: tuple[str, ...] = setting(names(_robots, "robots"))
 
     @property
@@ -676,7 +676,7 @@ def _sweep_subjects(value: Any, known: Known) -> int:
 
 @dataclass(frozen=True)
 class LambdaSweepSpec:
-    """Every policy at every rationality, on the first ``subjects`` draws of the main block."""
+    """Every human at every rationality, on the first ``subjects`` draws of the main block."""
 
     subjects: int = setting(_sweep_subjects)
     rationalities: tuple[float, ...] = setting(numbers_in(RATIONALITY))
@@ -990,11 +990,11 @@ class Pipeline:
         return self.teaching.hypotheses
 
     @property
-    def policies_with_eta(self) -> tuple[str, ...]:
-        """The policies of the main study that have a trade-off eta to cross-validate."""
+    def humans_with_eta(self) -> tuple[str, ...]:
+        """The humans of the main study that have a trade-off eta to cross-validate."""
         from cirl_study.core.players import HUMANS
 
-        return tuple(policy for policy in self.main.policies if HUMANS[policy].takes_eta)
+        return tuple(human for human in self.main.humans if HUMANS[human].takes_eta)
 
     @property
     def run_id(self) -> str:

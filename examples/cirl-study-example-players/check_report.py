@@ -18,17 +18,17 @@ def main(report: Path) -> None:
     assert design["humans"] == ["expert", "best_response", "first_step_only"], design
     assert design["robots"] == ["map", "theta_zero"] and design["feature_levels"] == [3]
     effects = {row["effect"] for row in results["anova"]}
-    assert effects == {"policy", "robot", "policy:robot"}, effects
-    human = next(r for r in results["anova"] if r["effect"] == "policy")
+    assert effects == {"human", "robot", "human:robot"}, effects
+    human = next(r for r in results["anova"] if r["effect"] == "human")
     assert human["sphericity"] is not None and human["sphericity"]["gg_epsilon"] <= 1
     pairs = {(r["factor"], r["level_a"], r["level_b"]) for r in results["pairwise"]}
-    assert ("policy", "expert", "first_step_only") in pairs and (
+    assert ("human", "expert", "first_step_only") in pairs and (
         "robot",
         "map",
         "theta_zero",
     ) in pairs
     claims = {claim["id"]: claim for claim in results["claims"]}
-    assert claims["policy_effect"]["tested"] and not claims["interaction_kl_l2"]["tested"]
+    assert claims["human_effect"]["tested"] and not claims["interaction_kl_l2"]["tested"]
     assert (report / "cell_means.png").stat().st_size > 0
     print(f"{report}: the example's players were analysed like the paper's")
 
