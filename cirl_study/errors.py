@@ -18,3 +18,9 @@ class RunStopped(UserError):
     lost its workers); the message says the cause, the trials kept and how to resume."""
 
     exit_code: int = 1
+
+
+class PlayerFault(UserError):
+    """A player returned what its contract forbids (:class:`cirl_study.core.players.Human`,
+    :class:`~cirl_study.core.players.Robot`): the message names the player, its package and
+    the trial."""

@@ -1,5 +1,7 @@
 """One whole trial (docs/design.md §1-4 and §7), re-derived from its record by brute force."""
 
+import dataclasses
+import itertools
 import json
 
 import msgspec
@@ -8,6 +10,7 @@ import path_enumeration as bf
 import pytest
 
 from cirl_study.core.estimate import Estimate
+from cirl_study.core.maxent import Phase
 from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot, register_human, register_robot
 from cirl_study.core.trial import (
     check_playable,
@@ -16,6 +19,7 @@ from cirl_study.core.trial import (
     play_trials,
     play_watched,
 )
+from cirl_study.errors import PlayerFault
 from cirl_study.features import RBFFeatures
 from cirl_study.measure_registry import PAPER_MEASURES
 from cirl_study.record import (
@@ -454,3 +458,103 @@ def test_each_demonstration_is_played_once_for_every_robot_that_watches_it(toy_h
     assert by_robot["prior_mean-test"].theta_hat == (0.0, 0.0, 0.0)
     assert by_robot["map"].theta_hat == by_robot["map-again-test"].theta_hat
     assert by_robot["map"].theta_hat != (0.0, 0.0, 0.0)
+
+
+# ---- a player's output is checked where it enters ---------------------------------------------
+
+
+@pytest.fixture
+def faulty_players():
+    """Register, for one test, humans and robots that break their contracts."""
+
+    def jumps(game, theta, eta, seeds):
+        paths = np.full((len(theta), game.learning.phase.horizon + 1), game.learning.phase.start)
+        paths[:, 2] = 15  # two moves or more from the start
+        return paths
+
+    def short(game, theta, eta, seeds):
+        return np.zeros((len(theta), 2), dtype=np.int64)
+
+    def not_finite(game, demos, seeds):
+        estimate = ROBOTS["map"].estimate(game, demos, seeds)
+        theta_hat = estimate.theta_hat.copy()
+        theta_hat[-1, 0] = np.nan
+        return dataclasses.replace(estimate, theta_hat=theta_hat)
+
+    def one_short(game, demos, seeds):
+        estimate = ROBOTS["map"].estimate(game, demos, seeds)
+        return dataclasses.replace(estimate, theta_hat=estimate.theta_hat[:, 1:])
+
+    humans = {"jumps": Human(jumps, takes_eta=False), "short": Human(short, takes_eta=False)}
+    robots = {"not_finite": Robot(not_finite), "one_short": Robot(one_short)}
+    try:
+        for name, human in humans.items():
+            register_human(name, human)
+        for name, robot in robots.items():
+            register_robot(name, robot)
+        yield
+    finally:
+        for name in humans:
+            HUMANS.pop(name, None)
+        for name in robots:
+            ROBOTS.pop(name, None)
+
+
+@pytest.mark.parametrize(
+    ("human", "robot", "message"),
+    [
+        (
+            "jumps",
+            "map",
+            "human 'jumps' (registered in this process) showed a demonstration that is not a "
+            "path of the game in trial first: path 0 goes from cell 9 to cell 15 at step 2: "
+            "not one available move",
+        ),
+        (
+            "short",
+            "map",
+            "human 'short' (registered in this process) showed a demonstration that is not a "
+            "path of the game in trial first: not an integer array of shape (B, 5): shape "
+            "(1, 2), dtype int64",
+        ),
+        (
+            "expert",
+            "not_finite",
+            "robot 'not_finite' (registered in this process) returned a theta_hat that is not "
+            "finite in trial second: [nan, ",
+        ),
+        (
+            "expert",
+            "one_short",
+            "robot 'one_short' (registered in this process) returned theta_hat of shape (2, 2) "
+            "(dtype float64) where (2, 3) numbers were due, in trial first",
+        ),
+    ],
+)
+def test_a_player_breaking_its_contract_is_named_with_its_trial(
+    faulty_players, human, robot, message
+):
+    specs = [
+        msgspec.structs.replace(_spec(human, theta, trial_id=trial_id), robot=robot, eta=None)
+        for trial_id, theta in (("first", (0.4, -0.7, 0.1)), ("second", (-0.2, 0.3, 0.9)))
+    ]
+    with pytest.raises(PlayerFault) as error:
+        play_trials(specs)
+    assert str(error.value).startswith(message)
+    assert "\n" not in str(error.value)
+
+
+def test_path_faults_accept_exactly_the_paths_of_a_phase():
+    """Every sequence of cells of a small goal phase, against a brute-force walk: a sequence
+    is accepted iff it starts at the start, makes available moves, and enters the goal in
+    time (then the sink)."""
+    successors = np.array([[1, 3, -1], [0, 2, -1], [1, 3, 2], [0, 2, -1]])
+    phase = Phase(successors, start=0, horizon=3, goals=(2,))
+    sink = 4
+    for cells in itertools.product(range(5), repeat=4):
+        path = np.array([cells])
+        legal = cells[0] == 0 and all(
+            nxt in phase.successors[cell] for cell, nxt in itertools.pairwise(cells)
+        )
+        finished = 2 in cells or sink in cells
+        assert (phase.path_faults(path) == []) == (legal and finished), cells

@@ -13,11 +13,15 @@ from pathlib import Path
 from types import SimpleNamespace
 
 import pytest
+from typer.testing import CliRunner
 
+from cirl_study.cli import app
 from cirl_study.core import players
 from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot
 from cirl_study.errors import UserError
+from cirl_study.logs.reader import read_run
 from cirl_study.study.pipeline_file import parse_pipeline
+from cirl_study.study.plan import study_trials
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -31,7 +35,9 @@ class FakeEntryPoint:
     name: str
     value: str
     load: Callable[[], object]
-    dist: object = field(default_factory=lambda: SimpleNamespace(name="fake-players"))
+    dist: object = field(
+        default_factory=lambda: SimpleNamespace(name="fake-players", version="0.1")
+    )
 
 
 @pytest.fixture
@@ -42,11 +48,16 @@ def installed(monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[..., None]]:
     def install(**loaders: Callable[[], object]) -> None:
         points.extend(FakeEntryPoint(n, f"fake:{n}", load) for n, load in loaders.items())
 
-    def entry_points(group: str) -> list[FakeEntryPoint]:
-        return points if group == players.ENTRY_POINTS else []
+    real = importlib.metadata.entry_points
+
+    def entry_points(group: str | None = None, **selection: str) -> object:
+        if group == players.ENTRY_POINTS:
+            return points
+        return real(**selection) if group is None else real(group=group, **selection)
 
     monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
     monkeypatch.setattr(players, "_INSTALLED", [])
+    monkeypatch.setattr(players, "PACKAGES", {})
     before = [(registry, dict(dict.items(registry))) for registry in (HUMANS, ROBOTS)]
     yield install
     for registry, players_before in before:
@@ -102,3 +113,44 @@ def test_an_installed_player_cannot_take_a_built_in_name(installed) -> None:
     with pytest.raises(UserError, match=r"'expert' of fake-players .*already registered"):
         list(HUMANS)
     assert HUMANS["expert"].takes_eta is False and HUMANS["best_response"].takes_eta
+
+
+def test_a_player_breaking_its_contract_stops_the_run_in_one_line_keeping_its_trials(
+    installed, tmp_path
+) -> None:
+    """A human that shows a jump on one subject's trials: the run ends in one line naming
+    the human, its package and the trial, the trials logged before stay logged, and the run
+    resumes once the human is mended."""
+    target = {}
+
+    def jumps_on_one_subject(game, theta, eta, seeds):
+        from cirl_study.core.humans import expert_paths
+
+        paths = expert_paths(game.learning, theta)
+        jumping = seeds == target["seed"]
+        paths[jumping, 2] = paths[jumping, 0] + 2 * game.learning.phase.horizon
+        return paths
+
+    installed(jumpy=lambda: Human(jumps_on_one_subject, takes_eta=False))
+    text = SMOKE.read_text(encoding="utf-8")
+    text = text.replace('humans = ["expert", "best_response"]', 'humans = ["expert", "jumpy"]')
+    pipeline = parse_pipeline(text, tmp_path / "mine.toml")
+    planned = study_trials(pipeline, {})
+    jumpy = [trial for trial in planned if trial.human == "jumpy"]
+    target["seed"] = jumpy[-1].seed
+    (tmp_path / "mine.toml").write_text(text, encoding="utf-8")
+    run = tmp_path / "run"
+    command = ["run", str(tmp_path / "mine.toml"), "--out", str(run), "--workers", "1"]
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 2, result.output
+    line = result.output.strip().splitlines()[-1]
+    assert line.startswith(
+        "error: human 'jumpy' (package fake-players 0.1) showed a demonstration that is not a "
+        f"path of the game in trial {jumpy[-1].trial_id}: "
+    ), line
+    kept = int(line.split("; ")[-2].split()[0])
+    assert 0 < kept < len(planned) and len(read_run(run, salvage=True).rows) == kept
+    target["seed"] = -1  # the player mended: the run resumes, keeping what it logged
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 0, result.output
+    assert f"{kept} were already logged" in result.output

@@ -148,6 +148,57 @@ class Phase:
         starts[list(self.goals)] = False
         return starts
 
+    def path_faults(self, paths: object) -> list[str]:
+        """What makes ``paths`` not ``B`` paths of this phase, each fault once with its first
+        path (empty when they are): an integer array ``(B, T + 1)`` of cell indices, each row
+        starting at :attr:`start`, each step one available move (a goal's only move is into
+        the sink, and the sink's into itself), each cell one from which a goal can still be
+        reached in the moves left (:attr:`reachable`). A phase that starts anywhere checks
+        every start.
+
+        Examples:
+            >>> phase = Phase(np.array([[0, 1], [1, 0]]), start=0, horizon=2)
+            >>> phase.path_faults(np.array([[0, 1, 0]]))
+            []
+            >>> phase.path_faults(np.array([[1, 1, 0], [0, 1]], dtype=object))
+            ['not an integer array of shape (B, 3): shape (2,), dtype object']
+            >>> phase.path_faults(np.array([[1, 1, 0]]))
+            ['path 0 starts in cell 1, not in the start 0']
+        """
+        array = np.asarray(paths)
+        width = self.horizon + 1
+        if array.ndim != 2 or array.shape[1] != width or array.dtype.kind not in "iu":
+            return [
+                f"not an integer array of shape (B, {width}): shape {array.shape}, "
+                f"dtype {array.dtype}"
+            ]
+        cells = self.successors.shape[0]
+        outside = (array < 0) | (array >= cells)
+        if outside.any():
+            b, t = np.argwhere(outside)[0]
+            return [f"path {b} has cell {array[b, t]} at step {t}, outside the {cells} cells"]
+        faults = []
+        if self.start is not None and (array[:, 0] != self.start).any():
+            b = int(np.flatnonzero(array[:, 0] != self.start)[0])
+            faults.append(f"path {b} starts in cell {array[b, 0]}, not in the start {self.start}")
+        moves = (self.successors[array[:, :-1]] == array[:, 1:, None]).any(axis=2)
+        if not moves.all():
+            b, t = np.argwhere(~moves)[0]
+            faults.append(
+                f"path {b} goes from cell {array[b, t]} to cell {array[b, t + 1]} at step "
+                f"{t + 1}: not one available move"
+            )
+        if faults:
+            return faults
+        live = self.reachable[np.arange(width), array]
+        if not live.all():
+            b, t = np.argwhere(~live)[0]
+            faults.append(
+                f"path {b} is in cell {array[b, t]} at step {t}, from which no goal is reached "
+                "in the moves left"
+            )
+        return faults
+
     def path_ends(self, paths: IntArray) -> IntArray:
         """``(B,)`` the number of moves of each ``(B, T + 1)`` path before the sink: ``T``
         without goals, else the step at which the path entered its goal."""

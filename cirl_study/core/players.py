@@ -116,6 +116,24 @@ ROBOTS: Registry[Robot] = Registry()
 _INSTALLED: list[str] = []
 """The names of the installed packages' players, once loaded (``[]`` before)."""
 
+PACKAGES: dict[str, str] = {}
+"""The package each installed player came from, ``"name version"``, by the player's name
+(a built-in player, or one registered by a script, has none). Provenance records these for
+the players a pipeline names, so a log says where a player came from after its package is
+gone."""
+
+
+def origin(name: str) -> str:
+    """Where the player ``name`` comes from, for a message: ``"package my-players 0.1"``,
+    ``"built in"``, or ``"registered in this process"`` (:func:`register_human`).
+
+    >>> origin("expert")
+    'built in'
+    """
+    if name in PACKAGES:
+        return f"package {PACKAGES[name]}"
+    return "built in" if name in _BUILT_IN else "registered in this process"
+
 
 def _load_installed_players() -> None:
     """Register the players of every installed package's :data:`ENTRY_POINTS`, once.
@@ -132,6 +150,7 @@ def _load_installed_players() -> None:
     _INSTALLED.append("")  # loading: a lookup from a player's own import does not recurse
     for point in sorted(entry_points(group=ENTRY_POINTS), key=lambda point: point.name):
         package = point.dist.name if point.dist is not None else "an installed package"
+        version = f" {point.dist.version}" if point.dist is not None else ""
         where = f"the player {point.name!r} of {package} ({point.value})"
         try:
             player = point.load()
@@ -149,6 +168,7 @@ def _load_installed_players() -> None:
                 )
         except ValueError as error:
             raise UserError(f"{where}: {error}") from None
+        PACKAGES[point.name] = package + version
         _INSTALLED.append(point.name)
 
 
@@ -285,3 +305,6 @@ register_robot(POSTERIOR_MEAN, Robot(_posterior_mean))
 register_robot(GRADIENT_ASCENT, Robot(_gradient_ascent))
 register_robot(LITERAL_OBSERVER, Robot(_literal_observer, needs_hypotheses=True))
 register_robot(PRAGMATIC, Robot(_pragmatic, needs_hypotheses=True))
+
+_BUILT_IN = frozenset((*dict.__iter__(HUMANS), *dict.__iter__(ROBOTS)))
+"""The names of the players above."""

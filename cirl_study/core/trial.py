@@ -46,7 +46,8 @@ from cirl_study.core.gridworld import (
 from cirl_study.core.hypotheses import HypothesisSpace, draw_hypotheses
 from cirl_study.core.maxent import MaxEnt, Phase
 from cirl_study.core.planning import HardPlan, IntArray, follow_policy, optimal_plan
-from cirl_study.core.players import HUMANS, ROBOTS, player_faults
+from cirl_study.core.players import HUMANS, ROBOTS, origin, player_faults
+from cirl_study.errors import PlayerFault
 from cirl_study.measure_registry import MEASURES
 from cirl_study.record import (
     Cell,
@@ -209,6 +210,7 @@ def _demonstrations(
             else None
         )
         shown = human.demonstrate(game.take(distinct), theta[distinct], eta, seeds[distinct])
+        _check_paths(game, name, shown, [specs[row].trial_id for row in distinct])
         which = {key: index for index, key in enumerate(first)}
         demos[rows] = shown[[which[specs[row].seed, specs[row].eta] for row in rows]]
     return demos
@@ -224,9 +226,55 @@ def _estimates(
     for (robot, settings), rows in _by(specs, "robot", "gradient_ascent").items():
         watched = dataclasses.replace(game.take(rows), gradient_ascent=settings)
         found = ROBOTS[robot].estimate(watched, demos[rows], seeds[rows])
+        due = (len(rows), game.learning.features.shape[2])
+        _check_estimate(robot, found, due, [specs[row].trial_id for row in rows])
         for index, row in enumerate(rows):
             fitted[row] = (found, index)
     return fitted  # type: ignore[return-value]
+
+
+def _check_paths(game: Apprenticeship, human: str, paths: object, trials: list[str]) -> None:
+    """Raise :class:`PlayerFault` unless the human ``human`` showed one path of the learning
+    phase per trial of ``trials`` (:meth:`~cirl_study.core.maxent.Phase.path_faults`)."""
+    faults = game.learning.phase.path_faults(paths)
+    if not faults and len(paths) != len(trials):  # type: ignore[arg-type]
+        faults = [f"{len(paths)} paths for {len(trials)} trials"]  # type: ignore[arg-type]
+    if faults:
+        first = _path_number(faults[0])
+        trial = trials[first] if first is not None and first < len(trials) else trials[0]
+        raise PlayerFault(
+            f"human {human!r} ({origin(human)}) showed a demonstration that is not a path of "
+            f"the game in trial {trial}: {faults[0]}"
+        )
+
+
+def _path_number(fault: str) -> int | None:
+    """The path a fault of :meth:`~cirl_study.core.maxent.Phase.path_faults` names."""
+    words = fault.split()
+    return int(words[1]) if words[0] == "path" else None
+
+
+def _check_estimate(robot: str, found: object, shape: tuple[int, int], trials: list[str]) -> None:
+    """Raise :class:`PlayerFault` unless the robot ``robot`` returned an :class:`Estimate`
+    with a finite ``theta_hat`` of ``shape`` ``(B, K)`` for the trials ``trials``."""
+    where = f"robot {robot!r} ({origin(robot)})"
+    if not isinstance(found, Estimate):
+        raise PlayerFault(
+            f"{where} returned a {type(found).__name__}, not an Estimate, in trial {trials[0]}"
+        )
+    theta_hat = np.asarray(found.theta_hat)
+    if theta_hat.shape != shape or theta_hat.dtype.kind not in "fiu":
+        raise PlayerFault(
+            f"{where} returned theta_hat of shape {theta_hat.shape} (dtype {theta_hat.dtype}) "
+            f"where {shape} numbers were due, in trial {trials[0]}"
+        )
+    finite = np.isfinite(theta_hat).all(axis=1)
+    if not finite.all():
+        row = int(np.flatnonzero(~finite)[0])
+        raise PlayerFault(
+            f"{where} returned a theta_hat that is not finite in trial {trials[row]}: "
+            f"{theta_hat[row].tolist()}"
+        )
 
 
 def demonstrations(specs: Sequence[TrialSpec]) -> np.ndarray:
@@ -320,8 +368,7 @@ def _path_actions(grid: Gridworld, phase: Phase, paths: IntArray) -> list[tuple[
         return paths_actions(grid, paths)
     ends = phase.path_ends(paths).tolist()
     return [
-        paths_actions(grid, path[None, : end + 1])[0]
-        for path, end in zip(paths, ends, strict=True)
+        paths_actions(grid, path[None, : end + 1])[0] for path, end in zip(paths, ends, strict=True)
     ]
 
 

@@ -35,7 +35,7 @@ from pathlib import Path
 import msgspec
 
 from cirl_study import interrupts
-from cirl_study.errors import RunStopped, UserError
+from cirl_study.errors import PlayerFault, RunStopped, UserError
 from cirl_study.files import non_regular, remove_file
 from cirl_study.interrupts import Interrupted
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
@@ -121,6 +121,7 @@ def warm_up(pipeline: Pipeline) -> None:
     trials = [
         msgspec.structs.replace(
             base,
+            trial_id=f"warm-up of {human} and {robot}",
             human=human,
             eta=1.0 if HUMANS[human].takes_eta else None,
             robot=robot,
@@ -374,6 +375,8 @@ def _run_locked(
             playing_seconds = time.perf_counter() - play_began
     except WorkerLost as lost:
         raise RunStopped(f"{lost}: {_kept(identity, out_dir, done)}") from None
+    except PlayerFault as fault:
+        raise PlayerFault(f"{fault}; {_kept(identity, out_dir, done)}") from None
     except KeyboardInterrupt as interrupt:
         raise Interrupted.of(interrupt, _kept(identity, out_dir, done)) from None
     return RunResult(
