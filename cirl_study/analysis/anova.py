@@ -81,6 +81,30 @@ from numpy.typing import NDArray
 
 from cirl_study.analysis.result_types import AnovaEffect, Probability, Sphericity
 from cirl_study.analysis.tails import chi2_tail, f_tail
+from cirl_study.errors import UserError
+
+
+def refuse_non_finite(frame: pd.DataFrame, measure: str, missing_allowed: bool = False) -> None:
+    """Refuse a value of ``measure`` in ``frame`` that no statistic can take: an infinity or
+    NaN, or with ``missing_allowed`` an infinity only (NaN then marks a missing value, which
+    the caller leaves out).
+
+    Raises:
+        UserError: one line naming the first such trial (its ``trial_id``, else its
+            ``subject``) and how many there are.
+    """
+    values = pd.to_numeric(frame[measure], errors="coerce").to_numpy(dtype=np.float64)
+    bad = np.isinf(values) if missing_allowed else ~np.isfinite(values)
+    if not bad.any():
+        return
+    first = frame[bad].iloc[0]
+    trial = f"trial {first['trial_id']}" if "trial_id" in frame else f"subject {first['subject']}"
+    more = int(bad.sum()) - 1
+    others = f" (and {more} more)" if more else ""
+    raise UserError(
+        f"{measure} of {trial} is {frame[measure][bad].iloc[0]!r}, not a finite number{others}: "
+        "the statistics refuse it rather than average it"
+    )
 
 
 def contrasts(levels: int) -> NDArray[np.float64]:
@@ -128,6 +152,9 @@ def repeated_measures_anova(
         ValueError: a subject misses a within cell or has two observations in one, a
             subject lies in two groups, a factor has one level, or an error term has no
             degrees of freedom.
+        UserError: a value of ``measure`` is not a finite number (NaN or infinite), naming
+            its trial (:func:`refuse_non_finite`): it would turn every sum of squares into
+            NaN; leave a missing value's subject out first.
 
     Examples:
         >>> rng = np.random.default_rng(0)
@@ -141,6 +168,7 @@ def repeated_measures_anova(
         >>> table[1].sphericity.gg_epsilon <= 1
         True
     """
+    refuse_non_finite(frame, measure)
     y, groups, levels = _subject_rows(frame, measure, list(within), between, subject)
     subjects, group_count = len(y), int(groups.max()) + 1
     error_df = subjects - group_count
