@@ -486,8 +486,12 @@ class Regression(msgspec.Struct, **_ROW):
 
 
 class SignFlipStatistic(msgspec.Struct, **_ROW):
+    """One statistic of a joint test, its sign-flip ``p`` (at least ``1 / (1 + resamples)``)
+    and its ``log10_p``."""
+
     observed: Number
     p: Number
+    log10_p: Number
 
 
 class JointTest(msgspec.Struct, **_ROW):
