@@ -8,16 +8,28 @@ factor, and two within factors without one.
 from __future__ import annotations
 
 import math
+from fractions import Fraction
 from pathlib import Path
 
 import mpmath
+import msgspec
 import numpy as np
 import pandas as pd
 import pingouin as pg
 import pytest
 
-from cirl_study.analysis.anova import AnovaEffect, contrasts, repeated_measures_anova
+from cirl_study.analysis.anova import (
+    NO_ERROR_VARIANCE,
+    SINGULAR,
+    TOO_FEW_SUBJECTS,
+    AnovaEffect,
+    contrasts,
+    repeated_measures_anova,
+)
+from cirl_study.analysis.measure_rows import plain
+from cirl_study.analysis.result_types import Sphericity
 from cirl_study.analysis.statistics import holm, holm_log10, pairwise_differences
+from cirl_study.analysis.study_report import anova_table
 from cirl_study.analysis.tails import chi2_tail, f_tail, t_tail
 
 FIXTURES = Path(__file__).parent / "fixtures" / "factorial"
@@ -273,14 +285,152 @@ def test_the_chi2_tail_equals_mpmath(statistic: float, df: int) -> None:
     assert close(chi2_tail(statistic, df)[1], exact, 1e-13)
 
 
-def test_mauchly_is_undefined_with_fewer_error_degrees_of_freedom_than_contrasts() -> None:
-    """Four subjects, five levels: the SSCP matrix of the four contrasts has rank 3."""
+def _absent(sphericity: Sphericity) -> bool:
+    """Whether none of Mauchly's test, the epsilons and the corrected p-values is reported."""
+    numbers = [sphericity.mauchly_w, sphericity.gg_epsilon, sphericity.hf_epsilon]
+    numbers += [sphericity.mauchly.p, sphericity.mauchly.log10_p, sphericity.gg.p]
+    numbers += [sphericity.gg.log10_p, sphericity.hf.p, sphericity.hf.log10_p]
+    return all(math.isnan(value) for value in numbers)
+
+
+def test_sphericity_is_not_reported_with_fewer_error_degrees_of_freedom_than_contrasts() -> None:
+    """Four subjects, five levels: the SSCP matrix of the four contrasts has rank 3 whatever
+    the data, and eps_GG <= n / d = 3 / 4 measures the sample size: nothing is reported, the
+    uncorrected F test is."""
     rng = np.random.default_rng(1)
     rows = [{"subject": s, "h": h, "y": rng.normal()} for s in range(4) for h in range(5)]
     (effect,) = repeated_measures_anova(pd.DataFrame(rows), "y", ["h"])
+    assert _absent(effect.sphericity) and effect.sphericity.reason == TOO_FEW_SUBJECTS
+    assert math.isfinite(effect.F) and math.isfinite(effect.log10_p)
+
+
+def _exact_epsilons(frame: pd.DataFrame, levels: int) -> tuple[Fraction, int]:
+    """Box's epsilon of one within factor of ``levels`` levels, in exact arithmetic, and the
+    rank of its error SSCP matrix: from the centred cross products ``S`` of the subjects' rows
+    (the doubles are exact rationals) and the projection ``Q = I - J / C`` onto the contrasts,
+    ``eps = tr(Q S)^2 / (d tr((Q S)^2))``, which no orthonormal basis of the contrasts
+    changes; the rank is that of ``Q S Q``."""
+    wide = frame.pivot(index="subject", columns="h", values="y").sort_index()
+    rows = [[Fraction(value) for value in row] for row in wide.to_numpy().tolist()]
+    means = [sum(column, Fraction(0)) / len(rows) for column in zip(*rows, strict=True)]
+    centred = [[value - mean for value, mean in zip(row, means, strict=True)] for row in rows]
+    cells = range(levels)
+    s = [[sum((r[i] * r[j] for r in centred), Fraction(0)) for j in cells] for i in cells]
+    q = [[Fraction(int(i == j)) - Fraction(1, levels) for j in cells] for i in cells]
+
+    def product(a: list, b: list) -> list:
+        return [
+            [sum((a[i][k] * b[k][j] for k in cells), Fraction(0)) for j in cells] for i in cells
+        ]
+
+    qs = product(q, s)
+    d = levels - 1
+    trace = sum(qs[i][i] for i in cells)
+    epsilon = trace**2 / (d * sum(product(qs, qs)[i][i] for i in cells))
+    return epsilon, _rank(product(qs, q))
+
+
+def _rank(matrix: list[list[Fraction]]) -> int:
+    """The rank of a matrix of fractions, by Gaussian elimination."""
+    rows = [row[:] for row in matrix]
+    rank = 0
+    for column in range(len(rows[0])):
+        pivot = next((i for i in range(rank, len(rows)) if rows[i][column] != 0), None)
+        if pivot is None:
+            continue
+        rows[rank], rows[pivot] = rows[pivot], rows[rank]
+        for i in range(len(rows)):
+            if i != rank and rows[i][column] != 0:
+                factor = rows[i][column] / rows[rank][column]
+                rows[i] = [a - factor * b for a, b in zip(rows[i], rows[rank], strict=True)]
+        rank += 1
+    return rank
+
+
+def test_a_singular_error_matrix_has_w_0_and_no_mauchly_p() -> None:
+    """A third human scored exactly as the first by every subject: the error matrix of the
+    two contrasts has rank 1, so W = 0 exactly (not the rounding's 1e-16) and its chi-square
+    statistic is infinite: Mauchly's p is not reported. Box's epsilon, defined for any
+    covariance, is, as exact arithmetic has it."""
+    rng = np.random.default_rng(7)
+    rows = []
+    for s in range(10):
+        a, b = rng.normal(0.3, 0.1, 2)
+        rows += [{"subject": s, "h": h, "y": float(v)} for h, v in (("a", a), ("b", b), ("c", a))]
+    frame = pd.DataFrame(rows)
+    (effect,) = repeated_measures_anova(frame, "y", ["h"])
     sphericity = effect.sphericity
-    assert math.isnan(sphericity.mauchly_w) and math.isnan(sphericity.mauchly.p)
-    assert 1 / 4 <= sphericity.gg_epsilon <= 1 and math.isfinite(sphericity.gg.p)
+    epsilon, rank = _exact_epsilons(frame, 3)
+    assert rank == 1
+    assert sphericity.mauchly_w == 0.0 and sphericity.reason == SINGULAR
+    assert math.isnan(sphericity.mauchly.p) and math.isnan(sphericity.mauchly.log10_p)
+    assert close(sphericity.gg_epsilon, float(epsilon), 1e-12)
+    n, d = 9, 2
+    hf = ((n + 1) * d * epsilon - 2) / (d * (n - d * epsilon))
+    assert close(sphericity.hf_epsilon, float(hf), 1e-12)
+    gg_p = f_tail(effect.F, float(epsilon) * 2, float(epsilon) * 18)[1]
+    assert close(sphericity.gg.log10_p, gg_p, 1e-12)
+
+
+def test_a_nearly_singular_error_matrix_keeps_its_test() -> None:
+    """The same design with the third human off the first by 1e-6: the error matrix is
+    non-singular in exact arithmetic, far above the rounding floor, and Mauchly's W is its
+    own, as exact arithmetic has it (through the eigenvalues of the exact matrix)."""
+    rng = np.random.default_rng(7)
+    rows = []
+    for s in range(10):
+        a, b = rng.normal(0.3, 0.1, 2)
+        c = a + 1e-6 * rng.normal()
+        rows += [{"subject": s, "h": h, "y": float(v)} for h, v in (("a", a), ("b", b), ("c", c))]
+    frame = pd.DataFrame(rows)
+    (effect,) = repeated_measures_anova(frame, "y", ["h"])
+    sphericity = effect.sphericity
+    assert sphericity.reason is None and 0 < sphericity.mauchly_w < 1e-8
+    with mpmath.workdps(60):
+        wide = frame.pivot(index="subject", columns="h", values="y").sort_index()
+        y = mpmath.matrix([[mpmath.mpf(v) for v in row] for row in wide.to_numpy().tolist()])
+        centred = y - mpmath.ones(10, 1) * (mpmath.ones(1, 10) * y) / 10
+        basis = mpmath.matrix(
+            [[1 / mpmath.sqrt(2), 1 / mpmath.sqrt(6)], [-1 / mpmath.sqrt(2), 1 / mpmath.sqrt(6)],
+             [0, -2 / mpmath.sqrt(6)]]
+        )  # fmt: skip
+        z = centred * basis
+        e = z.T * z
+        w = mpmath.det(e) / (e[0, 0] + e[1, 1]) ** 2 * 4
+    assert close(sphericity.mauchly_w, float(w), 1e-6)
+
+
+def test_a_stratum_whose_error_is_rounding_reports_no_sphericity() -> None:
+    """Every subject scores the two humans alike: the human x robot stratum's effect and
+    error are 0 in exact arithmetic, rounding in doubles. Its F is 0 / 0, and neither
+    Mauchly's test nor the epsilons are computed from that rounding; the robot stratum keeps
+    its own."""
+    rng = np.random.default_rng(0)
+    rows = []
+    for s in range(12):
+        scores = rng.normal(0.3, 0.1, 3)
+        rows += [
+            {"subject": s, "human": h, "robot": r, "y": float(scores[r])}
+            for h in ("a", "b")
+            for r in range(3)
+        ]
+    frame = pd.DataFrame(rows)
+    y = frame.sort_values(["subject", "human", "robot"])["y"].to_numpy().reshape(12, 6)
+    noise = y @ np.kron(contrasts(2), contrasts(3))
+    assert np.any(noise != 0.0)  # the premise: the doubles leave rounding in the stratum
+    analysed = frame.rename(columns={"y": "regret"})  # a registered measure, for the table
+    effects = {
+        row.effect: row for row in repeated_measures_anova(analysed, "regret", ["human", "robot"])
+    }
+    crossed = effects["human:robot"]
+    assert crossed.SS == 0 and math.isnan(crossed.F)
+    assert _absent(crossed.sphericity) and crossed.sphericity.reason == NO_ERROR_VARIANCE
+    assert effects["robot"].sphericity.reason is None
+    epsilon, _ = _exact_epsilons(frame[frame["human"] == "a"].rename(columns={"robot": "h"}), 3)
+    assert close(effects["robot"].sphericity.gg_epsilon, float(epsilon), 1e-12)
+    typed = msgspec.convert(plain(msgspec.to_builtins(crossed)), AnovaEffect)
+    cells = anova_table([effects["robot"], typed]).splitlines()[-1].split(" | ")
+    assert cells[5:8] == ["–", "–", "–"]
 
 
 @pytest.mark.parametrize("design", sorted(DESIGNS))

@@ -233,3 +233,34 @@ def test_theory_claims_are_appended_after_the_papers(holding):
 def test_malformed_theory_results_are_user_errors(holding, theory, message):
     with pytest.raises(UserError, match=message):
         evaluate_claims(holding, theory)
+
+
+def _p_objects(value: object) -> list[dict]:
+    """Every dict of ``value`` that holds a p-value (``p``, ``p_holm`` or ``p_tukey``)."""
+    found = []
+    if isinstance(value, dict):
+        if {"p", "p_holm", "p_tukey"} & set(value):
+            found.append(value)
+        for item in value.values():
+            found += _p_objects(item)
+    elif isinstance(value, list):
+        for item in value:
+            found += _p_objects(item)
+    return found
+
+
+def test_every_p_of_a_claims_values_carries_its_log10(holding):
+    """A claim's values repeat the ANOVA's p beside its log10, which holds it where the double
+    underflows: a human effect of log10 p = -500 (p = 0 in doubles) keeps its value."""
+    results = copy.deepcopy(holding)
+    for measure in PAPER_MEASURES:
+        _anova(results, measure, "human").update(p=0.0, log10_p=-500.0)
+    claims = {claim.id: claim for claim in evaluate_claims(results)}
+    for measure in PAPER_MEASURES:
+        assert claims["human_effect"].values[measure]["log10_p"] == -500.0
+        interaction = _anova(results, measure, "human:num_features")
+        assert claims["interaction_kl_l2"].values[measure]["log10_p"] == interaction["log10_p"]
+    for claim in claims.values():
+        for row in _p_objects(claim.values):
+            for key in {"p", "p_holm", "p_tukey"} & set(row):
+                assert f"log10_{key}" in row, (claim.id, row)

@@ -9,6 +9,7 @@ per-subject differences and means.
 from __future__ import annotations
 
 import math
+import re
 import warnings
 
 import msgspec
@@ -392,3 +393,47 @@ def test_the_wilcoxon_log_tail_is_scipys_normal_approximation(n, seed):
     huge = np.arange(1.0, 2001.0)
     assert float(stats.wilcoxon(huge, correction=True).pvalue) == 0.0
     assert -330 < statistics.wilcoxon_log10_p(huge, 0.0) < -320
+
+
+@pytest.mark.parametrize("value", [math.nan, math.inf, -math.inf])
+def test_a_non_finite_value_is_refused_naming_its_trial_never_averaged(value: float) -> None:
+    """A value no record holds (the records refuse NaN, infinities and ``null`` of a measure
+    every trial has), in a table handed to the analysis: one line naming the trial, where a
+    NaN would have left its reward draw out silently, and an infinity would have made every
+    sum of squares NaN."""
+    from analysis_fixtures import pipeline
+
+    from cirl_study.analysis.results import tests
+    from cirl_study.errors import UserError
+
+    table = trial_table(rows(synthetic_records(subjects_per_level=4, lambdas=(1.0,), etas=(1.0,))))
+    position = table.index[(table["block"] == "main")][5]
+    table.loc[position, "kl"] = value
+    trial = table.at[position, "trial_id"]
+    with pytest.raises(UserError, match=f"^kl of trial {re.escape(trial)} is .*not a finite"):
+        tests(table, pipeline())
+    frame = table[table["block"] == "main"]
+    with pytest.raises(UserError, match=f"^kl of trial {re.escape(trial)} is"):
+        repeated_measures_anova(frame, "kl", ["human"], "num_features")
+
+
+def test_a_measure_a_trial_may_lack_leaves_its_draws_out_as_before() -> None:
+    """``null`` where the registry allows it (``order_agreement``: undefined where theta has no
+    two different weights, and not logged before format 8) is a missing value: its reward draw
+    is left out of that measure's statistics, and a measure missing from every trial has none;
+    a missing value of a measure every trial has is refused."""
+    from cirl_study.analysis.measure_rows import measured
+    from cirl_study.errors import UserError
+
+    table = trial_table(rows(synthetic_records(subjects_per_level=4, lambdas=(1.0,), etas=(1.0,))))
+    main = table[table["block"] == "main"].copy()
+    lacking = main["subject"].iloc[0]
+    main.loc[main["subject"] == lacking, "order_agreement"] = math.nan
+    kept = dict(measured(main))
+    assert lacking not in set(kept["order_agreement"]["subject"])
+    assert kept["regret"].equals(main)
+    main["order_agreement"] = math.nan
+    assert "order_agreement" not in dict(measured(main))
+    main.loc[main.index[0], "regret"] = math.nan
+    with pytest.raises(UserError, match=f"^regret of trial {re.escape(main['trial_id'].iloc[0])}"):
+        dict(measured(main))

@@ -16,6 +16,7 @@ import shutil
 from dataclasses import replace
 from pathlib import Path
 
+import mpmath
 import msgspec
 import numpy as np
 import path_enumeration as pe
@@ -482,6 +483,19 @@ def test_the_joint_test_finds_a_clear_effect_and_holds_its_level_under_the_null(
             <= 0.05
         )
     assert 2 <= rejections <= 20  # 5% of 200 is 10; a binomial 99.9% range
+
+
+def test_every_joint_p_carries_its_exact_log10():
+    """``log10_p`` beside each sign-flip p, against the exact ratio ``(1 + k) / (1 + B)`` at
+    60 digits: down to its floor ``1 / (1 + B)``, where a clear effect leaves it."""
+    rng = np.random.default_rng(11)
+    for d, resamples in ((rng.normal(-1.0, 1.0, (6, 40)), 500), (rng.normal(0, 1, (4, 12)), 999)):
+        result = statistics.joint_sign_flip_test(d, resamples=resamples)
+        for key in ("median_effect", "share_significant", "stouffer_z"):
+            extreme = round(result[key]["p"] * (1 + resamples)) - 1
+            with mpmath.workdps(60):
+                exact = float(mpmath.log10(mpmath.mpf(1 + extreme) / (1 + resamples)))
+            assert math.isclose(result[key]["log10_p"], exact, rel_tol=1e-14), key
 
 
 def test_the_joint_test_is_a_function_of_its_inputs_and_seed():

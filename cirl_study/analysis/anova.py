@@ -42,6 +42,19 @@ freedom (R's ``mauchly.test``, ``car::Anova``):
 * a corrected p tests ``F`` on ``epsilon d_T`` and ``epsilon df_error`` degrees of freedom;
   the effect's interaction with the between factor takes the same epsilons.
 
+Where these are not defined they are ``None`` (NaN until the results are made plain), and
+:attr:`~cirl_study.analysis.result_types.Sphericity.reason` says why (:func:`_sphericity`):
+
+* no error variance (``tr E_T`` within rounding of 0, as the F test decides it): none of them;
+* fewer error degrees of freedom than contrasts (``n < d``): ``E_T`` is singular whatever the
+  data, ``eps_GG <= n / d`` measures the sample size rather than sphericity, and ``W`` is 0:
+  none of them;
+* a singular ``E_T`` (its smallest eigenvalue within rounding of 0, with ``n >= d``): ``W =
+  0`` exactly, so ``z`` is infinite and Mauchly's p, which would be 0, is not reported (its
+  chi-square expansion assumes a non-singular covariance, which such data, e.g. two humans
+  scored alike by every subject, do not have); the epsilons are reported, Box's epsilon being
+  defined for any covariance of positive trace.
+
 Every p-value carries ``log10 p`` (:mod:`cirl_study.analysis.tails`), exact where ``p``
 underflows.
 
@@ -51,6 +64,7 @@ References:
     Greenhouse & Geisser (1959), Psychometrika 24(2):95-112.
     Huynh & Feldt (1976), Journal of Educational Statistics 1(1):69-82.
     Olejnik & Algina (2003), Psychological Methods 8(4):434-447.
+    Higham (2002), *Accuracy and Stability of Numerical Algorithms*, 2nd ed., §3.1.
     R: ``afex::aov_ez`` and ``car::Anova`` (the fixtures of ``tests/fixtures/factorial``).
 """
 
@@ -67,6 +81,30 @@ from numpy.typing import NDArray
 
 from cirl_study.analysis.result_types import AnovaEffect, Probability, Sphericity
 from cirl_study.analysis.tails import chi2_tail, f_tail
+from cirl_study.errors import UserError
+
+
+def refuse_non_finite(frame: pd.DataFrame, measure: str, missing_allowed: bool = False) -> None:
+    """Refuse a value of ``measure`` in ``frame`` that no statistic can take: an infinity or
+    NaN, or with ``missing_allowed`` an infinity only (NaN then marks a missing value, which
+    the caller leaves out).
+
+    Raises:
+        UserError: one line naming the first such trial (its ``trial_id``, else its
+            ``subject``) and how many there are.
+    """
+    values = pd.to_numeric(frame[measure], errors="coerce").to_numpy(dtype=np.float64)
+    bad = np.isinf(values) if missing_allowed else ~np.isfinite(values)
+    if not bad.any():
+        return
+    first = frame[bad].iloc[0]
+    trial = f"trial {first['trial_id']}" if "trial_id" in frame else f"subject {first['subject']}"
+    more = int(bad.sum()) - 1
+    others = f" (and {more} more)" if more else ""
+    raise UserError(
+        f"{measure} of {trial} is {frame[measure][bad].iloc[0]!r}, not a finite number{others}: "
+        "the statistics refuse it rather than average it"
+    )
 
 
 def contrasts(levels: int) -> NDArray[np.float64]:
@@ -114,6 +152,9 @@ def repeated_measures_anova(
         ValueError: a subject misses a within cell or has two observations in one, a
             subject lies in two groups, a factor has one level, or an error term has no
             degrees of freedom.
+        UserError: a value of ``measure`` is not a finite number (NaN or infinite), naming
+            its trial (:func:`refuse_non_finite`): it would turn every sum of squares into
+            NaN; leave a missing value's subject out first.
 
     Examples:
         >>> rng = np.random.default_rng(0)
@@ -127,6 +168,7 @@ def repeated_measures_anova(
         >>> table[1].sphericity.gg_epsilon <= 1
         True
     """
+    refuse_non_finite(frame, measure)
     y, groups, levels = _subject_rows(frame, measure, list(within), between, subject)
     subjects, group_count = len(y), int(groups.max()) + 1
     error_df = subjects - group_count
@@ -142,7 +184,9 @@ def repeated_measures_anova(
     for chosen, stratum in strata:
         name = ":".join(within[i] for i in chosen)
         d = stratum.dimension
-        sphericity = _sphericity(stratum.error_sscp, error_df, y.shape[1]) if d >= 2 else None
+        sphericity = (
+            _sphericity(stratum, error_df, y.shape, _rounding_floor(y, d)) if d >= 2 else None
+        )
         effects = [] if not chosen else [(name, stratum.effect_ss, d)]
         if group_count > 1 and between is not None:
             label = f"{name}:{between}" if chosen else between
@@ -247,25 +291,63 @@ def _above(ss: float, floor: float) -> float:
     return ss if ss > floor else 0.0
 
 
-def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> Sphericity:
-    """Mauchly's test and both epsilons of one error SSCP matrix on ``n`` degrees of freedom,
-    in a design of ``cells`` within cells (the p-values of the corrections are filled in by
-    :func:`_effect_row`). With fewer error degrees of freedom than contrasts (``n < d``) the
-    SSCP matrix is singular and Mauchly's test undefined: its ``W`` and p are NaN."""
+NO_ERROR_VARIANCE = "no error variance: the error sum of squares is within rounding of 0"
+"""Why a stratum without error variance has no sphericity test and no epsilons."""
+
+TOO_FEW_SUBJECTS = (
+    "fewer error degrees of freedom than contrasts: the error matrix is singular whatever the "
+    "data, so neither Mauchly's test nor the epsilons estimate anything"
+)
+"""Why a stratum with ``n < d`` has no sphericity test and no epsilons."""
+
+SINGULAR = (
+    "singular error matrix: W = 0, its chi-square statistic infinite, and Mauchly's p not "
+    "reported; the epsilons are"
+)
+"""Why a stratum with a singular error matrix has ``W = 0`` and no Mauchly p."""
+
+
+def _sphericity(stratum: _Stratum, n: int, shape: tuple[int, int], floor: float) -> Sphericity:
+    """Mauchly's test and both epsilons of one stratum's error SSCP matrix ``E`` (``d x d``)
+    on ``n`` degrees of freedom, in a design of ``shape = (S, C)``: ``S`` subjects, ``C``
+    within cells; ``floor`` is the stratum's rounding floor (:func:`_rounding_floor`). The
+    p-values of the corrections are filled in by :func:`_effect_row`.
+
+    What is undefined is NaN, with the reason (see the module docstring): everything where the
+    error sum of squares is rounding (``stratum.error_ss`` is 0, as the F test takes it) or
+    ``n < d``; Mauchly's p where ``E`` is singular, with ``W = 0``.
+
+    ``E`` is singular when its smallest computed eigenvalue is at most ``floor + 16 (S + d)
+    eps tr(E)`` (``S`` subjects, ``eps`` the machine epsilon): for a unit ``u`` with ``E u =
+    0`` in exact arithmetic, the computed residuals ``R`` (``S x d``) give ``|R u|^2 <= floor``
+    (their rounding, as for any sum of squares of the stratum), forming ``R' R`` adds at most
+    ``S eps tr(E)`` to ``u' E u`` (inner products of length ``S``; Higham 2002, §3.1) and the
+    symmetric eigensolver at most ``O(d) eps |E|_2 <= d eps tr(E)`` to each eigenvalue, so the
+    smallest eigenvalue of the computed matrix lies below the bound (with a factor of 16 to
+    spare). A non-singular ``E`` that small relative to its trace (``S = 2000``: a condition
+    number past 1e11) is singular to working precision: its ``W`` would be rounding too.
+    """
+    sscp = stratum.error_sscp
     d = sscp.shape[0]
-    trace = float(np.trace(sscp))
     nan = Probability(p=math.nan, log10_p=math.nan)
-    if not trace > 0:  # no error variance: neither the test nor the epsilons are defined
+    undefined = {"mauchly_w": math.nan, "mauchly": nan, "gg": nan, "hf": nan}
+    if not stratum.error_ss > 0:
         return Sphericity(
-            mauchly_w=math.nan, mauchly=nan, gg_epsilon=math.nan, hf_epsilon=math.nan, gg=nan,
-            hf=nan,
-        )  # fmt: skip
+            **undefined, gg_epsilon=math.nan, hf_epsilon=math.nan, reason=NO_ERROR_VARIANCE
+        )
+    if n < d:
+        return Sphericity(
+            **undefined, gg_epsilon=math.nan, hf_epsilon=math.nan, reason=TOO_FEW_SUBJECTS
+        )
+    trace = float(np.trace(sscp))
     gg = trace**2 / (d * float(np.sum(sscp * sscp)))
     hf = ((n + 1) * d * gg - 2) / (d * (n - d * gg)) if n > d * gg else math.inf
+    subjects, cells = shape
+    singular_below = floor + 16.0 * (subjects + d) * np.finfo(np.float64).eps * trace
     sign, log_det = np.linalg.slogdet(sscp)
-    if n < d or sign <= 0:
+    if float(np.linalg.eigvalsh(sscp)[0]) <= singular_below or sign <= 0:
         return Sphericity(
-            mauchly_w=math.nan, mauchly=nan, gg_epsilon=gg, hf_epsilon=hf, gg=nan, hf=nan
+            **{**undefined, "mauchly_w": 0.0}, gg_epsilon=gg, hf_epsilon=hf, reason=SINGULAR
         )
     log_w = float(log_det) - d * math.log(trace / d)
     rho = 1 - (2 * d * d + d + 2) / (6 * d * n)
@@ -306,10 +388,12 @@ def _effect_row(
     p, log10_p = f_tail(f_value, df1, df2)
     if sphericity is not None:
         corrected = {}
-        for name, epsilon in (
-            ("gg", sphericity.gg_epsilon),
-            ("hf", min(1.0, sphericity.hf_epsilon)),
-        ):
+        for name, epsilon in (("gg", sphericity.gg_epsilon), ("hf", sphericity.hf_epsilon)):
+            if math.isnan(epsilon):  # no epsilon, no corrected p
+                corrected[name] = Probability(p=math.nan, log10_p=math.nan)
+                continue
+            if name == "hf":
+                epsilon = min(1.0, epsilon)  # capped at 1 for its p
             q, log10_q = f_tail(f_value, epsilon * df1, epsilon * df2)
             corrected[name] = Probability(p=q, log10_p=log10_q)
         sphericity = msgspec.structs.replace(sphericity, **corrected)

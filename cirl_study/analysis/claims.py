@@ -170,7 +170,9 @@ def _human_effect(results: StudyResults) -> Verdict:
         row = _anova(results, measure, "human")
         expert = _human_mean(results, measure, EXPERT)
         best = _human_mean(results, measure, BEST_RESPONSE)
-        values[measure] = {"F": row.F, "p": row.p, "mean_expert": expert, "mean_br": best}
+        values[measure] = {
+            "F": row.F, "p": row.p, "log10_p": row.log10_p, "mean_expert": expert, "mean_br": best,
+        }  # fmt: skip
         holds &= _below(row.p, PAPER_P) and best < expert
         parts.append(
             f"{measure_name(measure)}: best response {_num(best)} vs expert {_num(expert)}, "
@@ -195,7 +197,10 @@ def _interaction(results: StudyResults) -> Verdict:
     for measure in PAPER_MEASURES:
         row = _anova(results, measure, "human:num_features")
         gaps = {low: _gap(results, measure, low), high: _gap(results, measure, high)}
-        values[measure] = {"F": row.F, "p": row.p, **{f"gap_{k}": g for k, g in gaps.items()}}
+        values[measure] = {
+            "F": row.F, "p": row.p, "log10_p": row.log10_p,
+            **{f"gap_{k}": g for k, g in gaps.items()},
+        }  # fmt: skip
         if measure != "regret":
             holds &= _below(row.p, SIGNIFICANCE) and gaps[low] > gaps[high]
         parts.append(

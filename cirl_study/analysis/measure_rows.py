@@ -18,9 +18,9 @@ import numpy as np
 import pandas as pd
 
 from cirl_study.analysis import statistics
-from cirl_study.analysis.anova import repeated_measures_anova
+from cirl_study.analysis.anova import refuse_non_finite, repeated_measures_anova
 from cirl_study.errors import UserError
-from cirl_study.measure_registry import analysed_measures
+from cirl_study.measure_registry import MEASURES, analysed_measures
 
 
 def plain(value: Any) -> Any:
@@ -50,8 +50,20 @@ def measured(frame: pd.DataFrame) -> Iterator[tuple[str, pd.DataFrame]]:
     its statistics read: ``frame`` without the subjects (reward draws) that have no value of it
     (NaN: ``null`` in their records) in some trial. Every test pairs a subject's trials, so
     such a subject is left out of all the measure's statistics, and a missing value is never
-    averaged; a measure without a value in ``frame`` has no statistics and is not yielded."""
+    averaged; a measure without a value in ``frame`` has no statistics and is not yielded.
+
+    A value no record can hold is refused
+    (:func:`~cirl_study.analysis.anova.refuse_non_finite`), as the record checks refuse it
+    (:func:`~cirl_study.measure_registry.measure_faults`): an infinity, and NaN where the
+    measure has a value in every trial (:attr:`~cirl_study.measure_registry.Measure.undefined`
+    is ``None``), so a frame handed to the analysis with a NaN there is a fault, never
+    averaged nor silently dropped.
+
+    Raises:
+        UserError: one line naming the first trial of such a value.
+    """
     for measure in analysed_measures():
+        refuse_non_finite(frame, measure, missing_allowed=MEASURES[measure].undefined is not None)
         missing = frame.loc[frame[measure].isna(), "subject"]
         kept = frame if missing.empty else frame[~frame["subject"].isin(set(missing))]
         if not kept.empty:

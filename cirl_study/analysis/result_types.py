@@ -63,7 +63,13 @@ class Probability(msgspec.Struct, **_ROW):
 
 class Sphericity(msgspec.Struct, **_ROW):
     """Mauchly's test of one within effect, and its Greenhouse-Geisser and Huynh-Feldt
-    corrections (:mod:`cirl_study.analysis.anova`)."""
+    corrections (:mod:`cirl_study.analysis.anova`).
+
+    ``reason`` says why some of them are ``null`` (left out where every one is reported): no
+    error variance, or fewer error degrees of freedom than contrasts (all of them ``null``),
+    or a singular error matrix (``mauchly_w`` 0, ``mauchly`` ``null``, the epsilons and
+    corrected p-values reported).
+    """
 
     mauchly_w: Number
     mauchly: Probability
@@ -71,6 +77,7 @@ class Sphericity(msgspec.Struct, **_ROW):
     hf_epsilon: Number
     gg: Probability
     hf: Probability
+    reason: str | None = None
 
 
 class AnovaEffect(msgspec.Struct, **_ROW):
@@ -479,8 +486,12 @@ class Regression(msgspec.Struct, **_ROW):
 
 
 class SignFlipStatistic(msgspec.Struct, **_ROW):
+    """One statistic of a joint test, its sign-flip ``p`` (at least ``1 / (1 + resamples)``)
+    and its ``log10_p``."""
+
     observed: Number
     p: Number
+    log10_p: Number
 
 
 class JointTest(msgspec.Struct, **_ROW):

@@ -713,8 +713,9 @@ def joint_sign_flip_test(
         Phipson & Smyth (2010), Statistical Applications in Genetics and Molecular Biology 9(1).
 
     Returns:
-        ``universes, subjects, resamples, seed``, and for each statistic ``{"observed",
-        "p"}`` under its key.
+        ``universes, subjects, resamples, seed``, and for each statistic ``{"observed", "p",
+        "log10_p"}`` under its key (``log10_p`` the common logarithm of the exact ratio,
+        :func:`sign_flip_log10_p`).
     """
     d = np.asarray(differences, dtype=np.float64)
     universes, subjects = d.shape
@@ -735,10 +736,26 @@ def joint_sign_flip_test(
         "resamples": resamples,
         "seed": seed,
         **{
-            key: {"observed": float(value), "p": (1 + extreme[key]) / (1 + resamples)}
+            key: {
+                "observed": float(value),
+                "p": (1 + extreme[key]) / (1 + resamples),
+                "log10_p": sign_flip_log10_p(extreme[key], resamples),
+            }
             for key, value in observed.items()
         },
     }
+
+
+def sign_flip_log10_p(extreme: int, resamples: int) -> float:
+    """``log10 p`` of the sign-flip ``p = (1 + extreme) / (1 + resamples)`` (Phipson & Smyth
+    2010): ``log10(1 + extreme) - log10(1 + resamples)``, to rounding; never below
+    ``-log10(1 + resamples)``, as ``p`` never underflows.
+
+    Examples:
+        >>> sign_flip_log10_p(0, 9999)
+        -4.0
+    """
+    return math.log10(1 + extreme) - math.log10(1 + resamples)
 
 
 def _curve_statistics(

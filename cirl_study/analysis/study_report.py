@@ -96,7 +96,7 @@ def cells(results: StudyResults) -> list[str]:
 
 def _corrected(row: AnovaEffect, key: str) -> str:
     sphericity = row.sphericity
-    if sphericity is None:
+    if sphericity is None or getattr(sphericity, f"{key}_epsilon") is None:
         return "–"
     epsilon = number(getattr(sphericity, f"{key}_epsilon"), 3)
     return f"{p_text(getattr(sphericity, key).log10_p)} (ε {epsilon})"
@@ -104,7 +104,7 @@ def _corrected(row: AnovaEffect, key: str) -> str:
 
 def _mauchly(row: AnovaEffect) -> str:
     sphericity = row.sphericity
-    if sphericity is None:
+    if sphericity is None or sphericity.mauchly_w is None:
         return "–"
     w = number(sphericity.mauchly_w, 3)
     return f"{w} ({p_text(sphericity.mauchly.log10_p)})"
