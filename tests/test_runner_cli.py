@@ -126,19 +126,25 @@ def test_progress_outside_a_terminal_is_plain_lines(tmp_path: Path) -> None:
     hooks.note("preparing the numerical kernels")
     hooks.start(10, 4)
     for _ in range(6):
-        hooks.advance(1)
+        hooks.advance(1, "main")
     lines = stream.getvalue().splitlines()
     assert lines[:2] == ["preparing the numerical kernels", "trials: 4/10 logged, 6 to play"]
-    assert len(lines) == 3 and lines[2].startswith("trials: 10/10, ")
+    assert len(lines) == 3 and lines[2].startswith("trials: 10/10 (main), ")
+    assert "left" not in lines[2]  # nothing is left at the end
     every = io.StringIO()
     hooks = plain_lines(every, period=0.0)
     hooks.start(3, 0)
-    for _ in range(3):
-        hooks.advance(1)
-    assert [line.split(",")[0] for line in every.getvalue().splitlines()[1:]] == [
-        "trials: 1/3", "trials: 2/3", "trials: 3/3",
+    for block in ("eta_cv", "main", "lambda_sweep"):
+        hooks.advance(1, block)
+    lines = every.getvalue().splitlines()[1:]
+    assert [line.split(",")[0] for line in lines] == [
+        "trials: 1/3 (eta_cv)", "trials: 2/3 (main)", "trials: 3/3 (lambda_sweep)",
     ]  # fmt: skip
+    # The time left is the trials left at the rate so far: 2 left at 1 trial per elapsed.
+    rate = float(lines[0].split(", ")[1].split()[0])
+    left = float(lines[0].split("about ")[1].split()[0])
+    assert rate > 0 and left == pytest.approx(2 / rate, rel=0.5, abs=1)
     result = CliRunner().invoke(app, ["run", str(SMOKE), "--out", str(tmp_path / "run")])
     assert result.exit_code == 0, result.output
     assert "trials: 0/82 logged, 82 to play" in result.stderr
-    assert "trials: 82/82, " in result.stderr
+    assert "trials: 82/82 (lambda_sweep), " in result.stderr

@@ -23,6 +23,7 @@ from rich.progress import (
 )
 from rich.text import Text
 
+from cirl_study.escape import terminal
 from cirl_study.study.runner import ProgressHooks
 
 
@@ -56,8 +57,10 @@ def progress_bar() -> Iterator[ProgressHooks]:
 
 def plain_lines(stream: TextIO, period: float = LINE_SECONDS) -> ProgressHooks:
     """Progress as plain lines on ``stream``: each stage's note, the trials to play when
-    playing starts, then ``trials: n/N, r trials/s`` at most every ``period`` seconds and
-    when the last trial is logged."""
+    playing starts, then ``trials: n/N (block B), r trials/s, e s elapsed, about l s left``
+    at most every ``period`` seconds and when the last trial is logged. The time left is the
+    trials left at the rate so far: the blocks' trials cost alike within a factor of a few,
+    so it is an estimate, said as one."""
     state = {"total": 0, "done": 0, "resumed": 0, "began": 0.0, "shown": 0.0}
 
     def line(text: str) -> None:
@@ -68,7 +71,7 @@ def plain_lines(stream: TextIO, period: float = LINE_SECONDS) -> ProgressHooks:
         state.update(total=total, done=done, resumed=done, began=now, shown=now)
         line(f"trials: {done}/{total} logged, {total - done} to play")
 
-    def advance(count: int) -> None:
+    def advance(count: int, block: str) -> None:
         state["done"] += count
         now = time.monotonic()
         if now - state["shown"] < period and state["done"] < state["total"]:
@@ -76,9 +79,11 @@ def plain_lines(stream: TextIO, period: float = LINE_SECONDS) -> ProgressHooks:
         state["shown"] = now
         elapsed = max(now - state["began"], 1e-9)
         rate = (state["done"] - state["resumed"]) / elapsed
+        left = state["total"] - state["done"]
+        eta = f", about {left / rate:.0f} s left" if left and rate > 0 else ""
         line(
-            f"trials: {state['done']}/{state['total']}, {rate:.0f} trials/s, "
-            f"{elapsed:.0f} s elapsed"
+            f"trials: {state['done']}/{state['total']} ({terminal(block)}), "
+            f"{rate:.0f} trials/s, {elapsed:.0f} s elapsed{eta}"
         )
 
     return ProgressHooks(start, advance, line)
@@ -88,7 +93,7 @@ def plain_lines(stream: TextIO, period: float = LINE_SECONDS) -> ProgressHooks:
 def _live_bar(console: Console) -> Iterator[ProgressHooks]:
     """A progress bar on ``console``, shown from the first ``start`` until the block ends."""
     bar = Progress(
-        TextColumn("trials"),
+        TextColumn("trials ({task.fields[block]})"),
         BarColumn(),
         MofNCompleteColumn(),
         RateColumn(),
@@ -102,10 +107,12 @@ def _live_bar(console: Console) -> Iterator[ProgressHooks]:
 
     def start(total: int, done: int) -> None:
         bar.start()
-        task.append(bar.add_task("trials", total=total, completed=done, resumed=done))
+        task.append(
+            bar.add_task("trials", total=total, completed=done, resumed=done, block="starting")
+        )
 
-    def advance(count: int) -> None:
-        bar.advance(task[0], count)
+    def advance(count: int, block: str) -> None:
+        bar.update(task[0], advance=count, block=block)
 
     def note(text: str) -> None:
         bar.console.print(text, style="dim", highlight=False)

@@ -90,10 +90,11 @@ class RunResult:
 @dataclass
 class ProgressHooks:
     """Callbacks for progress reports: ``note(text)`` for a stage before playing starts,
-    ``start(total, done)`` once, then ``advance(n)``."""
+    ``start(total, done)`` once, then ``advance(n, block)`` as ``n`` trials of ``block`` are
+    logged."""
 
     start: Callable[[int, int], None] = lambda total, done: None
-    advance: Callable[[int], None] = lambda count: None
+    advance: Callable[[int, str], None] = lambda count, block: None
     note: Callable[[str], None] = lambda text: None
 
 
@@ -237,7 +238,7 @@ class _Session:
             with interrupts.deferred():  # a signal leaves the batch logged and kept, or neither
                 self._log(batch_file_name(batch), records)
                 self.done.update(trial.trial_id for trial in batch)
-            self.progress.advance(len(batch))
+            self.progress.advance(len(batch), batch[0].block)
             yield records
 
     def _log(self, name: str, records: Sequence[TrialRecord]) -> None:
