@@ -258,3 +258,24 @@ def test_a_report_that_cannot_be_read_is_one_line(tmp_path: Path, spoil, says: s
     assert result.stderr.startswith("error: ") and result.stderr.count("\n") == 1, result.stderr
     assert says in result.stderr, result.stderr
     shown_as_is(result.output)
+
+
+def _with_runs(directory: Path, *run_ids: str) -> Path:
+    provenance = {"run": [{"run_id": run_id} for run_id in run_ids], "report": {}}
+    (directory / "provenance.json").write_text(json.dumps(provenance))
+    return directory
+
+
+def test_reports_of_different_runs_are_said_to_be_so_first(tmp_path: Path) -> None:
+    expected = _with_runs(report(tmp_path / "a"), "paper-1a2b3c4d5e6f")
+    got = _with_runs(report(tmp_path / "b", scaled(RESULTS, 2.0)), "smoke-0f9e8d7c6b5a")
+    differences = compare_reports(expected, got)
+    assert differences[0].startswith(
+        "provenance.json: the reports are of different runs (expected: paper-1a2b3c4d5e6f; "
+        "got: smoke-0f9e8d7c6b5a)"
+    )
+    assert len(differences) > 1 and all("provenance" not in d for d in differences[1:])
+    same_run = _with_runs(report(tmp_path / "c", scaled(RESULTS, 2.0)), "paper-1a2b3c4d5e6f")
+    assert not any("provenance" in d for d in compare_reports(expected, same_run))
+    without = report(tmp_path / "d", scaled(RESULTS, 2.0))
+    assert not any("provenance" in d for d in compare_reports(expected, without))

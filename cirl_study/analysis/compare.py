@@ -15,7 +15,9 @@ the CPU's and the BLAS kernels' rounding. :func:`compare_reports` compares
   ``*.svg`` must exist (its path coordinates carry the same last bits, so it is not compared
   byte by byte).
 
-``provenance.json`` says what made the report: it differs by design and is not compared.
+``provenance.json`` says what made the report: it differs by design and is not compared, but
+for the runs it names: two reports of different runs (another pipeline, or another version of
+it) are said to be so first, before the differences that follow from it.
 
 Either directory may come from someone else. Every name and value a difference quotes from
 them (a file name, a key, a column, a row's id, a cell, a line of text) is escaped and bounded
@@ -89,8 +91,9 @@ def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = Non
             or the other a table the expected one has.
     """
     tolerance = tolerance or Tolerance()
-    differences = list(
-        _json_differences(_load_json(expected), _load_json(got), "results.json", tolerance)
+    differences = _run_difference(expected, got)
+    differences += _json_differences(
+        _load_json(expected), _load_json(got), "results.json", tolerance
     )
     tables = sorted(path.name for path in expected.glob("*.csv"))
     if not tables:
@@ -108,6 +111,38 @@ def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = Non
         if not (got / vector.name).is_file()
     ]
     return differences
+
+
+def _run_difference(expected: Path, got: Path) -> list[str]:
+    """``["provenance.json: ..."]`` when both reports say which runs made them and the runs
+    differ, else ``[]`` (a report without a readable provenance is compared by its numbers
+    alone)."""
+    runs = [_runs_of(expected), _runs_of(got)]
+    if None in runs or runs[0] == runs[1]:
+        return []
+    shown = [", ".join(terminal(run) for run in sorted(r or ())) or "none" for r in runs]
+    return [
+        f"provenance.json: the reports are of different runs (expected: {shown[0]}; got: "
+        f"{shown[1]}), made from different pipelines or versions of one: the differences "
+        "below follow from that"
+    ]
+
+
+def _runs_of(directory: Path) -> frozenset[str] | None:
+    """The run ids ``provenance.json`` of ``directory`` names, or ``None`` without one."""
+    path = directory / "provenance.json"
+    if not path.is_file():
+        return None
+    try:
+        provenance = json.loads(_read(path).decode("utf-8"))
+    except (ValueError, RecursionError, UserError):
+        return None
+    runs = provenance.get("run") if isinstance(provenance, dict) else None
+    if not isinstance(runs, list):
+        return None
+    return frozenset(
+        str(run["run_id"]) for run in runs if isinstance(run, dict) and "run_id" in run
+    )
 
 
 def _read(path: Path) -> bytes:
