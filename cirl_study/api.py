@@ -42,24 +42,27 @@ if TYPE_CHECKING:
     from cirl_study.analysis.result_types import MultiverseResults, StudyResults
 
 
-def run(pipeline: str | os.PathLike[str], out: str | os.PathLike[str], workers: int = 1) -> Path:
+def run(
+    pipeline: str | os.PathLike[str], out: str | os.PathLike[str], workers: int | None = None
+) -> Path:
     """Play (or resume) every trial of ``pipeline`` into the run directory ``out``.
 
     Args:
         pipeline: a pipeline file, or the name of a shipped one (``paper``, ``smoke``, ...).
         out: the run directory: created, or resumed when it holds a run of the same pipeline.
-        workers: processes of the local pool; 1 plays in this process. The numbers do not
-            depend on it.
+        workers: processes of the local pool (default: every core this process may use, as
+            ``cirl-study run``); 1 plays in this process. The numbers do not depend on it.
 
     Returns:
         ``out``, as a path.
     """
-    from cirl_study.study.engines import LocalEngine
+    from cirl_study.study.engines import make_engine
     from cirl_study.study.pipeline_file import load_pipeline, resolve_pipeline
     from cirl_study.study.runner import run_pipeline
 
     target = Path(out)
-    run_pipeline(load_pipeline(resolve_pipeline(os.fspath(pipeline))), target, LocalEngine(workers))
+    engine = make_engine("local", workers, None)
+    run_pipeline(load_pipeline(resolve_pipeline(os.fspath(pipeline))), target, engine)
     return target
 
 

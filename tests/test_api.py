@@ -40,3 +40,14 @@ def test_the_package_exports_only_its_api() -> None:
     assert cirl_study.API == ("run", "load_trials", "analyze")
     with pytest.raises(AttributeError, match="has no attribute 'play'"):
         _ = cirl_study.play
+
+
+def test_run_uses_every_core_by_default_as_the_command_does(monkeypatch, tmp_path: Path) -> None:
+    from cirl_study.study import runner
+
+    engines = []
+    monkeypatch.setattr(runner, "run_pipeline", lambda spec, out, engine: engines.append(engine))
+    monkeypatch.setattr("cirl_study.study.engines.cores", lambda: 7)
+    cirl_study.run("smoke", tmp_path / "run")
+    cirl_study.run("smoke", tmp_path / "run", workers=1)
+    assert [engine.workers for engine in engines] == [7, 1]

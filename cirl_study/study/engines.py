@@ -30,6 +30,7 @@ from cirl_study import interrupts
 from cirl_study.core.trial import play_trials
 from cirl_study.errors import UserError
 from cirl_study.record import TrialRecord, TrialSpec
+from cirl_study.workers import cores
 
 Batch = Sequence[TrialSpec]
 Records = list[TrialRecord]
@@ -88,13 +89,6 @@ class Engine(abc.ABC):
         trace: TracebackType | None,
     ) -> None:
         self.stop(failing=kind is not None)
-
-
-def default_workers() -> int:
-    """All cores this process may use."""
-    if hasattr(os, "sched_getaffinity"):
-        return len(os.sched_getaffinity(0))
-    return os.cpu_count() or 1
 
 
 class WorkerLost(Exception):
@@ -449,7 +443,7 @@ def make_engine(
     """The engine ``name`` (see :data:`ENGINES`) with ``workers`` workers (default: all cores);
     ``scheduler`` and ``no_workers_timeout`` (default :data:`DEFAULT_NO_WORKERS_TIMEOUT`) are
     the Dask engine's."""
-    count = default_workers() if workers is None else workers
+    count = cores() if workers is None else workers
     if name == "local":
         if scheduler is not None:
             raise UserError("a scheduler address is for the dask engine, not the local one")
