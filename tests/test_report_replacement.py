@@ -279,3 +279,45 @@ def test_git_dirty_ignores_the_directories_a_command_writes(tmp_path: Path) -> N
     assert git_state(checkout, (*outputs, tmp_path / "outside"))["git_dirty"] == "false"
     (checkout / "code.py").write_text("changed\n")
     assert git_state(checkout, outputs)["git_dirty"] == "true"
+
+
+@pytest.mark.parametrize("where", ["the run itself", "around the run"])
+def test_a_report_is_never_written_over_a_run(smoke_run: Path, tmp_path: Path, where: str) -> None:
+    """``analyze RUN --out RUN`` (or a directory holding RUN) is refused before anything is
+    written: the swap would take the files a live run makes meanwhile."""
+    run = tmp_path / "around" / "run"
+    shutil.copytree(smoke_run, run, ignore=shutil.ignore_patterns("report"))
+    before = snapshot(run.parent)
+    target = run if where == "the run itself" else run.parent
+    message = one_line_error(analyze(run, target), "a run directory", "never written over a run")
+    assert message.startswith(f"error: {target}: ")
+    assert snapshot(run.parent) == before
+    assert temporaries(target) == []
+
+
+def test_a_report_inside_its_run_is_written(smoke_run: Path, tmp_path: Path) -> None:
+    run = tmp_path / "run"
+    shutil.copytree(smoke_run, run, ignore=shutil.ignore_patterns("report"))
+    result = CliRunner().invoke(app, ["analyze", str(run)])
+    assert result.exit_code == 0, result.output
+    assert (run / "report" / "report.md").is_file()
+
+
+def test_a_file_made_in_the_old_report_during_the_swap_is_kept(
+    report: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A file of the user's that appears after the user's files were linked, before the
+    swap, moves into the new report, not out with the old one."""
+    real_swap = replacement._swap
+
+    def late(stage: Path, target: Path, *, present: bool) -> None:
+        (target / "late.txt").write_text("written while the report was replaced\n")
+        real_swap(stage, target, present=present)
+
+    monkeypatch.setattr(replacement, "_swap", late)
+    with replacing_report(report, run_id="smoke-x", force=True) as new:
+        (new.stage / "report.md").write_text("new\n")
+    assert (report / "late.txt").read_text() == "written while the report was replaced\n"
+    assert (report / "report.md").read_text() == "new\n"
+    assert (report / "README.md").read_text() == "kept by the user\n"
+    assert temporaries(report) == []

@@ -30,6 +30,14 @@ for byte.
   one. Anything else there (a ``README.md``, notes, a subdirectory) is the user's: it is
   hard-linked into the new directory before the swap, so it is kept, unchanged, whatever
   happens.
+* **Never over a run.** A run directory (one holding log files, temporary log files or a
+  run's lock: :func:`run_directory_under`) is never a report directory, nor inside the
+  target: a run writes its logs while a report may be written, and the swap would take the
+  files it makes after the user's files were linked. A report inside a run directory
+  (``RUN/report``, the default) is fine: a run writes only its own top level.
+* **Late files.** An entry of the user's that appears in the old report between the linking
+  and the swap is moved into the new one after the swap, so nothing the user (or another
+  process) made there is removed with the old report.
 * **Links.** A symbolic link as the target is refused, and so is one as the lock file; a
   link inside the old report is never followed: it leaves with the old report, or, if it
   is the user's, is kept as a link.
@@ -54,7 +62,8 @@ from pathlib import Path
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.files import read_regular_file, remove_file
-from cirl_study.logs.lock import exclusive_lock
+from cirl_study.logs.format import LOG_SUFFIX, TEMP_SUFFIX
+from cirl_study.logs.lock import LOCK_NAME, exclusive_lock
 
 REPORT_FILE_NAMES = frozenset({"report.md", "results.json", "provenance.json"})
 """Files of a report by name; with :data:`REPORT_FILE_SUFFIXES`, what :func:`is_report_file`
@@ -118,6 +127,7 @@ def replacing_report(
         raise UserError(f"{target}: is not a directory a report can be written to")
     parent, name = Path(os.path.realpath(absolute.parent)), absolute.name
     absolute = parent / name
+    _refuse_a_run(target, absolute)
     with _os_errors(target):
         parent.mkdir(parents=True, exist_ok=True)
     with exclusive_lock(
@@ -152,6 +162,8 @@ def replacing_report(
                 os.chmod(stage, mode if mode is not None else _default_mode())
                 _sync(stage)
                 _swap(stage, absolute, present=mode is not None)
+                if mode is not None:
+                    _move_late_entries(stage, absolute)
                 _sync(parent)
         finally:
             with _os_errors(target):
@@ -233,6 +245,48 @@ def _differences(existing: Path, new: Path) -> list[str] | None:
         return differences + compare_reports(existing, new)
     except UserError as error:
         return [*differences, str(error)]
+
+
+def _refuse_a_run(target: Path, absolute: Path) -> None:
+    """Refuse a report directory that is a run directory or holds one
+    (:func:`run_directory_under`), before anything is written."""
+    if not absolute.is_dir() or absolute.is_symlink():
+        return
+    with _os_errors(target):
+        run = run_directory_under(absolute)
+    if run is not None:
+        where = "is" if run == absolute else f"holds {terminal(run)}, which is"
+        raise UserError(
+            f"{target}: {where} a run directory (its log files); a report is never written "
+            "over a run: choose another report directory"
+        )
+
+
+def run_directory_under(directory: Path) -> Path | None:
+    """The first run directory at or under ``directory`` (not through a link): one holding a
+    log file (``*.mcap``), a temporary one or a run's lock file; ``None`` if there is none."""
+    pending = [directory]
+    while pending:
+        current = pending.pop()
+        with os.scandir(current) as entries:
+            for entry in entries:
+                if _is_run_file(entry.name):
+                    return current
+                if entry.is_dir(follow_symlinks=False):
+                    pending.append(Path(entry.path))
+    return None
+
+
+def _is_run_file(name: str) -> bool:
+    return name == LOCK_NAME or name.endswith((LOG_SUFFIX, LOG_SUFFIX + TEMP_SUFFIX))
+
+
+def _move_late_entries(old: Path, new: Path) -> None:
+    """Move into ``new`` every entry of the user's in ``old`` that ``new`` lacks: one made
+    in the old report after :func:`_link_the_users_files` linked the others."""
+    for entry in os.scandir(old):
+        if not is_report_file(entry.name) and not os.path.lexists(new / entry.name):
+            os.rename(entry.path, new / entry.name)
 
 
 def _link_the_users_files(old: Path, stage: Path) -> None:
