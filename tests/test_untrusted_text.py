@@ -390,3 +390,31 @@ def test_a_hostile_pipeline_file_is_never_part_of_a_command(
     assert f"sha256 {mine.pipeline_sha256[:12]}..." in validated.output
     error = one_line(invoke("analyze", other), 2, "resume with `cirl-study run PIPELINE --out")
     assert "touch PWNED" not in error.split("`")[1]
+
+
+def test_every_csv_we_write_is_safe_to_open_in_a_spreadsheet(tmp_path: Path) -> None:
+    """A text cell or header a spreadsheet would run as a formula (OWASP: it starts with
+    =, +, -, @, a tab or a carriage return) is written with a leading apostrophe; numbers,
+    negative ones too, are written as they are; the frame itself is not changed."""
+    import pandas as pd
+
+    from cirl_study.analysis.output import csv_file, write_report_directory
+
+    frame = pd.DataFrame(
+        {
+            "subject": ['=HYPERLINK("http://x","y")', "+1", "-2", "@SUM(A1)", "\tx", "main"],
+            "regret": [-0.5, 0.25, -1.0, 0.0, 1.0, 2.0],
+            "=cmd": ["a", "b", "c", "d", "e", "f"],
+        }
+    )
+    expected = (
+        "subject,regret,'=cmd\n"
+        "\"'=HYPERLINK(\"\"http://x\"\",\"\"y\"\")\",-0.5,a\n"
+        "'+1,0.25,b\n'-2,-1.0,c\n'@SUM(A1),0.0,d\n'\tx,1.0,e\nmain,2.0,f\n"
+    )
+    assert csv_file(frame).decode() == expected
+    write_report_directory(
+        tmp_path, markdown="", results={}, tables={"t.csv": frame}, figures={}, provenance=None
+    )
+    assert (tmp_path / "t.csv").read_text() == expected
+    assert frame["subject"].iloc[1] == "+1"

@@ -23,9 +23,51 @@ CSV_FORMAT: dict[str, Any] = {"index": False, "lineterminator": "\n"}
 """How every table of a report is written as CSV (``DataFrame.to_csv``): no index, ``\\n``."""
 
 
+FORMULA_STARTS = ("=", "+", "-", "@", "\t", "\r")
+"""First characters that make a spreadsheet read a cell as a formula (OWASP, CSV injection)."""
+
+
+def spreadsheet_safe(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` with every text cell and column name that starts with one of
+    :data:`FORMULA_STARTS` prefixed by ``'``, so a spreadsheet shows it as text instead of
+    running it (the OWASP rule for CSV injection). Numbers are left as they are: ``-0.5`` in
+    a number column is a number to a spreadsheet too.
+
+    >>> spreadsheet_safe(pd.DataFrame({"human": ["=cmd()", "expert"], "x": [-0.5, 1.0]}))
+         human    x
+    0  '=cmd()  -0.5
+    1   expert  1.0
+    """
+    risky = {name: _formula_cells(frame[name]) for name in frame.columns}
+    risky = {name: starts for name, starts in risky.items() if starts.any()}
+    renamed = {name: f"'{name}" for name in frame.columns if _is_formula(name)}
+    if not risky and not renamed:
+        return frame
+    safe = frame.copy()
+    for name, starts in risky.items():
+        safe[name] = safe[name].astype(object)
+        safe.loc[starts, name] = "'" + safe.loc[starts, name].astype(str)
+    return safe.rename(columns=renamed)
+
+
+def _formula_cells(column: pd.Series) -> pd.Series:
+    """Which cells of ``column`` are text a spreadsheet would run (all false for numbers)."""
+    if not (pd.api.types.is_object_dtype(column) or pd.api.types.is_string_dtype(column)):
+        return pd.Series(False, index=column.index)
+    try:
+        return column.str.startswith(FORMULA_STARTS, na=False).astype(bool)
+    except AttributeError:  # text mixed with other values: cell by cell
+        return column.map(_is_formula).astype(bool)
+
+
+def _is_formula(value: object) -> bool:
+    return isinstance(value, str) and value.startswith(FORMULA_STARTS)
+
+
 def csv_file(frame: pd.DataFrame) -> bytes:
-    """``frame`` as the CSV file :func:`write_report_directory` writes of it."""
-    return frame.to_csv(**CSV_FORMAT).encode("utf-8")
+    """``frame`` as the CSV file :func:`write_report_directory` writes of it (spreadsheet
+    safe: :func:`spreadsheet_safe`)."""
+    return spreadsheet_safe(frame).to_csv(**CSV_FORMAT).encode("utf-8")
 
 
 def write_report_directory(
@@ -63,7 +105,8 @@ def write_report_directory(
                 open_for_writing(out / name) as stream,
                 io.TextIOWrapper(stream, encoding="utf-8", newline="") as text_stream,
             ):
-                table.to_csv(text_stream, **CSV_FORMAT)  # row by row: a large table is not held
+                # row by row: a large table is not held twice as text
+                spreadsheet_safe(table).to_csv(text_stream, **CSV_FORMAT)
         if provenance is not None:
             text = json.dumps(provenance, indent=2, sort_keys=True, ensure_ascii=False)
             write_file(out / "provenance.json", (text + "\n").encode("utf-8"))
