@@ -14,6 +14,7 @@ from typer.testing import CliRunner
 
 from cirl_study.analysis.compare import Tolerance, compare_reports
 from cirl_study.cli import app
+from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 
 RESULTS = {
@@ -279,3 +280,33 @@ def test_reports_of_different_runs_are_said_to_be_so_first(tmp_path: Path) -> No
     assert not any("provenance" in d for d in compare_reports(expected, same_run))
     without = report(tmp_path / "d", scaled(RESULTS, 2.0))
     assert not any("provenance" in d for d in compare_reports(expected, without))
+
+
+def test_what_a_report_would_make_us_allocate_is_bounded_before_it_is(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A results.json of more values than a report holds, and a figure of more pixels than a
+    report draws, are refused from their bytes and header, before they are parsed or
+    decoded."""
+    from cirl_study.analysis import compare as module
+
+    monkeypatch.setattr(module, "MAX_JSON_VALUES", 1000)
+    a, b = report(tmp_path / "a"), report(tmp_path / "b")
+    (b / "results.json").write_text("[" + ",".join(["{}"] * 2000) + "]")
+    with pytest.raises(UserError, match=r"results.json: cannot read: up to 4000 values, more"):
+        compare_reports(a, b)
+    b = report(tmp_path / "c")
+    header = b"\x89PNG\r\n\x1a\n" + (13).to_bytes(4, "big") + b"IHDR"
+    huge = header + (9000).to_bytes(4, "big") + (9000).to_bytes(4, "big") + b"\x08\x06\0\0\0"
+    (a / "f.png").write_bytes(huge)
+    (b / "f.png").write_bytes(huge)
+    with pytest.raises(UserError, match=r"f.png: cannot read: 9000 x 9000 pixels, more than"):
+        compare_reports(a, b)
+
+
+def test_tables_of_different_lengths_say_so(tmp_path: Path) -> None:
+    longer = TRIALS + "main:b,expert,,0.5\n"
+    differences = compare_reports(report(tmp_path / "a"), report(tmp_path / "b", trials=longer))
+    assert differences == ["trials.csv: 2 rows != 3 rows"]
+    differences = compare_reports(report(tmp_path / "c", trials=longer), report(tmp_path / "d"))
+    assert differences == ["trials.csv: 3 rows != 2 rows"]

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import csv
 import io
+import itertools
 import json
 import math
 from collections.abc import Iterator
@@ -56,9 +57,21 @@ PIXEL_TOLERANCE = 8 / 255
 PIXEL_SHARE = 1e-3
 """Largest share of a figure's pixels that may differ beyond :data:`PIXEL_TOLERANCE`."""
 
-MAX_REPORT_FILE_BYTES = 1 << 30
-"""Largest file of a report read (1 GiB): a trial table of a few million trials; a report
-directory may come from someone else, and each file is read whole."""
+MAX_REPORT_FILE_BYTES = 1 << 29
+"""Largest file of a report read (512 MiB: a trial table of over a million trials); a report
+directory may come from someone else. A file is read whole as bytes and decoded; a table is
+then compared row by row, never held as rows, so a table costs about three times its size."""
+
+MAX_JSON_VALUES = 4_000_000
+"""Most values (objects, arrays, numbers, strings, ...) a ``results.json`` may hold, counted
+from its bytes before it is parsed (every ``{``, ``[``, ``,`` and ``:`` may start one, so
+the count bounds them from above): a parsed value costs Python 50 to 100 bytes, so the
+largest accepted file parses into well under a gigabyte. A multiverse of 53 universes
+holds about 10^5."""
+
+MAX_FIGURE_PIXELS = 16_000_000
+"""Most pixels of a figure compared (e.g. 4000 x 4000), read from the PNG's header before it
+is decoded: decoded, a pixel is four 32-bit floats. The report's figures have about 10^6."""
 
 
 @dataclass(frozen=True)
@@ -99,9 +112,7 @@ def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = Non
     if not tables:
         raise UserError(f"{expected}: no table (*.csv) to compare")
     for name in tables:
-        differences += _table_differences(
-            name, _load_csv(expected / name), _load_csv(got / name), tolerance
-        )
+        differences += _table_differences(name, expected / name, got / name, tolerance)
     differences += _text_differences(expected / "report.md", got / "report.md")
     for figure in sorted(expected.glob("*.png")):
         differences += _figure_differences(figure, got / figure.name)
@@ -156,20 +167,34 @@ def _read(path: Path) -> bytes:
 
 def _load_json(directory: Path) -> Any:
     path = directory / "results.json"
+    data = _read(path)
+    values = sum(data.count(mark) for mark in (b"{", b"[", b",", b":"))
+    if values > MAX_JSON_VALUES:
+        raise UserError(
+            f"{path}: cannot read: up to {values} values, more than the {MAX_JSON_VALUES} a "
+            "report's results hold"
+        )
     try:
-        return json.loads(_read(path).decode("utf-8"))
+        return json.loads(data.decode("utf-8"))
     except (ValueError, RecursionError) as error:
         raise UserError(f"{path}: cannot read: {_reason(error)}") from None
 
 
-def _load_csv(path: Path) -> list[dict[str, str]]:
-    """The rows of a table; a ragged row's missing cells are ``None``, its extra ones a list
-    under the key ``None`` (:class:`csv.DictReader`)."""
+def _csv_rows(path: Path) -> Iterator[list[str]]:
+    """The rows of a table, its header first, one at a time."""
     try:
         text = _read(path).decode("utf-8")
-        return list(csv.DictReader(io.StringIO(text, newline="")))
-    except (ValueError, csv.Error) as error:
+    except ValueError as error:
         raise UserError(f"{path}: cannot read: {_reason(error)}") from None
+    rows = csv.reader(io.StringIO(text, newline=""))
+    while True:
+        try:
+            row = next(rows, None)
+        except csv.Error as error:
+            raise UserError(f"{path}: cannot read: {_reason(error)}") from None
+        if row is None:
+            return
+        yield row
 
 
 def _read_lines(path: Path) -> list[str]:
@@ -221,25 +246,44 @@ def _json_differences(a: Any, b: Any, where: str, tolerance: Tolerance) -> Itera
         yield f"{terminal(where)}: {_shown(a)} != {_shown(b)}"
 
 
-def _table_differences(
-    name: str, a: list[dict[str, str]], b: list[dict[str, str]], tolerance: Tolerance
+def _table_differences(name: str, expected: Path, got: Path, tolerance: Tolerance) -> Iterator[str]:
+    """The differences between the tables ``expected`` and ``got``, row by row: the same
+    columns, then each cell (numbers within ``tolerance``, text equal), then the same number
+    of rows."""
+    ours, theirs = _csv_rows(expected), _csv_rows(got)
+    header, other = next(ours, []), next(theirs, [])
+    if header != other:
+        for _ in itertools.chain(ours, theirs):  # each table is still read whole
+            pass
+        yield f"{terminal(name)}: columns {_shown(header)} != {_shown(other)}"
+        return
+    rows = 0
+    for rows, (x, y) in enumerate(itertools.zip_longest(ours, theirs), start=1):
+        if x is None or y is None:
+            a, b = rows - 1 + sum(1 for _ in ours), rows - 1 + sum(1 for _ in theirs)
+            yield f"{terminal(name)}: {a + (x is not None)} rows != {b + (y is not None)} rows"
+            return
+        yield from _row_differences(name, header, rows + 1, x, y, tolerance)
+
+
+def _row_differences(
+    name: str, header: list[str], line: int, x: list[str], y: list[str], tolerance: Tolerance
 ) -> Iterator[str]:
-    if len(a) != len(b):
-        yield f"{terminal(name)}: {len(a)} rows != {len(b)} rows"
-    for index, (x, y) in enumerate(zip(a, b, strict=False)):
-        row = terminal(x.get("trial_id", x.get("universe")))
-        where = f"{terminal(name)} row {index + 2} ({row})"
-        if list(x) != list(y):
-            yield f"{where}: columns differ"
-            continue
-        for column, value in x.items():
-            other = y[column]
-            try:
-                same = tolerance.agree(float(value), float(other))
-            except (TypeError, ValueError):  # text, or a ragged row's None or list
-                same = value == other
-            if not same:
-                yield f"{where}: {terminal(column)} {terminal(value)} != {terminal(other)}"
+    """The differences between the rows ``x`` and ``y`` at ``line`` of a table."""
+    cells = dict(zip(header, x, strict=False))
+    where = (
+        f"{terminal(name)} row {line} ({terminal(cells.get('trial_id', cells.get('universe')))})"
+    )
+    if len(x) != len(header) or len(y) != len(header):
+        yield f"{where}: {len(x)} and {len(y)} cells where the header has {len(header)}"
+        return
+    for column, value, other in zip(header, x, y, strict=True):
+        try:
+            same = tolerance.agree(float(value), float(other))
+        except ValueError:  # text
+            same = value == other
+        if not same:
+            yield f"{where}: {terminal(column)} {terminal(value)} != {terminal(other)}"
 
 
 def _text_differences(expected: Path, got: Path) -> list[str]:
@@ -276,6 +320,13 @@ def _read_image(path: Path) -> np.ndarray:
     from PIL.Image import DecompressionBombError
 
     data = _read(path)
+    if data[:8] == b"\x89PNG\r\n\x1a\n" and data[12:16] == b"IHDR":
+        width, height = int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+        if width * height > MAX_FIGURE_PIXELS:
+            raise UserError(
+                f"{path}: cannot read: {width} x {height} pixels, more than the "
+                f"{MAX_FIGURE_PIXELS} a report's figure has"
+            )
     try:
         return imread(io.BytesIO(data), format="png")
     except (OSError, ValueError, SyntaxError, DecompressionBombError) as error:
