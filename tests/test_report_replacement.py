@@ -321,3 +321,21 @@ def test_a_file_made_in_the_old_report_during_the_swap_is_kept(
     assert (report / "report.md").read_text() == "new\n"
     assert (report / "README.md").read_text() == "kept by the user\n"
     assert temporaries(report) == []
+
+
+def test_a_subdirectory_of_the_users_moves_whole_with_its_owner(
+    smoke_run: Path, report: Path
+) -> None:
+    """The user's subdirectory is moved into the new report, not re-created: its inode, and
+    its owner where this process may give it another, stay."""
+    notes = report / "notes"
+    if os.geteuid() == 0:
+        os.chown(notes, 65534, 65534)
+    before = notes.stat()
+    result = analyze(smoke_run, report)
+    assert result.exit_code == 0, result.output
+    after = notes.stat()
+    assert (after.st_ino, after.st_uid, after.st_gid) == (
+        before.st_ino, before.st_uid, before.st_gid,
+    )  # fmt: skip
+    assert (notes / "todo.txt").read_text() == "mine\n"

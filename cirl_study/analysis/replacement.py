@@ -27,17 +27,18 @@ for byte.
 * **What a report is.** ``report.md``, ``results.json``, ``provenance.json`` and every
   ``*.csv``, ``*.png`` and ``*.svg`` are the report's (:func:`is_report_file`): the new
   report replaces them all, so a figure the new report does not draw is gone with the old
-  one. Anything else there (a ``README.md``, notes, a subdirectory) is the user's: it is
-  hard-linked into the new directory before the swap, so it is kept, unchanged, whatever
-  happens.
+  one. Anything else there (a ``README.md``, notes, a subdirectory) is the user's and is kept,
+  unchanged, whatever happens: a file (or a link) is hard-linked into the new directory before
+  the swap, so it is there at every instant; a subdirectory is moved into the new directory
+  right after the swap, whole (its owner, mode and inode stay; a copy would be the writer's).
 * **Never over a run.** A run directory (one holding log files, temporary log files or a
   run's lock: :func:`run_directory_under`) is never a report directory, nor inside the
   target: a run writes its logs while a report may be written, and the swap would take the
   files it makes after the user's files were linked. A report inside a run directory
   (``RUN/report``, the default) is fine: a run writes only its own top level.
 * **Late files.** An entry of the user's that appears in the old report between the linking
-  and the swap is moved into the new one after the swap, so nothing the user (or another
-  process) made there is removed with the old report.
+  and the swap is moved into the new one with the subdirectories, so nothing the user (or
+  another process) made there is removed with the old report.
 * **Links.** A symbolic link as the target is refused, and so is one as the lock file; a
   link inside the old report is never followed: it leaves with the old report, or, if it
   is the user's, is kept as a link.
@@ -282,29 +283,19 @@ def _is_run_file(name: str) -> bool:
 
 
 def _move_late_entries(old: Path, new: Path) -> None:
-    """Move into ``new`` every entry of the user's in ``old`` that ``new`` lacks: one made
-    in the old report after :func:`_link_the_users_files` linked the others."""
+    """Move into ``new`` every entry of the user's in ``old`` that ``new`` lacks: its
+    subdirectories, and any entry made after :func:`_link_the_users_files` linked its files."""
     for entry in os.scandir(old):
         if not is_report_file(entry.name) and not os.path.lexists(new / entry.name):
             os.rename(entry.path, new / entry.name)
 
 
 def _link_the_users_files(old: Path, stage: Path) -> None:
-    """Hard-link every entry of ``old`` that is not the report's into ``stage`` (a
-    subdirectory as a tree of links), links as links."""
+    """Hard-link every file of ``old`` that is not the report's into ``stage``, links as
+    links (its subdirectories are moved after the swap: :func:`_move_late_entries`)."""
     for entry in os.scandir(old):
-        if not is_report_file(entry.name):
-            _link_tree(Path(entry.path), stage / entry.name)
-
-
-def _link_tree(source: Path, destination: Path) -> None:
-    if source.is_dir() and not source.is_symlink():
-        destination.mkdir()
-        os.chmod(destination, stat.S_IMODE(source.lstat().st_mode))
-        for entry in os.scandir(source):
-            _link_tree(Path(entry.path), destination / entry.name)
-    else:
-        os.link(source, destination, follow_symlinks=False)
+        if not is_report_file(entry.name) and not entry.is_dir(follow_symlinks=False):
+            os.link(entry.path, stage / entry.name, follow_symlinks=False)
 
 
 def _sync_files(directory: Path) -> None:
