@@ -527,7 +527,7 @@ def faulty_players():
             "expert",
             "one_short",
             "robot 'one_short' (registered in this process) returned theta_hat of shape (2, 2) "
-            "(dtype float64) where (2, 3) numbers were due, in trial first",
+            "and dtype float64, where (2, 3) values of kind 'fiu' were due, in trial first",
         ),
     ],
 )
@@ -558,3 +558,39 @@ def test_path_faults_accept_exactly_the_paths_of_a_phase():
         )
         finished = 2 in cells or sink in cells
         assert (phase.path_faults(path) == []) == (legal and finished), cells
+
+
+def _estimate(**changed):
+    fields = {
+        "theta_hat": np.array([[0.5, -0.5], [1.0, -1.0]]),
+        "log_likelihood": np.array([-1.0, -2.0]),
+        "iterations": np.array([3, 0]),
+        "converged": np.array([True, False]),
+    }
+    return Estimate(**{**fields, **changed})
+
+
+@pytest.mark.parametrize(
+    ("changed", "leaves_box", "fault"),
+    [
+        ({}, False, None),
+        ({"theta_hat": np.array([[0.5, -0.5], [1.5, 0.0]])}, True, None),
+        ({"theta_hat": np.array([[0.5, -0.5], [1.5, 0.0]])}, False, (1, "outside [-1, 1]^K")),
+        ({"log_likelihood": np.array([-1.0, np.nan])}, False, (1, "log_likelihood that is not")),
+        ({"log_likelihood": np.array([-1.0])}, False, (0, "log_likelihood of shape (1,)")),
+        ({"iterations": np.array([-1, 0])}, False, (0, "iterations that is not a finite")),
+        ({"iterations": np.array([1.0, 2.0])}, False, (0, "iterations of shape (2,) and dtype")),
+        ({"converged": np.array([1, 0])}, False, (0, "converged of shape (2,) and dtype int")),
+        ({"theta_hat_se": np.array([[0.1, 0.1], [0.1, -0.1]])}, False, (1, "theta_hat_se that")),
+        ({"effective_sample_size": np.array([np.inf, 2.0])}, False, (0, "effective_sample_size")),
+    ],
+)
+def test_every_field_of_an_estimate_is_held_to_what_its_record_can_hold(changed, leaves_box, fault):
+    from cirl_study.core.trial import estimate_faults
+
+    faults = estimate_faults(_estimate(**changed), (2, 2), leaves_box)
+    if fault is None:
+        assert faults == []
+    else:
+        (row, what, _), *_ = faults
+        assert row == fault[0] and fault[1] in what, faults

@@ -274,7 +274,7 @@ INCONSISTENT = {
     ),
     "theta_hat outside the box": (
         lambda r: _estimated(r, [1.5, 0.0, -0.25]),
-        "theta_hat[0] is 1.5, outside [-1, 1] (only robot gradient_ascent's estimate",
+        "theta_hat[0] is 1.5, outside [-1, 1] (only a robot whose estimate may leave the box",
     ),
     "gradient_ascent settings for another robot": (
         _set("gradient_ascent", ASCENT),

@@ -154,3 +154,11 @@ def test_a_player_breaking_its_contract_stops_the_run_in_one_line_keeping_its_tr
     result = CliRunner().invoke(app, command)
     assert result.exit_code == 0, result.output
     assert f"{kept} were already logged" in result.output
+
+
+@pytest.mark.parametrize("name", ["odd:one", "a=b", "x@y", "with space", "", "9lives", "é"])
+def test_a_player_name_that_would_break_an_id_is_refused_in_one_line(installed, name) -> None:
+    installed(**{name: lambda: Human(nobody, takes_eta=False)})
+    with pytest.raises(UserError, match=r"is not a name for a human: a letter or _") as error:
+        _ = "shy" in HUMANS
+    assert "\n" not in str(error.value) and "fake-players" in str(error.value)

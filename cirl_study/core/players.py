@@ -23,6 +23,7 @@ scipy) at their start.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Generic, TypeVar
@@ -68,10 +69,14 @@ class Human:
 
 @dataclass(frozen=True)
 class Robot:
-    """A robot: its estimator, and whether it needs the trials' hypothesis space."""
+    """A robot: its estimator, whether it needs the trials' hypothesis space, and whether its
+    estimate may leave the box :math:`[-1, 1]^K` of the prior (``leaves_box``: gradient
+    ascent's does; every other robot's is checked to lie in it, as it plays and in its
+    records)."""
 
     estimate: Estimator
     needs_hypotheses: bool = False
+    leaves_box: bool = False
 
 
 ENTRY_POINTS = "cirl_study.players"
@@ -172,15 +177,31 @@ def _load_installed_players() -> None:
         _INSTALLED.append(point.name)
 
 
+PLAYER_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.-]{0,63}")
+"""A player's name: a letter or ``_``, then at most 63 letters, digits, ``_``, ``.`` or
+``-``. Names are parts of trial ids and universe ids, whose separators (``:``, ``=``, ``@``,
+``,``) they must not hold, and of file and column names."""
+
+
+def _check_name(kind: str, name: str) -> None:
+    if not isinstance(name, str) or PLAYER_NAME.fullmatch(name) is None:
+        raise ValueError(
+            f"{name!r} is not a name for a {kind}: a letter or _, then at most 63 letters, "
+            "digits, _, . or -"
+        )
+
+
 def register_human(name: str, human: Human) -> None:
-    """Make ``human`` playable as the human ``name``."""
+    """Make ``human`` playable as the human ``name`` (:data:`PLAYER_NAME`)."""
+    _check_name("human", name)
     if dict.__contains__(HUMANS, name):
         raise ValueError(f"a human named {name!r} is already registered")
     HUMANS[name] = human
 
 
 def register_robot(name: str, robot: Robot) -> None:
-    """Make ``robot`` playable as the robot ``name``."""
+    """Make ``robot`` playable as the robot ``name`` (:data:`PLAYER_NAME`)."""
+    _check_name("robot", name)
     if dict.__contains__(ROBOTS, name):
         raise ValueError(f"a robot named {name!r} is already registered")
     ROBOTS[name] = robot
@@ -302,7 +323,7 @@ register_human(REGRET_OPTIMAL, Human(_regret_optimal, takes_eta=False, needs_hyp
 
 register_robot(MAP, Robot(_map))
 register_robot(POSTERIOR_MEAN, Robot(_posterior_mean))
-register_robot(GRADIENT_ASCENT, Robot(_gradient_ascent))
+register_robot(GRADIENT_ASCENT, Robot(_gradient_ascent, leaves_box=True))
 register_robot(LITERAL_OBSERVER, Robot(_literal_observer, needs_hypotheses=True))
 register_robot(PRAGMATIC, Robot(_pragmatic, needs_hypotheses=True))
 

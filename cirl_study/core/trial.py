@@ -255,26 +255,63 @@ def _path_number(fault: str) -> int | None:
 
 
 def _check_estimate(robot: str, found: object, shape: tuple[int, int], trials: list[str]) -> None:
-    """Raise :class:`PlayerFault` unless the robot ``robot`` returned an :class:`Estimate`
-    with a finite ``theta_hat`` of ``shape`` ``(B, K)`` for the trials ``trials``."""
-    where = f"robot {robot!r} ({origin(robot)})"
+    """Raise :class:`PlayerFault` unless the robot ``robot`` returned, for the ``B`` trials
+    ``trials``, an :class:`Estimate` a record can hold (:func:`estimate_faults`)."""
+    faults = estimate_faults(found, shape, ROBOTS[robot].leaves_box)
+    if faults:
+        row, what, detail = faults[0]
+        raise PlayerFault(
+            f"robot {robot!r} ({origin(robot)}) {what} in trial {trials[row]}"
+            + (f": {detail}" if detail else "")
+        )
+
+
+def estimate_faults(
+    found: object, shape: tuple[int, int], leaves_box: bool
+) -> list[tuple[int, str, str]]:
+    """What makes ``found`` not an :class:`Estimate` of ``B`` trials of ``K`` weights
+    (``shape``) that their records can hold: each fault as the first row it names, what is
+    wrong, and the values that show it (``""`` if none). Every
+    array of length ``B``; ``theta_hat`` ``(B, K)`` finite, in the box :math:`[-1, 1]^K`
+    unless ``leaves_box``; ``log_likelihood`` finite; ``iterations`` whole numbers ``>= 0``;
+    ``converged`` booleans; ``theta_hat_se`` (if given) ``(B, K)`` and
+    ``effective_sample_size`` (if given) ``(B,)``, finite and ``>= 0``.
+
+    >>> estimate_faults("0.5", (1, 2), False)
+    [(0, 'returned a str, not an Estimate,', '')]
+    """
     if not isinstance(found, Estimate):
-        raise PlayerFault(
-            f"{where} returned a {type(found).__name__}, not an Estimate, in trial {trials[0]}"
-        )
+        return [(0, f"returned a {type(found).__name__}, not an Estimate,", "")]
+    count, _ = shape
+    fields: list[tuple[str, object, tuple[int, ...], str, bool]] = [
+        ("theta_hat", found.theta_hat, shape, "fiu", True),
+        ("log_likelihood", found.log_likelihood, (count,), "fiu", True),
+        ("iterations", found.iterations, (count,), "iu", False),
+        ("converged", found.converged, (count,), "b", False),
+        ("theta_hat_se", found.theta_hat_se, shape, "fiu", False),
+        ("effective_sample_size", found.effective_sample_size, (count,), "fiu", False),
+    ]
+    for name, value, due, kinds, signed in fields:
+        if value is None and name in ("theta_hat_se", "effective_sample_size"):
+            continue
+        array = np.asarray(value)
+        if array.shape != due or array.dtype.kind not in kinds:
+            return [(0, f"returned {name} of shape {array.shape} and dtype {array.dtype}, "
+                        f"where {due} values of kind {kinds!r} were due,", "")]  # fmt: skip
+        if kinds == "b":
+            continue
+        bad = ~np.isfinite(array) if signed else ~(np.isfinite(array) & (array >= 0))
+        if bad.any():
+            row = int(np.flatnonzero(bad.reshape(count, -1).any(axis=1))[0])
+            what = "not finite" if signed else "not a finite number >= 0"
+            return [(row, f"returned a {name} that is {what}", str(array[row].tolist()))]
     theta_hat = np.asarray(found.theta_hat)
-    if theta_hat.shape != shape or theta_hat.dtype.kind not in "fiu":
-        raise PlayerFault(
-            f"{where} returned theta_hat of shape {theta_hat.shape} (dtype {theta_hat.dtype}) "
-            f"where {shape} numbers were due, in trial {trials[0]}"
-        )
-    finite = np.isfinite(theta_hat).all(axis=1)
-    if not finite.all():
-        row = int(np.flatnonzero(~finite)[0])
-        raise PlayerFault(
-            f"{where} returned a theta_hat that is not finite in trial {trials[row]}: "
-            f"{theta_hat[row].tolist()}"
-        )
+    outside = (np.abs(theta_hat) > 1.0).any(axis=1)
+    if not leaves_box and outside.any():
+        row = int(np.flatnonzero(outside)[0])
+        detail = f"{theta_hat[row].tolist()} (a robot whose estimate may leave the box says so: "
+        return [(row, "returned a theta_hat outside [-1, 1]^K", detail + "leaves_box=True)")]
+    return []
 
 
 def demonstrations(specs: Sequence[TrialSpec]) -> np.ndarray:

@@ -40,11 +40,10 @@ from cirl_study.core.gridworld import (
     Gridworld,
     action_between,
 )
-from cirl_study.core.players import player_faults
+from cirl_study.core.players import ROBOTS, player_faults
 from cirl_study.features import Features, feature_matrix
 from cirl_study.measure_registry import measure_faults
 from cirl_study.record import (
-    GRADIENT_ASCENT,
     Cell,
     DecodeError,
     Grid,
@@ -206,12 +205,13 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
     yield from setting_faults(r)
     if len(r.theta_hat) != r.num_features:
         yield f"theta_hat has {len(r.theta_hat)} entries, num_features is {r.num_features}"
-    if r.robot != GRADIENT_ASCENT:
+    robot = ROBOTS.get(r.robot)
+    if robot is not None and not robot.leaves_box:
         for i, value in enumerate(r.theta_hat):
             if not -1.0 <= value <= 1.0:
                 yield (
-                    f"theta_hat[{i}] is {value}, outside [-1, 1] (only robot {GRADIENT_ASCENT}'s "
-                    "estimate may leave the box)"
+                    f"theta_hat[{i}] is {value}, outside [-1, 1] (only a robot whose estimate "
+                    "may leave the box, such as gradient_ascent, may)"
                 )
                 break
     grid = _gridworld(r.grid)
