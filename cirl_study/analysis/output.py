@@ -33,10 +33,9 @@ def spreadsheet_safe(frame: pd.DataFrame) -> pd.DataFrame:
     running it (the OWASP rule for CSV injection). Numbers are left as they are: ``-0.5`` in
     a number column is a number to a spreadsheet too.
 
-    >>> spreadsheet_safe(pd.DataFrame({"human": ["=cmd()", "expert"], "x": [-0.5, 1.0]}))
-         human    x
-    0  '=cmd()  -0.5
-    1   expert  1.0
+    >>> frame = pd.DataFrame({"human": ["=cmd()", "expert"], "x": [-0.5, 1.0]})
+    >>> spreadsheet_safe(frame).to_dict("list")
+    {'human': ["'=cmd()", 'expert'], 'x': [-0.5, 1.0]}
     """
     risky = {name: _formula_cells(frame[name]) for name in frame.columns}
     risky = {name: starts for name, starts in risky.items() if starts.any()}

@@ -100,6 +100,8 @@ def pipeline_table(data: dict[str, Any], log_format: str) -> dict[str, Any]:
     >>> pipeline_table({"main": {"policies": ["expert"], "robots": ["map"]}}, "8")
     {'main': {'humans': ['expert'], 'robots': ['map']}}
     """
+    if not readable(log_format):  # refused by the reader, which names the format
+        return data
     if log_format in _RENAMING:
         data = {key: _pipeline_value(key, value) for key, value in data.items()}
     main = data.get("main")
@@ -133,8 +135,9 @@ _ADDED: dict[str, dict[str, Any]] = {
 def record_payload(data: bytes, log_format: str) -> bytes:
     """The JSON ``data`` of a trial record of a log of ``log_format``, in the current names,
     with the fields added since (:data:`_ADDED`) and every registered measure it lacks as
-    ``null``, and canonical (keys sorted). Bytes that are not a JSON object are returned as
-    they are, for the decoder to report.
+    ``null``, and canonical (keys sorted). Bytes that are not a JSON object, or of a format
+    this version does not read, are returned as they are, for the decoder or the reader to
+    report.
 
     A measure a record's format did not log is marked missing, not recomputed: recomputing
     ``regret_under_estimate`` would plan the deployment under both rewards for every record
@@ -154,8 +157,8 @@ def record_payload(data: bytes, log_format: str) -> bytes:
     >>> record_payload(b'{"policy":"expert","robot":"map"}', "8")
     b'{"human":"expert","robot":"map"}'
     """
-    if log_format == LOG_FORMAT:
-        return data
+    if log_format == LOG_FORMAT or not readable(log_format):
+        return data  # the current names; or a format the reader refuses, naming it
     try:
         record = msgspec.json.decode(data)
     except (msgspec.DecodeError, RecursionError):
