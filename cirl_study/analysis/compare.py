@@ -59,8 +59,8 @@ PIXEL_SHARE = 1e-3
 
 MAX_REPORT_FILE_BYTES = 1 << 29
 """Largest file of a report read (512 MiB: a trial table of over a million trials); a report
-directory may come from someone else. A file is read whole as bytes and decoded; a table is
-then compared row by row, never held as rows, so a table costs about three times its size."""
+directory may come from someone else. A file is read whole as bytes; a table is then
+decoded and compared row by row, never held as text or rows, so it costs about its size."""
 
 MAX_JSON_VALUES = 4_000_000
 """Most values (objects, arrays, numbers, strings, ...) a ``results.json`` may hold, counted
@@ -181,16 +181,14 @@ def _load_json(directory: Path) -> Any:
 
 
 def _csv_rows(path: Path) -> Iterator[list[str]]:
-    """The rows of a table, its header first, one at a time."""
-    try:
-        text = _read(path).decode("utf-8")
-    except ValueError as error:
-        raise UserError(f"{path}: cannot read: {_reason(error)}") from None
-    rows = csv.reader(io.StringIO(text, newline=""))
+    """The rows of a table, its header first, one at a time, decoded as they are read: the
+    table costs its bytes, not a decoded copy of them."""
+    text = io.TextIOWrapper(io.BytesIO(_read(path)), encoding="utf-8", newline="")
+    rows = csv.reader(text)
     while True:
         try:
             row = next(rows, None)
-        except csv.Error as error:
+        except (ValueError, csv.Error) as error:
             raise UserError(f"{path}: cannot read: {_reason(error)}") from None
         if row is None:
             return
