@@ -77,8 +77,9 @@ def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
     """
     from cirl_study.analysis.table import trial_table
     from cirl_study.logs.reader import read_run
+    from cirl_study.study.pipeline_file import logged_pipeline
 
-    return trial_table(read_run(Path(run_dir)).rows)
+    return trial_table(read_run(Path(run_dir), logged_pipeline).rows)
 
 
 def analyze(
@@ -99,9 +100,10 @@ def analyze(
     """
     from cirl_study.logs.reader import read_run
     from cirl_study.study.audit import analysed_run
+    from cirl_study.study.pipeline_file import logged_pipeline
 
     path = Path(run_dir)
-    contents = read_run(path, salvage=partial)
+    contents = read_run(path, logged_pipeline, salvage=partial)
     chosen = analysed_run(path, contents, partial)
     run_id = contents.identity.run_id
     if chosen.pipeline.multiverse is not None:

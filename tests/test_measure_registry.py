@@ -32,6 +32,7 @@ from cirl_study.measure_registry import (
     register_measure,
 )
 from cirl_study.study.audit import analysed_run
+from cirl_study.study.pipeline_file import logged_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -73,7 +74,7 @@ class TestARegisteredMeasure:
     """The test measure, registered for this class's tests alone."""
 
     def test_the_measure_is_computed_logged_and_checked(self, run: Path) -> None:
-        assert validate_run(run).ok
+        assert validate_run(run, logged_pipeline).ok
         records = run_records(run)
         undefined = [r for r in records if r.theta[0] < UNDEFINED_BELOW]
         assert records and undefined and len(undefined) < len(records)
@@ -127,14 +128,14 @@ class TestARegisteredMeasure:
     def test_the_report_draws_the_measure_and_says_which_draws_it_leaves_out(
         self, run: Path, tmp_path: Path
     ) -> None:
-        contents = read_run(run)
+        contents = read_run(run, logged_pipeline)
         chosen = analysed_run(run, contents, partial=False)
         check_design(chosen.trials)
         results = write_report(
             chosen.trials,
             tmp_path / "report",
             chosen.pipeline,
-            records_of=lambda wanted: read_trials(run, contents.identity, wanted),
+            records_of=lambda wanted: read_trials(run, contents.identity, logged_pipeline, wanted),
         )
         (undefined,) = results.undefined
         text = (tmp_path / "report" / "report.md").read_text()

@@ -114,11 +114,13 @@ def report_run(
     # statistics and plotting libraries) loads meanwhile, with the report's own provenance,
     # and each kind of report loads its own module after.
     from cirl_study.logs.reader import read_run
+    from cirl_study.study.pipeline_file import logged_pipeline
 
     stage(f"reading the logs of {run}")
     report_provenance: dict[str, Any] = {}
     contents = read_run(
         run,
+        logged_pipeline,
         salvage=partial,
         meanwhile=lambda: report_provenance.update(prepare_analysis(outputs=(run, target))),
     )

@@ -128,6 +128,7 @@ def calibrate(
     """
     from cirl_study.analysis.calibration import read_target
     from cirl_study.logs.reader import read_run
+    from cirl_study.study.pipeline_file import logged_pipeline
 
     if not refine:
         for given, name in (
@@ -147,7 +148,9 @@ def calibrate(
     report_provenance: dict[str, Any] = {}
     outputs = (run, target_dir, probes_dir) if refine else (run, target_dir)
     contents = read_run(
-        run, meanwhile=lambda: report_provenance.update(prepare_analysis(outputs=outputs))
+        run,
+        logged_pipeline,
+        meanwhile=lambda: report_provenance.update(prepare_analysis(outputs=outputs)),
     )
     from cirl_study.analysis.calibration import calibrate as calibrate_run
     from cirl_study.analysis.calibration_report import write_calibration_report

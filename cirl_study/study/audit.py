@@ -2,7 +2,7 @@
 
 Every log file carries the run's pipeline file (:class:`~cirl_study.logs.provenance.RunIdentity`),
 so the logs alone say what the run must hold. :func:`audit_run` takes that pipeline (validated
-when the identity was read: :attr:`~cirl_study.logs.provenance.RunIdentity.pipeline`), plans
+when the identity was read: :func:`~cirl_study.study.pipeline_file.logged_pipeline`), plans
 block ``eta_cv`` (:func:`~cirl_study.study.plan.eta_cv_trial_ids`), chooses eta from the logged
 cross-validation records exactly as the run did (:func:`~cirl_study.study.eta_cv.choose_etas`),
 plans blocks ``main`` and ``lambda_sweep`` with it, and compares trial ids: a planned trial
@@ -31,7 +31,12 @@ from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.run_checks import complete_main_subjects
 from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
-from cirl_study.study.pipeline_file import MAX_PIPELINE_BYTES, path_argument, pipeline_search_path
+from cirl_study.study.pipeline_file import (
+    MAX_PIPELINE_BYTES,
+    logged_pipeline,
+    path_argument,
+    pipeline_search_path,
+)
 from cirl_study.study.plan import eta_cv_trial_ids, study_trial_ids, trial_counts
 from cirl_study.study.spec import Pipeline
 
@@ -151,8 +156,12 @@ def plan_faults(
     if len(identities) != 1:
         return []
     (identity,) = identities
+    try:
+        pipeline = logged_pipeline(identity)
+    except ValueError:
+        return []  # a fault of every file already
     rows = [row for _, file_rows, _ in files for row in file_rows]
-    return audit_run(identity.pipeline, rows).faults(resume_advice(identity, run_dir))
+    return audit_run(pipeline, rows).faults(resume_advice(identity, run_dir))
 
 
 def resume_advice(identity: RunIdentity, run_dir: Path) -> str:
@@ -236,7 +245,7 @@ def analysed_run(run_dir: Path, contents: RunContents, partial: bool) -> Analyse
         UserError: a foreign trial; an incomplete run without ``partial`` (naming what is
             missing and how to resume); an incomplete multiverse (analysed only whole).
     """
-    pipeline = contents.identity.pipeline
+    pipeline = logged_pipeline(contents.identity)
     audit = audit_run(pipeline, contents.rows)
     resume = resume_advice(contents.identity, run_dir)
     faults = audit.faults(resume)

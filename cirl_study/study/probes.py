@@ -38,7 +38,7 @@ from cirl_study.record import GRADIENT_ASCENT, TrialRow
 from cirl_study.study.audit import analysed_run
 from cirl_study.study.engines import Engine
 from cirl_study.study.multiverse import cv_universe, universe_pipeline
-from cirl_study.study.pipeline_file import MAX_PIPELINE_BYTES, parse_pipeline
+from cirl_study.study.pipeline_file import MAX_PIPELINE_BYTES, logged_pipeline, parse_pipeline
 from cirl_study.study.runner import ProgressHooks, run_pipeline
 from cirl_study.study.settings import written
 from cirl_study.study.spec import AXES, GradientAscentSpec, Pipeline, Universe
@@ -171,7 +171,7 @@ def play_probe(
         if reason is not None:
             raise UserError(f"{terminal(path)}: {reason}; refusing to write to it")
         write_file(path, study.text.encode())
-    contents = read_run(directory)
+    contents = read_run(directory, logged_pipeline)
     chosen = analysed_run(directory, contents, partial=False)
     return Probe(
         universe=universe,
