@@ -115,7 +115,7 @@ def test_a_measure_a_format_did_not_log_is_left_out_and_said_so() -> None:
 def test_records_before_format_8_read_a_fixed_horizon_and_no_task() -> None:
     for run in OLD_RUNS:
         contents = read_run(run, logged_pipeline)
-        records = contents.records(run, {row.trial_id for row in contents.rows})
+        records = contents.records({row.trial_id for row in contents.rows})
         assert records and all(r.goals == () and r.task is None for r in records)
         assert {r.features.kind for r in records} == {"rbf"}
 

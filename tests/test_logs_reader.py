@@ -60,7 +60,7 @@ def test_whole_records_are_fetched_from_the_files_that_log_them(run: Path) -> No
         (run / "b.mcap", [r.trial_id for r in study[:5]]),
     ]
     wanted = {study[1].trial_id, study[7].trial_id}
-    fetched = contents.records(run, wanted)
+    fetched = contents.records(wanted)
     assert sorted(fetched, key=lambda r: r.trial_id) == sorted(
         [study[1], study[7]], key=lambda r: r.trial_id
     )
@@ -70,7 +70,7 @@ def test_whole_records_are_fetched_from_the_files_that_log_them(run: Path) -> No
     replaced = [msgspec.structs.replace(r, run_id=other["run_id"]) for r in study[:5]]
     write(run / "b.mcap", replaced, other)  # replaced since it was read
     with pytest.raises(UserError, match="b.mcap: now holds the logs of another run"):
-        contents.records(run, wanted)
+        contents.records(wanted)
 
 
 def test_temporary_files_are_ignored(run: Path) -> None:

@@ -71,10 +71,10 @@ class RunContents:
     warnings: list[str]
     files: list[tuple[Path, list[str]]]
 
-    def records(self, run_dir: Path, wanted: set[str]) -> list[TrialRecord]:
+    def records(self, wanted: set[str]) -> list[TrialRecord]:
         """The whole records of the ``wanted`` trials, decoding only the files that log one
         (the records of the intact chunks of a file salvaged)."""
-        return _records_of(run_dir, self.identity, self.files, wanted, self.damaged)
+        return _records_of(self.identity, self.files, wanted, self.damaged)
 
 
 @dataclass
@@ -368,7 +368,6 @@ class LoggedRun:
     """What a run directory holds, for resuming it: each complete file with the ids of the
     trials its records decode to (:func:`logged_run`)."""
 
-    run_dir: Path
     identity: RunIdentity
     files: list[tuple[Path, list[str]]]
 
@@ -380,7 +379,7 @@ class LoggedRun:
     def records(self, wanted: set[str]) -> list[TrialRecord]:
         """The whole records of the ``wanted`` trials, decoding only the files that log one
         (each checked again, and found of this run)."""
-        return _records_of(self.run_dir, self.identity, self.files, wanted)
+        return _records_of(self.identity, self.files, wanted)
 
 
 def logged_run(run_dir: str | Path, identity: RunIdentity, pipeline_of: PipelineOf) -> LoggedRun:
@@ -396,7 +395,7 @@ def logged_run(run_dir: str | Path, identity: RunIdentity, pipeline_of: Pipeline
     """
     run_dir = Path(run_dir)
     if not run_dir.exists():
-        return LoggedRun(run_dir, identity, [])
+        return LoggedRun(identity, [])
     identities: dict[RunIdentity, Path] = {}
     first_file: dict[str, Path] = {}
     files = []
@@ -425,7 +424,7 @@ def logged_run(run_dir: str | Path, identity: RunIdentity, pipeline_of: Pipeline
         found = _same_identity(run_dir, identities)
         if found != identity:
             raise UserError(f"{run_dir}: {_another_run(found, identity)}")
-    return LoggedRun(run_dir, identity, files)
+    return LoggedRun(identity, files)
 
 
 def read_trials(
@@ -437,7 +436,6 @@ def read_trials(
 
 
 def _records_of(
-    run_dir: Path,
     identity: RunIdentity,
     files: Iterable[tuple[Path, Sequence[str]]],
     wanted: set[str],
@@ -456,7 +454,7 @@ def _records_of(
         faults = [*damage, *contents.content_faults]
         if faults:
             raise UserError(f"{path}: unusable ({faults[0]})")
-        found = _one_identity(run_dir, [contents])
+        found = _file_identity(contents)
         if found != identity:
             raise UserError(
                 f"{path}: now holds the logs of another run ({_difference(found, identity)})"
@@ -486,14 +484,6 @@ def _another_run(logged: RunIdentity, asked: RunIdentity) -> str:
         f"is now run {asked.run_id} ({settings}); restore the text the run was made from to "
         "resume it, or use another --out directory"
     )
-
-
-def _one_identity(run_dir: Path, files: list[_IntactFile | FileContents]) -> RunIdentity:
-    """The run identity every file states and every record carries, or a refusal."""
-    identities: dict[RunIdentity, Path] = {}
-    for contents in files:
-        identities.setdefault(_file_identity(contents), contents.path)
-    return _same_identity(run_dir, identities)
 
 
 def _file_identity(contents: _IntactFile | FileContents) -> RunIdentity:
