@@ -80,8 +80,9 @@ def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
     """
     from cirl_study.analysis.table import trial_table
     from cirl_study.logs.reader import read_run
+    from cirl_study.study.pipeline_file import logged_pipeline
 
-    return trial_table(read_run(Path(run_dir)).rows)
+    return trial_table(read_run(Path(run_dir), logged_pipeline).rows)
 
 
 def analyze(
@@ -100,25 +101,21 @@ def analyze(
         UserError: the run is incomplete (without ``partial``), holds a foreign trial, or its
             design cannot be analysed.
     """
-    from cirl_study.logs.reader import read_run
-    from cirl_study.study.audit import analysed_run
+    from cirl_study.analysis.reading import read_for_analysis
 
-    path = Path(run_dir)
-    contents = read_run(path, salvage=partial)
-    chosen = analysed_run(path, contents, partial)
-    run_id = contents.identity.run_id
-    if chosen.pipeline.multiverse is not None:
+    analysed = read_for_analysis(Path(run_dir), partial=partial)
+    if analysed.pipeline.multiverse is not None:
         from cirl_study.analysis.multiverse import analyse_multiverse
 
-        return analyse_multiverse(chosen.trials, chosen.pipeline, run_id=run_id)
+        return analyse_multiverse(analysed.trials, analysed.pipeline, run_id=analysed.run_id)
     from cirl_study.analysis.results import analyse, with_claims
     from cirl_study.analysis.table import check_design
     from cirl_study.analysis.theory_claims import theory_claims
 
-    check_design(chosen.trials)
+    check_design(analysed.trials)
     return with_claims(
-        analyse(chosen.trials, chosen.pipeline),
-        run_id=run_id,
-        partial=chosen.partial,
+        analyse(analysed.trials, analysed.pipeline),
+        run_id=analysed.run_id,
+        partial=analysed.partial,
         theory=theory_claims(),
     )

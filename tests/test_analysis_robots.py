@@ -29,7 +29,7 @@ from cirl_study.analysis.table import check_design
 from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.record import ETA_CV, MAIN, MAP, POSTERIOR_MEAN
 from cirl_study.study.engines import LocalEngine
-from cirl_study.study.pipeline_file import load_pipeline
+from cirl_study.study.pipeline_file import load_pipeline, logged_pipeline
 from cirl_study.study.plan import eta_cv_trials, study_trials, trial_counts
 from cirl_study.study.runner import run_pipeline
 
@@ -208,19 +208,19 @@ def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
 ) -> None:
     reports = []
     for run, name in zip(two_robot_runs, ("one", "two"), strict=True):
-        contents = read_run(run)
+        contents = read_run(run, logged_pipeline)
         reports.append(
             _plain_report(
                 contents.rows,
                 tmp_path / name,
-                contents.identity.pipeline,
+                logged_pipeline(contents.identity),
                 records_of=lambda wanted, run=run, contents=contents: read_trials(
-                    run, contents.identity, wanted
+                    run, contents.identity, logged_pipeline, wanted
                 ),
             )
         )
     alone, both = reports
-    two = read_run(two_robot_runs[1]).rows
+    two = read_run(two_robot_runs[1], logged_pipeline).rows
     assert alone["robots"] is None and not (tmp_path / "one" / "robots_lambda.png").exists()
     assert both["paper"] == alone["paper"]  # the paper's analysis: the reference robot's trials
     assert alone["anova"] == alone["paper"]["anova"]
@@ -249,7 +249,7 @@ def test_the_report_compares_the_robots_and_keeps_the_paper_analysis(
 
 
 def test_three_robots_are_compared_with_the_reference(two_robot_runs: tuple[Path, Path]) -> None:
-    records = read_run(two_robot_runs[1]).rows
+    records = read_run(two_robot_runs[1], logged_pipeline).rows
     third = [
         msgspec.structs.replace(r, robot="third", trial_id=r.trial_id + "3")
         for r in records

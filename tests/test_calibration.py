@@ -19,10 +19,9 @@ from cirl_study.analysis.calibration import (
     ranked_distances,
     read_target,
 )
+from cirl_study.analysis.reading import read_for_analysis
 from cirl_study.analysis.result_types import TargetCell
 from cirl_study.errors import UserError
-from cirl_study.logs.reader import read_run
-from cirl_study.study.audit import analysed_run
 
 ROOT = Path(__file__).resolve().parent.parent
 HEADER = "measure,num_features,human,value,se\n"
@@ -203,11 +202,10 @@ def test_a_single_study_is_calibrated_on_regret_under_the_estimate(
         f"measure,num_features,human,value\nregret_under_estimate,3,expert,{3 * measured!r}\n",
     )
     cells, _ = read_target(target)
-    contents = read_run(smoke_run)
-    chosen = analysed_run(smoke_run, contents, partial=False)
+    analysed = read_for_analysis(smoke_run)
     results = calibrate(
-        chosen.trials, chosen.pipeline, cells, target_file="t.csv", target_sha256="0",
-        run_id=contents.identity.run_id,
+        analysed.trials, analysed.pipeline, cells, target_file="t.csv", target_sha256="0",
+        run_id=analysed.run_id,
     )  # fmt: skip
     (universe,) = results.universes
     assert universe.mean_squared_log_ratio == pytest.approx(math.log(3) ** 2, rel=1e-12)

@@ -21,6 +21,7 @@ import cirl_study
 from cirl_study.cli import app
 from cirl_study.logs import versions
 from cirl_study.logs.reader import read_run
+from cirl_study.study.pipeline_file import logged_pipeline
 from tests.cli_results import one_line_error
 
 FIXTURES = Path(__file__).parent / "fixtures" / "logs"
@@ -92,7 +93,7 @@ def test_a_run_of_an_earlier_format_gives_its_trial_table_in_the_current_names(r
 
 def test_records_of_an_earlier_format_read_the_second_regret_as_missing() -> None:
     for run in (run for run in OLD_RUNS if _log_format(run) < "7"):
-        rows = read_run(run).rows
+        rows = read_run(run, logged_pipeline).rows
         assert rows and all(row.measure("regret_under_estimate") is None for row in rows)
         assert all(row.measure("regret") >= 0 for row in rows)
 
@@ -106,7 +107,7 @@ def test_a_measure_a_format_did_not_log_is_left_out_and_said_so() -> None:
     """Format 7 did not log the feature order agreement: its records read it as null, and the
     analysis has no statistics of it, saying so."""
     run = FIXTURES / "format-7-ascent"
-    rows = read_run(run).rows
+    rows = read_run(run, logged_pipeline).rows
     assert rows and all(row.measure("order_agreement") is None for row in rows)
     results = cirl_study.analyze(run)
     (undefined,) = results.undefined
@@ -118,8 +119,8 @@ def test_a_measure_a_format_did_not_log_is_left_out_and_said_so() -> None:
 
 def test_records_before_format_8_read_a_fixed_horizon_and_no_task() -> None:
     for run in (run for run in OLD_RUNS if _log_format(run) < "8"):
-        contents = read_run(run)
-        records = contents.records(run, {row.trial_id for row in contents.rows})
+        contents = read_run(run, logged_pipeline)
+        records = contents.records({row.trial_id for row in contents.rows})
         assert records and all(r.goals == () and r.task is None for r in records)
         assert {r.features.kind for r in records} == {"rbf"}
 
@@ -128,12 +129,12 @@ def test_a_run_of_format_8_reads_its_policies_as_humans() -> None:
     """Format 8 called the player who demonstrates ``policy``, in the record and in the
     pipeline's ``main.policies``; read now, both are the ``human``."""
     run = FIXTURES / "format-8-tiles"
-    contents = read_run(run)
+    contents = read_run(run, logged_pipeline)
     assert {row.human for row in contents.rows} == {"expert", "best_response"}
-    assert contents.identity.pipeline.main.humans == ("expert", "best_response")
+    assert logged_pipeline(contents.identity).main.humans == ("expert", "best_response")
     results = cirl_study.analyze(run)
     assert results.design.humans == ["expert", "best_response"]
-    assert {r.task for r in contents.records(run, {row.trial_id for row in contents.rows})} == {
+    assert {r.task for r in contents.records({row.trial_id for row in contents.rows})} == {
         "oo", "ox", "xo", None
     }
 
@@ -193,6 +194,6 @@ def test_every_readable_format_is_named_and_the_current_one_is_written() -> None
 
 
 def test_read_run_renames_every_record_of_format_5() -> None:
-    run = read_run(FIXTURES / "format-5-teaching")
+    run = read_run(FIXTURES / "format-5-teaching", logged_pipeline)
     assert {row.robot for row in run.rows} == {"map", "literal_observer"}
     assert all(not row.trial_id.endswith("robot=literal") for row in run.rows)

@@ -17,13 +17,14 @@ from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.logs.record_checks import record_faults
 from cirl_study.record import TrialRecord, from_builtins
-from cirl_study.study.pipeline_file import parse_pipeline
+from cirl_study.study.pipeline_file import logged_pipeline, parse_pipeline
 
 
 def run_records(run: Path) -> list[TrialRecord]:
     """Every record of the run in ``run``, whole (``read_run`` keeps only their rows)."""
-    contents = read_run(run)
-    return read_trials(run, contents.identity, {row.trial_id for row in contents.rows})
+    contents = read_run(run, logged_pipeline)
+    wanted = {row.trial_id for row in contents.rows}
+    return read_trials(run, contents.identity, logged_pipeline, wanted)
 
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"

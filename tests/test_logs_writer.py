@@ -24,6 +24,7 @@ from cirl_study.logs.format import (
 from cirl_study.logs.provenance import RunIdentity, collect_provenance
 from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, decode, encode
+from cirl_study.study.pipeline_file import logged_pipeline
 
 PROVENANCE = provenance_for()
 
@@ -210,11 +211,12 @@ def test_collect_provenance() -> None:
     assert provenance["pipeline_sha256"] == (
         "69b1f260376d9e58171da83a305b3b2da7f22ab722ca729c9af53174ce8cd422"
     )
-    # A provenance is an identity only once its text is found to be a valid pipeline.
+    # A provenance states an identity whose text the study judges: it must be a valid pipeline.
     with pytest.raises(ValueError, match="provenance's pipeline_toml: description is missing"):
-        RunIdentity.of(provenance)
+        logged_pipeline(RunIdentity.of(provenance))
     valid = provenance_for("smoke")
     assert RunIdentity.of(valid).provenance() == valid
+    assert logged_pipeline(RunIdentity.of(valid)).run_id == valid["run_id"]
     with pytest.raises(ValueError, match="not the hash of its pipeline_toml"):
         RunIdentity.of({**provenance, "pipeline_toml": 'name = "smoke2"\n'})
     with pytest.raises(ValueError, match="provenance lacks run_id"):

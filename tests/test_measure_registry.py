@@ -16,11 +16,11 @@ from test_logs_helpers import make_record, run_records
 
 import cirl_study
 from cirl_study.analysis.anova import repeated_measures_anova
+from cirl_study.analysis.reading import read_for_analysis
 from cirl_study.analysis.report import write_report
 from cirl_study.analysis.table import check_design
 from cirl_study.core.apprenticeship import Outcome
 from cirl_study.core.gridworld import feature_matrix
-from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.logs.record_checks import record_faults
 from cirl_study.logs.validate import validate_run
 from cirl_study.measure_registry import (
@@ -31,7 +31,7 @@ from cirl_study.measure_registry import (
     measure_faults,
     register_measure,
 )
-from cirl_study.study.audit import analysed_run
+from cirl_study.study.pipeline_file import logged_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -73,7 +73,7 @@ class TestARegisteredMeasure:
     """The test measure, registered for this class's tests alone."""
 
     def test_the_measure_is_computed_logged_and_checked(self, run: Path) -> None:
-        assert validate_run(run).ok
+        assert validate_run(run, logged_pipeline).ok
         records = run_records(run)
         undefined = [r for r in records if r.theta[0] < UNDEFINED_BELOW]
         assert records and undefined and len(undefined) < len(records)
@@ -127,14 +127,10 @@ class TestARegisteredMeasure:
     def test_the_report_draws_the_measure_and_says_which_draws_it_leaves_out(
         self, run: Path, tmp_path: Path
     ) -> None:
-        contents = read_run(run)
-        chosen = analysed_run(run, contents, partial=False)
-        check_design(chosen.trials)
+        analysed = read_for_analysis(run)
+        check_design(analysed.trials)
         results = write_report(
-            chosen.trials,
-            tmp_path / "report",
-            chosen.pipeline,
-            records_of=lambda wanted: read_trials(run, contents.identity, wanted),
+            analysed.trials, tmp_path / "report", analysed.pipeline, records_of=analysed.records
         )
         (undefined,) = results.undefined
         text = (tmp_path / "report" / "report.md").read_text()

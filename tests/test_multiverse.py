@@ -39,7 +39,7 @@ from cirl_study.logs.validate import validate_run
 from cirl_study.record import MAIN, encode
 from cirl_study.study.engines import LocalEngine
 from cirl_study.study.multiverse import cv_universe, universe_pipeline
-from cirl_study.study.pipeline_file import load_pipeline, parse_pipeline
+from cirl_study.study.pipeline_file import load_pipeline, logged_pipeline, parse_pipeline
 from cirl_study.study.plan import (
     draw_reward,
     eta_cv_trials,
@@ -197,10 +197,11 @@ def test_the_base_universe_plays_the_single_study_and_reports_its_numbers(
         assert records[trial_id].measures == record.measures
         assert records[trial_id].demonstration == record.demonstration
 
-    results = msgspec.to_builtins(analyse_multiverse(read_run(run).rows, pipeline, run_id=None))
+    rows = read_run(run, logged_pipeline).rows
+    results = msgspec.to_builtins(analyse_multiverse(rows, pipeline, run_id=None))
     (base_results,) = [u for u in results["universes"] if u["base"]]
-    contents = read_run(smoke_run)
-    alone = analyse(contents.rows, contents.identity.pipeline)
+    contents = read_run(smoke_run, logged_pipeline)
+    alone = analyse(contents.rows, logged_pipeline(contents.identity))
     assert base_results["anova"] == alone["paper"]["anova"]
     assert base_results["cells"] == alone["cells"]
     assert base_results["cronbach_alpha"] == alone["paper"]["cronbach_alpha"]
@@ -325,7 +326,7 @@ def test_an_interrupted_multiverse_resumes_to_the_same_trials(tmp_path: Path, mu
     resumed = run_pipeline(pipeline, run, LocalEngine(1))
     assert resumed.played > 0 and resumed.resumed > 0
     assert payloads(run) == payloads(multiverse_run)
-    assert validate_run(run).ok
+    assert validate_run(run, logged_pipeline).ok
 
 
 def test_the_multiverse_report(tmp_path: Path, multiverse_run: Path):

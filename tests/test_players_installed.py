@@ -20,7 +20,7 @@ from cirl_study.core import players
 from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot
 from cirl_study.errors import UserError
 from cirl_study.logs.reader import read_run
-from cirl_study.study.pipeline_file import parse_pipeline
+from cirl_study.study.pipeline_file import logged_pipeline, parse_pipeline
 from cirl_study.study.plan import study_trials
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
@@ -149,7 +149,8 @@ def test_a_player_breaking_its_contract_stops_the_run_in_one_line_keeping_its_tr
         f"path of the game in trial {jumpy[-1].trial_id}: "
     ), line
     kept = int(line.split("; ")[-2].split()[0])
-    assert 0 < kept < len(planned) and len(read_run(run, salvage=True).rows) == kept
+    logged = read_run(run, logged_pipeline, salvage=True).rows
+    assert 0 < kept < len(planned) and len(logged) == kept
     target["seed"] = -1  # the player mended: the run resumes, keeping what it logged
     result = CliRunner().invoke(app, command)
     assert result.exit_code == 0, result.output

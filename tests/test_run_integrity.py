@@ -27,6 +27,7 @@ from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.reader import logged_run, read_run
 from cirl_study.logs.scan import scan_file
 from cirl_study.record import encode
+from cirl_study.study.pipeline_file import logged_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -142,7 +143,7 @@ def test_a_missing_file_is_named_per_block_and_resumed(
 ) -> None:
     victim = sorted(run.glob(f"{block}-*.mcap"))[0]
     victim.unlink()
-    kept = len(read_run(run).rows)
+    kept = len(read_run(run, logged_pipeline).rows)
     missing = 82 - kept
     result = invoke("validate", run)
     assert result.exit_code == 1
@@ -236,9 +237,9 @@ def test_any_flipped_bit_anywhere_is_refused(one_file: Path, data) -> None:
     one_file.write_bytes(bytes(damaged))
     try:
         with pytest.raises(UserError, match=str(one_file)):
-            read_run(one_file.parent)
+            read_run(one_file.parent, logged_pipeline)
         with pytest.raises(UserError, match=str(one_file)):
-            logged_run(one_file.parent, identity_of(good))
+            logged_run(one_file.parent, identity_of(good), logged_pipeline)
     finally:
         one_file.write_bytes(good)
 

@@ -14,6 +14,7 @@ import pytest
 from cirl_study.logs.lock import LOCK_NAME, writer_pid
 from cirl_study.logs.reader import read_run
 from cirl_study.logs.validate import validate_run
+from cirl_study.study.pipeline_file import logged_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
 
@@ -73,7 +74,7 @@ def test_a_held_directory_is_refused_until_its_holder_dies(tmp_path: Path) -> No
     resumed = run(out, 1)
     _, stderr = resumed.communicate(timeout=300)
     assert resumed.returncode == 0, stderr
-    assert len(read_run(out).rows) == 82
+    assert len(read_run(out, logged_pipeline).rows) == 82
 
 
 @pytest.mark.parametrize("writers", [2, 3])
@@ -87,7 +88,7 @@ def test_concurrent_writers_one_proceeds_nothing_duplicated(tmp_path: Path, writ
     # finished) or is refused in one line; nobody fails otherwise.
     assert len(succeeded) >= 1 and len(succeeded) + len(refused) == writers
     assert all(err.count("\n") == 1 and "another cirl-study run (pid " in err for err in refused)
-    verdict = validate_run(out)
+    verdict = validate_run(out, logged_pipeline)
     assert verdict.ok and verdict.trials == 82
 
 

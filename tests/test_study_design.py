@@ -21,6 +21,7 @@ from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.players import HUMANS, Human, register_human
 from cirl_study.logs.validate import validate_run
 from cirl_study.measure_registry import analysed_measures
+from cirl_study.study.pipeline_file import logged_pipeline
 
 HUMAN_NAMES = '["expert", "best_response", "first_step"]'
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
@@ -68,7 +69,7 @@ def study(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[Path, str,
 
 def test_the_study_plays_and_validates(study: tuple[Path, str, dict]) -> None:
     run, _, results = study
-    assert validate_run(run).ok
+    assert validate_run(run, logged_pipeline).ok
     assert results["design"]["humans"] == ["expert", "best_response", "first_step"]
     assert results["design"]["robots"] == ["map", "posterior_mean"]
     assert results["design"]["feature_levels"] == [3]

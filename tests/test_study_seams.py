@@ -15,7 +15,7 @@ from cirl_study.core.players import HUMANS, ROBOTS, Human, Robot, register_human
 from cirl_study.errors import UserError
 from cirl_study.logs.validate import validate_run
 from cirl_study.study.engines import LocalEngine
-from cirl_study.study.pipeline_file import load_pipeline, parse_pipeline
+from cirl_study.study.pipeline_file import load_pipeline, logged_pipeline, parse_pipeline
 from cirl_study.study.runner import run_pipeline
 
 SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
@@ -66,7 +66,7 @@ def test_a_registered_human_and_robot_play_a_pipeline(
     assert pipeline.humans_with_eta == ("best_response",)
     result = run_pipeline(pipeline, tmp_path / "run", LocalEngine(workers))
     assert result.played == result.total == 82
-    assert validate_run(tmp_path / "run").ok
+    assert validate_run(tmp_path / "run", logged_pipeline).ok
     records = run_records(tmp_path / "run")
     assert {r.human for r in records} == {"stay_put", "best_response"}
     assert {r.robot for r in records} == {"prior_mean"}
@@ -99,7 +99,7 @@ def test_the_posterior_mean_robot_plays_a_pipeline_and_logs_its_error(tmp_path: 
     path.write_text(pipeline_text('["expert", "best_response"]', '["posterior_mean"]'))
     result = run_pipeline(load_pipeline(path), tmp_path / "run", LocalEngine(2))
     assert result.played == 82
-    assert validate_run(tmp_path / "run").ok
+    assert validate_run(tmp_path / "run", logged_pipeline).ok
     records = run_records(tmp_path / "run")
     assert {r.robot for r in records} == {"posterior_mean"}
     for record in records:

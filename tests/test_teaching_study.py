@@ -34,7 +34,7 @@ from cirl_study.logs.validate import validate_run
 from cirl_study.measure_registry import MEASURES, PAPER_MEASURES
 from cirl_study.record import MAIN, TrialRecord, TrialRow, encode
 from cirl_study.study.engines import LocalEngine
-from cirl_study.study.pipeline_file import parse_pipeline
+from cirl_study.study.pipeline_file import logged_pipeline, parse_pipeline
 from cirl_study.study.runner import run_pipeline
 from cirl_study.study.spec import Pipeline, TeachingSpec
 
@@ -307,7 +307,7 @@ def test_the_small_teaching_run_plays_every_trial_and_validates(
     robots; no sweep. Both runs are complete and sound."""
     assert teaching_runs.totals == (102, 102) and teaching_runs.played == (102, 102)
     for run in (teaching_runs.two_workers, teaching_runs.one_worker):
-        verdict = validate_run(run)
+        verdict = validate_run(run, logged_pipeline)
         assert verdict.ok, verdict
 
 

@@ -8,6 +8,7 @@ import pytest
 
 from cirl_study import workers
 from cirl_study.errors import UserError
+from cirl_study.study.pipeline_file import logged_pipeline
 
 
 def _square_and_pid(item: int) -> tuple[int, int]:
@@ -51,10 +52,12 @@ def test_a_run_reads_and_validates_the_same_on_two_cores_as_on_one(smoke_run, mo
     from cirl_study.logs.validate import validate_run
 
     monkeypatch.setattr(workers, "cores", lambda: 1)
-    alone, verdict_alone = read_run(smoke_run), validate_run(smoke_run)
+    alone = read_run(smoke_run, logged_pipeline)
+    verdict_alone = validate_run(smoke_run, logged_pipeline)
     monkeypatch.setattr(workers, "forkable", lambda: True)
     monkeypatch.setattr(workers, "cores", lambda: 2)
-    shared, verdict_shared = read_run(smoke_run), validate_run(smoke_run)
+    shared = read_run(smoke_run, logged_pipeline)
+    verdict_shared = validate_run(smoke_run, logged_pipeline)
     assert shared == alone
     assert verdict_shared == verdict_alone
 
@@ -108,6 +111,6 @@ def test_reading_a_run_does_the_callers_own_work_once_meanwhile(smoke_run, monke
     monkeypatch.setattr(workers, "forkable", lambda: True)
     monkeypatch.setattr(workers, "cores", lambda: 2)
     calls = []
-    contents = read_run(smoke_run, meanwhile=lambda: calls.append(len(calls)))
+    contents = read_run(smoke_run, logged_pipeline, meanwhile=lambda: calls.append(len(calls)))
     assert calls == [0]
     assert contents.rows

@@ -335,7 +335,7 @@ def write_report(
         out_dir: the report directory.
         pipeline: the run's pipeline (its name, and the order of its humans and robots).
         records_of: the whole records of the given trial ids (for Figure 1), e.g. read
-            back from the logs with :func:`cirl_study.logs.read_trials`.
+            back from the logs (:attr:`cirl_study.analysis.reading.AnalysedRun.records`).
         run_id: the run's id, stored as ``run_id`` in ``results.json``.
         theory: optional extra claims (see :func:`cirl_study.analysis.claims.external_claims`);
             stored under ``theory`` in ``results.json``.

@@ -2,13 +2,9 @@
 
 from __future__ import annotations
 
-import datetime
-import gc
-import importlib
-import json
 import sys
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
@@ -110,28 +106,17 @@ def report_run(
         if sys.stderr.isatty():
             typer.echo(f"{terminal(name, limit=None)} ...", err=True)
 
-    # Only the reader loads before the workers start reading the logs; the rest (pandas, the
-    # statistics and plotting libraries) loads meanwhile, with the report's own provenance,
-    # and each kind of report loads its own module after.
-    from cirl_study.logs.reader import read_run
+    # Only the reading loads before the workers start reading the logs; the rest (pandas, the
+    # statistics and plotting libraries) loads meanwhile, and each kind of report loads its
+    # own module after.
+    from cirl_study.analysis.reading import read_for_analysis
 
     stage(f"reading the logs of {run}")
-    report_provenance: dict[str, Any] = {}
-    contents = read_run(
-        run,
-        salvage=partial,
-        meanwhile=lambda: report_provenance.update(prepare_analysis(outputs=(run, target))),
-    )
+    analysed = read_for_analysis(run, partial=partial, outputs=(target,), warn=warn)
 
     from cirl_study.analysis.replacement import replacing_report
-    from cirl_study.study.audit import analysed_run
 
-    for warning in contents.warnings:
-        typer.echo(f"warning: {terminal(warning, limit=None)}", err=True)
-    chosen = analysed_run(run, contents, partial)
-    pipeline, trials, partial_run = chosen.pipeline, chosen.trials, chosen.partial
-    run_id = contents.identity.run_id
-    provenance = report_provenance_of(contents.provenance, report_provenance)
+    pipeline, trials, run_id = analysed.pipeline, analysed.trials, analysed.run_id
     with replacing_report(
         target, run_id=run_id, force=force, keep_if_equal=keep_if_equal
     ) as replacement:
@@ -143,7 +128,7 @@ def report_run(
                 replacement.stage,
                 pipeline,
                 run_id=run_id,
-                provenance=provenance,
+                provenance=analysed.provenance,
                 progress=stage,
             )
             shares = ", ".join(
@@ -160,18 +145,18 @@ def report_run(
                 trials,
                 replacement.stage,
                 pipeline,
-                records_of=lambda wanted: contents.records(run, wanted),
+                records_of=analysed.records,
                 run_id=run_id,
                 theory=theory_claims(),
-                provenance=provenance,
-                partial=partial_run,
+                provenance=analysed.provenance,
+                partial=analysed.partial,
                 progress=stage,
             )
             claims = results.claims
             tested = [claim for claim in claims if claim.tested]
             reproduced = sum(claim.reproduced is True for claim in tested)
             answered = sum(claim.reproduced is None for claim in tested)
-            what = f"{'partial ' if partial_run else ''}report of {len(trials)} trials"
+            what = f"{'partial ' if analysed.partial else ''}report of {len(trials)} trials"
             summary = (
                 f"{len(claims)} claims, {reproduced} reproduced, "
                 f"{len(tested) - reproduced - answered} not reproduced, "
@@ -183,41 +168,6 @@ def report_run(
     return replacement
 
 
-def report_provenance_of(run: list[dict[str, str]], report: dict[str, Any]) -> dict[str, Any]:
-    """``provenance.json`` of a report: each distinct provenance of the run's log files
-    (``run``, in a fixed order) and the report's own (``report``, from
-    :func:`prepare_analysis`)."""
-    distinct = {json.dumps(p, sort_keys=True): p for p in run}
-    return {"run": [distinct[key] for key in sorted(distinct)], "report": report}
-
-
-def prepare_analysis(outputs: tuple[Path, ...]) -> dict[str, Any]:
-    """What every report needs that the logs do not hold, prepared while they are read: the
-    libraries (pandas, scipy, matplotlib, pingouin and the run's audit) and the
-    report's provenance, which it returns: the date, the machine and the packages
-    (:func:`~cirl_study.logs.provenance.machine_provenance`; whether the checkout is dirty
-    judged without the ``outputs``, the run and report directories).
-
-    The libraries live as long as the process, so the garbage collector is paused while they
-    load and they are frozen out of it after (``gc.freeze``, until workers fork: see
-    :func:`~cirl_study.workers.started`): its full collections would otherwise walk their few
-    hundred thousand objects while they load and while the rows arrive.
-    """
-    gc.disable()
-    try:
-        for module in (
-            "cirl_study.analysis.statistics",
-            "cirl_study.analysis.figures",
-            "cirl_study.analysis.table",
-            "cirl_study.study.audit",
-        ):
-            importlib.import_module(module)
-    finally:
-        gc.enable()
-    gc.freeze()
-    from cirl_study.logs.provenance import machine_provenance
-
-    return {
-        "date": datetime.datetime.now(datetime.UTC).isoformat(timespec="seconds"),
-        **machine_provenance(outputs=outputs),
-    }
+def warn(warning: str) -> None:
+    """Say a warning of reading a run's logs on stderr, as every command reading one does."""
+    typer.echo(f"warning: {terminal(warning, limit=None)}", err=True)

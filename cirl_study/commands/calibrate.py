@@ -4,17 +4,12 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 import typer
 
 from cirl_study.analysis.refine import DEFAULT_MAX_PROBES
-from cirl_study.commands.analyze import (
-    ForceOption,
-    RunArgument,
-    prepare_analysis,
-    report_provenance_of,
-)
+from cirl_study.commands.analyze import ForceOption, RunArgument, warn
 from cirl_study.commands.parameters import Command, number
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
@@ -127,7 +122,7 @@ def calibrate(
     the report adds the search's path. Progress of the probes goes to stderr.
     """
     from cirl_study.analysis.calibration import read_target
-    from cirl_study.logs.reader import read_run
+    from cirl_study.analysis.reading import read_for_analysis
 
     if not refine:
         for given, name in (
@@ -144,29 +139,21 @@ def calibrate(
     target_dir = out if out is not None else run / REPORT_NAME
     probes_dir = probes if probes is not None else run / PROBES_NAME
     cells, sha256 = read_target(target)
-    report_provenance: dict[str, Any] = {}
-    outputs = (run, target_dir, probes_dir) if refine else (run, target_dir)
-    contents = read_run(
-        run, meanwhile=lambda: report_provenance.update(prepare_analysis(outputs=outputs))
-    )
+    outputs = (target_dir, probes_dir) if refine else (target_dir,)
+    analysed = read_for_analysis(run, outputs=outputs, warn=warn)
     from cirl_study.analysis.calibration import calibrate as calibrate_run
     from cirl_study.analysis.calibration_report import write_calibration_report
     from cirl_study.analysis.replacement import replacing_report
-    from cirl_study.study.audit import analysed_run
 
-    for warning in contents.warnings:
-        typer.echo(f"warning: {terminal(warning, limit=None)}", err=True)
-    chosen = analysed_run(run, contents, partial=False)
-    if refine and chosen.pipeline.multiverse is None:
+    if refine and analysed.pipeline.multiverse is None:
         raise UserError(f"{terminal(run)}: --refine needs a multiverse run, not a single study")
-    run_id = contents.identity.run_id
     results = calibrate_run(
-        chosen.trials,
-        chosen.pipeline,
+        analysed.trials,
+        analysed.pipeline,
         cells,
         target_file=target.name,
         target_sha256=sha256,
-        run_id=run_id,
+        run_id=analysed.run_id,
     )
     if refine:
         import msgspec
@@ -175,7 +162,7 @@ def calibrate(
         from cirl_study.study.engines import make_engine
 
         refinement = refine_nearest(
-            chosen.pipeline,
+            analysed.pipeline,
             results,
             cells,
             probes=probes_dir,
@@ -183,9 +170,8 @@ def calibrate(
             max_probes=DEFAULT_MAX_PROBES if max_probes is None else max_probes,
         )
         results = msgspec.structs.replace(results, refinement=refinement)
-    provenance = report_provenance_of(contents.provenance, report_provenance)
-    with replacing_report(target_dir, run_id=run_id, force=force) as replacement:
-        write_calibration_report(results, replacement.stage, provenance=provenance)
+    with replacing_report(target_dir, run_id=analysed.run_id, force=force) as replacement:
+        write_calibration_report(results, replacement.stage, provenance=analysed.provenance)
     nearest = results.universes[0]
     factor = math.exp(math.sqrt(nearest.mean_squared_log_ratio))
     name = terminal(nearest.id) if nearest.id else "the run"

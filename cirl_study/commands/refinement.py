@@ -3,9 +3,10 @@ probe played as a run of its own (``docs/multiverse.md``, *Refinement*).
 
 :func:`refine` joins the three steps: the search (:func:`cirl_study.analysis.refine.
 coordinate_search`) asks for a point's distance; the point is played as a probe
-(:func:`cirl_study.study.probes.play_probe`) and measured as every universe of the run is
-(:func:`cirl_study.analysis.calibration.universe_distance`). Each probe's progress goes to
-stderr as a run's does.
+(:func:`cirl_study.study.probes.play_probe`), read as any run is analysed
+(:func:`cirl_study.analysis.reading.read_for_analysis`) and measured as every universe of the
+run is (:func:`cirl_study.analysis.calibration.universe_distance`). Each probe's progress goes
+to stderr as a run's does.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from pathlib import Path
 import typer
 
 from cirl_study.analysis.calibration import universe_distance
+from cirl_study.analysis.reading import read_for_analysis
 from cirl_study.analysis.refine import (
     FIRST_STEP,
     MIN_STEP,
@@ -63,8 +65,8 @@ def refine(
     ``max_probes`` of them.
 
     Raises:
-        UserError: a probe cannot be played or read (:func:`~cirl_study.study.probes.
-            play_probe`).
+        UserError: a probe cannot be played (:func:`~cirl_study.study.probes.play_probe`)
+            or its logs do not read as a complete run.
     """
     nearest = results.universes[0]
     of_run = {u.id: u for u in universes(pipeline)}
@@ -93,9 +95,10 @@ def refine(
         _say(f"probe {count} (at most {max_probes}): {universe.id}")
         with progress_bar() as hooks:
             probe = play_probe(pipeline, universe, probes, engine(), hooks)
-        for warning in probe.warnings:
-            _say(f"warning: {warning}")
-        found = universe_distance(probe.trials, probe.pipeline, universe, target)
+        analysed = read_for_analysis(
+            probe.directory, warn=lambda warning: _say(f"warning: {warning}")
+        )
+        found = universe_distance(analysed.trials, analysed.pipeline, universe, target)
         distances[point], sources[point] = found, "played" if probe.played else "reused"
         _say(
             f"probe {count}: D = {_shown(found.mean_squared_log_ratio)} "

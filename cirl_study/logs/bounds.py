@@ -21,10 +21,10 @@ the summary, ``validate``, resume) takes a file only through here:
 Past a bound a reader raises :class:`BoundExceeded` (a :class:`ValueError`): the file is
 damaged, like one with a failed CRC; one line names it and what was wrong, and, where the
 caller salvages, the rest of the run is still read. Each bound is above what the study's own
-writer produces for any pipeline :func:`cirl_study.study.runner.check_resources` admits (it
-refuses a pipeline whose files would hold more than half :data:`MAX_FILE_RECORDS` messages;
-the sizes follow from that and from its batch memory budget), so only a file that was not
-written by a run is ever refused.
+writer produces for any pipeline the study's limits of one run (``check_resources``) admit
+(they refuse a pipeline whose files would hold more than half :data:`MAX_FILE_RECORDS`
+messages; the sizes follow from that and from its batch memory budget), so only a file that
+was not written by a run is ever refused.
 """
 
 from __future__ import annotations
@@ -49,8 +49,7 @@ MAX_CHUNK_BYTES = 64 << 20
 """Most bytes one chunk may inflate to (64 MiB), declared and actual. The writer closes a chunk
 once it holds :data:`cirl_study.logs.writer.CHUNK_SIZE` (1 MiB), so a chunk holds at most that
 and one more message; the largest message a pipeline admits (a reward map or a record of the
-largest grid and horizons :func:`~cirl_study.study.runner.check_resources` allows) is a few
-MiB."""
+largest grid and horizons the study's ``check_resources`` allows) is a few MiB."""
 
 MAX_INFLATED_BYTES = 1 << 30
 """Most bytes all the chunks of one file may inflate to together (1 GiB): a reader keeps the
@@ -63,13 +62,13 @@ MAX_FILE_RECORDS = 1_000_000
 the most any count of its summary or indexes may announce. Each record costs a reader about a
 microsecond and a hundred bytes beside its data. A file of the study's holds
 ``MAX_FILE_TRIALS * (T_learn + T_deploy + 5)`` messages (6,000 at the paper's size) and a few
-records per chunk; :func:`~cirl_study.study.runner.check_resources` refuses a pipeline whose
-files would come within half of this bound."""
+records per chunk; the study's ``check_resources`` refuses a pipeline whose files would come
+within half of this bound."""
 
 MAX_FILE_TRIALS = 250
 """Most trials one file may hold: a file holds one batch of a run, and a batch at most this
-many trials (:data:`cirl_study.study.limits.MAX_BATCH` is this value). It bounds the records a
-reader decodes and checks per file, each of which may make it compute its grid's features."""
+many trials (the study's ``MAX_BATCH`` is this value). It bounds the records a reader
+decodes and checks per file, each of which may make it compute its grid's features."""
 
 
 class BoundExceeded(ValueError):

@@ -38,7 +38,7 @@ from cirl_study.logs.format import (
     TRIAL_TOPIC,
     trial_duration_ns,
 )
-from cirl_study.logs.provenance import RunIdentity
+from cirl_study.logs.provenance import NO_IDENTITY, RunIdentity
 from cirl_study.logs.record_checks import BoundFault, decode_trials, payload_trial_id
 from cirl_study.logs.scan import FileScan, scan_file
 from cirl_study.logs.versions import LOG_FORMAT, record_payload, trial_id
@@ -159,7 +159,7 @@ def _read_provenance(contents: FileContents) -> None:
         try:
             RunIdentity.of(contents.provenance)
         except ValueError as error:
-            contents.content_faults.append(f"no run identity: {error}")
+            contents.content_faults.append(f"{NO_IDENTITY}{error}")
 
 
 def _channel_faults(scan: FileScan) -> list[str]:

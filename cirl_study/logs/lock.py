@@ -2,7 +2,7 @@
 
 The lock is :func:`fcntl.flock` on a lock file: :data:`LOCK_NAME` inside a run directory
 (:func:`writer_lock`), a file beside a report directory (whose swap would lose one inside it:
-:mod:`cirl_study.analysis.replacement`). The operating system releases it when its holder
+the analysis's replacement of a report). The operating system releases it when its holder
 ends, however it ends (``kill -9`` included), so a lock is never left stale; the file itself
 stays and only says who held it last. A second writer gets a one-line error naming the
 holder's process id, and touches nothing: it neither plays trials nor deletes the holder's

@@ -5,23 +5,23 @@ Python, the platform and CPU, the BLAS library numpy calls and the kernel (core 
 picked (:mod:`threadpoolctl`), and the versions of the packages that can change a number.
 :func:`collect_provenance` adds the run's identity (:class:`RunIdentity`: the run id and the
 whole pipeline file): it is the ``provenance`` metadata record of every log file of a run, so
-the logs alone say which run they belong to and what that run plans. ``cirl-study analyze``
-writes the run's and its own to the report's ``provenance.json``.
+the logs alone say which run they belong to and what that run plans. Whether the pipeline
+text is a pipeline is the study's to say: every reader of a run is given that judgement
+(:data:`PipelineOf`). ``cirl-study analyze`` writes the run's and its own to the report's
+``provenance.json``.
 """
 
 from __future__ import annotations
 
-import functools
 import hashlib
 import os
 import platform
 import subprocess
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from cirl_study import __version__
-from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.logs.format import (
     IDENTITY_KEYS,
@@ -32,9 +32,7 @@ from cirl_study.logs.format import (
     PIPELINE_TEXT_KEY,
     RUN_ID_KEY,
 )
-from cirl_study.logs.versions import LOG_FORMAT, READABLE, pipeline_table, readable
-from cirl_study.study.pipeline_file import parse_pipeline
-from cirl_study.study.spec import Pipeline
+from cirl_study.logs.versions import LOG_FORMAT, READABLE, readable
 
 KEY_PACKAGES: tuple[str, ...] = (
     "numpy",
@@ -60,7 +58,7 @@ class RunIdentity:
     ``pipeline_sha256`` is the SHA-256 of the file's UTF-8 text: two files belong to one run
     exactly when their identities are equal, which the file's path does not enter (the same
     pipeline copied under another name is the same run). ``pipeline_file`` is where the run
-    found the file (:func:`cirl_study.study.pipeline_file.path_argument`), only for advice.
+    found the file (as a run names the path of its pipeline), only for advice.
     ``log_format`` is the format the file was written in (:mod:`cirl_study.logs.versions`),
     in which its pipeline text is read.
     """
@@ -75,15 +73,6 @@ class RunIdentity:
     def pipeline_sha256(self) -> str:
         return hashlib.sha256(self.pipeline_text.encode()).hexdigest()
 
-    @property
-    def pipeline(self) -> Pipeline:
-        """The pipeline the run plays, validated as a pipeline file is (its limits included).
-
-        Raises:
-            UserError: the text is not a valid pipeline for this version of cirl-study.
-        """
-        return _pipeline(self.pipeline_text, self.pipeline_file, self.log_format)
-
     def provenance(self) -> dict[str, str]:
         """The identity's entries of a ``provenance`` metadata record."""
         return {
@@ -97,14 +86,10 @@ class RunIdentity:
 
     @classmethod
     def of(cls, provenance: Mapping[str, str]) -> RunIdentity:
-        """The identity a ``provenance`` record states, once it is found to be one.
-
-        Nothing a log says of its run is believed unchecked: every reader (``validate``,
-        ``analyze``, resume, the API) and the writer come here. The recorded hash must be that
-        of the recorded pipeline text; the text must be a valid pipeline
-        (:attr:`pipeline`), whose name is the recorded ``pipeline_name`` and whose run id
-        (:attr:`cirl_study.study.spec.Pipeline.run_id`: the name and the start of the hash) is
-        the recorded ``run_id``.
+        """The identity a ``provenance`` record states, as far as the record shows it: every
+        key present, a log format this version reads, and the recorded hash that of the
+        recorded pipeline text. Whether that text is a pipeline of the recorded name and run
+        id, a reader asks its :data:`PipelineOf`.
 
         Raises:
             ValueError: a key is missing or any of these does not hold; the message names
@@ -130,30 +115,33 @@ class RunIdentity:
             raise ValueError(
                 f"provenance's {PIPELINE_SHA_KEY} is not the hash of its {PIPELINE_TEXT_KEY}"
             )
-        try:
-            pipeline = identity.pipeline
-        except UserError as error:
-            raise ValueError(f"provenance's {error}") from None
-        if identity.pipeline_name != pipeline.name:
-            raise ValueError(
-                f"provenance's {PIPELINE_NAME_KEY} '{terminal(identity.pipeline_name)}' is not "
-                f"the name its {PIPELINE_TEXT_KEY} gives ({pipeline.name!r})"
-            )
-        if identity.run_id != pipeline.run_id:
-            raise ValueError(
-                f"provenance's {RUN_ID_KEY} '{terminal(identity.run_id)}' is not the run id of "
-                f"its pipeline ({pipeline.run_id!r}: the name and the start of its "
-                f"{PIPELINE_SHA_KEY})"
-            )
         return identity
 
 
-@functools.lru_cache(maxsize=4)
-def _pipeline(text: str, file: str, log_format: str) -> Pipeline:
-    """:attr:`RunIdentity.pipeline`, parsed once per process (every file of a run carries the
-    same text, and each is checked by several readers)."""
-    rename = functools.partial(pipeline_table, log_format=log_format)
-    return parse_pipeline(text, Path(file), label=PIPELINE_TEXT_KEY, rename=rename)
+NO_IDENTITY = "no run identity: "
+"""The start of the fault of a file whose provenance states no run identity."""
+
+PipelineOf = Callable[[RunIdentity], object]
+"""The study's judgement of the pipeline a run identity carries, which every reader of a run
+is given: a call that raises :class:`ValueError`, naming the provenance key at fault, unless
+the identity's pipeline text is a valid pipeline whose name and run id are the identity's.
+Nothing a log says of its run is believed unchecked: a file whose identity it refuses states
+no run identity (:func:`pipeline_faults`)."""
+
+
+def pipeline_faults(provenance: Mapping[str, str] | None, pipeline_of: PipelineOf) -> list[str]:
+    """``no run identity: <why>`` when ``provenance`` states an identity whose pipeline
+    ``pipeline_of`` refuses, else nothing: a file's fault, as :meth:`RunIdentity.of` refusing
+    its provenance is (one that states no identity is a fault of its own)."""
+    try:
+        identity = RunIdentity.of(provenance or {})
+    except ValueError:
+        return []
+    try:
+        pipeline_of(identity)
+    except ValueError as error:
+        return [f"{NO_IDENTITY}{error}"]
+    return []
 
 
 def collect_provenance(identity: RunIdentity, run_dir: Path | None = None) -> dict[str, str]:

@@ -8,8 +8,9 @@ holding a trial), taking only the ``/cirl/trial`` messages (fast). A file that d
 cleanly that way is scanned record by record instead, which says what is wrong with it.
 
 A run is what its logs prove. Every file must name the same run (its provenance's
-:class:`~cirl_study.logs.provenance.RunIdentity`: run id and pipeline file) and every record
-that run's id; a damaged file (truncated, a bad CRC anywhere, a bound passed) is refused, or,
+:class:`~cirl_study.logs.provenance.RunIdentity`: run id and pipeline file, whose pipeline the
+reader's :data:`~cirl_study.logs.provenance.PipelineOf` accepts) and every record that run's
+id; a damaged file (truncated, a bad CRC anywhere, a bound passed) is refused, or,
 when the caller asks to ``salvage``, the trials of its intact chunks are kept with a warning
 naming the file and what was recovered. An entry named like a log that is no regular file (a
 link, a FIFO, a device, a directory), or a file too long to read, is refused the same way, or
@@ -48,7 +49,7 @@ from cirl_study.logs.format import (
     temp_files,
 )
 from cirl_study.logs.lock import writer_pid
-from cirl_study.logs.provenance import RunIdentity
+from cirl_study.logs.provenance import PipelineOf, RunIdentity, pipeline_faults
 from cirl_study.logs.record_checks import decode_trials
 from cirl_study.logs.scan import MESSAGE_HEADER, RECORD_PREFIX, scan_data, section_crcs_hold
 from cirl_study.logs.versions import record_payload
@@ -70,10 +71,10 @@ class RunContents:
     warnings: list[str]
     files: list[tuple[Path, list[str]]]
 
-    def records(self, run_dir: Path, wanted: set[str]) -> list[TrialRecord]:
+    def records(self, wanted: set[str]) -> list[TrialRecord]:
         """The whole records of the ``wanted`` trials, decoding only the files that log one
         (the records of the intact chunks of a file salvaged)."""
-        return _records_of(run_dir, self.identity, self.files, wanted, self.damaged)
+        return _records_of(self.identity, self.files, wanted, self.damaged)
 
 
 @dataclass
@@ -263,7 +264,11 @@ def _read_file(path: Path) -> _IntactFile | FileContents:
 
 
 def read_run(
-    run_dir: str | Path, *, salvage: bool = False, meanwhile: Callable[[], object] = lambda: None
+    run_dir: str | Path,
+    pipeline_of: PipelineOf,
+    *,
+    salvage: bool = False,
+    meanwhile: Callable[[], object] = lambda: None,
 ) -> RunContents:
     """Read every complete log file of ``run_dir`` into rows (see the module docstring).
 
@@ -275,6 +280,8 @@ def read_run(
 
     Args:
         run_dir: the run directory.
+        pipeline_of: the study's judgement of the pipeline each file's identity carries,
+            asked in this process.
         salvage: keep the intact chunks of a damaged file (with a warning) instead of
             refusing it.
         meanwhile: called once the files are handed to the workers, e.g. to import what the
@@ -290,10 +297,14 @@ def read_run(
         meanwhile()
         for reading in readings:
             path = reading.path
-            if reading.content_faults:
+            content_faults = [
+                *pipeline_faults(reading.provenance, pipeline_of),
+                *reading.content_faults,
+            ]
+            if content_faults:
                 damage = f"damaged ({reading.damage[0]}) and " if reading.damage else ""
                 raise UserError(
-                    f"{path}: {damage}unusable ({reading.content_faults[0]}); "
+                    f"{path}: {damage}unusable ({content_faults[0]}); "
                     f"`cirl-study validate {run_dir}` lists every fault"
                 )
             if reading.unreadable and not salvage:
@@ -357,7 +368,6 @@ class LoggedRun:
     """What a run directory holds, for resuming it: each complete file with the ids of the
     trials its records decode to (:func:`logged_run`)."""
 
-    run_dir: Path
     identity: RunIdentity
     files: list[tuple[Path, list[str]]]
 
@@ -369,11 +379,12 @@ class LoggedRun:
     def records(self, wanted: set[str]) -> list[TrialRecord]:
         """The whole records of the ``wanted`` trials, decoding only the files that log one
         (each checked again, and found of this run)."""
-        return _records_of(self.run_dir, self.identity, self.files, wanted)
+        return _records_of(self.identity, self.files, wanted)
 
 
-def logged_run(run_dir: str | Path, identity: RunIdentity) -> LoggedRun:
-    """The trials already logged in the complete files of ``run_dir``, for resuming.
+def logged_run(run_dir: str | Path, identity: RunIdentity, pipeline_of: PipelineOf) -> LoggedRun:
+    """The trials already logged in the complete files of ``run_dir``, for resuming
+    ``identity``'s run (whose pipeline ``pipeline_of`` judges, as every file's).
 
     What a file holds is decided from its records, never from its own index or counts: every
     file is read as :func:`read_run` reads it (every CRC, every record decoded and checked,
@@ -384,7 +395,7 @@ def logged_run(run_dir: str | Path, identity: RunIdentity) -> LoggedRun:
     """
     run_dir = Path(run_dir)
     if not run_dir.exists():
-        return LoggedRun(run_dir, identity, [])
+        return LoggedRun(identity, [])
     identities: dict[RunIdentity, Path] = {}
     first_file: dict[str, Path] = {}
     files = []
@@ -393,7 +404,11 @@ def logged_run(run_dir: str | Path, identity: RunIdentity) -> LoggedRun:
             path = reading.path
             if reading.unreadable:
                 raise UserError(f"{path}: {reading.damage[0]}; move it out of {run_dir}")
-            faults = [*reading.damage, *reading.content_faults]
+            faults = [
+                *reading.damage,
+                *pipeline_faults(reading.provenance, pipeline_of),
+                *reading.content_faults,
+            ]
             if faults:
                 raise UserError(
                     f"{path} is damaged ({faults[0]}); move it out of {run_dir} "
@@ -409,17 +424,18 @@ def logged_run(run_dir: str | Path, identity: RunIdentity) -> LoggedRun:
         found = _same_identity(run_dir, identities)
         if found != identity:
             raise UserError(f"{run_dir}: {_another_run(found, identity)}")
-    return LoggedRun(run_dir, identity, files)
+    return LoggedRun(identity, files)
 
 
-def read_trials(run_dir: str | Path, identity: RunIdentity, wanted: set[str]) -> list[TrialRecord]:
+def read_trials(
+    run_dir: str | Path, identity: RunIdentity, pipeline_of: PipelineOf, wanted: set[str]
+) -> list[TrialRecord]:
     """The records of the ``wanted`` trials of the run in ``run_dir`` (of ``identity``'s run),
     with :func:`logged_run`'s checks of every file."""
-    return logged_run(run_dir, identity).records(wanted)
+    return logged_run(run_dir, identity, pipeline_of).records(wanted)
 
 
 def _records_of(
-    run_dir: Path,
     identity: RunIdentity,
     files: Iterable[tuple[Path, Sequence[str]]],
     wanted: set[str],
@@ -438,7 +454,7 @@ def _records_of(
         faults = [*damage, *contents.content_faults]
         if faults:
             raise UserError(f"{path}: unusable ({faults[0]})")
-        found = _one_identity(run_dir, [contents])
+        found = _file_identity(contents)
         if found != identity:
             raise UserError(
                 f"{path}: now holds the logs of another run ({_difference(found, identity)})"
@@ -468,14 +484,6 @@ def _another_run(logged: RunIdentity, asked: RunIdentity) -> str:
         f"is now run {asked.run_id} ({settings}); restore the text the run was made from to "
         "resume it, or use another --out directory"
     )
-
-
-def _one_identity(run_dir: Path, files: list[_IntactFile | FileContents]) -> RunIdentity:
-    """The run identity every file states and every record carries, or a refusal."""
-    identities: dict[RunIdentity, Path] = {}
-    for contents in files:
-        identities.setdefault(_file_identity(contents), contents.path)
-    return _same_identity(run_dir, identities)
 
 
 def _file_identity(contents: _IntactFile | FileContents) -> RunIdentity:

@@ -58,8 +58,8 @@ L2_TOLERANCE = 1e-9
 
 MAX_GRID_CELLS = 1 << 18
 """Most cells a record's grid may have (262,144): checking a record computes its reward map
-over every cell. No pipeline :func:`cirl_study.study.runner.check_resources` admits has more
-than about 153,000 (its batch memory budget, at the shortest horizons and one feature)."""
+over every cell. No pipeline the study's ``check_resources`` admits has more than about
+153,000 (its batch memory budget, at the shortest horizons and one feature)."""
 
 MAX_FEATURE_ENTRIES = 1 << 18
 """Most entries (cells times features) of the feature matrix checking a record's

@@ -3,12 +3,13 @@
 A file is OK when :func:`~cirl_study.logs.scan.scan_file` finds no storage fault (magic,
 framing, chunk / data-section / summary CRCs, summary counts and indexes) and
 :func:`~cirl_study.logs.contents.read_file_contents` no content fault (provenance, schemas and
-encodings, every record complete and consistent, time layout, replay counts); an entry named
-like a log that is no regular file, or a file past a bound of :mod:`cirl_study.logs.bounds`,
-fails with what it is. The run is OK when every file is, no temporary file is left,
-:func:`~cirl_study.logs.run_checks.run_faults` finds nothing. Whether the logs hold exactly
-the trials the run's pipeline plans is the study's question
-(:func:`cirl_study.study.audit.plan_faults`); ``cirl-study validate`` asks both.
+encodings, every record complete and consistent, time layout, replay counts), and its run
+identity states a pipeline the study accepts (:data:`~cirl_study.logs.provenance.PipelineOf`);
+an entry named like a log that is no regular file, or a file past a bound of
+:mod:`cirl_study.logs.bounds`, fails with what it is. The run is OK when every file is, no
+temporary file is left, :func:`~cirl_study.logs.run_checks.run_faults` finds nothing. Whether
+the logs hold exactly the trials the run's pipeline plans is the study's question (its audit
+of the plan); ``cirl-study validate`` asks both.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from cirl_study.files import non_regular
 from cirl_study.logs.contents import read_file_contents
 from cirl_study.logs.format import log_files, temp_files
 from cirl_study.logs.lock import writer_pid
+from cirl_study.logs.provenance import PipelineOf, pipeline_faults
 from cirl_study.logs.reader import check_run_directory
 from cirl_study.logs.run_checks import run_faults
 from cirl_study.record import TrialRow
@@ -77,20 +79,21 @@ class RunVerdict:
         return f"FAIL run {self.run_dir}: {totals}; {_summary((*reasons, *self.faults))}"
 
 
-def validate_file(path: str | Path) -> FileVerdict:
-    """Check one log file (see the module docstring)."""
-    contents = read_file_contents(Path(path))
-    return FileVerdict(Path(path), len(contents.records), tuple(contents.faults))
+def validate_file(path: str | Path, pipeline_of: PipelineOf) -> FileVerdict:
+    """Check one log file (see the module docstring), its identity's pipeline judged by
+    ``pipeline_of``."""
+    return _checked(Path(path)).verdict(pipeline_of)
 
 
-def validate_run(run_dir: str | Path) -> RunVerdict:
-    """Check every complete file of ``run_dir`` and the run as a whole."""
+def validate_run(run_dir: str | Path, pipeline_of: PipelineOf) -> RunVerdict:
+    """Check every complete file of ``run_dir`` (each identity's pipeline judged by
+    ``pipeline_of``, in this process) and the run as a whole."""
     run_dir = Path(run_dir)
     check_run_directory(run_dir)
     verdicts, files = [], []
-    for verdict, rows, provenance in map_in_workers(_checked, log_files(run_dir)):
-        verdicts.append(verdict)
-        files.append((verdict.path, rows, provenance))
+    for checked in map_in_workers(_checked, log_files(run_dir)):
+        verdicts.append(checked.verdict(pipeline_of))
+        files.append((checked.path, checked.rows, checked.provenance))
     faults = run_faults(files) if verdicts else ["no complete log files (*.mcap)"]
     unfinished = []
     for path in temp_files(run_dir):
@@ -113,15 +116,30 @@ def validate_run(run_dir: str | Path) -> RunVerdict:
     return RunVerdict(run_dir, tuple(verdicts), tuple(faults), tuple(files))
 
 
-def _checked(path: Path) -> tuple[FileVerdict, list[TrialRow], dict[str, str] | None]:
-    """One file's verdict, the rows of its readable records and its provenance."""
+@dataclass(frozen=True)
+class _Checked:
+    """What :func:`validate_run` keeps of one file, checked in a worker: its faults, the rows
+    of its readable records and its provenance."""
+
+    path: Path
+    damage: list[str]
+    content_faults: list[str]
+    rows: list[TrialRow]
+    provenance: dict[str, str] | None
+
+    def verdict(self, pipeline_of: PipelineOf) -> FileVerdict:
+        """The file's verdict, its identity's pipeline judged by ``pipeline_of``: storage
+        damage first, then content."""
+        pipeline = pipeline_faults(self.provenance, pipeline_of)
+        faults = (*self.damage, *pipeline, *self.content_faults)
+        return FileVerdict(self.path, len(self.rows), faults)
+
+
+def _checked(path: Path) -> _Checked:
+    """One file of :func:`validate_run`."""
     contents = read_file_contents(path)
     rows = [TrialRow.of(record) for record in contents.records]
-    return (
-        FileVerdict(path, len(contents.records), tuple(contents.faults)),
-        rows,
-        contents.provenance,
-    )
+    return _Checked(path, contents.damage, contents.content_faults, rows, contents.provenance)
 
 
 def _summary(faults: tuple[str, ...]) -> str:

@@ -2,7 +2,7 @@
 
 Every log file carries the run's pipeline file (:class:`~cirl_study.logs.provenance.RunIdentity`),
 so the logs alone say what the run must hold. :func:`audit_run` takes that pipeline (validated
-when the identity was read: :attr:`~cirl_study.logs.provenance.RunIdentity.pipeline`), plans
+when the identity was read: :func:`~cirl_study.study.pipeline_file.logged_pipeline`), plans
 block ``eta_cv`` (:func:`~cirl_study.study.plan.eta_cv_trial_ids`), chooses eta from the logged
 cross-validation records exactly as the run did (:func:`~cirl_study.study.eta_cv.choose_etas`),
 plans blocks ``main`` and ``lambda_sweep`` with it, and compares trial ids: a planned trial
@@ -22,21 +22,20 @@ from collections import Counter
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
 
-from cirl_study.errors import UserError
 from cirl_study.escape import shell, terminal
 from cirl_study.logs.lock import writer_pid
 from cirl_study.logs.provenance import RunIdentity
-from cirl_study.logs.run_checks import complete_main_subjects
 from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
-from cirl_study.study.pipeline_file import MAX_PIPELINE_BYTES, path_argument, pipeline_search_path
+from cirl_study.study.pipeline_file import (
+    MAX_PIPELINE_BYTES,
+    logged_pipeline,
+    path_argument,
+    pipeline_search_path,
+)
 from cirl_study.study.plan import eta_cv_trial_ids, study_trial_ids, trial_counts
 from cirl_study.study.spec import Pipeline
-
-if TYPE_CHECKING:
-    from cirl_study.logs.reader import RunContents
 
 EXAMPLES = 3
 """How many foreign trial ids a fault names."""
@@ -151,8 +150,12 @@ def plan_faults(
     if len(identities) != 1:
         return []
     (identity,) = identities
+    try:
+        pipeline = logged_pipeline(identity)
+    except ValueError:
+        return []  # a fault of every file already
     rows = [row for _, file_rows, _ in files for row in file_rows]
-    return audit_run(identity.pipeline, rows).faults(resume_advice(identity, run_dir))
+    return audit_run(pipeline, rows).faults(resume_advice(identity, run_dir))
 
 
 def resume_advice(identity: RunIdentity, run_dir: Path) -> str:
@@ -212,52 +215,3 @@ def _holds(path: str, sha256: str) -> bool:
             return False
         data = stream.read(MAX_PIPELINE_BYTES + 1)
     return hashlib.sha256(data).hexdigest() == sha256
-
-
-@dataclass(frozen=True)
-class AnalysedRun:
-    """What an analysis of a run takes: its pipeline (from the logs), the trials it analyses,
-    and, for an incomplete run analysed anyway, what it lacks (``partial``: ``planned``,
-    ``logged``, ``missing``, ``damaged_files``, ``main_subjects_left_out``; ``None`` for a
-    complete run)."""
-
-    pipeline: Pipeline
-    trials: list[TrialRow]
-    partial: dict[str, Any] | None
-
-
-def analysed_run(run_dir: Path, contents: RunContents, partial: bool) -> AnalysedRun:
-    """The trials of the run in ``run_dir`` (its logs read into ``contents``) an analysis
-    takes: every trial of a complete run; with ``partial``, an incomplete or damaged run's
-    trials less the ``main`` subjects that lack a cell
-    (:func:`~cirl_study.logs.run_checks.complete_main_subjects`).
-
-    Raises:
-        UserError: a foreign trial; an incomplete run without ``partial`` (naming what is
-            missing and how to resume); an incomplete multiverse (analysed only whole).
-    """
-    pipeline = contents.identity.pipeline
-    audit = audit_run(pipeline, contents.rows)
-    resume = resume_advice(contents.identity, run_dir)
-    faults = audit.faults(resume)
-    whole = pipeline.multiverse is not None
-    shown = terminal(run_dir)
-    if audit.foreign or (faults and not partial):
-        advice = "" if audit.foreign or whole else ", or analyze it with --partial"
-        raise UserError(f"{shown}: not a complete run: {faults[0]}{advice}")
-    if audit.complete and not contents.damaged:
-        return AnalysedRun(pipeline, contents.rows, None)
-    if whole:
-        raise UserError(
-            f"{shown}: a multiverse is analysed only whole (its universes share the reward "
-            f"draws); {resume}"
-        )
-    trials, left_out = complete_main_subjects(contents.rows)
-    lacks = {
-        "planned": audit.planned,
-        "logged": audit.logged,
-        "missing": audit.missing_text() or None,
-        "damaged_files": len(contents.damaged),
-        "main_subjects_left_out": len(left_out),
-    }
-    return AnalysedRun(pipeline, trials, lacks)

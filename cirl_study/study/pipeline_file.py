@@ -1,17 +1,19 @@
 """Reading a pipeline file: its text into the typed specs of :mod:`cirl_study.study.spec`.
 
 :func:`load_pipeline` reads a file, :func:`parse_pipeline` a text (a file's, or the one a run's
-logs carry); both check the text's size, its TOML and nesting, every setting against the
-constraint its spec declares beside the field (:mod:`cirl_study.study.settings`), the rules
-that join tables (which tables a study has; a multiverse's axes), and what the pipeline plans
-against the limits of one run (:func:`cirl_study.study.limits.check_resources`). Every problem
-is one :class:`~cirl_study.errors.UserError` line naming the file and the key.
+logs carry: :func:`logged_pipeline`); both check the text's size, its TOML and nesting, every
+setting against the constraint its spec declares beside the field
+(:mod:`cirl_study.study.settings`), the rules that join tables (which tables a study has; a
+multiverse's axes), and what the pipeline plans against the limits of one run
+(:func:`cirl_study.study.limits.check_resources`). Every problem is one
+:class:`~cirl_study.errors.UserError` line naming the file and the key.
 :func:`resolve_pipeline` says which file a ``cirl-study run PIPELINE`` argument means.
 """
 
 from __future__ import annotations
 
 import codecs
+import functools
 import hashlib
 import itertools
 import tomllib
@@ -22,6 +24,15 @@ from pathlib import Path
 from typing import Any
 
 from cirl_study.errors import UserError
+from cirl_study.escape import terminal
+from cirl_study.logs.format import (
+    PIPELINE_NAME_KEY,
+    PIPELINE_SHA_KEY,
+    PIPELINE_TEXT_KEY,
+    RUN_ID_KEY,
+)
+from cirl_study.logs.provenance import RunIdentity
+from cirl_study.logs.versions import pipeline_table
 from cirl_study.study.limits import check_resources
 from cirl_study.study.settings import Table, applies, shown
 from cirl_study.study.spec import (
@@ -362,6 +373,42 @@ def load_pipeline(path: Path) -> Pipeline:
     except UnicodeDecodeError:
         raise UserError(f"{_display_path(path)}: not valid TOML: not UTF-8 text") from None
     return parse_pipeline(text, path)
+
+
+def logged_pipeline(identity: RunIdentity) -> Pipeline:
+    """The pipeline a run's logs carry in their ``identity``, validated as a pipeline file is
+    (its limits included), read in the identity's log format; its name must be the
+    identity's ``pipeline_name`` and its run id (:attr:`~cirl_study.study.spec.Pipeline.run_id`:
+    the name and the start of the hash) the identity's ``run_id``. Every reader of a run is
+    given it (:data:`~cirl_study.logs.provenance.PipelineOf`).
+
+    Raises:
+        ValueError: any of these does not hold; the message names the provenance key.
+    """
+    try:
+        pipeline = _parsed(identity.pipeline_text, identity.pipeline_file, identity.log_format)
+    except UserError as error:
+        raise ValueError(f"provenance's {error}") from None
+    if identity.pipeline_name != pipeline.name:
+        raise ValueError(
+            f"provenance's {PIPELINE_NAME_KEY} '{terminal(identity.pipeline_name)}' is not "
+            f"the name its {PIPELINE_TEXT_KEY} gives ({pipeline.name!r})"
+        )
+    if identity.run_id != pipeline.run_id:
+        raise ValueError(
+            f"provenance's {RUN_ID_KEY} '{terminal(identity.run_id)}' is not the run id of "
+            f"its pipeline ({pipeline.run_id!r}: the name and the start of its "
+            f"{PIPELINE_SHA_KEY})"
+        )
+    return pipeline
+
+
+@functools.lru_cache(maxsize=4)
+def _parsed(text: str, file: str, log_format: str) -> Pipeline:
+    """A logged pipeline text parsed, once per process (every file of a run carries the same
+    text, and each is checked by several readers)."""
+    rename = functools.partial(pipeline_table, log_format=log_format)
+    return parse_pipeline(text, Path(file), label=PIPELINE_TEXT_KEY, rename=rename)
 
 
 def pipeline_search_path() -> tuple[Path, ...]:

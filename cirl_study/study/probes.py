@@ -15,11 +15,10 @@ A probe lives in ``<probes>/<universe id>/``: its logs, played by
 :func:`~cirl_study.study.runner.run_pipeline` (locked, resumable, and refused where the
 directory holds another pipeline's logs, as ``cirl-study run`` refuses it), and its pipeline
 file :data:`PIPELINE_FILE_NAME`, written once the run is complete (so ``cirl-study run
-<probe>/pipeline.toml --out <probe>`` resumes or checks it). It is read back by
-:func:`~cirl_study.logs.reader.read_run` and :func:`~cirl_study.study.audit.analysed_run`, as
-any run is analysed. A probe played before is read, not replayed. A symbolic link in place of
-a probe's directory or of its pipeline file is refused, as is a pipeline file there that
-holds another text.
+<probe>/pipeline.toml --out <probe>`` resumes or checks it); its directory is then read as
+any run is analysed. A probe played before is found complete, not replayed. A symbolic link
+in place of a probe's directory or of its pipeline file is refused, as is a pipeline file
+there that holds another text.
 """
 
 from __future__ import annotations
@@ -33,9 +32,7 @@ from typing import Any
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.files import non_regular, read_regular_file, write_file
-from cirl_study.logs.reader import read_run
-from cirl_study.record import GRADIENT_ASCENT, TrialRow
-from cirl_study.study.audit import analysed_run
+from cirl_study.record import GRADIENT_ASCENT
 from cirl_study.study.engines import Engine
 from cirl_study.study.multiverse import cv_universe, universe_pipeline
 from cirl_study.study.pipeline_file import MAX_PIPELINE_BYTES, parse_pipeline
@@ -49,16 +46,12 @@ PIPELINE_FILE_NAME = "pipeline.toml"
 
 @dataclass(frozen=True)
 class Probe:
-    """A probe played (or found complete): its universe and directory, the pipeline its logs
-    carry, its trials as an analysis reads them, the trials played by this call (0: reused)
-    and the warnings of reading its logs."""
+    """A probe played (or found complete): its universe and directory, and the trials played
+    by this call (0: reused)."""
 
     universe: Universe
     directory: Path
-    pipeline: Pipeline
-    trials: list[TrialRow]
     played: int
-    warnings: list[str]
 
 
 def probe_directory(probes: Path, universe: Universe) -> Path:
@@ -145,13 +138,12 @@ def play_probe(
     progress: ProgressHooks | None = None,
 ) -> Probe:
     """Play the probe of ``universe`` of the multiverse run of ``pipeline`` below ``probes``
-    on ``engine`` (not yet entered), or resume it, and read it back (see the module
-    docstring).
+    on ``engine`` (not yet entered), or resume it (see the module docstring).
 
     Raises:
         UserError: the probe's directory or pipeline file is a symbolic link, the pipeline
             file holds another text, the directory holds another pipeline's logs, a limit
-            of one run is passed, or the run stops or its logs do not read as a complete run.
+            of one run is passed, or the run stops.
     """
     directory = probe_directory(probes, universe)
     path = directory / PIPELINE_FILE_NAME
@@ -171,13 +163,4 @@ def play_probe(
         if reason is not None:
             raise UserError(f"{terminal(path)}: {reason}; refusing to write to it")
         write_file(path, study.text.encode())
-    contents = read_run(directory)
-    chosen = analysed_run(directory, contents, partial=False)
-    return Probe(
-        universe=universe,
-        directory=directory,
-        pipeline=chosen.pipeline,
-        trials=chosen.trials,
-        played=result.played,
-        warnings=contents.warnings,
-    )
+    return Probe(universe=universe, directory=directory, played=result.played)

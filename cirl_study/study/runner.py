@@ -48,7 +48,7 @@ from cirl_study.study.audit import resume_command
 from cirl_study.study.engines import Engine, WorkerLost
 from cirl_study.study.eta_cv import EtaChoice, choose_etas
 from cirl_study.study.limits import MAX_BATCH
-from cirl_study.study.pipeline_file import path_argument
+from cirl_study.study.pipeline_file import logged_pipeline, path_argument
 from cirl_study.study.plan import (
     eta_cv_trials,
     gradient_ascent_settings,
@@ -197,7 +197,7 @@ def prepare_run_directory(out_dir: Path, identity: RunIdentity) -> LoggedRun:
     named like a temporary file that is no regular file (a link, a FIFO, a directory) was not
     made by a run: it is refused, not deleted.
     """
-    logged = logged_run(out_dir, identity)
+    logged = logged_run(out_dir, identity, logged_pipeline)
     temporaries = temp_files(out_dir)
     for path in temporaries:
         reason = non_regular(path)
