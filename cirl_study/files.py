@@ -25,6 +25,10 @@ from typing import BinaryIO
 
 from cirl_study.errors import UserError
 
+RUNS_DIRECTORY = Path("data") / "runs"
+"""Where ``cirl-study run NAME`` puts a pipeline's run unless ``--out``: ``data/runs/NAME``
+below the current directory."""
+
 _FLAGS = os.O_CREAT | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
 _READ_FLAGS = os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC
 

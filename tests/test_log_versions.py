@@ -163,7 +163,7 @@ def test_a_run_of_format_5_is_not_resumed(tmp_path: Path) -> None:
     text = (run / "pipeline.toml").read_text()
     renamed.write_text(text.replace("centres =", "centers =").replace("policies =", "humans ="))
     result = CliRunner().invoke(app, ["run", str(renamed), "--out", str(run)])
-    assert "made from another text" in one_line_error(result)
+    assert "made from another version of" in one_line_error(result)
     assert sorted(path.name for path in run.glob("*.mcap")) == before  # nothing written
 
 

@@ -322,28 +322,50 @@ def test_a_run_being_written_is_said_to_be_so_not_advised_to_resume(
     assert writer_pid(no_lock) is None and not (no_lock / LOCK_NAME).exists()
 
 
-@pytest.mark.parametrize(
-    ("change", "settings"),
-    [
-        (lambda text: text + "# a note\n", "only its comments or layout differ"),
-        (lambda text: text.replace("seed = 7", "seed = 8"), "its settings differ"),
-    ],
-)
-def test_a_changed_pipeline_text_is_named_with_both_run_ids(
-    tmp_path: Path, smoke_run: Path, change: Callable[[str], str], settings: str
+def test_a_pipeline_of_changed_settings_is_another_run_named_with_both_ids(
+    tmp_path: Path, smoke_run: Path
 ) -> None:
     run = tmp_path / "run"
     shutil.copytree(smoke_run, run)
     before = files_of(run)
     edited = tmp_path / "smoke.toml"
-    edited.write_text(change(SMOKE.read_text()))
+    edited.write_text(SMOKE.read_text().replace("seed = 7", "seed = 8"))
     new_id = load_pipeline(edited).run_id
     one_line(
         invoke("run", edited, "--out", run),
         2,
-        f"{run}: holds run {SMOKE_RUN_ID}, made from another text of {edited}, which is now "
-        f"run {new_id} ({settings}); restore the text",
+        f"{run}: holds run {SMOKE_RUN_ID}, made from another version of {edited}, which is now "
+        f"run {new_id} with other settings; restore the settings",
     )
+    assert files_of(run) == before
+
+
+@pytest.mark.parametrize(
+    "change",
+    [
+        lambda text: text + "# a note\n",
+        lambda text: text.replace('description = "', 'description = "Edited: '),
+        lambda text: text.replace("seed = 7", "seed   =   7  # the same seed"),
+    ],
+    ids=["a comment", "the description", "the layout"],
+)
+def test_a_pipeline_of_the_same_settings_resumes_its_run_and_says_so(
+    tmp_path: Path, smoke_run: Path, change: Callable[[str], str]
+) -> None:
+    """A run is its settings: another text of them (a comment, the description, the layout)
+    resumes the run, which keeps its id and the text it was made from."""
+    run = tmp_path / "run"
+    shutil.copytree(smoke_run, run)
+    before = files_of(run)
+    edited = tmp_path / "smoke.toml"
+    edited.write_text(change(SMOKE.read_text()))
+    assert load_pipeline(edited).run_id != SMOKE_RUN_ID
+    result = invoke("run", edited, "--out", run)
+    assert result.exit_code == 0, result.output
+    assert f"resuming run {SMOKE_RUN_ID}, made from another text of smoke with the same " in (
+        result.stderr
+    )
+    assert f"run {SMOKE_RUN_ID}: 82 trials logged" in result.stdout
     assert files_of(run) == before
 
 

@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from cirl_study.commands.parameters import Command
+from cirl_study.commands.parameters import Command, RunArgument
 from cirl_study.escape import terminal
 
 if TYPE_CHECKING:
@@ -20,15 +20,6 @@ app = typer.Typer(rich_markup_mode=None)
 REPORT_NAME = "report"
 """Name of the default report directory, inside the run directory it reports on."""
 
-
-RunArgument = Annotated[
-    Path,
-    typer.Argument(
-        metavar="RUN",
-        help="Run directory holding the *.mcap log files, e.g. data/runs/paper.",
-        show_default=False,
-    ),
-]
 
 ReportDirectoryOption = Annotated[
     Path | None,

@@ -9,8 +9,8 @@ from typing import TYPE_CHECKING, Annotated
 import typer
 
 from cirl_study.analysis.refine import DEFAULT_MAX_PROBES
-from cirl_study.commands.analyze import ForceOption, RunArgument, warn
-from cirl_study.commands.parameters import Command, number
+from cirl_study.commands.analyze import ForceOption, warn
+from cirl_study.commands.parameters import Command, RunArgument, number
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 

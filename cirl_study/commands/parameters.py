@@ -14,12 +14,14 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from enum import Enum
-from typing import Any, TypeVar
+from pathlib import Path
+from typing import Annotated, Any, TypeVar
 
 import typer
 from typer.core import TyperCommand
 
 from cirl_study.escape import terminal
+from cirl_study.files import RUNS_DIRECTORY
 
 Choice = TypeVar("Choice", bound=Enum)
 Number = TypeVar("Number", int, float)
@@ -71,3 +73,28 @@ def number(kind: type[Number], what: str, minimum: Number | None = None) -> Call
         return parsed
 
     return parse
+
+
+def run_directory(value: Any) -> Path:
+    """``RUN``: a run directory; or, where no such path exists, the name of a pipeline whose
+    run is where ``cirl-study run NAME`` puts it, ``data/runs/NAME``.
+
+    >>> run_directory("data/runs/paper")
+    PosixPath('data/runs/paper')
+    """
+    path = Path(value)
+    if not path.exists() and len(path.parts) == 1 and (RUNS_DIRECTORY / path).is_dir():
+        return RUNS_DIRECTORY / path
+    return path
+
+
+RunArgument = Annotated[
+    Path,
+    typer.Argument(
+        metavar="RUN",
+        help="Run directory holding the *.mcap log files, e.g. data/runs/paper; or the name "
+        "of a pipeline whose run is in data/runs, e.g. paper.",
+        parser=run_directory,
+        show_default=False,
+    ),
+]

@@ -3,12 +3,10 @@
 from __future__ import annotations
 
 import dataclasses
-from pathlib import Path
-from typing import Annotated
 
 import typer
 
-from cirl_study.commands.parameters import Command
+from cirl_study.commands.parameters import Command, RunArgument
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``validate`` command, merged into :data:`cirl_study.cli.app`."""
@@ -16,14 +14,7 @@ app = typer.Typer(rich_markup_mode=None)
 
 @app.command(cls=Command)
 def validate(
-    run: Annotated[
-        Path,
-        typer.Argument(
-            metavar="RUN",
-            help="Run directory holding the *.mcap log files, e.g. data/runs/paper.",
-            show_default=False,
-        ),
-    ],
+    run: RunArgument,
 ) -> None:
     """Check every MCAP log file of a run and the run as a whole.
 

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import io
 import struct
-import tomllib
 from collections.abc import Callable, Collection, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -423,8 +422,17 @@ def logged_run(run_dir: str | Path, identity: RunIdentity, pipeline_of: Pipeline
     if files:
         found = _same_identity(run_dir, identities)
         if found != identity:
-            raise UserError(f"{run_dir}: {_another_run(found, identity)}")
+            raise AnotherRunLogged(f"{run_dir}: {_another_run(found, identity)}", found)
     return LoggedRun(identity, files)
+
+
+class AnotherRunLogged(UserError):
+    """A run directory holds the logs of another run than the one asked for: its identity is
+    :attr:`logged` (whether its settings are the asked run's is the study's to judge)."""
+
+    def __init__(self, message: str, logged: RunIdentity) -> None:
+        super().__init__(message)
+        self.logged = logged
 
 
 def read_trials(
@@ -464,25 +472,20 @@ def _records_of(
 
 
 def _another_run(logged: RunIdentity, asked: RunIdentity) -> str:
-    """Why the run ``logged`` in a directory is not the run ``asked`` to resume, and what to do.
-
-    A pipeline of the same name whose text changed (a comment will do: the run is its text)
-    is said to be that, with both run ids.
+    """Why the run ``logged`` in a directory is not the run ``asked`` to resume, and what to
+    do. (A pipeline of the same name whose settings are the logged run's resumes it: the
+    study judges that, :func:`cirl_study.study.runner.same_settings`, before this is said.)
     """
     if logged.pipeline_name != asked.pipeline_name or logged.run_id == asked.run_id:
         return (
             f"holds the logs of another run ({_difference(logged, asked)}); "
             "use another --out directory"
         )
-    settings = (
-        "only its comments or layout differ"
-        if tomllib.loads(logged.pipeline_text) == tomllib.loads(asked.pipeline_text)
-        else "its settings differ"
-    )
     return (
-        f"holds run {logged.run_id}, made from another text of {asked.pipeline_file}, which "
-        f"is now run {asked.run_id} ({settings}); restore the text the run was made from to "
-        "resume it, or use another --out directory"
+        f"holds run {logged.run_id}, made from another version of {asked.pipeline_file}, which "
+        f"is now run {asked.run_id} with other settings; restore the settings the run was made "
+        "with to resume it (`cirl-study show` prints its pipeline), or use another --out "
+        "directory"
     )
 
 

@@ -26,6 +26,7 @@ from pathlib import Path
 from cirl_study.escape import shell, terminal
 from cirl_study.logs.lock import writer_pid
 from cirl_study.logs.provenance import RunIdentity
+from cirl_study.logs.reader import read_run
 from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.pipeline_file import (
@@ -215,3 +216,58 @@ def _holds(path: str, sha256: str) -> bool:
             return False
         data = stream.read(MAX_PIPELINE_BYTES + 1)
     return hashlib.sha256(data).hexdigest() == sha256
+
+
+@dataclass(frozen=True)
+class RunStatus:
+    """What ``cirl-study show`` says of a run: its identity and the pipeline it plays, the
+    trials logged against the plan (:class:`RunAudit`), its files (and the damaged ones,
+    read as far as they are intact), and how to complete it."""
+
+    identity: RunIdentity
+    pipeline: Pipeline
+    audit: RunAudit
+    files: int
+    damaged: tuple[Path, ...]
+    advice: str
+
+    def lines(self) -> list[str]:
+        """The status as lines of text, each escaped for a terminal."""
+        identity, audit = self.identity, self.audit
+        state = "complete" if audit.complete else "incomplete"
+        if not audit.complete:
+            missing = audit.missing_text() or f"{len(audit.foreign)} foreign trial(s)"
+            state += f" ({missing}); {self.advice}"
+        blocks = ", ".join(
+            f"{block.block} {block.logged} of {block.planned}" for block in audit.blocks
+        )
+        lines = [
+            f"run {identity.run_id}: pipeline {identity.pipeline_name} "
+            f"({self.pipeline.description}), from {identity.pipeline_file}, "
+            f"log format {identity.log_format}",
+            f"status: {state}",
+            f"trials: {audit.logged} of {audit.planned} planned, in {self.files} file(s): "
+            f"{blocks}",
+        ]
+        if self.damaged:
+            names = ", ".join(path.name for path in self.damaged)
+            lines.append(f"damaged: {len(self.damaged)} file(s), read as far as intact: {names}")
+        return [terminal(line, limit=None) for line in lines]
+
+
+def run_status(run_dir: Path) -> RunStatus:
+    """The :class:`RunStatus` of the run in ``run_dir``, its damaged files salvaged.
+
+    Raises:
+        UserError: ``run_dir`` is no run directory, or holds no readable log file.
+    """
+    contents = read_run(run_dir, logged_pipeline, salvage=True)
+    pipeline = logged_pipeline(contents.identity)
+    return RunStatus(
+        identity=contents.identity,
+        pipeline=pipeline,
+        audit=audit_run(pipeline, contents.rows),
+        files=len(contents.files),
+        damaged=tuple(contents.damaged),
+        advice=resume_advice(contents.identity, run_dir),
+    )

@@ -22,6 +22,7 @@ planned with it and played.
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import hashlib
 import itertools
 import math
@@ -36,12 +37,14 @@ import msgspec
 
 from cirl_study import interrupts
 from cirl_study.errors import PlayerFault, RunStopped, UserError
-from cirl_study.files import non_regular, remove_file
+from cirl_study.escape import terminal
+from cirl_study.files import RUNS_DIRECTORY, non_regular, remove_file
 from cirl_study.interrupts import Interrupted
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
 from cirl_study.logs.lock import LOCK_NAME, writer_lock
 from cirl_study.logs.provenance import RunIdentity, collect_provenance
-from cirl_study.logs.reader import LoggedRun, logged_run
+from cirl_study.logs.reader import AnotherRunLogged, LoggedRun, logged_run
+from cirl_study.logs.versions import LOG_FORMAT
 from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.audit import resume_command
@@ -149,8 +152,8 @@ def _watch_stand_ins(trials: Sequence[TrialSpec]) -> list[TrialRecord]:
 
 
 def default_out_dir(pipeline: Pipeline) -> Path:
-    """``data/runs/<pipeline name>`` below the current directory."""
-    return Path("data") / "runs" / pipeline.name
+    """``data/runs/<pipeline name>`` below the current directory (:data:`RUNS_DIRECTORY`)."""
+    return RUNS_DIRECTORY / pipeline.name
 
 
 def batch_size(pending: int, workers: int) -> int:
@@ -338,6 +341,40 @@ def _remove_unused(out_dir: Path, created: Sequence[Path]) -> None:
             directory.rmdir()
 
 
+def _same_settings(another: AnotherRunLogged, pipeline: Pipeline) -> Pipeline:
+    """The pipeline of the run ``another`` found logged, if its settings are ``pipeline``'s
+    (:func:`same_settings`): a run is its settings, not its text. Else ``another`` is raised:
+    a run of other settings is another run, and so is a run of an earlier log format (its
+    version seeded and named its trials as it did).
+    """
+    if another.logged.log_format != LOG_FORMAT:
+        raise another
+    try:
+        logged = logged_pipeline(another.logged)
+    except ValueError:
+        raise another from None
+    if not same_settings(logged, pipeline):
+        raise another
+    return logged
+
+
+def same_settings(first: Pipeline, second: Pipeline) -> bool:
+    """Whether two pipelines play the same trials with the same numbers: equal in every
+    setting, their ``description``, text (comments, layout) and file aside.
+
+    >>> from cirl_study.study.pipeline_file import load_pipeline, resolve_pipeline
+    >>> smoke = load_pipeline(resolve_pipeline("smoke"))
+    >>> same_settings(smoke, dataclasses.replace(smoke, description="another", text="# x"))
+    True
+    >>> same_settings(smoke, dataclasses.replace(smoke, seed=smoke.seed + 1))
+    False
+    """
+    def settings(pipeline: Pipeline) -> Pipeline:
+        return dataclasses.replace(pipeline, description="", path=Path(), text="", sha256="")
+
+    return settings(first) == settings(second)
+
+
 def _kept(identity: RunIdentity, out_dir: Path, done: set[str]) -> str:
     """``N trials kept; resume with `<command>```: what a run stopped on the way says."""
     return f"{len(done)} trials kept; {resume_command(identity, out_dir)}"
@@ -352,8 +389,18 @@ def _run_locked(
 ) -> RunResult:
     """:func:`run_pipeline` once this process holds the directory's writer lock."""
     identity = run_identity(pipeline)
+    try:
+        logged = prepare_run_directory(out_dir, identity)
+    except AnotherRunLogged as another:
+        pipeline = _same_settings(another, pipeline)
+        identity = another.logged
+        hooks.note(
+            f"{terminal(out_dir)}: resuming run {identity.run_id}, made from another text of "
+            f"{terminal(pipeline.name)} with the same settings (its description, comments or "
+            "layout differ); its files keep the text it was made from"
+        )
+        logged = prepare_run_directory(out_dir, identity)
     provenance = collect_provenance(identity, out_dir)
-    logged = prepare_run_directory(out_dir, identity)
     done = logged.trial_ids
     resumed = len(done)
     total = sum(trial_counts(pipeline).values())
