@@ -7,6 +7,7 @@ plays, validates and analyses a pipeline of its players."""
 from __future__ import annotations
 
 import importlib.metadata
+import json
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -57,9 +58,12 @@ def installed(monkeypatch: pytest.MonkeyPatch) -> Iterator[Callable[..., None]]:
 
     monkeypatch.setattr(importlib.metadata, "entry_points", entry_points)
     monkeypatch.setattr(players, "_INSTALLED", [])
-    monkeypatch.setattr(players, "PACKAGES", {})
+    packages = dict(players.PACKAGES)
+    players.PACKAGES.clear()
     before = [(registry, dict(dict.items(registry))) for registry in (HUMANS, ROBOTS)]
     yield install
+    players.PACKAGES.clear()
+    players.PACKAGES.update(packages)
     for registry, players_before in before:
         dict.clear(registry)
         dict.update(registry, players_before)
@@ -163,3 +167,41 @@ def test_a_player_name_that_would_break_an_id_is_refused_in_one_line(installed, 
     with pytest.raises(UserError, match=r"is not a name for a human: a letter or _") as error:
         _ = "shy" in HUMANS
     assert "\n" not in str(error.value) and "fake-players" in str(error.value)
+
+
+def test_a_player_no_longer_installed_is_named_with_its_package(
+    installed, tmp_path, monkeypatch
+) -> None:
+    """Provenance records the package each installed player came from; once it is
+    uninstalled, ``validate`` and ``analyze`` say so in those words, not as a damaged log."""
+    from cirl_study.core.humans import expert_paths
+
+    def copies_the_expert(game, theta, eta, seeds):
+        return expert_paths(game.learning, theta)
+
+    installed(copycat=lambda: Human(copies_the_expert, takes_eta=False))
+    text = SMOKE.read_text(encoding="utf-8")
+    text = text.replace('humans = ["expert", "best_response"]', 'humans = ["expert", "copycat"]')
+    (tmp_path / "mine.toml").write_text(text, encoding="utf-8")
+    run = tmp_path / "run"
+    result = CliRunner().invoke(app, ["run", str(tmp_path / "mine.toml"), "--out", str(run)])
+    assert result.exit_code == 0, result.output
+    provenance = read_run(run, logged_pipeline).provenance[0]
+    assert json.loads(provenance["players"]) == {"copycat": "fake-players 0.1"}
+
+    # Uninstalled: no entry point any more, and nothing of it registered.
+    real = importlib.metadata.entry_points
+    monkeypatch.setattr(
+        importlib.metadata,
+        "entry_points",
+        lambda group=None, **s: [] if group == players.ENTRY_POINTS else real(**s),
+    )
+    dict.pop(HUMANS, "copycat")
+    players._INSTALLED.clear()
+    players.PACKAGES.clear()
+    said = "human 'copycat' is not installed; it came from package fake-players 0.1"
+    result = CliRunner().invoke(app, ["validate", str(run)])
+    assert result.exit_code == 1
+    assert all(said in line for line in result.stdout.splitlines()[:-1]), result.stdout
+    result = CliRunner().invoke(app, ["analyze", str(run)])
+    assert result.exit_code == 2 and said in result.stderr and result.stderr.count("\n") == 1

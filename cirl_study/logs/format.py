@@ -69,6 +69,10 @@ IDENTITY_KEYS = (
 #: One game step lasts one second of log time, so Foxglove replays an episode at 1 step/s.
 STEP_NS = 1_000_000_000
 
+MAX_PIPELINE_BYTES = 1 << 20
+"""Largest pipeline file read, as a file or as the text a log's provenance carries (every log
+file of a run carries the whole text)."""
+
 LOG_SUFFIX = ".mcap"
 TEMP_SUFFIX = ".tmp"
 

@@ -14,25 +14,29 @@ text is a pipeline is the study's to say: every reader of a run is given that ju
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 import platform
 import subprocess
+import tomllib
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from cirl_study import __version__
+from cirl_study.core.players import HUMANS, PACKAGES, ROBOTS
 from cirl_study.escape import terminal
 from cirl_study.logs.format import (
     IDENTITY_KEYS,
     LOG_FORMAT_KEY,
+    MAX_PIPELINE_BYTES,
     PIPELINE_FILE_KEY,
     PIPELINE_NAME_KEY,
     PIPELINE_SHA_KEY,
     PIPELINE_TEXT_KEY,
     RUN_ID_KEY,
 )
-from cirl_study.logs.versions import LOG_FORMAT, READABLE, readable
+from cirl_study.logs.versions import LOG_FORMAT, READABLE, pipeline_table, readable
 
 KEY_PACKAGES: tuple[str, ...] = (
     "numpy",
@@ -137,6 +141,9 @@ def pipeline_faults(provenance: Mapping[str, str] | None, pipeline_of: PipelineO
         identity = RunIdentity.of(provenance or {})
     except ValueError:
         return []
+    missing = missing_players(provenance or {})
+    if missing:
+        return missing[:1]
     try:
         pipeline_of(identity)
     except ValueError as error:
@@ -144,17 +151,61 @@ def pipeline_faults(provenance: Mapping[str, str] | None, pipeline_of: PipelineO
     return []
 
 
-def collect_provenance(identity: RunIdentity, run_dir: Path | None = None) -> dict[str, str]:
+PLAYERS_KEY = "players"
+"""Provenance key: the players of installed packages that the run's pipeline names, as JSON
+``{name: "package version"}`` (absent when it names none)."""
+
+
+def collect_provenance(
+    identity: RunIdentity, run_dir: Path | None = None, players: Iterable[str] = ()
+) -> dict[str, str]:
     """Provenance of the log files of a run, as a string-to-string map.
 
     The entries of :meth:`RunIdentity.provenance` (``log_format`` among them), then those of
-    :func:`machine_provenance` (``git_dirty`` judged without the run directory ``run_dir``).
-    Nothing depends on the clock, so every file of a run carries the same record.
+    :func:`machine_provenance` (``git_dirty`` judged without the run directory ``run_dir``),
+    then :data:`PLAYERS_KEY` for those of the ``players`` (the names the pipeline plays)
+    that come from installed packages (:data:`cirl_study.core.players.PACKAGES`). Nothing
+    depends on the clock, so every file of a run carries the same record.
     """
-    return {
+    provenance = {
         **identity.provenance(),
         **machine_provenance(outputs=() if run_dir is None else (run_dir,)),
     }
+    installed = {name: PACKAGES[name] for name in sorted(set(players)) if name in PACKAGES}
+    if installed:
+        provenance[PLAYERS_KEY] = json.dumps(installed, sort_keys=True)
+    return provenance
+
+
+def missing_players(provenance: Mapping[str, str]) -> list[str]:
+    """Each player the pipeline of ``provenance`` names that is not registered here, as
+    ``human 'greedy' is not installed; it came from package my-players 0.1`` (the package
+    as :data:`PLAYERS_KEY` names it, where it does). Empty when every one is, or when the
+    pipeline text cannot be read (its own check says why).
+    """
+    text = provenance.get(PIPELINE_TEXT_KEY, "")
+    try:
+        if len(text) > MAX_PIPELINE_BYTES:
+            return []
+        main = pipeline_table(tomllib.loads(text), provenance.get(LOG_FORMAT_KEY, "")).get("main")
+        origins = json.loads(provenance.get(PLAYERS_KEY, "{}"))
+    except (tomllib.TOMLDecodeError, ValueError, RecursionError, AttributeError):
+        return []
+    if not isinstance(main, dict) or not isinstance(origins, dict):
+        return []
+    faults = []
+    for kind, key, registry in (("human", "humans", HUMANS), ("robot", "robots", ROBOTS)):
+        names = main.get(key)
+        for name in names if isinstance(names, list) else []:
+            if isinstance(name, str) and name not in registry:
+                origin = origins.get(name)
+                came = (
+                    f"it came from package {origin}"
+                    if isinstance(origin, str)
+                    else "the run's logs name no package of it"
+                )
+                faults.append(f"{kind} {name!r} is not installed; {came}")
+    return faults
 
 
 def machine_provenance(outputs: Iterable[Path] = ()) -> dict[str, str]:

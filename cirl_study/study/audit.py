@@ -24,13 +24,13 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from cirl_study.escape import shell, terminal
+from cirl_study.logs.format import MAX_PIPELINE_BYTES
 from cirl_study.logs.lock import writer_pid
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.reader import read_run
 from cirl_study.record import ETA_CV, TrialRow
 from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.pipeline_file import (
-    MAX_PIPELINE_BYTES,
     logged_pipeline,
     path_argument,
     pipeline_search_path,

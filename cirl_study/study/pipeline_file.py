@@ -26,6 +26,7 @@ from typing import Any
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.logs.format import (
+    MAX_PIPELINE_BYTES,
     PIPELINE_NAME_KEY,
     PIPELINE_SHA_KEY,
     PIPELINE_TEXT_KEY,
@@ -52,8 +53,6 @@ from cirl_study.study.spec import (
 PIPELINES_DIRECTORY = "pipelines"
 """Name of the directory that holds the pipeline files, at the repository root."""
 
-MAX_PIPELINE_BYTES = 1 << 20
-"""Largest pipeline file read: every log file of a run carries the whole text."""
 
 MAX_PIPELINE_NESTING = 8
 """Most levels of tables and arrays a pipeline nests, its top table counting one. A valid

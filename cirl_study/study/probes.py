@@ -32,10 +32,11 @@ from typing import Any
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.files import non_regular, read_regular_file, write_file
+from cirl_study.logs.format import MAX_PIPELINE_BYTES
 from cirl_study.record import GRADIENT_ASCENT
 from cirl_study.study.engines import Engine
 from cirl_study.study.multiverse import cv_universe, universe_pipeline
-from cirl_study.study.pipeline_file import MAX_PIPELINE_BYTES, parse_pipeline
+from cirl_study.study.pipeline_file import parse_pipeline
 from cirl_study.study.runner import ProgressHooks, run_pipeline
 from cirl_study.study.settings import written
 from cirl_study.study.spec import AXES, GradientAscentSpec, Pipeline, Universe

@@ -341,6 +341,16 @@ def _remove_unused(out_dir: Path, created: Sequence[Path]) -> None:
             directory.rmdir()
 
 
+def _players(pipeline: Pipeline) -> tuple[str, ...]:
+    """Every player ``pipeline`` plays: its humans, its robots and a multiverse's."""
+    universes = pipeline.multiverse.universes if pipeline.multiverse is not None else ()
+    return (
+        *pipeline.main.humans,
+        *pipeline.main.robots,
+        *(universe.robot for universe in universes),
+    )
+
+
 def _same_settings(another: AnotherRunLogged, pipeline: Pipeline) -> Pipeline:
     """The pipeline of the run ``another`` found logged, if its settings are ``pipeline``'s
     (:func:`same_settings`): a run is its settings, not its text. Else ``another`` is raised:
@@ -400,7 +410,7 @@ def _run_locked(
             "layout differ); its files keep the text it was made from"
         )
         logged = prepare_run_directory(out_dir, identity)
-    provenance = collect_provenance(identity, out_dir)
+    provenance = collect_provenance(identity, out_dir, _players(pipeline))
     done = logged.trial_ids
     resumed = len(done)
     total = sum(trial_counts(pipeline).values())
