@@ -59,6 +59,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import msgspec
 import numpy as np
@@ -247,7 +248,19 @@ def _above(ss: float, floor: float) -> float:
     return ss if ss > floor else 0.0
 
 
-def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> Sphericity:
+class _Sphericity(NamedTuple):
+    """The fields of :class:`Sphericity` as computed, an epsilon infinite or NaN where it is
+    (the record holds ``None`` for both), before the corrected p-values."""
+
+    mauchly_w: float
+    mauchly: Probability
+    gg_epsilon: float
+    hf_epsilon: float
+    gg: Probability
+    hf: Probability
+
+
+def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> _Sphericity:
     """Mauchly's test and both epsilons of one error SSCP matrix on ``n`` degrees of freedom,
     in a design of ``cells`` within cells (the p-values of the corrections are filled in by
     :func:`_effect_row`). With fewer error degrees of freedom than contrasts (``n < d``) the
@@ -256,7 +269,7 @@ def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> Sphericity:
     trace = float(np.trace(sscp))
     nan = Probability(p=math.nan, log10_p=math.nan)
     if not trace > 0:  # no error variance: neither the test nor the epsilons are defined
-        return Sphericity(
+        return _Sphericity(
             mauchly_w=math.nan, mauchly=nan, gg_epsilon=math.nan, hf_epsilon=math.nan, gg=nan,
             hf=nan,
         )  # fmt: skip
@@ -264,7 +277,7 @@ def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> Sphericity:
     hf = ((n + 1) * d * gg - 2) / (d * (n - d * gg)) if n > d * gg else math.inf
     sign, log_det = np.linalg.slogdet(sscp)
     if n < d or sign <= 0:
-        return Sphericity(
+        return _Sphericity(
             mauchly_w=math.nan, mauchly=nan, gg_epsilon=gg, hf_epsilon=hf, gg=nan, hf=nan
         )
     log_w = float(log_det) - d * math.log(trace / d)
@@ -280,7 +293,7 @@ def _sphericity(sscp: NDArray[np.float64], n: int, cells: int) -> Sphericity:
     f = d * (d + 1) / 2 - 1
     (p1, log10_p1), (p2, log10_p2) = chi2_tail(statistic, f), chi2_tail(statistic, f + 4)
     log10_p = log10_p1 + math.log10((1 - w2) + w2 * 10 ** (log10_p2 - log10_p1))
-    return Sphericity(
+    return _Sphericity(
         mauchly_w=math.exp(log_w),
         mauchly=Probability(p=float(p1 + w2 * (p2 - p1)), log10_p=log10_p),
         gg_epsilon=gg,
@@ -298,12 +311,13 @@ def _effect_row(
     error_ss: float,
     df2: int,
     error_total: float,
-    sphericity: Sphericity | None,
+    sphericity: _Sphericity | None,
 ) -> AnovaEffect:
     # Without error variance F is infinite, unless the effect has none either: 0 / 0.
     without_error = math.inf if ss > 0 else math.nan
     f_value = (ss / df1) / (error_ss / df2) if error_ss > 0 else without_error
     p, log10_p = f_tail(f_value, df1, df2)
+    tested = None
     if sphericity is not None:
         corrected = {}
         for name, epsilon in (
@@ -312,7 +326,7 @@ def _effect_row(
         ):
             q, log10_q = f_tail(f_value, epsilon * df1, epsilon * df2)
             corrected[name] = Probability(p=q, log10_p=log10_q)
-        sphericity = msgspec.structs.replace(sphericity, **corrected)
+        tested = Sphericity(**sphericity._replace(**corrected)._asdict())
     return AnovaEffect(
         measure=measure,
         effect=effect,
@@ -325,7 +339,7 @@ def _effect_row(
         log10_p=log10_p,
         np2=_share(ss, ss + error_ss),
         ges=_share(ss, ss + error_total),
-        sphericity=sphericity,
+        sphericity=tested,
     )
 
 
