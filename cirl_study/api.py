@@ -28,6 +28,19 @@ Examples:
     >>> claim = next(c for c in results.claims if c.id == "lambda_intermediate")
     >>> claim.tested, type(claim.reproduced).__name__
     (True, 'bool')
+
+    Every table of the results (``results.anova``, ``results.cells``, ``results.claims``, a
+    multiverse's ``universes``, ...) is a list of typed rows whose ``to_frame()`` gives it as a
+    pandas DataFrame, a column per field and a nested record's fields flattened (as pingouin's
+    tests return theirs; ``pd.DataFrame(results.anova)`` would make one column of row objects):
+
+    >>> anova = results.anova.to_frame()
+    >>> anova[anova["measure"] == "regret"][["effect", "df1", "df2"]].to_numpy().tolist()
+    [['num_features', 1, 6], ['human', 1, 6], ['human:num_features', 1, 6]]
+    >>> {"F", "p", "log10_p", "sphericity_gg_p"} <= set(anova.columns)
+    True
+    >>> results.cells.filter(lambda row: row.measure == "kl").to_frame().shape
+    (4, 10)
 """
 
 from __future__ import annotations

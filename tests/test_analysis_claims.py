@@ -1,8 +1,8 @@
 """The claim rows and their verdict rules (cirl_study.analysis.claims).
 
-Starting from real results of a synthetic study, the numbers a rule reads are set so
-that every claim holds; then each test breaks exactly one condition and checks that
-exactly that claim flips.
+Starting from real results of a synthetic study, as ``results.json`` stores them, the numbers
+a rule reads are set so that every claim holds; then each test breaks exactly one condition
+and checks that exactly that claim flips.
 """
 
 from __future__ import annotations
@@ -10,10 +10,11 @@ from __future__ import annotations
 import copy
 from collections.abc import Callable
 
+import msgspec
 import pytest
 from analysis_fixtures import pipeline, rows, synthetic_records
 
-from cirl_study.analysis.result_types import ClaimRow
+from cirl_study.analysis.result_types import ClaimRow, StudyResults, checked
 from cirl_study.analysis.results import analyse, with_claims
 from cirl_study.errors import UserError
 from cirl_study.measure_registry import PAPER_MEASURES
@@ -38,8 +39,9 @@ OTHER_IDS = [
 
 
 def evaluate_claims(results: dict, theory: dict | None = None) -> list[ClaimRow]:
-    """The claim rows of the plain ``results``, as a report judges them (typed first)."""
-    return list(with_claims(results, run_id=None, partial=None, theory=theory).claims)
+    """The claim rows of the plain ``results``, as a report judges them (decoded first)."""
+    typed = checked(results, StudyResults)
+    return list(with_claims(typed, run_id=None, partial=None, theory=theory).claims)
 
 
 def _anova(results: dict, measure: str, effect: str) -> dict:
@@ -67,7 +69,8 @@ def _within_level_tukey(results: dict) -> list[dict]:
 @pytest.fixture(scope="module")
 def holding() -> dict:
     """Results of a synthetic study, edited so that every paper claim holds."""
-    results = analyse(rows(synthetic_records(subjects_per_level=10)), pipeline("synthetic"))
+    study = analyse(rows(synthetic_records(subjects_per_level=10)), pipeline("synthetic"))
+    results = msgspec.to_builtins(study)
     for measure in PAPER_MEASURES:
         _anova(results, measure, "human").update(F=1000.0, p=1e-12)
         _anova(results, measure, "human:num_features").update(p=1e-3)

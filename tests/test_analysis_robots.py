@@ -131,7 +131,7 @@ def test_the_anova_refuses_an_incomplete_subject() -> None:
 
 def test_paired_differences_are_paired_t_tests_with_holm() -> None:
     data = split_plot_data(4, 10)
-    rows = paired_differences(data, "y", "robot", "map", ["num_features", "human"])
+    rows = paired_differences(data, "y", "robot", "map", ["num_features", "human"]).to_frame()
     assert len(rows) == 4 and set(rows["level"]) == {"pm"}
     raw = []
     for row in rows.itertuples():

@@ -24,8 +24,8 @@ from scipy import stats
 
 from cirl_study.analysis import statistics
 from cirl_study.analysis.anova import repeated_measures_anova
+from cirl_study.analysis.result_types import CellMean
 from cirl_study.analysis.table import trial_table
-from cirl_study.measure_registry import PAPER_MEASURES
 
 ANOVA_ORDER = ["num_features", "human", "human:num_features"]
 """The references' row order: between, within, interaction (ours too)."""
@@ -140,7 +140,7 @@ def main() -> pd.DataFrame:
 
 
 def test_simple_effects_are_paired_t_tests_with_holm_and_d_z(main):
-    frame = statistics.simple_effects(main, "regret").set_index("num_features")
+    frame = statistics.simple_effects(main, "regret").to_frame().set_index("num_features")
     for level in (3, 10):
         wide = main[main["num_features"] == level].pivot(
             index="subject", columns="human", values="regret"
@@ -160,7 +160,7 @@ def test_simple_effects_are_paired_t_tests_with_holm_and_d_z(main):
     smaller = min(1.0, 2 * p.min())
     holm = np.where(p == p.min(), smaller, max(smaller, p.max()))
     np.testing.assert_allclose(frame["p_holm"], holm)
-    again = statistics.simple_effects(main, "regret").set_index("num_features")
+    again = statistics.simple_effects(main, "regret").to_frame().set_index("num_features")
     assert again.equals(frame)  # the bootstrap is seeded
 
 
@@ -176,7 +176,7 @@ def test_tukey_hsd_matches_r_tukeyhsd_on_the_penguins():
             "mass": penguins["body_mass_g"],
         }
     )
-    tukey = statistics.tukey_hsd(data, "mass")
+    tukey = statistics.tukey_hsd(data, "mass").to_frame()
     assert len(tukey) == 15
     assert tuple(tukey.loc[0, ["a_num_features", "a_human", "b_num_features", "b_human"]]) == (
         1,
@@ -203,7 +203,7 @@ def test_tukey_hsd_is_pingouins_but_for_the_p_values():
         }
     )
     data.loc[data.index[::40], "mass"] = np.nan  # dropped, as pingouin drops them
-    ours = statistics.tukey_hsd(data, "mass")
+    ours = statistics.tukey_hsd(data, "mass").to_frame()
     theirs = pg.pairwise_tukey(data=data, dv="mass", between=["num_features", "human"])
     assert list(zip(ours["a_num_features"], ours["a_human"], strict=True)) == list(theirs["A"])
     assert list(zip(ours["b_num_features"], ours["b_human"], strict=True)) == list(theirs["B"])
@@ -216,7 +216,7 @@ def test_tukey_hsd_is_pingouins_but_for_the_p_values():
 
 
 def test_wilcoxon_tests_the_paired_differences_per_level(main):
-    frame = statistics.wilcoxon(main, "kl").set_index("num_features")
+    frame = statistics.wilcoxon(main, "kl").to_frame().set_index("num_features")
     for level in (3, 10):
         wide = main[main["num_features"] == level].pivot(
             index="subject", columns="human", values="kl"
@@ -251,7 +251,11 @@ def test_the_bootstrap_is_scipys_bca_in_linear_time(n, seed, ties):
                 rng=np.random.default_rng(statistics.BOOTSTRAP_SEED),
             ).confidence_interval
         np.testing.assert_allclose(
-            got[name], (expected.low, expected.high), rtol=1e-10, atol=1e-12, equal_nan=True
+            getattr(got, name),
+            (expected.low, expected.high),
+            rtol=1e-10,
+            atol=1e-12,
+            equal_nan=True,
         )
 
 
@@ -289,7 +293,7 @@ def test_the_resamples_reduced_in_blocks_are_numpys_mean_and_d_z_to_the_bit(
 
 def test_a_constant_difference_has_no_bootstrap_interval():
     intervals = statistics.bootstrap_mean_d_z(np.ones(12))
-    assert all(math.isnan(v) for pair in intervals.values() for v in pair)
+    assert all(math.isnan(v) for pair in intervals for v in pair)
 
 
 @settings(max_examples=25, deadline=None)
@@ -308,11 +312,11 @@ def test_wilcoxon_equals_pingouins(n, seed, decimals):
             "regret": np.concatenate([best, expert]),
         }
     )
-    row = statistics.wilcoxon(main, "regret").iloc[0]
+    (row,) = statistics.wilcoxon(main, "regret")
     expected = pg.wilcoxon(best, expert).iloc[0]
-    assert row["W"] == expected["W_val"] and row["p"] == expected["p_val"]
-    assert row["rbc"] == pytest.approx(expected["RBC"], rel=1e-12, abs=1e-15)
-    assert row["cles"] == expected["CLES"]
+    assert expected["W_val"] == row.W and row.p == expected["p_val"]
+    assert row.rbc == pytest.approx(expected["RBC"], rel=1e-12, abs=1e-15)
+    assert row.cles == expected["CLES"]
 
 
 def test_group_means_use_the_t_interval():
@@ -329,10 +333,11 @@ def test_group_means_use_the_t_interval():
 def test_cronbach_alpha_matches_r_psych():
     # R: psych::alpha on pingouin's cronbach_alpha dataset: 0.592, 95% CI [0.195, 0.840].
     data = pg.read_dataset("cronbach_alpha").pivot(index="Subj", columns="Items", values="Scores")
-    alpha = statistics.cronbach_alpha(data)
-    assert round(alpha["raw"], 3) == 0.592
-    assert [round(bound, 3) for bound in alpha["ci95"]] == [0.195, 0.840]
-    assert alpha["n_rows"] == len(data) and alpha["n_items"] == data.shape[1]
+    alpha = statistics.cronbach_alpha(data, "one row per subject")
+    assert round(alpha.raw, 3) == 0.592
+    assert [round(bound, 3) for bound in alpha.ci95] == [0.195, 0.840]
+    assert alpha.n_rows == len(data) and alpha.n_items == data.shape[1]
+    assert alpha.items == [str(item) for item in data.columns]
 
 
 @settings(max_examples=20, deadline=None)
@@ -346,12 +351,12 @@ def test_cronbach_alpha_closed_forms(seed, rows, k):
     raw = k / (k - 1) * (1 - values.var(axis=0, ddof=1).sum() / values.sum(axis=1).var(ddof=1))
     correlations = np.corrcoef(values, rowvar=False)
     mean_r = correlations[np.triu_indices(k, 1)].mean()
-    alpha = statistics.cronbach_alpha(items)
-    assert alpha["raw"] == pytest.approx(raw, rel=1e-9, abs=1e-12)
-    assert alpha["standardised"] == pytest.approx(
+    alpha = statistics.cronbach_alpha(items, "one row per observation")
+    assert alpha.raw == pytest.approx(raw, rel=1e-9, abs=1e-12)
+    assert alpha.standardised == pytest.approx(
         k * mean_r / (1 + (k - 1) * mean_r), rel=1e-9, abs=1e-12
     )
-    low, high = alpha["ci95"]
+    low, high = alpha.ci95
     quantiles = stats.f.ppf([0.975, 0.025], rows - 1, (rows - 1) * (k - 1))
     assert (low, high) == pytest.approx(tuple(1 - (1 - raw) * quantiles))
 
@@ -366,21 +371,26 @@ def test_eta_means_are_the_best_responses_mean_regret_per_level_and_eta():
             "regret": [1.0, 3.0, 1.5, 2.5, 1.0, 2.0, 0.5, 1.5, 0.0],
         }
     )
-    means = statistics.eta_means(cv)
+    means = statistics.eta_means(cv).to_frame()
     assert means[["num_features", "eta", "n", "mean"]].to_dict("list") == {
         "num_features": [3, 3, 10, 10],
         "eta": [0.1, 1.0, 0.1, 1.0],
         "n": [2, 2, 2, 2],
         "mean": [2.0, 2.0, 1.5, 1.0],
     }
-    assert means.equals(statistics.group_means(cv.iloc[:8], "regret", ["num_features", "eta"]))
+    expected = statistics.group_means(cv.iloc[:8], "regret", ["num_features", "eta"])
+    pd.testing.assert_frame_equal(means, expected, check_dtype=False)
 
 
-def test_lambda_sweep_has_one_row_per_measure_lambda_human_and_level():
+def test_group_mean_rows_are_the_group_means_typed():
     table = trial_table(rows(synthetic_records(subjects_per_level=3, lambdas=(0.1, 1.0, 10.0))))
-    sweep = statistics.lambda_sweep(table[table["block"] == "lambda_sweep"], PAPER_MEASURES)
-    assert len(sweep) == 3 * 3 * 2 * 2
-    assert set(sweep["n"]) == {3}
+    sweep = table[table["block"] == "lambda_sweep"]
+    by = ["rationality", "num_features", "human", "robot"]
+    means = statistics.group_mean_rows(sweep, "kl", by, CellMean)
+    assert len(means) == 3 * 2 * 2 and {row.n for row in means} == {3}
+    assert [row.rationality for row in means[:4]] == [0.1] * 4
+    expected = statistics.group_means(sweep, "kl", by)
+    pd.testing.assert_frame_equal(means.to_frame()[expected.columns], expected, check_dtype=False)
 
 
 @pytest.mark.parametrize(("n", "seed"), [(60, 0), (300, 1), (900, 2)])
@@ -403,15 +413,16 @@ def test_a_non_finite_value_is_refused_naming_its_trial_never_averaged(value: fl
     sum of squares NaN."""
     from analysis_fixtures import pipeline
 
-    from cirl_study.analysis.results import tests
+    from cirl_study.analysis.results import estimates, tests
     from cirl_study.errors import UserError
 
-    table = trial_table(rows(synthetic_records(subjects_per_level=4, lambdas=(1.0,), etas=(1.0,))))
+    trials = rows(synthetic_records(subjects_per_level=4, lambdas=(1.0,), etas=(1.0,)))
+    table = trial_table(trials)
     position = table.index[(table["block"] == "main")][5]
     table.loc[position, "kl"] = value
     trial = table.at[position, "trial_id"]
     with pytest.raises(UserError, match=f"^kl of trial {re.escape(trial)} is .*not a finite"):
-        tests(table, pipeline())
+        tests(estimates(trials, table, pipeline()), table, pipeline())
     frame = table[table["block"] == "main"]
     with pytest.raises(UserError, match=f"^kl of trial {re.escape(trial)} is"):
         repeated_measures_anova(frame, "kl", ["human"], "num_features")

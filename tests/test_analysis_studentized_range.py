@@ -262,7 +262,7 @@ def _tukey_frame() -> pd.DataFrame:
 
 def test_tukey_hsd_uses_the_accurate_tail():
     frame = _tukey_frame()
-    tukey = statistics.tukey_hsd(frame, "regret")
+    tukey = statistics.tukey_hsd(frame, "regret").to_frame()
     expected = [studentized_range_sf(math.sqrt(2) * abs(t), 4, 119 - 4) for t in tukey["T"]]
     assert list(tukey["p_tukey"]) == expected
     pingouin = pg.pairwise_tukey(data=frame, dv="regret", between=["num_features", "human"])

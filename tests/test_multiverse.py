@@ -197,15 +197,14 @@ def test_the_base_universe_plays_the_single_study_and_reports_its_numbers(
         assert records[trial_id].measures == record.measures
         assert records[trial_id].demonstration == record.demonstration
 
-    rows = read_run(run, logged_pipeline).rows
-    results = msgspec.to_builtins(analyse_multiverse(rows, pipeline, run_id=None))
-    (base_results,) = [u for u in results["universes"] if u["base"]]
+    results = analyse_multiverse(read_run(run, logged_pipeline).rows, pipeline, run_id=None)
+    (base_results,) = [u for u in results.universes if u.base]
     contents = read_run(smoke_run, logged_pipeline)
     alone = analyse(contents.rows, logged_pipeline(contents.identity))
-    assert base_results["anova"] == alone["paper"]["anova"]
-    assert base_results["cells"] == alone["cells"]
-    assert base_results["cronbach_alpha"] == alone["paper"]["cronbach_alpha"]
-    assert base_results["eta"] == alone["eta_cv"]["chosen"]
+    assert base_results.anova == alone.paper.anova
+    assert base_results.cells == alone.cells
+    assert base_results.cronbach_alpha == alone.paper.cronbach_alpha
+    assert base_results.eta == alone.eta_cv.chosen
 
 
 # ---- the open settings ---------------------------------------------------------------------
@@ -468,20 +467,19 @@ def test_the_joint_test_agrees_with_the_exact_sign_flip_null(shift: float):
     got = statistics.joint_sign_flip_test(d, resamples=20000, seed=3)
     for key, p in exact.items():
         # Monte Carlo p against the exact one: within 4 standard errors (+ the +1 correction)
-        assert abs(got[key]["p"] - p) <= 4 * math.sqrt(p * (1 - p) / 20000) + 1e-4, key
+        assert abs(getattr(got, key).p - p) <= 4 * math.sqrt(p * (1 - p) / 20000) + 1e-4, key
 
 
 def test_the_joint_test_finds_a_clear_effect_and_holds_its_level_under_the_null():
     rng = np.random.default_rng(11)
     clear = rng.normal(-1.0, 1.0, (6, 40))
     result = statistics.joint_sign_flip_test(clear, resamples=500)
-    assert all(result[key]["p"] == 1 / 501 for key in ("median_effect", "stouffer_z"))
+    assert result.median_effect.p == result.stouffer_z.p == 1 / 501
     rejections = 0
     for seed in range(200):
         null = np.random.default_rng(seed).normal(0.0, 1.0, (5, 30))
         rejections += (
-            statistics.joint_sign_flip_test(null, resamples=200, seed=seed)["stouffer_z"]["p"]
-            <= 0.05
+            statistics.joint_sign_flip_test(null, resamples=200, seed=seed).stouffer_z.p <= 0.05
         )
     assert 2 <= rejections <= 20  # 5% of 200 is 10; a binomial 99.9% range
 
@@ -493,10 +491,11 @@ def test_every_joint_p_carries_its_exact_log10():
     for d, resamples in ((rng.normal(-1.0, 1.0, (6, 40)), 500), (rng.normal(0, 1, (4, 12)), 999)):
         result = statistics.joint_sign_flip_test(d, resamples=resamples)
         for key in ("median_effect", "share_significant", "stouffer_z"):
-            extreme = round(result[key]["p"] * (1 + resamples)) - 1
+            statistic = getattr(result, key)
+            extreme = round(statistic.p * (1 + resamples)) - 1
             with mpmath.workdps(60):
                 exact = float(mpmath.log10(mpmath.mpf(1 + extreme) / (1 + resamples)))
-            assert math.isclose(result[key]["log10_p"], exact, rel_tol=1e-14), key
+            assert math.isclose(statistic.log10_p, exact, rel_tol=1e-14), key
 
 
 def test_the_joint_test_is_a_function_of_its_inputs_and_seed():

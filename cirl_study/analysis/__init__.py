@@ -12,9 +12,13 @@ robots and feature levels; a multiverse is analysed universe by universe with it
   :mod:`~cirl_study.analysis.anova`: the repeated-measures ANOVA of any factorial design,
   with its sphericity corrections; :mod:`~cirl_study.analysis.tails` and
   :mod:`~cirl_study.analysis.studentized_range`: p-values in log space.
-- :mod:`~cirl_study.analysis.measure_rows`: each test of every measure, as JSON-ready rows.
-- :mod:`~cirl_study.analysis.results`: every number of a study's report;
-  :mod:`~cirl_study.analysis.teaching`: its teaching sections.
+- :mod:`~cirl_study.analysis.result_types`: the typed records of the results (and of
+  ``results.json``), every table a ``Table`` with ``to_frame()``;
+  :mod:`~cirl_study.analysis.study_tests`: the per-measure tests, each registered by the field
+  that holds its rows; :mod:`~cirl_study.analysis.measure_rows`: their computations, for every
+  measure.
+- :mod:`~cirl_study.analysis.results`: every number of a study's report, built as its typed
+  record; :mod:`~cirl_study.analysis.teaching`: its teaching sections.
 - :mod:`~cirl_study.analysis.claims`: the published claims as data, judged on the results.
 - :mod:`~cirl_study.analysis.figures`: the figures, as deterministic PNG bytes.
 - :mod:`~cirl_study.analysis.report`: ``report.md``, ``results.json``, ``trials.csv``, with

@@ -73,6 +73,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
+from typing import NamedTuple
 
 import msgspec
 import numpy as np
@@ -307,7 +308,20 @@ SINGULAR = (
 """Why a stratum with a singular error matrix has ``W = 0`` and no Mauchly p."""
 
 
-def _sphericity(stratum: _Stratum, n: int, shape: tuple[int, int], floor: float) -> Sphericity:
+class _Sphericity(NamedTuple):
+    """The fields of :class:`Sphericity` as computed, an epsilon infinite or NaN where it is
+    (the record holds ``None`` for both), before the corrected p-values."""
+
+    mauchly_w: float
+    mauchly: Probability
+    gg_epsilon: float
+    hf_epsilon: float
+    gg: Probability
+    hf: Probability
+    reason: str | None = None
+
+
+def _sphericity(stratum: _Stratum, n: int, shape: tuple[int, int], floor: float) -> _Sphericity:
     """Mauchly's test and both epsilons of one stratum's error SSCP matrix ``E`` (``d x d``)
     on ``n`` degrees of freedom, in a design of ``shape = (S, C)``: ``S`` subjects, ``C``
     within cells; ``floor`` is the stratum's rounding floor (:func:`_rounding_floor`). The
@@ -332,11 +346,11 @@ def _sphericity(stratum: _Stratum, n: int, shape: tuple[int, int], floor: float)
     nan = Probability(p=math.nan, log10_p=math.nan)
     undefined = {"mauchly_w": math.nan, "mauchly": nan, "gg": nan, "hf": nan}
     if not stratum.error_ss > 0:
-        return Sphericity(
+        return _Sphericity(
             **undefined, gg_epsilon=math.nan, hf_epsilon=math.nan, reason=NO_ERROR_VARIANCE
         )
     if n < d:
-        return Sphericity(
+        return _Sphericity(
             **undefined, gg_epsilon=math.nan, hf_epsilon=math.nan, reason=TOO_FEW_SUBJECTS
         )
     trace = float(np.trace(sscp))
@@ -346,7 +360,7 @@ def _sphericity(stratum: _Stratum, n: int, shape: tuple[int, int], floor: float)
     singular_below = floor + 16.0 * (subjects + d) * np.finfo(np.float64).eps * trace
     sign, log_det = np.linalg.slogdet(sscp)
     if float(np.linalg.eigvalsh(sscp)[0]) <= singular_below or sign <= 0:
-        return Sphericity(
+        return _Sphericity(
             **{**undefined, "mauchly_w": 0.0}, gg_epsilon=gg, hf_epsilon=hf, reason=SINGULAR
         )
     log_w = float(log_det) - d * math.log(trace / d)
@@ -362,7 +376,7 @@ def _sphericity(stratum: _Stratum, n: int, shape: tuple[int, int], floor: float)
     f = d * (d + 1) / 2 - 1
     (p1, log10_p1), (p2, log10_p2) = chi2_tail(statistic, f), chi2_tail(statistic, f + 4)
     log10_p = log10_p1 + math.log10((1 - w2) + w2 * 10 ** (log10_p2 - log10_p1))
-    return Sphericity(
+    return _Sphericity(
         mauchly_w=math.exp(log_w),
         mauchly=Probability(p=float(p1 + w2 * (p2 - p1)), log10_p=log10_p),
         gg_epsilon=gg,
@@ -380,12 +394,13 @@ def _effect_row(
     error_ss: float,
     df2: int,
     error_total: float,
-    sphericity: Sphericity | None,
+    sphericity: _Sphericity | None,
 ) -> AnovaEffect:
     # Without error variance F is infinite, unless the effect has none either: 0 / 0.
     without_error = math.inf if ss > 0 else math.nan
     f_value = (ss / df1) / (error_ss / df2) if error_ss > 0 else without_error
     p, log10_p = f_tail(f_value, df1, df2)
+    tested = None
     if sphericity is not None:
         corrected = {}
         for name, epsilon in (("gg", sphericity.gg_epsilon), ("hf", sphericity.hf_epsilon)):
@@ -396,7 +411,7 @@ def _effect_row(
                 epsilon = min(1.0, epsilon)  # capped at 1 for its p
             q, log10_q = f_tail(f_value, epsilon * df1, epsilon * df2)
             corrected[name] = Probability(p=q, log10_p=log10_q)
-        sphericity = msgspec.structs.replace(sphericity, **corrected)
+        tested = Sphericity(**sphericity._replace(**corrected)._asdict())
     return AnovaEffect(
         measure=measure,
         effect=effect,
@@ -409,7 +424,7 @@ def _effect_row(
         log10_p=log10_p,
         np2=_share(ss, ss + error_ss),
         ges=_share(ss, ss + error_total),
-        sphericity=sphericity,
+        sphericity=tested,
     )
 
 

@@ -1,10 +1,13 @@
-"""Each test of every measure, as JSON-ready rows: the shape ``results.json`` stores.
+"""Each test of every measure: the computations of the registered tests
+(:mod:`cirl_study.analysis.study_tests`), and the per-measure tests of the teaching sections.
 
-:func:`plain` turns numpy scalars and NaN into JSON data; the others run one test of
-:mod:`cirl_study.analysis.statistics` or :mod:`cirl_study.analysis.anova` for each measure the
-analysis tests (:func:`~cirl_study.measure_registry.analysed_measures`) and return its
-rows, measures in the registry's order, each on the trials that have a value of it
-(:func:`measured`).
+A registered test's computation (``anova``, ``pairwise``, ``against_baseline``; the paper's
+``paper_anova``, ``simple_effects``, ``tukey_hsd``, ``wilcoxon``) returns its rows of one
+measure; :func:`run_tests` runs every test a record registers for each measure the analysis
+tests (:func:`~cirl_study.measure_registry.analysed_measures`), in the registry's order, each
+on the trials that have a value of it (:func:`measured`). :func:`plain` turns numpy scalars
+and NaN into JSON data, for the results' free-form mappings (a claim's values, a universe's
+settings).
 """
 
 from __future__ import annotations
@@ -13,12 +16,24 @@ import math
 from collections.abc import Iterator, Mapping
 from typing import Any
 
-import msgspec
 import numpy as np
 import pandas as pd
 
 from cirl_study.analysis import statistics
 from cirl_study.analysis.anova import refuse_non_finite, repeated_measures_anova
+from cirl_study.analysis.cells import Design
+from cirl_study.analysis.result_types import (
+    AnovaEffect,
+    PairedComparison,
+    PairedDifference,
+    Record,
+    SimpleEffect,
+    Table,
+    TukeyRow,
+    Undefined,
+    WilcoxonRow,
+)
+from cirl_study.analysis.study_tests import registered
 from cirl_study.errors import UserError
 from cirl_study.measure_registry import MEASURES, analysed_measures
 
@@ -70,60 +85,117 @@ def measured(frame: pd.DataFrame) -> Iterator[tuple[str, pd.DataFrame]]:
             yield measure, kept
 
 
-def undefined(table: pd.DataFrame) -> list[dict[str, Any]]:
+def undefined(table: pd.DataFrame) -> Table[Undefined] | None:
     """Per measure the analysis tests that some trials of ``table`` (the trial table) have no
     value of: those ``trials`` and the ``subjects`` (reward draws) they belong to, which
-    :func:`measured` leaves out of its statistics. Empty when every trial has every value."""
-    found = []
+    :func:`measured` leaves out of its statistics. ``None`` when every trial has every value."""
+    found = Table(Undefined)
     for measure in analysed_measures():
         missing = table[table[measure].isna()]
         if not missing.empty:
             found.append(
-                {
-                    "measure": measure,
-                    "trials": len(missing),
-                    "subjects": int(missing["subject"].nunique()),
-                }
+                Undefined(
+                    measure=measure,
+                    trials=len(missing),
+                    subjects=int(missing["subject"].nunique()),
+                )
             )
-    return found
+    return found or None
 
 
-def rows(frame: pd.DataFrame) -> list[dict[str, Any]]:
-    """The rows of ``frame`` as a list of plain dicts."""
-    return [plain(row) for row in frame.to_dict(orient="records")]
+def run_tests(record: type[Record], frame: pd.DataFrame, design: Design) -> dict[str, Table]:
+    """The rows of every test ``record`` registers, by field name: each computed on ``frame``
+    for every measure (:func:`measured`), the measures in the registry's order."""
+    by_measure = list(measured(frame))
+    return {
+        test.name: Table(
+            test.row_type,
+            (
+                row
+                for measure, kept in by_measure
+                for row in test.test.computed(kept, measure, design)
+            ),
+        )
+        for test in registered(record)
+    }
 
 
-def paired_rows(frame: pd.DataFrame, factor: str, baseline: str, by: list[str]) -> list[dict]:
+def paired_rows(
+    frame: pd.DataFrame, factor: str, baseline: str, by: list[str]
+) -> Table[PairedDifference]:
     """:func:`~cirl_study.analysis.statistics.paired_differences` for every measure, one Holm
     family per measure."""
-    return rows(
-        pd.concat(
-            statistics.paired_differences(kept, m, factor, baseline, by)
+    return Table(
+        PairedDifference,
+        (
+            row
             for m, kept in measured(frame)
-        )
+            for row in statistics.paired_differences(kept, m, factor, baseline, by)
+        ),
     )
 
 
-def anova_rows(frame: pd.DataFrame, within: list[str]) -> list[dict[str, Any]]:
-    """:func:`~cirl_study.analysis.anova.repeated_measures_anova` of every measure, with
-    ``num_features`` between subjects where the measure's trials have two levels or more of
-    it."""
-    return [
-        plain(msgspec.to_builtins(row))
-        for m, kept in measured(frame)
-        for row in repeated_measures_anova(
-            kept, m, within, "num_features" if kept["num_features"].nunique() > 1 else None
-        )
-    ]
+def _anova(frame: pd.DataFrame, measure: str, within: list[str]) -> list[AnovaEffect]:
+    """:func:`~cirl_study.analysis.anova.repeated_measures_anova` of ``measure`` with
+    ``num_features`` between subjects where ``frame`` has two levels or more of it."""
+    between = "num_features" if frame["num_features"].nunique() > 1 else None
+    return repeated_measures_anova(frame, measure, within, between)
 
 
-def pairwise_rows(frame: pd.DataFrame, factors: Mapping[str, tuple[str, ...]]) -> list[dict]:
-    """:func:`~cirl_study.analysis.statistics.pairwise_differences` for every measure and
-    every factor of ``factors`` (its levels, in order) with two levels or more."""
+def anova_rows(frame: pd.DataFrame, within: list[str]) -> Table[AnovaEffect]:
+    """The ANOVA (:func:`_anova`) of every measure with the within factors ``within``."""
+    return Table(
+        AnovaEffect, (row for m, kept in measured(frame) for row in _anova(kept, m, within))
+    )
+
+
+def anova(frame: pd.DataFrame, measure: str, design: Design) -> list[AnovaEffect]:
+    """The registered ``anova``: the ANOVA of the whole design, ``human`` and ``robot`` within
+    subjects where they have two levels or more."""
+    within = [f for f, levels in (("human", design.humans), ("robot", design.robots)) if levels[1:]]
+    return _anova(frame, measure, within)
+
+
+def pairwise(frame: pd.DataFrame, measure: str, design: Design) -> list[PairedComparison]:
+    """The registered ``pairwise``: every pair of humans, and of robots, in every cell of the
+    other factors (:func:`~cirl_study.analysis.statistics.pairwise_differences`; one Holm family
+    per factor)."""
+    factors = (("human", design.humans), ("robot", design.robots))
     return [
-        plain(msgspec.to_builtins(row))
-        for m, kept in measured(frame)
-        for factor, levels in factors.items()
+        row
+        for factor, levels in factors
         if levels[1:]
-        for row in statistics.pairwise_differences(kept, m, factor, levels)
+        for row in statistics.pairwise_differences(frame, measure, factor, levels)
     ]
+
+
+def against_baseline(frame: pd.DataFrame, measure: str, design: Design) -> list[PairedDifference]:
+    """The registered ``against_baseline``: every other human against the baseline per robot
+    and feature level (:func:`~cirl_study.analysis.statistics.paired_differences`); none with
+    one human."""
+    if not design.humans[1:]:
+        return []
+    return statistics.paired_differences(
+        frame, measure, "human", design.baseline, ["robot", "num_features"]
+    )
+
+
+def paper_anova(frame: pd.DataFrame, measure: str, design: Design) -> list[AnovaEffect]:
+    """The registered ``paper.anova``: the paper's mixed ANOVA, ``human`` within subjects."""
+    return _anova(frame, measure, ["human"])
+
+
+def simple_effects(frame: pd.DataFrame, measure: str, design: Design) -> list[SimpleEffect]:
+    """The registered ``paper.simple_effects``
+    (:func:`~cirl_study.analysis.statistics.simple_effects`)."""
+    return statistics.simple_effects(frame, measure)
+
+
+def tukey_hsd(frame: pd.DataFrame, measure: str, design: Design) -> list[TukeyRow]:
+    """The registered ``paper.tukey_hsd`` (:func:`~cirl_study.analysis.statistics.tukey_hsd`)."""
+    return statistics.tukey_hsd(frame, measure)
+
+
+def wilcoxon(frame: pd.DataFrame, measure: str, design: Design) -> list[WilcoxonRow]:
+    """The registered ``paper.wilcoxon`` (:func:`~cirl_study.analysis.statistics.wilcoxon`)."""
+    return statistics.wilcoxon(frame, measure)

@@ -36,12 +36,18 @@ import statsmodels.api as sm
 from statsmodels.stats.anova import anova_lm
 
 from cirl_study.analysis import statistics
-from cirl_study.analysis.measure_rows import plain, rows
+from cirl_study.analysis.measure_rows import plain
 from cirl_study.analysis.result_types import (
+    ClaimShare,
+    Coefficient,
+    JointTest,
+    LevelShare,
     MultiverseResults,
+    PairedDifference,
+    Regression,
+    Table,
     UniverseClaim,
     UniverseSummary,
-    checked,
 )
 from cirl_study.analysis.results import analyse, with_claims
 from cirl_study.analysis.table import check_design, trial_table
@@ -155,21 +161,21 @@ def analyse_multiverse(
     table = trial_table(trials)
     main = trial_table([r for rows in chosen.values() for r in rows if r.block == MAIN])
     effects = _effects(main)
-    across = {
-        "pipeline": pipeline.name,
-        "base_universe": base.id,
-        "axes": levels,
-        "trials": {
+    return MultiverseResults(
+        pipeline=pipeline.name,
+        base_universe=base.id,
+        axes=plain(levels),
+        trials={
             "total": len(table),
             **{str(b): int(n) for b, n in sorted(table["block"].value_counts().items())},
         },
-        "effects": rows(effects),
-        "claims": _claim_shares(per_universe, levels),
-        "regression": {m: _regression(effects, m, levels, pipeline) for m in PAPER_MEASURES},
-        "joint_test": {m: _joint_test(main, m) for m in PAPER_MEASURES},
-        "run_id": run_id,
-    }
-    return checked({**plain(across), "universes": per_universe}, MultiverseResults)
+        universes=Table(UniverseSummary, per_universe),
+        effects=effects,
+        claims=_claim_shares(per_universe, levels),
+        regression={m: _regression(effects, m, levels, pipeline) for m in PAPER_MEASURES},
+        joint_test={m: _joint_test(main, m) for m in PAPER_MEASURES},
+        run_id=run_id,
+    )
 
 
 def _universe_summary(work: tuple[Universe, list[TrialRow], Pipeline, bool]) -> UniverseSummary:
@@ -212,90 +218,98 @@ def _axes(pipeline: Pipeline) -> dict[str, list[Any]]:
     return levels
 
 
-def _effects(main: pd.DataFrame) -> pd.DataFrame:
-    """Per universe and measure, the paired human effect over every ``main`` subject."""
-    frames = [
-        statistics.paired_differences(main, measure, "human", EXPERT, ["universe"])
+def _effects(main: pd.DataFrame) -> Table[PairedDifference]:
+    """Per measure and universe (each sorted), the paired human effect over every ``main``
+    subject: without a level or Holm, one comparison per universe."""
+    effects = [
+        msgspec.structs.replace(row, level=None, p_holm=None, log10_p_holm=None)
         for measure in PAPER_MEASURES
+        for row in statistics.paired_differences(main, measure, "human", EXPERT, ["universe"])
     ]
-    effects = pd.concat(frames, ignore_index=True)
-    effects = effects.drop(columns=["level", "p_holm", "log10_p_holm"])
-    return effects.sort_values(["measure", "universe"], kind="mergesort").reset_index(drop=True)
+    ordered = sorted(effects, key=lambda row: (row.measure, row.universe))
+    return Table(PairedDifference, ordered)
 
 
 def _claim_shares(
     per_universe: list[UniverseSummary], levels: dict[str, list[Any]]
-) -> list[dict[str, Any]]:
+) -> Table[ClaimShare]:
     """Per claim: universes reproducing it, the base universe's verdict, shares at each of the
     axis ``levels`` (:func:`_axes`)."""
-    shares = []
+    shares = Table(ClaimShare)
     for claim in PAPER_CLAIMS:
         tested = [u for u in per_universe if u.claims[claim].tested]
         by_level = {
-            axis: [
-                {
-                    "level": level,
-                    "universes": len(at := [u for u in tested if u.settings[axis] == level]),
-                    "reproduced": sum(u.claims[claim].reproduced for u in at),
-                }
-                for level in levels[axis]
-            ]
+            axis: Table(
+                LevelShare,
+                (
+                    LevelShare(
+                        level=plain(level),
+                        universes=len(at := [u for u in tested if u.settings[axis] == level]),
+                        reproduced=sum(u.claims[claim].reproduced for u in at),
+                    )
+                    for level in levels[axis]
+                ),
+            )
             for axis in AXES
             if len(levels[axis]) > 1
         }
         shares.append(
-            {
-                "id": claim,
-                "universes": len(tested),
-                "reproduced": sum(u.claims[claim].reproduced for u in tested),
-                "base_reproduced": next(u.claims[claim].reproduced for u in per_universe if u.base),
-                "holds_in": [u.id for u in tested if u.claims[claim].reproduced],
-                "by_level": by_level,
-            }
+            ClaimShare(
+                id=claim,
+                universes=len(tested),
+                reproduced=sum(u.claims[claim].reproduced for u in tested),
+                base_reproduced=next(u.claims[claim].reproduced for u in per_universe if u.base),
+                holds_in=[u.id for u in tested if u.claims[claim].reproduced],
+                by_level=by_level,
+            )
         )
     return shares
 
 
 def _regression(
-    effects: pd.DataFrame, measure: str, levels: dict[str, list[Any]], pipeline: Pipeline
-) -> dict[str, Any]:
+    effects: Table[PairedDifference], measure: str, levels: dict[str, list[Any]], pipeline: Pipeline
+) -> Regression:
     """OLS of the universes' human effects on the axis ``levels`` (:func:`_axes`), and each
     axis's share of the effect's variance (type II SS over the total SS); ``None`` parts when
     the universes are too few for the model (no residual degrees of freedom). A nested axis
     (:attr:`~cirl_study.study.spec.Axis.nested`) is left out: its levels are confounded with
     the axis it refines."""
     varied = [axis for axis in AXES if len(levels[axis]) > 1 and not AXES[axis].nested]
-    frame = effects[effects["measure"] == measure].set_index("universe")
     by_id = {u.id: u for u in universes(pipeline)}
     data = pd.DataFrame(
         [
             {
-                "effect": frame.at[uid, "mean_diff"],
-                **{a: level_label(getattr(by_id[uid], a)) for a in varied},
+                "effect": row.mean_diff,
+                **{a: level_label(getattr(by_id[row.universe], a)) for a in varied},
             }
-            for uid in frame.index
+            for row in effects
+            if row.measure == measure
         ]
     )
     terms = [f"C({axis}, Treatment(reference={level_label(levels[axis][0])!r}))" for axis in varied]
     formula = "effect ~ " + (" + ".join(terms) if terms else "1")
     model = sm.OLS.from_formula(formula, data).fit()
-    result: dict[str, Any] = {"universes": len(data), "df_residual": float(model.df_resid)}
     if model.df_resid < 1:
-        return {**result, "coefficients": None, "variance_shares": None}
+        return Regression(
+            universes=len(data),
+            df_residual=float(model.df_resid),
+            coefficients=None,
+            variance_shares=None,
+        )
     interval = model.conf_int(0.05)
-    coefficients = []
+    coefficients = Table(Coefficient)
     for name in model.params.index:
         axis, level = _term(name, varied)
         coefficients.append(
-            {
-                "axis": axis,
-                "level": level,
-                "estimate": float(model.params[name]),
-                "ci95_low": float(interval.loc[name, 0]),
-                "ci95_high": float(interval.loc[name, 1]),
-                "p": float(model.pvalues[name]),
-                "log10_p": t_tail(float(model.tvalues[name]), float(model.df_resid))[1],
-            }
+            Coefficient(
+                axis=axis,
+                level=level,
+                estimate=float(model.params[name]),
+                ci95_low=float(interval.loc[name, 0]),
+                ci95_high=float(interval.loc[name, 1]),
+                p=float(model.pvalues[name]),
+                log10_p=t_tail(float(model.tvalues[name]), float(model.df_resid))[1],
+            )
         )
     shares = None
     if terms:
@@ -306,12 +320,13 @@ def _regression(
             for axis, term in zip(varied, terms, strict=True)
         }
         shares["residual"] = float(anova.loc["Residual", "sum_sq"]) / total if total > 0 else None
-    return {
-        **result,
-        "r_squared": float(model.rsquared),
-        "coefficients": coefficients,
-        "variance_shares": shares,
-    }
+    return Regression(
+        universes=len(data),
+        df_residual=float(model.df_resid),
+        coefficients=coefficients,
+        variance_shares=shares,
+        r_squared=float(model.rsquared),
+    )
 
 
 def _term(name: str, axes: list[str]) -> tuple[str | None, str | None]:
@@ -325,7 +340,7 @@ def _term(name: str, axes: list[str]) -> tuple[str | None, str | None]:
     raise ValueError(f"unexpected regression term {name}")
 
 
-def _joint_test(main: pd.DataFrame, measure: str) -> dict[str, Any]:
+def _joint_test(main: pd.DataFrame, measure: str) -> JointTest:
     """:func:`~cirl_study.analysis.statistics.joint_sign_flip_test` on the ``main`` block."""
     wide = main.pivot_table(
         index="universe", columns=["subject", "human"], values=measure, aggfunc="first"

@@ -31,7 +31,12 @@ from cirl_study.analysis.markdown import (
 )
 from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
 from cirl_study.analysis.output import write_report_directory
-from cirl_study.analysis.result_types import ClaimShare, LevelShare, MultiverseResults, frame
+from cirl_study.analysis.result_types import (
+    ClaimShare,
+    LevelShare,
+    MultiverseResults,
+    PairedDifference,
+)
 from cirl_study.measure_registry import PAPER_MEASURES
 from cirl_study.record import TrialRow
 from cirl_study.study.spec import AXES, Pipeline
@@ -158,9 +163,9 @@ def _share(level: LevelShare) -> str:
     return f"{level.reproduced} / {level.universes}"
 
 
-def _effect(row: Mapping[str, Any], measure: str) -> str:
-    low, high = row[f"{measure}_ci95_low"], row[f"{measure}_ci95_high"]
-    return f"{number(row[f'{measure}_effect'])} {interval(low, high)}"
+def _effect(row: PairedDifference) -> str:
+    """A universe's human effect on a measure: the mean difference with its 95% CI."""
+    return f"{number(row.mean_diff)} {interval(row.ci95_low, row.ci95_high)}"
 
 
 def _holds(results: MultiverseResults) -> list[str]:
@@ -282,37 +287,42 @@ def _regression(results: MultiverseResults) -> list[str]:
     return lines
 
 
+def _effects(results: MultiverseResults) -> dict[tuple[str | None, str], PairedDifference]:
+    """Each universe's human effect on each measure, by ``(universe, measure)``."""
+    return {(row.universe, row.measure): row for row in results.effects}
+
+
 def universe_table(results: MultiverseResults) -> pd.DataFrame:
     """One row per universe: its settings, its verdicts and its human effect per measure."""
-    effects = frame(results.effects).set_index(["universe", "measure"])
+    effects = _effects(results)
     rows = []
     for universe in results.universes:
         row: dict[str, Any] = {"universe": universe.id, "base": universe.base}
         row |= {axis: universe.settings[axis] for axis in AXES}
         row |= {claim: universe.claims[claim].reproduced for claim in PAPER_CLAIMS}
         for measure in PAPER_MEASURES:
-            effect = effects.loc[(universe.id, measure)]
+            effect = effects[universe.id, measure]
             row |= {
-                f"{measure}_effect": effect["mean_diff"],
-                f"{measure}_ci95_low": effect["ci95_low"],
-                f"{measure}_ci95_high": effect["ci95_high"],
-                f"{measure}_p": effect["p"],
+                f"{measure}_effect": effect.mean_diff,
+                f"{measure}_ci95_low": effect.ci95_low,
+                f"{measure}_ci95_high": effect.ci95_high,
+                f"{measure}_p": effect.p,
             }
         rows.append(row)
     return pd.DataFrame(rows)
 
 
 def _universes(results: MultiverseResults) -> list[str]:
-    frame = universe_table(results)
+    effects = _effects(results)
     varied = _varied(results)
     rows = [
         [
-            ("**base** " if row["base"] else "")
-            + ", ".join(f"{a} = {level_label(row[a])}" for a in varied),
-            *("✅" if row[claim] else "❌" for claim in PAPER_CLAIMS),
-            *(_effect(row, measure) for measure in PAPER_MEASURES),
+            ("**base** " if universe.base else "")
+            + ", ".join(f"{a} = {level_label(universe.settings[a])}" for a in varied),
+            *("✅" if universe.claims[claim].reproduced else "❌" for claim in PAPER_CLAIMS),
+            *(_effect(effects[universe.id, measure]) for measure in PAPER_MEASURES),
         ]
-        for _, row in frame.iterrows()
+        for universe in results.universes
     ]
     return [
         "## Universes",
@@ -347,7 +357,6 @@ def render_markdown(results: MultiverseResults) -> str:
 
 def render_figures(results: MultiverseResults) -> dict[str, bytes]:
     """The specification curves, PNG and SVG, by file name."""
-    effects = frame(results.effects)
     varied = _varied(results)
     choices = pd.DataFrame(
         [{axis: level_label(u.settings[axis]) for axis in varied} for u in results.universes],
@@ -358,7 +367,9 @@ def render_figures(results: MultiverseResults) -> dict[str, bytes]:
             FIGURE_NAMES[measure]: (
                 figures.specification_curve,
                 (
-                    effects[effects["measure"] == measure],
+                    results.effects.filter(
+                        lambda row, measure=measure: row.measure == measure
+                    ).to_frame(),
                     choices,
                     measure,
                     results.base_universe,

@@ -2,7 +2,9 @@
 mixed ANOVA, the simple effects of human, Tukey HSD as the paper ran it, the Wilcoxon checks,
 Cronbach's alpha and Figure 1 (results ``paper``), and every other robot against the
 reference (results ``robots``). Each is a function of the results alone and returns its
-lines, or none when the run has nothing for it.
+lines, or none when the run has nothing for it; the renderers of the paper's registered tests
+(:mod:`cirl_study.analysis.study_tests`) take their rows and the results and return the lines
+below their headings.
 """
 
 from __future__ import annotations
@@ -10,34 +12,34 @@ from __future__ import annotations
 from cirl_study.analysis import markdown as md
 from cirl_study.analysis.claims import SIGNIFICANCE
 from cirl_study.analysis.result_types import (
+    AnovaEffect,
     PairedDifference,
     RobotComparison,
+    SimpleEffect,
     StudyResults,
+    Table,
     TukeyRow,
+    WilcoxonRow,
 )
-from cirl_study.analysis.sections import FIGURES, heading
+from cirl_study.analysis.sections import FIGURE1, ROBOTS_LAMBDA, heading
 from cirl_study.analysis.study_report import anova_table
 
 
-def paper_anova(results: StudyResults) -> list[str]:
+def paper_anova(rows: Table[AnovaEffect], results: StudyResults) -> list[str]:
     """The paper's mixed ANOVA, on the reference robot's trials of its two humans (in the
     paper's own design, the ANOVA of the whole design)."""
-    if results.paper is None:
-        return []
     return [
-        heading(3, "paper.anova"),
-        "",
         f"On the trials of `expert` and `best_response` watched by "
         f"`{results.design.reference_robot}`, per measure: within subjects `human`, "
         "between subjects `num_features` (a subject is one reward draw, at one feature level "
         "only). With two humans sphericity holds, so the p-values are uncorrected. The "
         "paper's claims are judged on it.",
         "",
-        anova_table(results.paper.anova),
+        anova_table(rows),
     ]
 
 
-def simple_effects(results: StudyResults) -> list[str]:
+def simple_effects(rows: Table[SimpleEffect], results: StudyResults) -> list[str]:
     """The paired simple effects of human within each feature level."""
     columns: list[md.Column] = [
         "measure",
@@ -52,7 +54,6 @@ def simple_effects(results: StudyResults) -> list[str]:
         "p_holm",
         lambda row: f"{md.number(row.d_z)} {md.interval(row.boot_d_z_low, row.boot_d_z_high, 3)}",
     ]
-    rows = md.formatted(results.paper.simple_effects, columns)
     header = [
         "measure",
         "features",
@@ -67,18 +68,20 @@ def simple_effects(results: StudyResults) -> list[str]:
         "d_z [bootstrap CI]",
     ]
     return [
-        heading(3, "paper.simple_effects"),
-        "",
         "Paired t-tests of the difference best response minus expert (negative: the best "
         "response did better) within each feature level, Holm-adjusted over the feature "
         "levels of each measure; `d_z` = mean difference / SD of the differences; bootstrap "
         "intervals are BCa with a fixed seed.",
         "",
-        md.table(header, rows, [False, True, True, True, True, True, True, True, True, True, True]),
+        md.table(
+            header,
+            md.formatted(rows, columns),
+            [False, True, True, True, True, True, True, True, True, True, True],
+        ),
     ]
 
 
-def tukey(results: StudyResults) -> list[str]:
+def tukey(rows: Table[TukeyRow], results: StudyResults) -> list[str]:
     """Tukey HSD over the human x features cells, as the paper ran it."""
 
     def cell(side: str) -> md.Column:
@@ -92,11 +95,8 @@ def tukey(results: StudyResults) -> list[str]:
         "measure", cell("a"), cell("b"), "diff", "se", "T",
         lambda row: md.p_text(row.log10_p_tukey), "hedges",
     ]  # fmt: skip
-    rows = md.formatted(results.paper.tukey_hsd, columns)
     header = ["measure", "cell A", "cell B", "mean A − mean B", "SE", "T", "p (Tukey)", "Hedges g"]
     return [
-        heading(3, "paper.tukey_hsd"),
-        "",
         "As the paper ran it: all pairs of the human × features cells, error pooled over the "
         "cells. **This ignores the pairing** of the two humans within a reward draw, so it "
         "treats within-subject comparisons as if they were between independent groups; the "
@@ -105,22 +105,20 @@ def tukey(results: StudyResults) -> list[str]:
         "cancellation, accurate to about 1e-13 relative, also below the smallest double "
         "(scipy's tail, used by pingouin, is 0 from q = 10.5 on).",
         "",
-        md.table(header, rows, [False, False, False, True, True, True, True, True]),
+        md.table(
+            header, md.formatted(rows, columns), [False, False, False, True, True, True, True, True]
+        ),
     ]
 
 
-def wilcoxon(results: StudyResults) -> list[str]:
+def wilcoxon(rows: Table[WilcoxonRow], results: StudyResults) -> list[str]:
     """The Wilcoxon signed-rank checks of the simple effects."""
-    rows = md.formatted(
-        results.paper.wilcoxon, ["measure", "num_features", "n", "W", "p", "rbc", "cles"]
-    )
+    columns: list[md.Column] = ["measure", "num_features", "n", "W", "p", "rbc", "cles"]
     header = ["measure", "features", "n", "W", "p", "rank-biserial r", "CLES"]
     return [
-        heading(3, "paper.wilcoxon"),
-        "",
         "Non-parametric check of the simple effects: best response against expert, paired.",
         "",
-        md.table(header, rows, [False, True, True, True, True, True, True]),
+        md.table(header, md.formatted(rows, columns), [False, True, True, True, True, True, True]),
     ]
 
 
@@ -148,7 +146,7 @@ def cronbach(results: StudyResults) -> list[str]:
 def figure1(results: StudyResults) -> list[str]:
     """Figure 1: the true reward and both demonstrations of one typical reward draw."""
     chosen = results.paper.figure1
-    name, _ = FIGURES["figure1"]
+    name = FIGURE1.file
     return [
         heading(2, "paper.figure1"),
         "",
@@ -183,16 +181,14 @@ def _robot_sweep_summary(robots: RobotComparison, humans: list[str]) -> list[str
                     for r in regret
                     if r.level == other and r.num_features == level and r.human == human
                 ]
-                found = {
-                    verdict: ", ".join(
-                        f"{r.rationality:g}" for r in cell if _robot_verdict(r) == verdict
-                    )
+                better, worse = (
+                    ", ".join(f"{r.rationality:g}" for r in cell if _robot_verdict(r) == verdict)
                     or "none"
                     for verdict in ("better", "worse")
-                }
+                )
                 lines.append(
                     f"- `{other}`, {md.name(human)}, {level} features: lower regret at λ = "
-                    f"{found['better']}; higher at λ = {found['worse']}."
+                    f"{better}; higher at λ = {worse}."
                 )
     return lines
 
@@ -264,7 +260,7 @@ def robots(results: StudyResults) -> list[str]:
         *paired_columns[1:9],
         "p_holm",
     ]
-    file_name, _ = FIGURES["robots"]
+    file_name = ROBOTS_LAMBDA.file
     return [
         *lines,
         "",

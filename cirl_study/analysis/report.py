@@ -22,16 +22,21 @@ from cirl_study.analysis import figures, paper_report, study_report, teaching_re
 from cirl_study.analysis.cells import papers_own
 from cirl_study.analysis.markdown import document, measure_name, number, svg_name, table
 from cirl_study.analysis.output import csv_file, write_report_directory
-from cirl_study.analysis.result_types import (
-    ClaimRow,
-    Estimates,
-    StudyResults,
-    Teaching,
-    Undefined,
-    frame,
+from cirl_study.analysis.result_types import ClaimRow, Estimates, StudyResults, Teaching, Undefined
+from cirl_study.analysis.results import estimates, tests, with_claims
+from cirl_study.analysis.sections import (
+    CELL_MEANS,
+    ETA_CV_CURVE,
+    FIGURE1,
+    FIGURE2_LAMBDA,
+    FIGURE2_MEASURES,
+    FIGURES,
+    OTHER_MEASURES,
+    ROBOTS_LAMBDA,
+    heading,
+    link,
 )
-from cirl_study.analysis.results import combined, estimates, tests, with_claims
-from cirl_study.analysis.sections import FIGURES, heading, link
+from cirl_study.analysis.study_tests import held_tests
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.measure_registry import MEASURES, PAPER_MEASURES, analysed_measures
 from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_HUMANS, TrialRecord, TrialRow
@@ -155,7 +160,7 @@ def _header(results: StudyResults) -> list[str]:
         f"best-response η = {etas}.",
         f"- Trials: {trials['total']} ({blocks}); reward draws {per_level}.",
         *([f"- Hypothesis space: {_hypothesis_space(space)}."] if space else []),
-        *(_undefined(row) for row in results.undefined),
+        *(_undefined(row) for row in results.undefined or ()),
     ]
 
 
@@ -187,21 +192,26 @@ def _partial_title(results: StudyResults) -> list[str]:
     ]
 
 
+def _tests(results: StudyResults) -> list[list[str]]:
+    """The section of every registered test the results hold (:func:`.study_tests.held_tests`)
+    that has something to show: its heading, then its renderer's lines."""
+    sections = []
+    for key, registered, rows in held_tests(results):
+        lines = registered.test.rendered(rows, results)
+        if lines:
+            sections.append([heading(3, key), "", *lines])
+    return sections
+
+
 def render_markdown(results: StudyResults) -> str:
     """The text of ``report.md`` for ``results`` (with their ``claims``): every section the
-    run's design has, in a fixed order."""
+    run's design has, in a fixed order; the registered tests' after the cell means."""
     sections = [
         _header(results),
         _claims(results),
         ["## Main study"],
         study_report.cells(results),
-        study_report.anova(results),
-        study_report.pairwise(results),
-        study_report.against_baseline(results),
-        paper_report.paper_anova(results),
-        paper_report.simple_effects(results) if results.paper else [],
-        paper_report.tukey(results) if results.paper else [],
-        paper_report.wilcoxon(results) if results.paper else [],
+        *_tests(results),
         paper_report.cronbach(results) if results.paper else [],
         study_report.lambda_sweep(results),
         study_report.eta_cv(results),
@@ -248,44 +258,45 @@ def _drawings(
     ``records_of``."""
     design = estimated.design
     reference = design.reference_robot
-    cells = frame(estimated.cells)
     drawings: dict[str, Call] = {}
     chosen = estimated.figure1
     if chosen is not None:
         pair = _figure1_records(trials, records_of, chosen.subject, chosen.robot)
         title = f"Reward draw {chosen.subject} ({chosen.num_features} features)"
-        drawings[FIGURES["figure1"][0]] = (
+        drawings[FIGURE1.file] = (
             figures.reward_maps,
             (pair[EXPERT], pair[BEST_RESPONSE], title),
         )
-        of_paper = (cells["robot"] == reference) & cells["human"].isin(PAPER_HUMANS)
-        paper_cells = cells[of_paper].drop(columns="robot").reset_index(drop=True)
-        drawings[FIGURES["figure2_measures"][0]] = (
-            figures.measure_bars,
-            (paper_cells, PAPER_MEASURES, FIGURE2_TITLE),
+        paper_cells = estimated.cells.filter(
+            lambda row: row.robot == reference and row.human in PAPER_HUMANS
         )
-        others = study_report.other_measures(paper_cells["measure"])
+        drawings[FIGURE2_MEASURES.file] = (
+            figures.measure_bars,
+            (paper_cells.to_frame(), PAPER_MEASURES, FIGURE2_TITLE),
+        )
+        others = study_report.other_measures(row.measure for row in paper_cells)
         if others:
-            drawings[FIGURES["other_measures"][0]] = (
+            drawings[OTHER_MEASURES.file] = (
                 figures.measure_bars,
-                (paper_cells, others, f"{figures.better(others)}: {OTHERS_TITLE}"),
+                (paper_cells.to_frame(), others, f"{figures.better(others)}: {OTHERS_TITLE}"),
             )
         if estimated.lambda_sweep:
-            sweep = frame(estimated.lambda_sweep)
-            of_paper = (sweep["robot"] == reference) & sweep["human"].isin(PAPER_HUMANS)
-            drawings[FIGURES["figure2_lambda"][0]] = (
+            paper_sweep = estimated.lambda_sweep.filter(
+                lambda row: row.robot == reference and row.human in PAPER_HUMANS
+            )
+            drawings[FIGURE2_LAMBDA.file] = (
                 figures.lambda_curve,
-                (sweep[of_paper].drop(columns="robot").reset_index(drop=True),),
+                (paper_sweep.to_frame(),),
             )
     if not papers_own(design.humans, design.robots):
-        drawings[FIGURES["cell_means"][0]] = (
+        drawings[CELL_MEANS.file] = (
             figures.cell_bars,
-            (cells, design.humans, design.robots),
+            (estimated.cells.to_frame(), design.humans, design.robots),
         )
     if estimated.eta_cv.means:
-        drawings[FIGURES["eta_cv_curve"][0]] = (
+        drawings[ETA_CV_CURVE.file] = (
             figures.eta_curve,
-            (frame(estimated.eta_cv.means), frame(estimated.eta_cv.uncertainty)),
+            (estimated.eta_cv.means.to_frame(), estimated.eta_cv.uncertainty.to_frame()),
         )
     robots = estimated.robots
     if (
@@ -294,9 +305,9 @@ def _drawings(
         and len(robots.others) == 1
         and tuple(design.humans) == PAPER_HUMANS
     ):
-        drawings[FIGURES["robots"][0]] = (
+        drawings[ROBOTS_LAMBDA.file] = (
             figures.robot_difference_curve,
-            (frame(robots.lambda_sweep), reference, robots.others[0]),
+            (robots.lambda_sweep.to_frame(), reference, robots.others[0]),
         )
     return drawings
 
@@ -360,7 +371,7 @@ def write_report(
     # claims, the markdown and, up to CSV_IN_MEMORY_ROWS, trials.csv are made here.
     with figures.drawing(_drawings(trials, records_of, estimated)) as drawn:
         results = with_claims(
-            combined(estimated, tests(everything, pipeline)),
+            tests(estimated, everything, pipeline),
             run_id=run_id,
             partial=partial,
             theory=theory,
@@ -368,7 +379,7 @@ def write_report(
         markdown = render_markdown(results)
         trials_csv = csv_file(everything) if len(everything) <= CSV_IN_MEMORY_ROWS else everything
         made = drawn()
-    names = [n for png_name, _ in FIGURES.values() for n in (png_name, svg_name(png_name))]
+    names = [n for figure in FIGURES.values() for n in (figure.file, svg_name(figure.file))]
     write_report_directory(
         out_dir,
         markdown=markdown,

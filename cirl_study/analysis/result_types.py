@@ -2,44 +2,220 @@
 (:class:`MultiverseResults`), which the claims are judged on and the reports read, and a
 calibration's (:class:`CalibrationResults`).
 
-The analysis makes plain data (:data:`Results`); :func:`checked` gives it its type, and
-``results.json`` is the typed record's encoding (``msgspec.to_builtins``). Their JSON Schemas,
-generated from the same declarations (:func:`json_schema`), are kept in ``docs/``
-(``results-study.schema.json``, ``results-multiverse.schema.json``,
-``results-calibration.schema.json``) for readers in other
-languages; a test keeps them equal. A number that is undefined (a mean of nothing, a test on
-a constant sample) is ``null``, never NaN; a field with a default is left out where it has
-its default, so a missing optional field reads as ``null``. Every p-value is beside its
-common logarithm ``log10_p``, which holds it where the double ``p`` underflows to 0. The
-tests compute some of these records directly
-(:func:`cirl_study.analysis.anova.repeated_measures_anova`,
-:func:`cirl_study.analysis.statistics.pairwise_differences`), with NaN for an undefined
-number until the results are made plain.
+The analysis builds these records directly, statistic by statistic, each returning its typed
+row or rows; ``results.json`` is the record's encoding (``msgspec.to_builtins``), and
+:func:`checked` decodes one read back. Their JSON Schemas, generated from the same
+declarations (:func:`json_schema`), are kept in ``docs/`` (``results-study.schema.json``,
+``results-multiverse.schema.json``, ``results-calibration.schema.json``) for readers in other
+languages; a test keeps them equal.
+
+Every record is a :class:`Record`, which holds to these contracts however it is made (built by
+the analysis or decoded): a number that is undefined (a mean of nothing, a test on a constant
+sample) or infinite is ``None`` (``null``), never NaN; every number is a Python ``int`` or
+``float`` of its field's type; a field with a default is left out of the encoding where it has
+its default, so a missing optional field reads as ``null``; and every table (a field of
+:data:`Rows`) is a :class:`Table`, whose :meth:`~Table.to_frame` gives it as a
+:class:`pandas.DataFrame`. Every p-value is beside its common logarithm ``log10_p``, which holds
+it where the double ``p`` underflows to 0.
+
+The per-measure tests of a study are registered by the fields that hold their rows
+(:mod:`cirl_study.analysis.study_tests`): those of :class:`StudyResults` and
+:class:`PaperSection` annotated with a :class:`~cirl_study.analysis.study_tests.StudyTest`.
 """
 
 from __future__ import annotations
 
+import functools
 import json
-from collections.abc import Sequence
+import math
+import numbers
+from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 
 import msgspec
-import pandas as pd
+from msgspec import inspect
 
+from cirl_study.analysis.study_tests import StudyTest
 from cirl_study.errors import UserError
 
-Results = dict[str, Any]
-"""The results as plain JSON data (what ``results.json`` stores, and what the analysis makes
-and the renderers read), before :func:`checked` gives them their type."""
+if TYPE_CHECKING:
+    import pandas as pd
 
 Number = float | None
 """A number of the results; ``None`` (``null``) where it is undefined."""
 
-_ROW = {"frozen": True, "kw_only": True, "forbid_unknown_fields": True, "omit_defaults": True}
+Row = TypeVar("Row", bound=msgspec.Struct)
+"""The row type of a :class:`Table`."""
 
 
-class CellMean(msgspec.Struct, **_ROW):
+class Table(list[Row]):
+    """A table of the results: its rows, in order, each of :attr:`row_type`.
+
+    It is a list (``results.json`` stores it as an array of objects) that knows its row type,
+    so that :meth:`to_frame` has a column per field even when it holds no row.
+    """
+
+    def __init__(self, row_type: type[Row], rows: Iterable[Row] = ()) -> None:
+        super().__init__(rows)
+        self.row_type = row_type
+
+    def to_frame(self) -> pd.DataFrame:
+        """The table as a :class:`pandas.DataFrame`: a row per row, a column per field, in
+        the row type's order (as pingouin's tests return theirs).
+
+        A field that is itself a record is flattened into a column per field of it, named by
+        the path joined with ``_`` (an ANOVA row's ``sphericity.gg.p`` is the column
+        ``sphericity_gg_p``; missing where the record is ``None``); a number field is a
+        ``float64`` column, NaN where the number is undefined; a list or a mapping stays one
+        column of objects.
+        """
+        import pandas as pd
+
+        columns = _columns(self.row_type)
+        frame = pd.DataFrame(
+            {name: [_follow(row, path) for row in self] for name, path, _ in columns},
+            columns=[name for name, _, _ in columns],
+        )
+        numbers = [name for name, _, number in columns if number]
+        return frame.astype(dict.fromkeys(numbers, "float64"))
+
+    def filter(self, keep: Callable[[Row], bool]) -> Table[Row]:
+        """The rows for which ``keep`` is true, as a table of the same row type."""
+        return Table(self.row_type, (row for row in self if keep(row)))
+
+
+if TYPE_CHECKING:
+    Rows = Table
+else:
+    Rows = list
+"""``Rows[R]``, the type of a table field: to msgspec (the encoding, the JSON Schema,
+decoding) a ``list[R]``; in Python a :class:`Table` of ``R``, which :class:`Record` makes
+every such field hold."""
+
+
+@functools.cache
+def _columns(row_type: type[msgspec.Struct]) -> tuple[tuple[str, tuple[str, ...], bool], ...]:
+    """The columns of :meth:`Table.to_frame`: each name, its path of attributes, and whether
+    it is a number (``float`` or ``float | None``)."""
+    found: list[tuple[str, tuple[str, ...], bool]] = []
+
+    def walk(info: inspect.StructType, path: tuple[str, ...]) -> None:
+        for field in info.fields:
+            nested = _record_of(field.type)
+            if nested is None:
+                number = isinstance(_only(field.type), inspect.FloatType)
+                found.append(("_".join((*path, field.name)), (*path, field.name), number))
+            else:
+                walk(nested, (*path, field.name))
+
+    walk(inspect.type_info(row_type), ())
+    return tuple(found)
+
+
+def _only(kind: inspect.Type) -> inspect.Type | None:
+    """The one type of ``kind`` besides ``None`` (``None`` when it has several)."""
+    types = kind.types if isinstance(kind, inspect.UnionType) else (kind,)
+    others = [t for t in types if not isinstance(t, inspect.NoneType)]
+    return others[0] if len(others) == 1 else None
+
+
+def _record_of(kind: inspect.Type) -> inspect.StructType | None:
+    """The record type of a field that holds one (or ``None``), else ``None``."""
+    only = _only(kind)
+    return only if isinstance(only, inspect.StructType) else None
+
+
+def _follow(row: msgspec.Struct, path: tuple[str, ...]) -> Any:
+    """The value at ``path`` of ``row``: ``None`` past a record that is ``None``."""
+    value: Any = row
+    for name in path:
+        if value is None:
+            return None
+        value = getattr(value, name)
+    return value
+
+
+_NUMBER, _INTEGER, _BOOLEAN, _NUMBERS, _TABLE, _TABLES = range(6)
+"""How :meth:`Record.__post_init__` holds a field to its type (:func:`_kinds`)."""
+
+
+class Record(msgspec.Struct, frozen=True, forbid_unknown_fields=True, omit_defaults=True):
+    """A record of the results (frozen; an unknown field is refused when one is decoded; a
+    field at its default is left out of the encoding).
+
+    However it is made, its fields hold to the module's contracts: a ``float`` field (or
+    ``float | None``) holds a ``float``, or ``None`` for a number that is not finite; an
+    ``int`` or ``bool`` field a Python ``int`` or ``bool`` (not a numpy scalar); a list of
+    numbers the same; and a table field (:data:`Rows`, or a mapping of them) a :class:`Table`.
+    """
+
+    def __post_init__(self) -> None:
+        for name, kind, row_type in _kinds(type(self)):
+            value = getattr(self, name)
+            held = _held(value, kind, row_type)
+            if held is not value:
+                msgspec.structs.force_setattr(self, name, held)
+
+
+@functools.cache
+def _kinds(record: type[Record]) -> tuple[tuple[str, int, type | None], ...]:
+    """The fields of ``record`` that :meth:`Record.__post_init__` holds to their type, each
+    with how (and a table's row type)."""
+    kinds = []
+    for field in inspect.type_info(record).fields:
+        only = _only(field.type)
+        if isinstance(only, inspect.FloatType):
+            kinds.append((field.name, _NUMBER, None))
+        elif isinstance(only, inspect.IntType):
+            kinds.append((field.name, _INTEGER, None))
+        elif isinstance(only, inspect.BoolType):
+            kinds.append((field.name, _BOOLEAN, None))
+        elif isinstance(only, inspect.ListType) and isinstance(only.item_type, inspect.StructType):
+            kinds.append((field.name, _TABLE, only.item_type.cls))
+        elif isinstance(only, inspect.ListType) and isinstance(
+            _only(only.item_type), inspect.FloatType
+        ):
+            kinds.append((field.name, _NUMBERS, None))
+        elif (
+            isinstance(only, inspect.DictType)
+            and isinstance(only.value_type, inspect.ListType)
+            and isinstance(only.value_type.item_type, inspect.StructType)
+        ):
+            kinds.append((field.name, _TABLES, only.value_type.item_type.cls))
+    return tuple(kinds)
+
+
+def _number(value: Any) -> Any:
+    """A number (a Python or numpy one) as a finite Python ``float``, or ``None``; anything
+    else as it is."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        return value
+    number = float(value)
+    return number if math.isfinite(number) else None
+
+
+def _held(value: Any, kind: int, row_type: type | None) -> Any:
+    """``value`` of a field of ``kind`` held to its type (itself when it already is)."""
+    if value is None:
+        return None
+    if kind == _NUMBER:
+        return value if type(value) is float and math.isfinite(value) else _number(value)
+    if kind == _INTEGER:
+        return value if type(value) is int else int(value)
+    if kind == _BOOLEAN:
+        return value if type(value) is bool else bool(value)
+    if kind == _NUMBERS:
+        held = [_number(item) for item in value]
+        return value if all(a is b for a, b in zip(held, value, strict=True)) else held
+    if kind == _TABLE:
+        return value if isinstance(value, Table) else Table(row_type, value)
+    if all(isinstance(rows, Table) for rows in value.values()):
+        return value
+    return {key: _held(rows, _TABLE, row_type) for key, rows in value.items()}
+
+
+class CellMean(Record, kw_only=True):
     """A measure's mean with its t-based 95% CI in one cell (``sweep``: at one rationality)."""
 
     measure: str
@@ -54,14 +230,14 @@ class CellMean(msgspec.Struct, **_ROW):
     rationality: float | None = None
 
 
-class Probability(msgspec.Struct, **_ROW):
+class Probability(Record, kw_only=True):
     """A p-value with its common logarithm: ``p`` may underflow to 0, ``log10_p`` does not."""
 
     p: Number
     log10_p: Number
 
 
-class Sphericity(msgspec.Struct, **_ROW):
+class Sphericity(Record, kw_only=True):
     """Mauchly's test of one within effect, and its Greenhouse-Geisser and Huynh-Feldt
     corrections (:mod:`cirl_study.analysis.anova`).
 
@@ -80,7 +256,7 @@ class Sphericity(msgspec.Struct, **_ROW):
     reason: str | None = None
 
 
-class AnovaEffect(msgspec.Struct, **_ROW):
+class AnovaEffect(Record, kw_only=True):
     """One effect of :func:`cirl_study.analysis.anova.repeated_measures_anova`.
 
     ``sphericity`` is ``None`` for a between-subjects effect and for a within effect on one
@@ -101,7 +277,7 @@ class AnovaEffect(msgspec.Struct, **_ROW):
     sphericity: Sphericity | None
 
 
-class PairedT(msgspec.Struct, **_ROW):
+class PairedT(Record, kw_only=True):
     """A paired t-test of ``d``: its mean with the t-based 95% CI, ``t`` on ``df`` degrees of
     freedom, the two-sided ``p`` with its log10, and ``d_z = mean(d) / sd(d)``."""
 
@@ -115,7 +291,7 @@ class PairedT(msgspec.Struct, **_ROW):
     d_z: Number
 
 
-class PairedComparison(PairedT, **_ROW):
+class PairedComparison(PairedT, kw_only=True):
     """One paired comparison of two levels of a within factor in one cell of the others
     (:func:`cirl_study.analysis.statistics.pairwise_differences`).
 
@@ -138,7 +314,7 @@ class PairedComparison(PairedT, **_ROW):
     log10_p_holm: Number
 
 
-class PairedDifference(PairedT, **_ROW):
+class PairedDifference(PairedT, kw_only=True):
     """One row of :func:`cirl_study.analysis.statistics.paired_differences`: ``level`` against
     the baseline in one group (its keys among ``human, robot, num_features, rationality,
     pooled, universe``); a multiverse's human effects have neither ``level`` nor Holm."""
@@ -158,7 +334,7 @@ class PairedDifference(PairedT, **_ROW):
     universe: str | None = None
 
 
-class SimpleEffect(PairedT, **_ROW):
+class SimpleEffect(PairedT, kw_only=True):
     """The simple effect of human at one feature level, with its BCa bootstrap intervals
     (:func:`cirl_study.analysis.statistics.simple_effects`)."""
 
@@ -175,7 +351,7 @@ class SimpleEffect(PairedT, **_ROW):
     boot_d_z_high: Number
 
 
-class TukeyRow(msgspec.Struct, **_ROW):
+class TukeyRow(Record, kw_only=True):
     measure: str
     a_num_features: int
     a_human: str
@@ -191,7 +367,7 @@ class TukeyRow(msgspec.Struct, **_ROW):
     hedges: Number
 
 
-class WilcoxonRow(msgspec.Struct, **_ROW):
+class WilcoxonRow(Record, kw_only=True):
     measure: str
     num_features: int
     n: int
@@ -202,7 +378,7 @@ class WilcoxonRow(msgspec.Struct, **_ROW):
     cles: Number
 
 
-class CronbachAlpha(msgspec.Struct, **_ROW):
+class CronbachAlpha(Record, kw_only=True):
     raw: Number
     standardised: Number
     ci95: list[Number]
@@ -213,7 +389,7 @@ class CronbachAlpha(msgspec.Struct, **_ROW):
     rows: str
 
 
-class Figure1(msgspec.Struct, **_ROW):
+class Figure1(Record, kw_only=True):
     subject: str
     num_features: int
     regret_expert: Number
@@ -222,25 +398,55 @@ class Figure1(msgspec.Struct, **_ROW):
     robot: str
 
 
-class PaperSection(msgspec.Struct, **_ROW):
-    """The paper's analyses on the reference robot's trials of its two humans."""
+class PaperSection(Record, kw_only=True):
+    """The paper's analyses on the reference robot's trials of its two humans: its registered
+    tests (:mod:`cirl_study.analysis.study_tests`), Cronbach's alpha of its three measures and
+    the reward draw of Figure 1."""
 
-    anova: list[AnovaEffect]
-    simple_effects: list[SimpleEffect]
-    tukey_hsd: list[TukeyRow]
-    wilcoxon: list[WilcoxonRow]
+    anova: Annotated[
+        Rows[AnovaEffect],
+        StudyTest(
+            "The paper's mixed ANOVA",
+            "cirl_study.analysis.measure_rows:paper_anova",
+            "cirl_study.analysis.paper_report:paper_anova",
+        ),
+    ]
+    simple_effects: Annotated[
+        Rows[SimpleEffect],
+        StudyTest(
+            "Simple effects of human",
+            "cirl_study.analysis.measure_rows:simple_effects",
+            "cirl_study.analysis.paper_report:simple_effects",
+        ),
+    ]
+    tukey_hsd: Annotated[
+        Rows[TukeyRow],
+        StudyTest(
+            "Tukey HSD",
+            "cirl_study.analysis.measure_rows:tukey_hsd",
+            "cirl_study.analysis.paper_report:tukey",
+        ),
+    ]
+    wilcoxon: Annotated[
+        Rows[WilcoxonRow],
+        StudyTest(
+            "Wilcoxon signed-rank tests",
+            "cirl_study.analysis.measure_rows:wilcoxon",
+            "cirl_study.analysis.paper_report:wilcoxon",
+        ),
+    ]
     cronbach_alpha: CronbachAlpha
     figure1: Figure1
 
 
-class RobotComparison(msgspec.Struct, **_ROW):
+class RobotComparison(Record, kw_only=True):
     reference: str
     others: list[str]
-    main: list[PairedDifference]
-    lambda_sweep: list[PairedDifference]
+    main: Rows[PairedDifference]
+    lambda_sweep: Rows[PairedDifference]
 
 
-class EtaMean(msgspec.Struct, **_ROW):
+class EtaMean(Record, kw_only=True):
     measure: str
     num_features: int
     eta: float
@@ -251,7 +457,7 @@ class EtaMean(msgspec.Struct, **_ROW):
     ci95_high: Number
 
 
-class EtaUncertainty(msgspec.Struct, **_ROW):
+class EtaUncertainty(Record, kw_only=True):
     num_features: int
     n: int
     eta: float
@@ -270,27 +476,27 @@ class EtaUncertainty(msgspec.Struct, **_ROW):
     d_z: Number = None
 
 
-class EtaChoice(msgspec.Struct, **_ROW):
+class EtaChoice(Record, kw_only=True):
     num_features: int
     eta: float
     mean: Number
 
 
-class EtaMainBlock(msgspec.Struct, **_ROW):
+class EtaMainBlock(Record, kw_only=True):
     num_features: int
     main_etas: list[float]
     chosen_eta: float | None
     agree: bool | None
 
 
-class EtaCrossValidation(msgspec.Struct, **_ROW):
-    means: list[EtaMean]
-    uncertainty: list[EtaUncertainty]
-    chosen: list[EtaChoice]
-    main_block: list[EtaMainBlock]
+class EtaCrossValidation(Record, kw_only=True):
+    means: Rows[EtaMean]
+    uncertainty: Rows[EtaUncertainty]
+    chosen: Rows[EtaChoice]
+    main_block: Rows[EtaMainBlock]
 
 
-class Converged(msgspec.Struct, **_ROW):
+class Converged(Record, kw_only=True):
     robot: str
     block: str
     rationality: float
@@ -298,13 +504,13 @@ class Converged(msgspec.Struct, **_ROW):
     converged: int
 
 
-class MilliDragan(msgspec.Struct, **_ROW):
-    anova: list[AnovaEffect]
-    robot_effect: list[PairedDifference]
-    robot_effect_by_level: list[PairedDifference]
+class MilliDragan(Record, kw_only=True):
+    anova: Rows[AnovaEffect]
+    robot_effect: Rows[PairedDifference]
+    robot_effect_by_level: Rows[PairedDifference]
 
 
-class RegretGap(msgspec.Struct, **_ROW):
+class RegretGap(Record, kw_only=True):
     num_features: int
     human: str
     n: int
@@ -319,11 +525,11 @@ class RegretGap(msgspec.Struct, **_ROW):
     share_optimal: Number
 
 
-class RegretOptimal(msgspec.Struct, **_ROW):
-    gaps: list[RegretGap]
+class RegretOptimal(Record, kw_only=True):
+    gaps: Rows[RegretGap]
 
 
-class ClaimRow(msgspec.Struct, **_ROW):
+class ClaimRow(Record, kw_only=True):
     """One claim as judged (:func:`cirl_study.analysis.claims.evaluate_claims`)."""
 
     id: str
@@ -337,7 +543,7 @@ class ClaimRow(msgspec.Struct, **_ROW):
     evidence: list[str]
 
 
-class Teaching(msgspec.Struct, **_ROW):
+class Teaching(Record, kw_only=True):
     """The pipeline's ``[teaching]``: ``hypotheses`` per subject, drawn from the prior or, with
     ``of_tasks``, the pipeline's tasks."""
 
@@ -349,7 +555,7 @@ class Teaching(msgspec.Struct, **_ROW):
     of_tasks: bool = False
 
 
-class StudyDesign(msgspec.Struct, **_ROW):
+class StudyDesign(Record, kw_only=True):
     """The design section of a study's results: its factors
     (:class:`cirl_study.analysis.cells.Design`), subjects, lambdas and etas."""
 
@@ -365,7 +571,7 @@ class StudyDesign(msgspec.Struct, **_ROW):
     teaching: Teaching | None
 
 
-class Undefined(msgspec.Struct, **_ROW):
+class Undefined(Record, kw_only=True):
     """A measure ``trials`` of the analysed trials have no value of (``null`` in their records:
     undefined for them, or not logged by their log format), of ``subjects`` reward draws: each
     is left out of all the measure's statistics
@@ -376,7 +582,11 @@ class Undefined(msgspec.Struct, **_ROW):
     subjects: int
 
 
-class Partial(msgspec.Struct, **_ROW):
+class Partial(Record, kw_only=True):
+    """What an incomplete run analysed anyway lacks: its trials ``planned`` and ``logged``, the
+    blocks or files ``missing`` (in words), the damaged files salvaged and the ``main``-block
+    subjects left out for lacking a cell."""
+
     planned: int
     logged: int
     missing: str | None
@@ -384,85 +594,109 @@ class Partial(msgspec.Struct, **_ROW):
     main_subjects_left_out: int
 
 
-class Estimates(msgspec.Struct, **_ROW):
+class Estimates(Record, kw_only=True):
     """What a study's trials measured, with confidence intervals
     (:func:`cirl_study.analysis.results.estimates`): everything its figures draw, and the part
     of :class:`StudyResults` known before any test. ``figure1`` is the paper's Figure 1 reward
-    draw, where the run has the paper's humans (``None`` otherwise); ``undefined`` is empty
+    draw, where the run has the paper's humans (``None`` otherwise); ``undefined`` is ``None``
     unless some trials have no value of a measure."""
 
     pipeline: str
     trials: dict[str, int]
     design: StudyDesign
-    cells: list[CellMean]
-    lambda_sweep: list[CellMean]
-    converged: list[Converged]
+    cells: Rows[CellMean]
+    lambda_sweep: Rows[CellMean]
+    converged: Rows[Converged]
     eta_cv: EtaCrossValidation
     figure1: Figure1 | None
     robots: RobotComparison | None
-    undefined: list[Undefined] = []
+    undefined: Rows[Undefined] | None = None
 
 
-class StudyResults(msgspec.Struct, **_ROW):
+class StudyResults(Record, kw_only=True):
     """``results.json`` of a study (:func:`cirl_study.analysis.results.analyse`, with the
-    report's ``run_id``, ``partial``, ``claims`` and ``theory``); ``undefined`` only where
-    some trials have no value of a measure."""
+    report's ``run_id``, ``partial``, ``claims`` and ``theory``,
+    :func:`cirl_study.analysis.results.with_claims`); ``undefined`` only where some trials have
+    no value of a measure (``None`` otherwise). ``anova``, ``pairwise``, ``against_baseline``
+    and the paper's ``anova``, ``simple_effects``, ``tukey_hsd`` and ``wilcoxon`` are
+    registered tests (:mod:`cirl_study.analysis.study_tests`)."""
 
     pipeline: str
     trials: dict[str, int]
     design: StudyDesign
-    cells: list[CellMean]
-    anova: list[AnovaEffect]
-    pairwise: list[PairedComparison]
-    against_baseline: list[PairedDifference]
-    lambda_sweep: list[CellMean]
-    converged: list[Converged]
+    cells: Rows[CellMean]
+    anova: Annotated[
+        Rows[AnovaEffect],
+        StudyTest(
+            "Repeated-measures ANOVA",
+            "cirl_study.analysis.measure_rows:anova",
+            "cirl_study.analysis.study_report:anova",
+        ),
+    ]
+    pairwise: Annotated[
+        Rows[PairedComparison],
+        StudyTest(
+            "Pairwise comparisons",
+            "cirl_study.analysis.measure_rows:pairwise",
+            "cirl_study.analysis.study_report:pairwise",
+        ),
+    ]
+    against_baseline: Annotated[
+        Rows[PairedDifference],
+        StudyTest(
+            "Every human against the baseline",
+            "cirl_study.analysis.measure_rows:against_baseline",
+            "cirl_study.analysis.study_report:against_baseline",
+        ),
+    ]
+    lambda_sweep: Rows[CellMean]
+    converged: Rows[Converged]
     eta_cv: EtaCrossValidation
     paper: PaperSection | None
     robots: RobotComparison | None
     milli_dragan: MilliDragan | None
-    best_response_vs_pedagogic: list[PairedDifference] | None
+    best_response_vs_pedagogic: Rows[PairedDifference] | None
     regret_optimal: RegretOptimal | None
     run_id: str | None
     partial: Partial | None
-    claims: list[ClaimRow]
+    claims: Rows[ClaimRow]
     theory: dict[str, Any] | None = None
-    undefined: list[Undefined] = []
+    undefined: Rows[Undefined] | None = None
 
 
-class UniverseClaim(msgspec.Struct, **_ROW):
+class UniverseClaim(Record, kw_only=True):
     tested: bool
     reproduced: bool | None
     values: dict[str, Any]
 
 
-class UniverseSummary(msgspec.Struct, **_ROW):
+class UniverseSummary(Record, kw_only=True):
     id: str
     base: bool
     settings: dict[str, Any]
     claims: dict[str, UniverseClaim]
-    eta: list[EtaChoice]
-    anova: list[AnovaEffect]
-    cells: list[CellMean]
+    eta: Rows[EtaChoice]
+    anova: Rows[AnovaEffect]
+    cells: Rows[CellMean]
     cronbach_alpha: CronbachAlpha
 
 
-class LevelShare(msgspec.Struct, **_ROW):
+class LevelShare(Record, kw_only=True):
     level: Any
     universes: int
     reproduced: int
 
 
-class ClaimShare(msgspec.Struct, **_ROW):
+class ClaimShare(Record, kw_only=True):
     id: str
     universes: int
     reproduced: int
     base_reproduced: bool | None
     holds_in: list[str]
-    by_level: dict[str, list[LevelShare]]
+    by_level: dict[str, Rows[LevelShare]]
 
 
-class Coefficient(msgspec.Struct, **_ROW):
+class Coefficient(Record, kw_only=True):
     """One coefficient of :class:`Regression`; the intercept has no ``axis`` or ``level``."""
 
     axis: str | None
@@ -474,18 +708,18 @@ class Coefficient(msgspec.Struct, **_ROW):
     log10_p: Number
 
 
-class Regression(msgspec.Struct, **_ROW):
+class Regression(Record, kw_only=True):
     """The OLS regression of the universes' human effects on the axes (none without
     residual degrees of freedom)."""
 
     universes: int
     df_residual: Number
-    coefficients: list[Coefficient] | None
+    coefficients: Rows[Coefficient] | None
     variance_shares: dict[str, Number] | None
     r_squared: Number = None
 
 
-class SignFlipStatistic(msgspec.Struct, **_ROW):
+class SignFlipStatistic(Record, kw_only=True):
     """One statistic of a joint test, its sign-flip ``p`` (at least ``1 / (1 + resamples)``)
     and its ``log10_p``."""
 
@@ -494,7 +728,7 @@ class SignFlipStatistic(msgspec.Struct, **_ROW):
     log10_p: Number
 
 
-class JointTest(msgspec.Struct, **_ROW):
+class JointTest(Record, kw_only=True):
     universes: int
     subjects: int
     resamples: int
@@ -504,7 +738,7 @@ class JointTest(msgspec.Struct, **_ROW):
     stouffer_z: SignFlipStatistic
 
 
-class MultiverseResults(msgspec.Struct, **_ROW):
+class MultiverseResults(Record, kw_only=True):
     """``results.json`` of a multiverse (:func:`cirl_study.analysis.multiverse.analyse_multiverse`,
     with the report's ``run_id``)."""
 
@@ -512,15 +746,15 @@ class MultiverseResults(msgspec.Struct, **_ROW):
     base_universe: str
     axes: dict[str, list[Any]]
     trials: dict[str, int]
-    universes: list[UniverseSummary]
-    effects: list[PairedDifference]
-    claims: list[ClaimShare]
+    universes: Rows[UniverseSummary]
+    effects: Rows[PairedDifference]
+    claims: Rows[ClaimShare]
     regression: dict[str, Regression]
     joint_test: dict[str, JointTest]
     run_id: str | None
 
 
-class TargetCell(msgspec.Struct, **_ROW):
+class TargetCell(Record, kw_only=True):
     """One published cell of a calibration target (:func:`cirl_study.analysis.calibration.
     read_target`): a measure's mean in one ``num_features`` x ``human`` cell, of ``robot``
     (``None``: the reference robot of each universe), and its uncertainty on the log scale
@@ -535,7 +769,7 @@ class TargetCell(msgspec.Struct, **_ROW):
     log_se: float | None
 
 
-class CellComparison(msgspec.Struct, **_ROW):
+class CellComparison(Record, kw_only=True):
     """A target cell beside a universe's measurement of it: the mean over ``n`` subjects,
     its standard error on the log scale (:math:`s / (\\bar y \\sqrt n)`) and
     ``log_ratio`` :math:`\\ln(\\bar y / t)`."""
@@ -552,7 +786,7 @@ class CellComparison(msgspec.Struct, **_ROW):
     log_ratio: float
 
 
-class UniverseDistance(msgspec.Struct, **_ROW):
+class UniverseDistance(Record, kw_only=True):
     """One universe's distance to the target (``docs/multiverse.md``, *Calibration*):
     ``mean_squared_log_ratio`` over every target cell, and where the target gives
     uncertainties the chi-square on the log scale over those cells (``chi_square_df`` of
@@ -562,7 +796,7 @@ class UniverseDistance(msgspec.Struct, **_ROW):
     id: str
     base: bool
     settings: dict[str, Any]
-    cells: list[CellComparison]
+    cells: Rows[CellComparison]
     mean_squared_log_ratio: Number
     chi_square: Number
     chi_square_df: int
@@ -571,7 +805,7 @@ class UniverseDistance(msgspec.Struct, **_ROW):
     missing: list[str]
 
 
-class LevelDistance(msgspec.Struct, **_ROW):
+class LevelDistance(Record, kw_only=True):
     """One level of an axis: the ranked universes at it, the nearest of them and the median
     of their distances."""
 
@@ -582,7 +816,7 @@ class LevelDistance(msgspec.Struct, **_ROW):
     median_distance: float
 
 
-class AxisDistance(msgspec.Struct, **_ROW):
+class AxisDistance(Record, kw_only=True):
     """Per axis that varies among the ranked universes: each level's distances, the level of
     the nearest universe (``best``), and how far the nearest distance moves across levels
     (``spread``: the largest level's nearest distance minus the smallest's)."""
@@ -590,10 +824,10 @@ class AxisDistance(msgspec.Struct, **_ROW):
     axis: str
     best: Any
     spread: float
-    levels: list[LevelDistance]
+    levels: Rows[LevelDistance]
 
 
-class RefinementProbe(msgspec.Struct, **_ROW):
+class RefinementProbe(Record, kw_only=True):
     """A point the refinement measured, in the order measured (``docs/multiverse.md``,
     *Refinement*): its universe and that universe's values of the searched settings, the axis
     and step factor of the move that proposed it, where its distance comes from (``source``:
@@ -614,7 +848,7 @@ class RefinementProbe(msgspec.Struct, **_ROW):
     accepted: bool
 
 
-class Refinement(msgspec.Struct, **_ROW):
+class Refinement(Record, kw_only=True):
     """The coordinate search from the nearest universe (``start``) over the numeric settings
     ``axes`` (:mod:`cirl_study.analysis.refine`): its step factors, from ``first_step`` down
     to ``min_step``, its budget, every point measured, the probes played now and reused, why
@@ -626,14 +860,14 @@ class Refinement(msgspec.Struct, **_ROW):
     first_step: float
     min_step: float
     max_probes: int
-    probes: list[RefinementProbe]
+    probes: Rows[RefinementProbe]
     played: int
     reused: int
     stop: str
     final: UniverseDistance
 
 
-class CalibrationResults(msgspec.Struct, **_ROW):
+class CalibrationResults(Record, kw_only=True):
     """``results.json`` of a calibration (:func:`cirl_study.analysis.calibration.calibrate`):
     the target, every universe's distance to it (ranked universes first, nearest first), the
     axes, the claims judged in the nearest universe, and with ``--refine`` the refinement
@@ -642,10 +876,10 @@ class CalibrationResults(msgspec.Struct, **_ROW):
     pipeline: str
     target_file: str
     target_sha256: str
-    target: list[TargetCell]
-    universes: list[UniverseDistance]
-    axes: list[AxisDistance]
-    nearest_claims: list[ClaimRow]
+    target: Rows[TargetCell]
+    universes: Rows[UniverseDistance]
+    axes: Rows[AxisDistance]
+    nearest_claims: Rows[ClaimRow]
     run_id: str | None
     refinement: Refinement | None = None
 
@@ -660,13 +894,9 @@ SCHEMAS: dict[str, type[msgspec.Struct]] = {
 Typed = TypeVar("Typed", StudyResults, MultiverseResults, CalibrationResults)
 
 
-def frame(rows: Sequence[msgspec.Struct]) -> pd.DataFrame:
-    """``rows`` of the typed results as a table: one row each, a column per field."""
-    return pd.DataFrame([msgspec.structs.asdict(row) for row in rows])
-
-
-def checked(results: Results, kind: type[Typed]) -> Typed:
-    """``results`` as the typed record ``kind``: every field present, of its type.
+def checked(results: Any, kind: type[Typed]) -> Typed:
+    """``results`` read back as plain JSON data (``results.json``) as the typed record
+    ``kind``: every field present, of its type.
 
     Raises:
         UserError: ``results`` does not have the shape of ``kind`` (an analysis fault: the

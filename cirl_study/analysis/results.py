@@ -1,12 +1,14 @@
-"""Every number of a study's report, computed from the trials' rows as JSON-ready data.
+"""Every number of a study's report, computed from the trials' rows as typed records.
 
 One analysis serves every design of humans x robots x feature levels (``docs/pipelines.md``):
-:func:`analyse` returns plain Python data (dicts, lists, ints, floats at full precision,
-``None`` for an undefined number); :func:`with_claims` gives it its type
-(:class:`~cirl_study.analysis.result_types.StudyResults`), which the claims are judged on,
-the report reads and ``results.json`` stores. Its halves, :func:`estimates` (everything
-the figures draw) and :func:`tests`, depend only on the trials, so the report draws its
-figures in worker processes while it computes the tests. Every per-measure section holds each
+:func:`analyse` builds the study's typed results
+(:class:`~cirl_study.analysis.result_types.StudyResults`, floats at full precision, ``None``
+for an undefined number), statistic by statistic; :func:`with_claims` adds what the report
+adds (its run's id, what a partial run lacks, the claims judged on them): what the report
+reads and ``results.json`` stores. Its halves, :func:`estimates` (everything the figures
+draw) and :func:`tests` (the rest, from the estimates), depend only on the trials, so the
+report draws its figures in worker processes while it computes the tests. Every per-measure
+section holds each
 measure the analysis tests (:func:`~cirl_study.measure_registry.analysed_measures`, in
 the registry's order), each on the trials that have a value of it
 (:func:`~cirl_study.analysis.measure_rows.measured`: a reward draw without a value of a measure
@@ -30,20 +32,22 @@ The sections, by key:
   (:func:`cirl_study.analysis.statistics.pairwise_differences`);
 * ``against_baseline``: per robot and feature level, each human against the baseline,
   paired (:func:`cirl_study.analysis.statistics.paired_differences`, Holm per measure);
+  these three are the main block's registered tests (:mod:`cirl_study.analysis.study_tests`,
+  computed in :mod:`cirl_study.analysis.measure_rows`);
 * ``lambda_sweep``: the means of the sweep per rationality, human, robot and feature level;
 * ``eta_cv``: the cross-validation of the best response's eta (:func:`eta_cv`);
 * ``converged``: per robot, block and rationality, the trials whose estimate met
   the robot's stopping rule;
 * ``paper``, where the run has the paper's humans (:data:`~cirl_study.analysis.cells.PAPER`):
   the paper's analyses on the reference robot's trials of the expert and the best response:
-  its mixed ANOVA, the simple effects of human, Tukey HSD as the paper ran it, Wilcoxon
-  checks (each per measure) and Cronbach's alpha of the paper's three measures
-  (:func:`paper_tests`), and the reward draw of Figure 1;
+  its registered tests, the mixed ANOVA, the simple effects of human, Tukey HSD as the paper
+  ran it and the Wilcoxon checks (each per measure), Cronbach's alpha of the paper's three
+  measures (:func:`paper_tests`), and the reward draw of Figure 1;
 * ``robots``, with two robots or more: every other robot against the reference, paired, in
   the main block and at every rationality of the sweep (:func:`robot_comparison`);
 * the teaching sections, where the run has their cells (:mod:`cirl_study.analysis.teaching`);
-* ``undefined``, only where some trials have no value of a measure: per such measure, those
-  trials and their reward draws, left out of its statistics
+* ``undefined``, only where some trials have no value of a measure (``None`` otherwise): per
+  such measure, those trials and their reward draws, left out of its statistics
   (:func:`~cirl_study.analysis.measure_rows.undefined`).
 """
 
@@ -56,17 +60,34 @@ import msgspec
 import pandas as pd
 
 from cirl_study.analysis import statistics, teaching
-from cirl_study.analysis.cells import PAPER, Design
-from cirl_study.analysis.measure_rows import (
-    anova_rows,
-    measured,
-    paired_rows,
-    pairwise_rows,
-    plain,
-    rows,
-    undefined,
+from cirl_study.analysis.cells import (
+    MILLI_DRAGAN,
+    PAPER,
+    REGRET_OPTIMAL_GAP,
+    VERSUS_PEDAGOGIC,
+    Design,
 )
-from cirl_study.analysis.result_types import Estimates, Results, StudyResults, checked
+from cirl_study.analysis.measure_rows import measured, paired_rows, plain, run_tests, undefined
+from cirl_study.analysis.result_types import (
+    CellMean,
+    ClaimRow,
+    Converged,
+    Estimates,
+    EtaChoice,
+    EtaCrossValidation,
+    EtaMainBlock,
+    EtaMean,
+    EtaUncertainty,
+    Figure1,
+    PairedDifference,
+    PaperSection,
+    Partial,
+    RobotComparison,
+    StudyDesign,
+    StudyResults,
+    Table,
+    Teaching,
+)
 from cirl_study.analysis.table import trial_table
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
@@ -85,10 +106,6 @@ from cirl_study.study.eta_cv import choose_etas
 from cirl_study.study.spec import Pipeline, TeachingSpec
 
 
-def _concat(frames: list[pd.DataFrame]) -> pd.DataFrame:
-    return pd.concat(frames, ignore_index=True)
-
-
 def design_of(table: pd.DataFrame, pipeline: Pipeline) -> Design:
     """The factors of the trials in ``table`` (:func:`~cirl_study.analysis.table.trial_table`),
     in the order of ``pipeline``: the humans and robots its ``main`` block plays, its feature
@@ -104,8 +121,9 @@ def design_of(table: pd.DataFrame, pipeline: Pipeline) -> Design:
     )
 
 
-def figure1_subject(paper_main: pd.DataFrame) -> dict[str, Any]:
-    """The reward draw shown in Figure 1: a typical one at the smallest feature level.
+def figure1_subject(paper_main: pd.DataFrame, robot: str) -> Figure1:
+    """The reward draw shown in Figure 1, watched by ``robot``: a typical one at the smallest
+    feature level.
 
     Among the subjects at the smallest feature level, the one whose regret improvement
     ``regret(expert) - regret(best_response)`` is the median (the lower median for an
@@ -117,16 +135,17 @@ def figure1_subject(paper_main: pd.DataFrame) -> dict[str, Any]:
     ordered = improvement.reset_index().sort_values(["improvement", "subject"], kind="mergesort")
     chosen = ordered.iloc[(len(ordered) - 1) // 2]
     subject = str(chosen["subject"])
-    return {
-        "subject": subject,
-        "num_features": level,
-        "regret_expert": float(paired.at[subject, EXPERT]),
-        "regret_best_response": float(paired.at[subject, BEST_RESPONSE]),
-        "rule": (
+    return Figure1(
+        subject=subject,
+        num_features=level,
+        regret_expert=float(paired.at[subject, EXPERT]),
+        regret_best_response=float(paired.at[subject, BEST_RESPONSE]),
+        rule=(
             f"the subject at num_features={level} whose regret improvement "
             "(expert minus best response) is the median of its feature level"
         ),
-    }
+        robot=robot,
+    )
 
 
 def _trial_counts(table: pd.DataFrame) -> dict[str, int]:
@@ -137,37 +156,39 @@ def _trial_counts(table: pd.DataFrame) -> dict[str, int]:
     return {"total": len(table), **{str(block): int(sizes[block]) for block in order}}
 
 
-def _design(main: pd.DataFrame, design: Design, pipeline: Pipeline) -> dict[str, Any]:
+def _design(main: pd.DataFrame, design: Design, pipeline: Pipeline) -> StudyDesign:
     subjects = main.groupby("num_features")["subject"].nunique()
     spec = pipeline.teaching
-    return {
-        "humans": list(design.humans),
-        "baseline": design.baseline,
-        "robots": list(design.robots),
-        "reference_robot": reference_robot(design.robots),
-        "feature_levels": list(design.feature_levels),
-        "subjects_per_level": {str(level): int(n) for level, n in subjects.items()},
-        "main_rationality": sorted({float(value) for value in main["rationality"]}),
-        "main_eta": {
+    return StudyDesign(
+        humans=list(design.humans),
+        baseline=design.baseline,
+        robots=list(design.robots),
+        reference_robot=reference_robot(design.robots),
+        feature_levels=list(design.feature_levels),
+        subjects_per_level={str(level): int(n) for level, n in subjects.items()},
+        main_rationality=sorted({float(value) for value in main["rationality"]}),
+        main_eta={
             str(level): sorted({float(value) for value in etas.dropna()})
             for level, etas in main.groupby("num_features")["eta"]
         },
-        "sweep_rationalities": list(design.sweep_rationalities),
-        "teaching": None if spec is None else _teaching(spec, pipeline),
-    }
+        sweep_rationalities=list(design.sweep_rationalities),
+        teaching=None if spec is None else _teaching(spec, pipeline),
+    )
 
 
-def _teaching(spec: TeachingSpec, pipeline: Pipeline) -> dict[str, Any]:
+def _teaching(spec: TeachingSpec, pipeline: Pipeline) -> Teaching:
     """The ``[teaching]`` of the results: its settings, with the number of hypotheses."""
-    of_tasks = spec.hypotheses == "tasks"
-    return {
-        **vars(spec),
-        "hypotheses": pipeline.hypothesis_count,
-        **({"of_tasks": True} if of_tasks else {}),
-    }
+    return Teaching(
+        hypotheses=pipeline.hypothesis_count,
+        includes_truth=spec.includes_truth,
+        alpha=spec.alpha,
+        demonstration=spec.demonstration,
+        learning_paths=spec.learning_paths,
+        of_tasks=spec.hypotheses == "tasks",
+    )
 
 
-def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> dict[str, Any]:
+def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> EtaCrossValidation:
     """The cross-validation of the best response's eta, and whether the main block used it.
 
     ``means``: mean best-response regret with its CI per feature level and eta
@@ -194,45 +215,52 @@ def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> dict[str, Any]:
         if row.block == MAIN and row.human == BEST_RESPONSE and row.eta is not None:
             played.setdefault(row.num_features, set()).add(row.eta)
     levels = sorted({row.num_features for row in trials if row.block == MAIN})
-    main_block = []
+    main_block = Table(EtaMainBlock)
     for k in levels:
         main_etas = sorted(played.get(k, ()))
         chosen_eta = chosen[k].eta if k in chosen else None
         agree = None if chosen_eta is None else main_etas == [chosen_eta]
         main_block.append(
-            {"num_features": k, "main_etas": main_etas, "chosen_eta": chosen_eta, "agree": agree}
+            EtaMainBlock(num_features=k, main_etas=main_etas, chosen_eta=chosen_eta, agree=agree)
         )
     chosen_etas = {k: choice.eta for k, choice in chosen.items()}
-    uncertainty = statistics.eta_choice_uncertainty(cv, chosen_etas) if not cv.empty else None
-    return {
-        "means": rows(statistics.eta_means(cv)) if not cv.empty else [],
-        "uncertainty": rows(uncertainty) if uncertainty is not None else [],
-        "chosen": [
-            {"num_features": k, "eta": choice.eta, "mean": choice.mean_regret[choice.eta]}
-            for k, choice in sorted(chosen.items())
-        ],
-        "main_block": plain(main_block),
-    }
+    return EtaCrossValidation(
+        means=statistics.eta_means(cv) if not cv.empty else Table(EtaMean),
+        uncertainty=statistics.eta_choice_uncertainty(cv, chosen_etas)
+        if not cv.empty
+        else Table(EtaUncertainty),
+        chosen=Table(
+            EtaChoice,
+            (
+                EtaChoice(num_features=k, eta=choice.eta, mean=choice.mean_regret[choice.eta])
+                for k, choice in sorted(chosen.items())
+            ),
+        ),
+        main_block=main_block,
+    )
 
 
-def _converged(table: pd.DataFrame) -> list[dict[str, Any]]:
+def _converged(table: pd.DataFrame) -> Table[Converged]:
     """Per robot, block and rationality: trials, and those whose estimate met the robot's
     stopping rule."""
     keys = ["robot", "block", "rationality"]
     counts = table.groupby(keys, sort=True)["converged"].agg(["size", "sum"])
-    return [
-        {
-            "robot": str(robot),
-            "block": str(block),
-            "rationality": float(rationality),
-            "trials": int(n),
-            "converged": int(k),
-        }
-        for (robot, block, rationality), (n, k) in counts.iterrows()
-    ]
+    return Table(
+        Converged,
+        (
+            Converged(
+                robot=str(robot),
+                block=str(block),
+                rationality=float(rationality),
+                trials=int(n),
+                converged=int(k),
+            )
+            for (robot, block, rationality), (n, k) in counts.iterrows()
+        ),
+    )
 
 
-def robot_comparison(table: pd.DataFrame, reference: str) -> dict[str, Any]:
+def robot_comparison(table: pd.DataFrame, reference: str) -> RobotComparison:
     """Every other robot against the reference, on the same demonstrations.
 
     ``main``: per measure, the paired difference ``other - reference`` within each feature
@@ -244,36 +272,17 @@ def robot_comparison(table: pd.DataFrame, reference: str) -> dict[str, Any]:
     main = table[table["block"] == MAIN]
     sweep = table[table["block"] == LAMBDA_SWEEP]
     cells = ["num_features", "human"]
-    return {
-        "reference": reference,
-        "others": sorted(set(main["robot"]) - {reference}),
-        "main": paired_rows(main, "robot", reference, cells),
-        "lambda_sweep": paired_rows(sweep, "robot", reference, ["rationality", *cells])
+    return RobotComparison(
+        reference=reference,
+        others=sorted(set(main["robot"]) - {reference}),
+        main=paired_rows(main, "robot", reference, cells),
+        lambda_sweep=paired_rows(sweep, "robot", reference, ["rationality", *cells])
         if not sweep.empty
-        else [],
-    }
+        else Table(PairedDifference),
+    )
 
 
-RESULT_KEYS: tuple[str, ...] = (
-    "pipeline",
-    "trials",
-    "design",
-    "cells",
-    "anova",
-    "pairwise",
-    "against_baseline",
-    "lambda_sweep",
-    "converged",
-    "eta_cv",
-    "paper",
-    "robots",
-    *teaching.SECTIONS,
-)
-"""The keys of :func:`analyse`'s results, in the order ``results.json`` lists them; then
-``undefined``, where some trials have no value of a measure."""
-
-
-def analyse(trials: Sequence[TrialRow], pipeline: Pipeline) -> Results:
+def analyse(trials: Sequence[TrialRow], pipeline: Pipeline) -> StudyResults:
     """Run every analysis of the study's design on checked trials: :func:`estimates` and
     :func:`tests`, in this process.
 
@@ -283,12 +292,12 @@ def analyse(trials: Sequence[TrialRow], pipeline: Pipeline) -> Results:
         pipeline: the run's pipeline (the order of its humans and robots, its name).
 
     Returns:
-        Plain data with the keys of :data:`RESULT_KEYS` (see the module docstring), and
-        ``undefined`` where some trials have no value of a measure; a section whose cells the
-        run lacks is ``None``.
+        The results (see the module docstring), with no claims judged yet, no run id and
+        nothing partial (:func:`with_claims` adds them); a section whose cells the run lacks
+        is ``None``.
     """
     everything = trial_table(trials)
-    return combined(estimates(trials, everything, pipeline), tests(everything, pipeline))
+    return tests(estimates(trials, everything, pipeline), everything, pipeline)
 
 
 def paper_main_block(everything: pd.DataFrame, design: Design) -> pd.DataFrame:
@@ -299,15 +308,27 @@ def paper_main_block(everything: pd.DataFrame, design: Design) -> pd.DataFrame:
     return main[(main["robot"] == reference) & main["human"].isin(PAPER_HUMANS)]
 
 
+def _cell_means(frame: pd.DataFrame, by: list[str]) -> Table[CellMean]:
+    """Each measure's mean with its CI in each group of ``by`` (of ``frame``'s trials that
+    have a value of it)."""
+    return Table(
+        CellMean,
+        (
+            row
+            for m, kept in measured(frame)
+            for row in statistics.group_mean_rows(kept, m, by, CellMean)
+        ),
+    )
+
+
 def estimates(
     trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline: Pipeline
 ) -> Estimates:
     """What the trials measured, with confidence intervals: everything the figures draw.
 
     The sections ``pipeline, trials, design, undefined, cells, lambda_sweep, converged, eta_cv,
-    robots``
-    of :func:`analyse` and, where the run has the paper's humans, the paper's ``figure1``,
-    from the rows and their table ``everything``
+    robots`` of :func:`analyse` and, where the run has the paper's humans, the paper's
+    ``figure1``, from the rows and their table ``everything``
     (:func:`~cirl_study.analysis.table.trial_table`).
     """
     design = design_of(everything, pipeline)
@@ -315,110 +336,91 @@ def estimates(
     main = everything[everything["block"] == MAIN]
     sweep = everything[everything["block"] == LAMBDA_SWEEP]
     by_cell = ["num_features", "human", "robot"]
-    estimated = {
-        "pipeline": pipeline.name,
-        "trials": _trial_counts(everything),
-        "design": _design(main, design, pipeline),
-        "undefined": undefined(everything),
-        "cells": rows(_concat([statistics.group_means(k, m, by_cell) for m, k in measured(main)])),
-        "lambda_sweep": rows(
-            _concat(
-                [
-                    statistics.group_means(kept, m, ["rationality", *by_cell])
-                    for m, kept in measured(sweep)
-                ]
-            )
-        )
+    return Estimates(
+        pipeline=pipeline.name,
+        trials=_trial_counts(everything),
+        design=_design(main, design, pipeline),
+        cells=_cell_means(main, by_cell),
+        lambda_sweep=_cell_means(sweep, ["rationality", *by_cell])
         if not sweep.empty
-        else [],
-        "converged": _converged(everything),
-        "eta_cv": eta_cv(trials, everything[everything["robot"] == reference]),
-        "figure1": None
+        else Table(CellMean),
+        converged=_converged(everything),
+        eta_cv=eta_cv(trials, everything[everything["robot"] == reference]),
+        figure1=None
         if PAPER.lacking(design)
-        else {**figure1_subject(paper_main_block(everything, design)), "robot": reference},
-        "robots": robot_comparison(everything, reference) if len(design.robots) > 1 else None,
-    }
-    return checked(estimated, Estimates)
+        else figure1_subject(paper_main_block(everything, design), reference),
+        robots=robot_comparison(everything, reference) if len(design.robots) > 1 else None,
+        undefined=undefined(everything),
+    )
 
 
-def tests(everything: pd.DataFrame, pipeline: Pipeline) -> Results:
-    """The tests of the study's design: the keys ``anova, pairwise, against_baseline`` of
-    :func:`analyse`, the paper's tests (``paper``, :func:`paper_tests`) and the teaching
-    sections (:func:`cirl_study.analysis.teaching.sections`)."""
+def tests(estimated: Estimates, everything: pd.DataFrame, pipeline: Pipeline) -> StudyResults:
+    """The results of :func:`analyse`: the ``estimated`` sections of the trials' table
+    ``everything`` with the tests of the study's design, those the results register
+    (:func:`~cirl_study.analysis.measure_rows.run_tests`), the paper's (``paper``,
+    :func:`paper_tests`) and the teaching sections (:mod:`cirl_study.analysis.teaching`)."""
     design = design_of(everything, pipeline)
     main = everything[everything["block"] == MAIN]
-    within = [
-        f for f, levels in (("human", design.humans), ("robot", design.robots)) if levels[1:]
-    ]
-    return {
-        "anova": anova_rows(main, within),
-        "pairwise": pairwise_rows(main, {"human": design.humans, "robot": design.robots}),
-        "against_baseline": paired_rows(main, "human", design.baseline, ["robot", "num_features"])
-        if design.humans[1:]
-        else [],
-        "paper": None
-        if PAPER.lacking(design)
-        else paper_tests(paper_main_block(everything, design)),
-        **teaching.sections(main, design),
-    }
+    return StudyResults(
+        pipeline=estimated.pipeline,
+        trials=estimated.trials,
+        design=estimated.design,
+        cells=estimated.cells,
+        **run_tests(StudyResults, main, design),
+        lambda_sweep=estimated.lambda_sweep,
+        converged=estimated.converged,
+        eta_cv=estimated.eta_cv,
+        paper=None  # the paper's figure 1 is drawn exactly where the run has its humans
+        if estimated.figure1 is None
+        else paper_tests(paper_main_block(everything, design), design, estimated.figure1),
+        robots=estimated.robots,
+        milli_dragan=None if MILLI_DRAGAN.lacking(design) else teaching.milli_dragan(main),
+        best_response_vs_pedagogic=None
+        if VERSUS_PEDAGOGIC.lacking(design)
+        else teaching.versus_pedagogic(main),
+        regret_optimal=None
+        if REGRET_OPTIMAL_GAP.lacking(design)
+        else teaching.regret_optimal(main),
+        run_id=None,
+        partial=None,
+        claims=Table(ClaimRow),
+        undefined=estimated.undefined,
+    )
 
 
-def paper_tests(paper_main: pd.DataFrame) -> Results:
+def paper_tests(paper_main: pd.DataFrame, design: Design, figure1: Figure1) -> PaperSection:
     """The paper's tests on the ``main`` block of its humans and the reference robot
-    (:func:`paper_main_block`): ``anova`` (human within subjects, ``num_features`` between),
-    ``simple_effects``, ``tukey_hsd``, ``wilcoxon`` (each per measure) and ``cronbach_alpha``
-    (of the paper's three measures)."""
-    alpha = statistics.cronbach_alpha(paper_main[list(PAPER_MEASURES)].reset_index(drop=True))
-    alpha["items"] = list(PAPER_MEASURES)
-    alpha["rows"] = (
+    (:func:`paper_main_block`): those :class:`~cirl_study.analysis.result_types.PaperSection`
+    registers (each per measure), ``cronbach_alpha`` (of the paper's three measures), and the
+    reward draw of Figure 1."""
+    rows = (
         f"all {len(paper_main)} trials of the main block, one row per trial (both humans, "
         "every feature level), the three measures on their own scales"
     )
-    return {
-        "anova": anova_rows(paper_main, ["human"]),
-        "simple_effects": rows(
-            _concat([statistics.simple_effects(k, m) for m, k in measured(paper_main)])
-        ),
-        "tukey_hsd": rows(_concat([statistics.tukey_hsd(k, m) for m, k in measured(paper_main)])),
-        "wilcoxon": rows(_concat([statistics.wilcoxon(k, m) for m, k in measured(paper_main)])),
-        "cronbach_alpha": plain(alpha),
-    }
-
-
-def combined(estimated: Estimates, tested: Results) -> Results:
-    """:func:`estimates` and :func:`tests` as :func:`analyse` returns them: the paper's
-    figure reward draw beside its tests."""
-    measured = msgspec.to_builtins(estimated)
-    figure1 = measured.pop("figure1")
-    paper = None if tested["paper"] is None else {**tested["paper"], "figure1": figure1}
-    both = {**measured, **tested, "paper": paper}
-    results = {key: both[key] for key in RESULT_KEYS}
-    if "undefined" in both:  # only where some trials have no value of a measure
-        results["undefined"] = both["undefined"]
-    return results
+    alpha = statistics.cronbach_alpha(paper_main[list(PAPER_MEASURES)].reset_index(drop=True), rows)
+    return PaperSection(
+        **run_tests(PaperSection, paper_main, design), cronbach_alpha=alpha, figure1=figure1
+    )
 
 
 def with_claims(
-    results: Results,
+    results: StudyResults,
     *,
     run_id: str | None,
     partial: Mapping[str, Any] | None,
     theory: Mapping[str, Any] | None,
 ) -> StudyResults:
-    """``results`` typed, with what the report adds to them: the run's id, what a partial run
-    lacks (``None`` for a complete one), ``theory`` itself (when given) and every claim judged
-    on them (:func:`cirl_study.analysis.claims.evaluate_claims`, then those of ``theory``):
-    the content of ``results.json``."""
+    """``results`` with what the report adds to them: the run's id, what a partial run lacks
+    (``None`` for a complete one: its ``planned``, ``logged``, ``missing``, ``damaged_files``
+    and ``main_subjects_left_out``), ``theory`` itself (when given) and every claim judged on
+    them (:func:`cirl_study.analysis.claims.evaluate_claims`, then those of ``theory``): the
+    content of ``results.json``."""
     from cirl_study.analysis.claims import evaluate_claims
 
-    finished = checked(
-        {
-            **results,
-            "run_id": run_id,
-            "partial": None if partial is None else plain(partial),
-            "claims": [],
-            "theory": None if theory is None else plain(theory),
-        },
-        StudyResults,
+    return msgspec.structs.replace(
+        results,
+        run_id=run_id,
+        partial=None if partial is None else Partial(**partial),
+        claims=Table(ClaimRow, evaluate_claims(results, theory)),
+        theory=None if theory is None else plain(theory),
     )
-    return msgspec.structs.replace(finished, claims=evaluate_claims(finished, theory))

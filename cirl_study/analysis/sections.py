@@ -6,18 +6,15 @@ or figure, so every renderer of a section and every claim agree on its name.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 from cirl_study.analysis.markdown import anchor
+from cirl_study.analysis.study_tests import study_tests
 
 HEADINGS = {
     "claims": "Claims",
     "cells": "Cell means",
-    "anova": "Repeated-measures ANOVA",
-    "pairwise": "Pairwise comparisons",
-    "against_baseline": "Every human against the baseline",
-    "paper.anova": "The paper's mixed ANOVA",
-    "paper.simple_effects": "Simple effects of human",
-    "paper.tukey_hsd": "Tukey HSD",
-    "paper.wilcoxon": "Wilcoxon signed-rank tests",
+    **{key: registered.test.heading for key, registered in study_tests().items()},
     "paper.cronbach_alpha": "Cronbach's alpha",
     "lambda_sweep": "Lambda sweep",
     "eta_cv": "Eta cross-validation",
@@ -28,18 +25,35 @@ HEADINGS = {
     "regret_optimal": "How far from the regret-optimal demonstration",
     "rules": "How the verdicts are decided",
 }
-"""Section headings of ``report.md``, by the ``results.json`` key they present."""
+"""Section headings of ``report.md``, by the ``results.json`` key they present (a registered
+test's, its :attr:`~cirl_study.analysis.study_tests.StudyTest.heading`)."""
+
+
+class Figure(NamedTuple):
+    """A figure of the report: the file name of its PNG, and the text of a link to it."""
+
+    file: str
+    label: str
+
+
+FIGURE1 = Figure("figure1_reward_maps.png", "Figure 1")
+FIGURE2_MEASURES = Figure("figure2_measures.png", "Figure 2, left")
+OTHER_MEASURES = Figure("other_measures.png", "the other measures")
+FIGURE2_LAMBDA = Figure("figure2_lambda.png", "Figure 2, right")
+ETA_CV_CURVE = Figure("eta_cv.png", "eta curve")
+ROBOTS_LAMBDA = Figure("robots_lambda.png", "robots against lambda")
+CELL_MEANS = Figure("cell_means.png", "cell means")
 
 FIGURES = {
-    "figure1": ("figure1_reward_maps.png", "Figure 1"),
-    "figure2_measures": ("figure2_measures.png", "Figure 2, left"),
-    "other_measures": ("other_measures.png", "the other measures"),
-    "figure2_lambda": ("figure2_lambda.png", "Figure 2, right"),
-    "eta_cv_curve": ("eta_cv.png", "eta curve"),
-    "robots": ("robots_lambda.png", "robots against lambda"),
-    "cell_means": ("cell_means.png", "cell means"),
+    "figure1": FIGURE1,
+    "figure2_measures": FIGURE2_MEASURES,
+    "other_measures": OTHER_MEASURES,
+    "figure2_lambda": FIGURE2_LAMBDA,
+    "eta_cv_curve": ETA_CV_CURVE,
+    "robots": ROBOTS_LAMBDA,
+    "cell_means": CELL_MEANS,
 }
-"""File name and link text of each figure, by key."""
+"""Every figure, by the key a claim's ``evidence`` names it with."""
 
 
 def heading(level: int, key: str) -> str:
@@ -53,6 +67,6 @@ def link(key: str) -> str:
     if key in HEADINGS:
         return f"[{HEADINGS[key]}](#{anchor(HEADINGS[key])})"
     if key in FIGURES:
-        file_name, label = FIGURES[key]
-        return f"[{label}]({file_name})"
+        figure = FIGURES[key]
+        return f"[{figure.label}]({figure.file})"
     return f"[{key}]({key})"

@@ -1,7 +1,9 @@
 """The statistical tests of the study (docs/design.md §5), one function per test.
 
 Every function takes a slice of the trial table (:func:`cirl_study.analysis.table.trial_table`)
-and returns a tidy :class:`pandas.DataFrame` (or a dict) at full precision. Notation:
+and returns its typed rows at full precision (a :class:`~cirl_study.analysis.result_types.Table`
+of rows of :mod:`cirl_study.analysis.result_types`, whose ``to_frame()`` is the tidy
+:class:`pandas.DataFrame`), or its typed record. Notation:
 ``y_{s,p}`` is a measure of subject (reward draw) ``s`` under human ``p``, subject ``s``
 belongs to exactly one feature level ``g(s)``; ``d_s = y_{s,br} - y_{s,expert}`` is its
 paired difference (negative: the best response did better, since every measure is a loss).
@@ -17,14 +19,27 @@ import functools
 import itertools
 import math
 from collections.abc import Iterator, Mapping, Sequence
-from typing import Any
+from typing import NamedTuple, TypeVar
 
 import numpy as np
 import pandas as pd
 import pingouin as pg
 from scipy import special, stats
 
-from cirl_study.analysis.result_types import PairedComparison
+from cirl_study.analysis.result_types import (
+    CellMean,
+    CronbachAlpha,
+    EtaMean,
+    EtaUncertainty,
+    JointTest,
+    PairedComparison,
+    PairedDifference,
+    SignFlipStatistic,
+    SimpleEffect,
+    Table,
+    TukeyRow,
+    WilcoxonRow,
+)
 from cirl_study.analysis.studentized_range import studentized_range_log10_sf
 from cirl_study.analysis.tails import NORMAL_TAIL, p_from_log10, t_tail
 from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_HUMANS
@@ -41,7 +56,7 @@ BOOTSTRAP_SEED = 2016
 
 def paired_differences(
     frame: pd.DataFrame, measure: str, factor: str, baseline: str, by: list[str]
-) -> pd.DataFrame:
+) -> Table[PairedDifference]:
     """Paired t-tests of ``factor`` against its ``baseline`` level within each group of ``by``.
 
     In each group, subject ``s`` observed at both levels gives ``d_s = y_{s,other} -
@@ -56,34 +71,41 @@ def paired_differences(
         ``scipy.stats.ttest_rel``.
 
     Returns:
-        One row per group and other level, groups sorted: ``measure, *by, level, n,
-        mean_baseline, mean_level, mean_diff, ci95_low, ci95_high, t, df, p, p_holm, d_z``.
+        One row per group and other level, groups sorted.
     """
-    rows = []
+    cells, tests = [], []
     for key, group in frame.groupby(by, sort=True):
         paired = group.pivot(index="subject", columns=factor, values=measure).sort_index()
         for level in sorted(set(paired.columns) - {baseline}):
             both = paired[[baseline, level]].dropna()
             reference, other = both[baseline].to_numpy(), both[level].to_numpy()
-            rows.append(
-                {
-                    "measure": measure,
-                    **dict(zip(by, key, strict=True)),
-                    "level": level,
-                    "n": len(reference),
-                    "mean_baseline": float(reference.mean()),
-                    "mean_level": float(other.mean()),
-                    **_paired_t(other, reference),
-                }
+            cells.append((dict(zip(by, key, strict=True)), level, reference, other))
+            tests.append(_paired_t(other, reference))
+    adjusted = _holm_family(tests)
+    return Table(
+        PairedDifference,
+        (
+            PairedDifference(
+                measure=measure,
+                **cell,
+                level=level,
+                n=len(reference),
+                mean_baseline=float(reference.mean()),
+                mean_level=float(other.mean()),
+                **test._asdict(),
+                p_holm=p_holm,
+                log10_p_holm=log10_p_holm,
             )
-    result = pd.DataFrame(rows)
-    _insert_holm(result)
-    return result
+            for (cell, level, reference, other), test, (p_holm, log10_p_holm) in zip(
+                cells, tests, adjusted, strict=True
+            )
+        ),
+    )
 
 
 def pairwise_differences(
     frame: pd.DataFrame, measure: str, factor: str, levels: Sequence[str]
-) -> list[PairedComparison]:
+) -> Table[PairedComparison]:
     """Paired t-tests of every pair of ``levels`` of the within factor ``factor``, within
     each cell of the other factors (``human``, ``robot`` and ``num_features``).
 
@@ -102,7 +124,7 @@ def pairwise_differences(
         One row per cell and pair, cells sorted, pairs in the order of ``levels``.
     """
     cells = [c for c in ("human", "robot", "num_features") if c != factor]
-    rows = []
+    compared, tests = [], []
     for key, group in frame.groupby(cells, sort=True):
         cell = dict(zip(cells, key, strict=True))
         wide = group.pivot(index="subject", columns=factor, values=measure).sort_index()
@@ -110,29 +132,32 @@ def pairwise_differences(
         for a, b in itertools.combinations(present, 2):
             both = wide[[a, b]].dropna()
             first, second = both[a].to_numpy(), both[b].to_numpy()
-            test = _paired_t(first, second)
-            rows.append(
-                {
-                    "measure": measure,
-                    "factor": factor,
-                    "level_a": a,
-                    "level_b": b,
-                    "human": cell.get("human"),
-                    "robot": cell.get("robot"),
-                    "num_features": int(cell["num_features"]),
-                    "n": len(first),
-                    "mean_a": float(first.mean()),
-                    "mean_b": float(second.mean()),
-                    **test,
-                }
-            )
-    adjusted = holm_log10(np.array([row["log10_p"] for row in rows]))
+            compared.append((cell, a, b, first, second))
+            tests.append(_paired_t(first, second))
+    adjusted = holm_log10(np.array([test.log10_p for test in tests]))
     # An adjusted p is never below its p: at a multiplier of 1 the round trip through log10
     # can lose the last bit.
-    return [
-        PairedComparison(**row, p_holm=_at_least(p_from_log10(q), row["p"]), log10_p_holm=float(q))
-        for row, q in zip(rows, adjusted, strict=True)
-    ]
+    return Table(
+        PairedComparison,
+        (
+            PairedComparison(
+                measure=measure,
+                factor=factor,
+                level_a=a,
+                level_b=b,
+                human=cell.get("human"),
+                robot=cell.get("robot"),
+                num_features=int(cell["num_features"]),
+                n=len(first),
+                mean_a=float(first.mean()),
+                mean_b=float(second.mean()),
+                **test._asdict(),
+                p_holm=_at_least(p_from_log10(q), test.p),
+                log10_p_holm=float(q),
+            )
+            for (cell, a, b, first, second), test, q in zip(compared, tests, adjusted, strict=True)
+        ),
+    )
 
 
 def _at_least(adjusted: float, p: float) -> float:
@@ -173,30 +198,61 @@ def _d_z(differences: np.ndarray, axis: int = -1) -> np.ndarray:
         return np.mean(differences, axis=axis) / np.std(differences, axis=axis, ddof=1)
 
 
-def _paired_t(first: np.ndarray, second: np.ndarray) -> dict[str, float | int]:
+class PairedTest(NamedTuple):
+    """A paired t-test of ``d = first - second`` (:func:`_paired_t`): the fields of
+    :class:`~cirl_study.analysis.result_types.PairedT`, NaN where undefined."""
+
+    mean_diff: float
+    ci95_low: float
+    ci95_high: float
+    t: float
+    df: int
+    p: float
+    log10_p: float
+    d_z: float
+
+
+def _paired_t(first: np.ndarray, second: np.ndarray) -> PairedTest:
     """Paired t-test of ``d = first - second``: ``mean_diff``, its t-based CI, ``t``, ``df``,
     ``p`` (two-sided, ``scipy.stats.ttest_rel``), ``log10_p`` (in log space,
     :func:`cirl_study.analysis.tails.t_tail`) and ``d_z``."""
     difference = first - second
     test = stats.ttest_rel(first, second)
     interval = test.confidence_interval(CONFIDENCE)
-    return {
-        "mean_diff": float(difference.mean()),
-        "ci95_low": float(interval.low),
-        "ci95_high": float(interval.high),
-        "t": float(test.statistic),
-        "df": int(test.df),
-        "p": float(test.pvalue),
-        "log10_p": t_tail(float(test.statistic), int(test.df))[1],
-        "d_z": float(_d_z(difference)),
-    }
+    return PairedTest(
+        mean_diff=float(difference.mean()),
+        ci95_low=float(interval.low),
+        ci95_high=float(interval.high),
+        t=float(test.statistic),
+        df=int(test.df),
+        p=float(test.pvalue),
+        log10_p=t_tail(float(test.statistic), int(test.df))[1],
+        d_z=float(_d_z(difference)),
+    )
+
+
+def _holm_family(tests: Sequence[PairedTest]) -> list[tuple[float, float]]:
+    """``(p_holm, log10_p_holm)`` of each test, :func:`holm` and :func:`holm_log10` over
+    ``tests`` as one family."""
+    if not tests:
+        return []
+    p = holm(np.array([test.p for test in tests]))
+    log10_p = holm_log10(np.array([test.log10_p for test in tests]))
+    return [(float(a), float(b)) for a, b in zip(p, log10_p, strict=True)]
 
 
 BOOTSTRAP_BATCH_ELEMENTS = 1 << 22
 """Resampled values drawn at once (32 MiB of float64): bounds the bootstrap's memory at any n."""
 
 
-def bootstrap_mean_d_z(differences: np.ndarray) -> dict[str, tuple[float, float]]:
+class BootstrapIntervals(NamedTuple):
+    """The BCa intervals ``(low, high)`` of :func:`bootstrap_mean_d_z`."""
+
+    mean: tuple[float, float]
+    d_z: tuple[float, float]
+
+
+def bootstrap_mean_d_z(differences: np.ndarray) -> BootstrapIntervals:
     """BCa bootstrap confidence intervals of ``mean(d)`` and ``d_z`` of one paired sample.
 
     The interval of Efron & Tibshirani (1993, §14.3), with :data:`BOOTSTRAP_RESAMPLES`
@@ -223,7 +279,7 @@ def bootstrap_mean_d_z(differences: np.ndarray) -> dict[str, tuple[float, float]
         ``scipy.stats.bootstrap``.
 
     Returns:
-        ``{"mean": (low, high), "d_z": (low, high)}`` at level :data:`CONFIDENCE`.
+        The intervals of ``mean`` and ``d_z`` at level :data:`CONFIDENCE`.
     """
     d = np.asarray(differences, dtype=np.float64)
     n = d.size
@@ -237,10 +293,10 @@ def bootstrap_mean_d_z(differences: np.ndarray) -> dict[str, tuple[float, float]
         leave_one_out_mean = mean - centered / (n - 1)
         squares = np.sum(centered**2) - centered**2 * n / (n - 1)
         leave_one_out_d_z = leave_one_out_mean / np.sqrt(squares / (n - 2))
-    return {
-        "mean": _bca(np.concatenate(means), float(mean), leave_one_out_mean),
-        "d_z": _bca(np.concatenate(d_zs), float(_d_z(d)), leave_one_out_d_z),
-    }
+    return BootstrapIntervals(
+        mean=_bca(np.concatenate(means), float(mean), leave_one_out_mean),
+        d_z=_bca(np.concatenate(d_zs), float(_d_z(d)), leave_one_out_d_z),
+    )
 
 
 BOOTSTRAP_BLOCK_ELEMENTS = 1 << 16
@@ -312,7 +368,7 @@ def _bca(replicates: np.ndarray, estimate: float, jackknife: np.ndarray) -> tupl
     return float(low), float(high)
 
 
-def simple_effects(main: pd.DataFrame, measure: str) -> pd.DataFrame:
+def simple_effects(main: pd.DataFrame, measure: str) -> Table[SimpleEffect]:
     """Simple effects of ``human`` within each feature level: paired t-tests.
 
     At level ``g``: ``t = mean(d) / (sd(d) / sqrt(n))`` with ``n - 1`` degrees of freedom,
@@ -326,42 +382,39 @@ def simple_effects(main: pd.DataFrame, measure: str) -> pd.DataFrame:
         ``scipy.stats.ttest_rel``, ``pingouin.multicomp``.
 
     Returns:
-        One row per feature level: ``measure, num_features, n, mean_expert,
-        mean_best_response, mean_diff, ci95_low, ci95_high, t, df, p, p_holm, d_z,
-        boot_diff_low, boot_diff_high, boot_d_z_low, boot_d_z_high``.
+        One row per feature level, levels sorted.
     """
-    rows = []
+    levels, tests, boots = [], [], []
     for level in sorted(main["num_features"].unique()):
         paired = paired_by_subject(main, measure, level)
         expert = paired[EXPERT].to_numpy()
         best = paired[BEST_RESPONSE].to_numpy()
-        difference = best - expert
-        boot = bootstrap_mean_d_z(difference)
-        rows.append(
-            {
-                "measure": measure,
-                "num_features": int(level),
-                "n": len(difference),
-                "mean_expert": float(expert.mean()),
-                "mean_best_response": float(best.mean()),
-                **_paired_t(best, expert),
-                "boot_diff_low": boot["mean"][0],
-                "boot_diff_high": boot["mean"][1],
-                "boot_d_z_low": boot["d_z"][0],
-                "boot_d_z_high": boot["d_z"][1],
-            }
-        )
-    frame = pd.DataFrame(rows)
-    _insert_holm(frame)
-    return frame
-
-
-def _insert_holm(frame: pd.DataFrame) -> None:
-    """Insert ``p_holm`` (:func:`holm`) and ``log10_p_holm`` (:func:`holm_log10`) after
-    ``log10_p``: the whole frame is one family."""
-    at = frame.columns.get_loc("log10_p") + 1
-    frame.insert(at, "p_holm", holm(frame["p"].to_numpy()))
-    frame.insert(at + 1, "log10_p_holm", holm_log10(frame["log10_p"].to_numpy()))
+        levels.append((int(level), expert, best))
+        tests.append(_paired_t(best, expert))
+        boots.append(bootstrap_mean_d_z(best - expert))
+    adjusted = _holm_family(tests)
+    return Table(
+        SimpleEffect,
+        (
+            SimpleEffect(
+                measure=measure,
+                num_features=level,
+                n=len(expert),
+                mean_expert=float(expert.mean()),
+                mean_best_response=float(best.mean()),
+                **test._asdict(),
+                p_holm=p_holm,
+                log10_p_holm=log10_p_holm,
+                boot_diff_low=boot.mean[0],
+                boot_diff_high=boot.mean[1],
+                boot_d_z_low=boot.d_z[0],
+                boot_d_z_high=boot.d_z[1],
+            )
+            for (level, expert, best), test, (p_holm, log10_p_holm), boot in zip(
+                levels, tests, adjusted, boots, strict=True
+            )
+        ),
+    )
 
 
 def holm(p_values: np.ndarray) -> np.ndarray:
@@ -376,7 +429,7 @@ def holm(p_values: np.ndarray) -> np.ndarray:
     return pg.multicomp(p_values, method="holm")[1]
 
 
-def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
+def tukey_hsd(main: pd.DataFrame, measure: str) -> Table[TukeyRow]:
     """Tukey HSD over the ``num_features x human`` cells, as the paper did it.
 
     Every pair of cells is compared with ``q = sqrt(2) |mean_A - mean_B| / sqrt(MSE (1/n_A
@@ -401,8 +454,7 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
         ``pingouin.pairwise_tukey``.
 
     Returns:
-        One row per pair of cells: ``measure, a_num_features, a_human, b_num_features,
-        b_human, mean_a, mean_b, diff, se, T, p_tukey, log10_p_tukey, hedges``.
+        One row per pair of cells, cells in sorted order.
     """
     cells = ["num_features", "human"]
     observed = main[[measure, *cells]].dropna()
@@ -422,30 +474,32 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> pd.DataFrame:
     diff = means[first] - means[second]
     se = np.sqrt(mse / sizes[first] + mse / sizes[second])
     t = diff / se
-    log10_p = [studentized_range_log10_sf(math.sqrt(2) * abs(value), k, df) for value in t]
-    return pd.DataFrame(
-        {
-            "measure": measure,
-            "a_num_features": [int(labels[a][0]) for a in first],
-            "a_human": [labels[a][1] for a in first],
-            "b_num_features": [int(labels[b][0]) for b in second],
-            "b_human": [labels[b][1] for b in second],
-            "mean_a": means[first],
-            "mean_b": means[second],
-            "diff": diff,
-            "se": se,
-            "T": t,
-            "p_tukey": [p_from_log10(value) for value in log10_p],
-            "log10_p_tukey": log10_p,
-            "hedges": [
-                pg.compute_effsize(groups[labels[a]], groups[labels[b]], eftype="hedges")
-                for a, b in zip(first, second, strict=True)
-            ],
-        }
-    )
+    rows = []
+    for i, (a, b) in enumerate(zip(first, second, strict=True)):
+        log10_p = studentized_range_log10_sf(math.sqrt(2) * abs(t[i]), k, df)
+        rows.append(
+            TukeyRow(
+                measure=measure,
+                a_num_features=int(labels[a][0]),
+                a_human=labels[a][1],
+                b_num_features=int(labels[b][0]),
+                b_human=labels[b][1],
+                mean_a=float(means[a]),
+                mean_b=float(means[b]),
+                diff=float(diff[i]),
+                se=float(se[i]),
+                T=float(t[i]),
+                p_tukey=p_from_log10(log10_p),
+                log10_p_tukey=log10_p,
+                hedges=float(
+                    pg.compute_effsize(groups[labels[a]], groups[labels[b]], eftype="hedges")
+                ),
+            )
+        )
+    return Table(TukeyRow, rows)
 
 
-def wilcoxon(main: pd.DataFrame, measure: str) -> pd.DataFrame:
+def wilcoxon(main: pd.DataFrame, measure: str) -> Table[WilcoxonRow]:
     """Wilcoxon signed-rank test of ``d`` within each feature level (non-parametric check).
 
     ``W`` is the smaller of the signed-rank sums, ``p`` two-sided (normal approximation
@@ -465,7 +519,7 @@ def wilcoxon(main: pd.DataFrame, measure: str) -> pd.DataFrame:
         ``pingouin.wilcoxon``, ``scipy.stats.wilcoxon``.
 
     Returns:
-        One row per feature level: ``measure, num_features, n, W, p, log10_p, rbc, cles``.
+        One row per feature level, levels sorted.
     """
     rows = []
     for level in sorted(main["num_features"].unique()):
@@ -478,18 +532,18 @@ def wilcoxon(main: pd.DataFrame, measure: str) -> pd.DataFrame:
         else:  # every difference is 0: the signed ranks are empty and the test undefined
             w = p = log10_p = rbc = math.nan
         rows.append(
-            {
-                "measure": measure,
-                "num_features": int(level),
-                "n": len(paired),
-                "W": w,
-                "p": p,
-                "log10_p": log10_p,
-                "rbc": rbc,
-                "cles": _common_language(best, expert),
-            }
+            WilcoxonRow(
+                measure=measure,
+                num_features=int(level),
+                n=len(paired),
+                W=w,
+                p=p,
+                log10_p=log10_p,
+                rbc=rbc,
+                cles=_common_language(best, expert),
+            )
         )
-    return pd.DataFrame(rows)
+    return Table(WilcoxonRow, rows)
 
 
 def wilcoxon_log10_p(differences: np.ndarray, p: float) -> float:
@@ -555,6 +609,19 @@ def group_means(rows: pd.DataFrame, measure: str, by: list[str]) -> pd.DataFrame
     return frame
 
 
+Means = TypeVar("Means", CellMean, EtaMean)
+"""A row of group means: a cell's (:class:`CellMean`) or an eta's (:class:`EtaMean`)."""
+
+
+def group_mean_rows(
+    rows: pd.DataFrame, measure: str, by: list[str], row_type: type[Means]
+) -> Table[Means]:
+    """:func:`group_means` as rows of ``row_type``, whose fields are ``measure``, ``by``,
+    ``n, mean, sd, ci95_low, ci95_high``."""
+    frame = group_means(rows, measure, by)
+    return Table(row_type, (row_type(**group) for group in frame.to_dict(orient="records")))
+
+
 def feldt_ci(alpha: float, n: int, k: int) -> tuple[float, float]:
     """Feldt's confidence interval of coefficient alpha from ``n`` rows and ``k`` items.
 
@@ -570,8 +637,9 @@ def feldt_ci(alpha: float, n: int, k: int) -> tuple[float, float]:
     return float(low), float(high)
 
 
-def cronbach_alpha(items: pd.DataFrame) -> dict[str, float | int | list[float]]:
-    """Cronbach's alpha of the columns of ``items`` (one row per observation).
+def cronbach_alpha(items: pd.DataFrame, rows: str) -> CronbachAlpha:
+    """Cronbach's alpha of the columns of ``items`` (one row per observation; ``rows`` says
+    what a row is, in words, kept with the result).
 
     Raw: ``alpha = k / (k - 1) (1 - sum_i var(y_i) / var(sum_i y_i))``. Standardised: the
     same on z-scored items, ``k rbar / (1 + (k - 1) rbar)`` with ``rbar`` the mean
@@ -580,36 +648,24 @@ def cronbach_alpha(items: pd.DataFrame) -> dict[str, float | int | list[float]]:
     References:
         Cronbach (1951), Psychometrika 16(3):297-334.
         ``pingouin.cronbach_alpha`` (checked against R ``psych::alpha``).
-
-    Returns:
-        ``raw, standardised, ci95, ci95_standardised, n_rows, n_items``.
     """
     n, k = items.shape
     raw = float(pg.cronbach_alpha(data=items)[0])
     standardised_items = (items - items.mean()) / items.std()
     standardised = float(pg.cronbach_alpha(data=standardised_items)[0])
-    return {
-        "raw": raw,
-        "standardised": standardised,
-        "ci95": list(feldt_ci(raw, n, k)),
-        "ci95_standardised": list(feldt_ci(standardised, n, k)),
-        "n_rows": int(n),
-        "n_items": int(k),
-    }
+    return CronbachAlpha(
+        raw=raw,
+        standardised=standardised,
+        ci95=list(feldt_ci(raw, n, k)),
+        ci95_standardised=list(feldt_ci(standardised, n, k)),
+        n_rows=int(n),
+        n_items=int(k),
+        items=[str(item) for item in items.columns],
+        rows=rows,
+    )
 
 
-def lambda_sweep(sweep: pd.DataFrame, measures: tuple[str, ...]) -> pd.DataFrame:
-    """Mean of each measure with its CI per rationality ``lambda``, human and feature level.
-
-    Returns:
-        :func:`group_means` rows grouped by ``rationality, human, num_features``, one
-        block per measure.
-    """
-    by = ["rationality", "human", "num_features"]
-    return pd.concat([group_means(sweep, measure, by) for measure in measures], ignore_index=True)
-
-
-def eta_choice_uncertainty(cv: pd.DataFrame, chosen: Mapping[int, float]) -> pd.DataFrame:
+def eta_choice_uncertainty(cv: pd.DataFrame, chosen: Mapping[int, float]) -> Table[EtaUncertainty]:
     """How clear-cut the cross-validated eta is, per feature level.
 
     With ``m_e`` the mean best-response regret at ``eta = e`` over the cross-validation
@@ -626,9 +682,8 @@ def eta_choice_uncertainty(cv: pd.DataFrame, chosen: Mapping[int, float]) -> pd.
         section 7.10 (the one-standard-error rule).
 
     Returns:
-        One row per feature level: ``num_features, n, eta, mean, se, runner_up, runner_up_mean,
-        mean_diff, ci95_low, ci95_high, t, df, p, d_z, within_one_se`` (``within_one_se`` a
-        sorted list of etas; the test columns are NaN with a single eta).
+        One row per feature level with a chosen eta, levels sorted (``within_one_se`` a sorted
+        list of etas; without another eta, no runner-up and no test).
     """
     best = cv[(cv["human"] == BEST_RESPONSE) & cv["eta"].notna()]
     rows = []
@@ -652,12 +707,12 @@ def eta_choice_uncertainty(cv: pd.DataFrame, chosen: Mapping[int, float]) -> pd.
         if len(others):
             runner_up = float(others.index[0])
             row |= {"runner_up": runner_up, "runner_up_mean": float(others.iloc[0])}
-            row |= _paired_t(wide[runner_up].to_numpy(), column)
-        rows.append(row)
-    return pd.DataFrame(rows)
+            row |= _paired_t(wide[runner_up].to_numpy(), column)._asdict()
+        rows.append(EtaUncertainty(**row))
+    return Table(EtaUncertainty, rows)
 
 
-def eta_means(cv: pd.DataFrame) -> pd.DataFrame:
+def eta_means(cv: pd.DataFrame) -> Table[EtaMean]:
     """Mean regret of the best response with its CI per feature level and ``eta``.
 
     The curve behind the cross-validated choice of ``eta`` (docs/design.md §3); the choice
@@ -668,7 +723,7 @@ def eta_means(cv: pd.DataFrame) -> pd.DataFrame:
         trials of ``cv``.
     """
     best = cv[(cv["human"] == BEST_RESPONSE) & cv["eta"].notna()]
-    return group_means(best, "regret", ["num_features", "eta"])
+    return group_mean_rows(best, "regret", ["num_features", "eta"], EtaMean)
 
 
 JOINT_RESAMPLES = 5000
@@ -683,7 +738,7 @@ def joint_sign_flip_test(
     resamples: int = JOINT_RESAMPLES,
     seed: int = JOINT_SEED,
     batch: int = 100,
-) -> dict[str, Any]:
+) -> JointTest:
     """Joint test across universes that the effect is negative (Simonsohn et al. 2020).
 
     ``differences`` is ``U x S``: ``d_{u,s} = y_{s,br} - y_{s,expert}`` of subject ``s`` in
@@ -713,8 +768,8 @@ def joint_sign_flip_test(
         Phipson & Smyth (2010), Statistical Applications in Genetics and Molecular Biology 9(1).
 
     Returns:
-        ``universes, subjects, resamples, seed``, and for each statistic ``{"observed", "p",
-        "log10_p"}`` under its key (``log10_p`` the common logarithm of the exact ratio,
+        The joint test: ``universes, subjects, resamples, seed``, and each statistic observed
+        with its ``p`` and ``log10_p`` (the common logarithm of the exact ratio,
         :func:`sign_flip_log10_p`).
     """
     d = np.asarray(differences, dtype=np.float64)
@@ -730,20 +785,17 @@ def joint_sign_flip_test(
         extreme["median_effect"] += int(np.sum(null["median_effect"] <= observed["median_effect"]))
         for key in ("share_significant", "stouffer_z"):
             extreme[key] += int(np.sum(null[key] >= observed[key]))
-    return {
-        "universes": universes,
-        "subjects": subjects,
-        "resamples": resamples,
-        "seed": seed,
-        **{
-            key: {
-                "observed": float(value),
-                "p": (1 + extreme[key]) / (1 + resamples),
-                "log10_p": sign_flip_log10_p(extreme[key], resamples),
-            }
-            for key, value in observed.items()
-        },
+    found = {
+        key: SignFlipStatistic(
+            observed=float(value),
+            p=(1 + extreme[key]) / (1 + resamples),
+            log10_p=sign_flip_log10_p(extreme[key], resamples),
+        )
+        for key, value in observed.items()
     }
+    return JointTest(
+        universes=universes, subjects=subjects, resamples=resamples, seed=seed, **found
+    )
 
 
 def sign_flip_log10_p(extreme: int, resamples: int) -> float:

@@ -2,14 +2,15 @@
 levels: the cell means, the repeated-measures ANOVA with its sphericity corrections, every
 pairwise comparison, every human against the baseline, the lambda sweep and the eta
 cross-validation. Each is a function of the results alone (:mod:`cirl_study.analysis.results`)
-and returns its lines, or none when the run has nothing for it.
+and returns its lines, or none when the run has nothing for it; a registered test's renderer
+(:mod:`cirl_study.analysis.study_tests`) takes its rows and the results and returns the lines
+below its heading.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Iterable, Sequence
-
-import pandas as pd
+from typing import Any
 
 from cirl_study.analysis.cells import papers_own
 from cirl_study.analysis.markdown import (
@@ -29,9 +30,16 @@ from cirl_study.analysis.result_types import (
     PairedComparison,
     PairedDifference,
     StudyResults,
-    frame,
+    Table,
 )
-from cirl_study.analysis.sections import FIGURES, heading
+from cirl_study.analysis.sections import (
+    CELL_MEANS,
+    ETA_CV_CURVE,
+    FIGURE2_LAMBDA,
+    FIGURE2_MEASURES,
+    OTHER_MEASURES,
+    heading,
+)
 from cirl_study.measure_registry import PAPER_MEASURES, analysed_measures
 from cirl_study.record import LAMBDA_SWEEP
 
@@ -44,7 +52,7 @@ def paper_only(results: StudyResults) -> bool:
 def other_measures(measures: Iterable[str]) -> tuple[str, ...]:
     """The measures the analysis tests beyond the paper's three that are among ``measures``
     (those of a study's cells), in the registry's order: those the figure beside Figure 2 (left)
-    draws (:data:`~cirl_study.analysis.sections.FIGURES` ``other_measures``)."""
+    draws (:data:`~cirl_study.analysis.sections.OTHER_MEASURES`)."""
     present = set(measures)
     return tuple(m for m in analysed_measures() if m not in PAPER_MEASURES and m in present)
 
@@ -54,7 +62,7 @@ def cells(results: StudyResults) -> list[str]:
     it, and, beyond the paper's design, the cell figure of every human and robot."""
     figures = []
     if results.paper is not None:
-        file_name, _ = FIGURES["figure2_measures"]
+        file_name = FIGURE2_MEASURES.file
         robot = results.design.reference_robot
         figures += [
             "",
@@ -65,7 +73,7 @@ def cells(results: StudyResults) -> list[str]:
             ),
         ]
         if other_measures(row.measure for row in results.cells if row.robot == robot):
-            file_name, _ = FIGURES["other_measures"]
+            file_name = OTHER_MEASURES.file
             figures += [
                 "",
                 image(
@@ -74,7 +82,7 @@ def cells(results: StudyResults) -> list[str]:
                 ),
             ]
     if not paper_only(results):
-        file_name, _ = FIGURES["cell_means"]
+        file_name = CELL_MEANS.file
         figures += ["", image("Every measure by human, robot and number of features", file_name)]
     return [
         heading(3, "cells"),
@@ -126,7 +134,7 @@ def anova_table(rows: Sequence[AnovaEffect]) -> str:
     return table(header, formatted(rows, columns), [False, False, *[True] * (len(header) - 2)])
 
 
-def anova(results: StudyResults) -> list[str]:
+def anova(rows: Table[AnovaEffect], results: StudyResults) -> list[str]:
     """The repeated-measures ANOVA of every human (and robot) and feature level, beyond the
     paper's design (where it is the paper's mixed ANOVA)."""
     if paper_only(results):
@@ -139,21 +147,19 @@ def anova(results: StudyResults) -> list[str]:
         else ""
     )
     return [
-        heading(3, "anova"),
-        "",
         f"Per measure: within subjects {within}{between}. For a within effect on two degrees "
         "of freedom or more, Mauchly's test of sphericity and the p-values corrected by the "
         "Greenhouse-Geisser and Huynh-Feldt epsilons (Huynh-Feldt capped at 1); with two "
         "levels per within factor sphericity holds, so the p-values are uncorrected.",
         "",
-        anova_table(results.anova),
+        anova_table(rows),
     ]
 
 
-def pairwise(results: StudyResults) -> list[str]:
+def pairwise(rows: Table[PairedComparison], results: StudyResults) -> list[str]:
     """Every pair of humans (and of robots) in every cell of the other factors, beyond the
     paper's design (where it is the simple effects of human)."""
-    if not results.pairwise or paper_only(results):
+    if not rows or paper_only(results):
         return []
 
     def cell(row: PairedComparison) -> str:
@@ -162,8 +168,6 @@ def pairwise(results: StudyResults) -> list[str]:
         return f"human `{row.human}`"
 
     return [
-        heading(3, "pairwise"),
-        "",
         "Every pair of humans (and of robots) within each cell of the other factors, paired "
         "by reward draw: `a - b` (negative: `a` did better); Holm over each measure's rows "
         "of one factor.",
@@ -172,7 +176,7 @@ def pairwise(results: StudyResults) -> list[str]:
             ["measure", "features", "in", "a", "b", "n", "a - b", "95% CI (t)", "t", "p",
              "p (Holm)", "d_z"],
             formatted(
-                results.pairwise,
+                rows,
                 [
                     "measure", "num_features", cell, "level_a", "level_b", "n", "mean_diff",
                     ci, "t", lambda r: p_text(r.log10_p),
@@ -208,40 +212,39 @@ def paired_table(rows: Sequence[PairedDifference], group: str, label: str) -> st
     )  # fmt: skip
 
 
-def against_baseline(results: StudyResults) -> list[str]:
+def against_baseline(rows: Table[PairedDifference], results: StudyResults) -> list[str]:
     """Every human against the baseline."""
-    if not results.against_baseline:
+    if not rows:
         return []
     baseline = results.design.baseline
     return [
-        heading(3, "against_baseline"),
-        "",
         f"Paired by reward draw: the human's measure minus `{baseline}`'s (negative: the "
         "human did better), per robot and number of features; Holm over each measure's rows.",
         "",
-        paired_table(results.against_baseline, "robot", "human"),
+        paired_table(rows, "robot", "human"),
     ]
 
 
 def grid_table(
-    frame: pd.DataFrame, x: str, x_label: str, columns: Sequence[tuple[str, Callable]]
+    rows: Sequence[Any], x: str, x_label: str, columns: Sequence[tuple[str, Callable[[Any], bool]]]
 ) -> str:
-    """One row per value of ``x``, one column per selector in ``columns``: ``mean [CI]``."""
-    rows = []
-    for value in sorted(frame[x].unique()):
-        at = frame[frame[x] == value]
+    """One row per value of the field ``x`` of ``rows`` (rows of means with their CIs), in
+    order; one column per selector of ``columns``: ``mean [CI]`` of the first row at that value
+    it selects, an en dash where it selects none."""
+    lines = []
+    for value in sorted({getattr(row, x) for row in rows}):
+        at = [row for row in rows if getattr(row, x) == value]
         shown = []
         for _, select in columns:
-            match = at[select(at)]
+            match = next((row for row in at if select(row)), None)
             shown.append(
                 "–"
-                if match.empty
-                else f"{number(match['mean'].iloc[0])} "
-                f"{interval(match['ci95_low'].iloc[0], match['ci95_high'].iloc[0], 3)}"
+                if match is None
+                else f"{number(match.mean)} {interval(match.ci95_low, match.ci95_high, 3)}"
             )
-        rows.append([f"{value:g}", *shown])
+        lines.append([f"{value:g}", *shown])
     header = [x_label, *(label for label, _ in columns)]
-    return table(header, rows, [True] * len(header))
+    return table(header, lines, [True] * len(header))
 
 
 def lambda_sweep(results: StudyResults) -> list[str]:
@@ -250,21 +253,18 @@ def lambda_sweep(results: StudyResults) -> list[str]:
     if not results.lambda_sweep:
         return [*lines, "This run has no trials in the `lambda_sweep` block."]
     robot = results.design.reference_robot
-    sweep = frame(results.lambda_sweep)
-    regret = sweep[(sweep["measure"] == "regret") & (sweep["robot"] == robot)]
+    regret = results.lambda_sweep.filter(lambda row: row.measure == "regret" and row.robot == robot)
     columns = [
         (
             f"{name(human)}, {level}",
-            lambda at, level=level, human=human: (
-                (at["num_features"] == level) & (at["human"] == human)
-            ),
+            lambda row, level=level, human=human: row.num_features == level and row.human == human,
         )
-        for level in sorted(regret["num_features"].unique())
+        for level in sorted({row.num_features for row in regret})
         for human in results.design.humans
     ]
     figure = []
     if results.paper is not None:
-        file_name, _ = FIGURES["figure2_lambda"]
+        file_name = FIGURE2_LAMBDA.file
         figure = ["", image("Figure 2, right: regret against lambda", file_name)]
     others = " and of every other robot" if results.design.robots[1:] else ""
     return [
@@ -349,16 +349,16 @@ def eta_cv(results: StudyResults) -> list[str]:
     lines = [heading(2, "eta_cv"), ""]
     if not results.eta_cv.means:
         return [*lines, "This run has no trials in the `eta_cv` block."]
-    means = frame(results.eta_cv.means)
+    means = results.eta_cv.means
     columns = [
-        (f"{level} features", lambda at, level=level: at["num_features"] == level)
-        for level in sorted(means["num_features"].unique())
+        (f"{level} features", lambda row, level=level: row.num_features == level)
+        for level in sorted({row.num_features for row in means})
     ]
     chosen = ", ".join(
         f"η = {row.eta:g} at {row.num_features} features (mean regret {number(row.mean)})"
         for row in results.eta_cv.chosen
     )
-    file_name, _ = FIGURES["eta_cv_curve"]
+    file_name = ETA_CV_CURVE.file
     return [
         *lines,
         f"Mean best-response regret [95% CI] per η, on reward draws disjoint from the main "

@@ -1,8 +1,9 @@
 """The teaching sections of a study's results: humans who teach and robots who read them.
 
 Each section is computed where the run has its cells (:mod:`cirl_study.analysis.cells`), and
-is ``None`` otherwise; its paired sections hold each measure the analysis tests, and the gap
-to the regret-optimal demonstration is in regret (a loss: lower is better):
+is ``None`` otherwise (:func:`cirl_study.analysis.results.tests`); its paired sections hold
+each measure the analysis tests, and the gap to the regret-optimal demonstration is in regret
+(a loss: lower is better):
 
 * ``milli_dragan`` (:data:`~cirl_study.analysis.cells.MILLI_DRAGAN`): the 2 x 2 of Milli &
   Dragan (2019), human {literal, pedagogic} x robot {literal_observer, pragmatic}: the
@@ -22,14 +23,18 @@ The claims that read them are in :mod:`cirl_study.analysis.claims`.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Any
-
 import numpy as np
 import pandas as pd
 
 from cirl_study.analysis import statistics
-from cirl_study.analysis.cells import MILLI_DRAGAN, REGRET_OPTIMAL_GAP, VERSUS_PEDAGOGIC, Design
-from cirl_study.analysis.measure_rows import anova_rows, paired_rows, plain
+from cirl_study.analysis.measure_rows import anova_rows, paired_rows
+from cirl_study.analysis.result_types import (
+    MilliDragan,
+    PairedDifference,
+    RegretGap,
+    RegretOptimal,
+    Table,
+)
 from cirl_study.record import (
     BEST_RESPONSE,
     LITERAL,
@@ -40,56 +45,39 @@ from cirl_study.record import (
     REGRET_OPTIMAL,
 )
 
-if TYPE_CHECKING:
-    from collections.abc import Callable
-
-SECTIONS: tuple[str, ...] = ("milli_dragan", "best_response_vs_pedagogic", "regret_optimal")
-"""The keys of the teaching sections, in the order ``results.json`` lists them."""
-
 SAME_REGRET = 1e-9
 """Regret gap (absolute) below which a demonstration counts as good as the best found: the
 MAP robot certifies its estimate to 1e-6, and two demonstrations with the same visit class
 give the same estimate bit for bit."""
 
 
-def sections(main: pd.DataFrame, design: Design) -> dict[str, Any]:
-    """Every teaching section of the ``main`` block's table (``None`` where its cells lack)."""
-
-    def milli_dragan() -> dict[str, Any]:
-        square = main[
-            main["human"].isin([LITERAL, PEDAGOGIC])
-            & main["robot"].isin([LITERAL_OBSERVER, PRAGMATIC])
-        ]
-        return {
-            "anova": anova_rows(square, ["human", "robot"]),
-            "robot_effect": paired_rows(
-                square.assign(pooled="all"), "robot", LITERAL_OBSERVER, ["human", "pooled"]
-            ),
-            "robot_effect_by_level": paired_rows(
-                square, "robot", LITERAL_OBSERVER, ["human", "num_features"]
-            ),
-        }
-
-    def versus() -> list[dict[str, Any]]:
-        pair = main[main["human"].isin([BEST_RESPONSE, PEDAGOGIC])]
-        return paired_rows(pair, "human", PEDAGOGIC, ["robot", "num_features"])
-
-    made: dict[str, tuple[Any, Callable[[], Any]]] = {
-        "milli_dragan": (MILLI_DRAGAN, milli_dragan),
-        "best_response_vs_pedagogic": (VERSUS_PEDAGOGIC, versus),
-        "regret_optimal": (
-            REGRET_OPTIMAL_GAP,
-            lambda: _regret_optimal(main[main["robot"] == MAP]),
+def milli_dragan(main: pd.DataFrame) -> MilliDragan:
+    """The section ``milli_dragan`` of the ``main`` block's table (see the module docstring)."""
+    square = main[
+        main["human"].isin([LITERAL, PEDAGOGIC]) & main["robot"].isin([LITERAL_OBSERVER, PRAGMATIC])
+    ]
+    return MilliDragan(
+        anova=anova_rows(square, ["human", "robot"]),
+        robot_effect=paired_rows(
+            square.assign(pooled="all"), "robot", LITERAL_OBSERVER, ["human", "pooled"]
         ),
-    }
-    return {
-        key: None if cells.lacking(design) else plain(make()) for key, (cells, make) in made.items()
-    }
+        robot_effect_by_level=paired_rows(
+            square, "robot", LITERAL_OBSERVER, ["human", "num_features"]
+        ),
+    )
 
 
-def _regret_optimal(with_map: pd.DataFrame) -> dict[str, Any]:
-    """Each human's regret gap to the regret-optimal demonstration (MAP robot), per level."""
-    gaps = []
+def versus_pedagogic(main: pd.DataFrame) -> Table[PairedDifference]:
+    """The section ``best_response_vs_pedagogic`` of the ``main`` block's table."""
+    pair = main[main["human"].isin([BEST_RESPONSE, PEDAGOGIC])]
+    return paired_rows(pair, "human", PEDAGOGIC, ["robot", "num_features"])
+
+
+def regret_optimal(main: pd.DataFrame) -> RegretOptimal:
+    """The section ``regret_optimal`` of the ``main`` block's table: each human's regret gap to
+    the regret-optimal demonstration with the MAP robot, per feature level."""
+    gaps = Table(RegretGap)
+    with_map = main[main["robot"] == MAP]
     for (level,), group in with_map.groupby(["num_features"], sort=True):
         paired = group.pivot(index="subject", columns="human", values="regret").sort_index()
         best = paired[REGRET_OPTIMAL].to_numpy()
@@ -97,27 +85,27 @@ def _regret_optimal(with_map: pd.DataFrame) -> dict[str, Any]:
             if human == REGRET_OPTIMAL:
                 continue
             gap = paired[human].to_numpy() - best
-            test = statistics.paired_differences(
+            (test,) = statistics.paired_differences(
                 group[group["human"].isin([human, REGRET_OPTIMAL])],
                 "regret",
                 "human",
                 REGRET_OPTIMAL,
                 ["num_features"],
-            ).iloc[0]
-            gaps.append(
-                {
-                    "num_features": int(level),
-                    "human": human,
-                    "n": len(gap),
-                    "mean_regret_optimal": float(best.mean()),
-                    "mean_human": float(paired[human].mean()),
-                    "mean_gap": float(gap.mean()),
-                    "ci95_low": float(test["ci95_low"]),
-                    "ci95_high": float(test["ci95_high"]),
-                    "p": float(test["p"]),
-                    "log10_p": float(test["log10_p"]),
-                    "smallest_gap": float(gap.min()),
-                    "share_optimal": float(np.mean(np.abs(gap) <= SAME_REGRET)),
-                }
             )
-    return {"gaps": gaps}
+            gaps.append(
+                RegretGap(
+                    num_features=int(level),
+                    human=human,
+                    n=len(gap),
+                    mean_regret_optimal=float(best.mean()),
+                    mean_human=float(paired[human].mean()),
+                    mean_gap=float(gap.mean()),
+                    ci95_low=test.ci95_low,
+                    ci95_high=test.ci95_high,
+                    p=test.p,
+                    log10_p=test.log10_p,
+                    smallest_gap=float(gap.min()),
+                    share_optimal=float(np.mean(np.abs(gap) <= SAME_REGRET)),
+                )
+            )
+    return RegretOptimal(gaps=gaps)
