@@ -235,6 +235,10 @@ def _replaced(path: Path, make) -> None:
         (lambda d: (d / "tri\nals.csv").unlink(), "tri\\nals.csv: cannot read: No such file"),
         (lambda d: (d / "trials.csv").write_bytes(b"trial_id\n\xff\xfe\n"), "can't decode"),
         (lambda d: (d / "trials.csv").write_text("a\n" + "x" * 200_000), "field limit"),
+        (
+            lambda d: (d / "trials.csv").write_text("trial_id,regret,regret\nmain:a,0.5,0.7\n"),
+            "trials.csv: cannot read: names the column regret twice",
+        ),
         (lambda d: (d / "report.md").write_bytes(b"\xff"), "report.md: cannot read: "),
         (lambda d: (d / "results.json").write_text("[" * 100_000), "results.json: cannot read"),
         (lambda d: (d / "results.json").write_bytes(b'{"\xff": 1}'), "results.json: cannot"),

@@ -413,6 +413,12 @@ def test_calibrate_finds_the_universe_a_target_was_taken_from(tmp_path: Path, mu
         "error: no universe of the run measures the target's cell (regret, K=7, expert)"
     )
     assert (out / "report.md").read_text() == text
+    # a target naming a column twice is refused in one line, not read by its last column
+    target.write_text("measure,num_features,human,value,value\nregret,3,expert,0.5,0.7\n")
+    refused = CliRunner().invoke(app, command)
+    assert refused.exit_code == 2 and refused.stderr.count("\n") == 1, refused.output
+    assert refused.stderr == f"error: {target}: names the column value twice\n"
+    assert (out / "report.md").read_text() == text
 
 
 def test_a_full_disk_while_calibrating_is_one_line_and_keeps_the_report(

@@ -164,10 +164,16 @@ def _load_json(directory: Path) -> Any:
 
 def _load_csv(path: Path) -> list[dict[str, str]]:
     """The rows of a table; a ragged row's missing cells are ``None``, its extra ones a list
-    under the key ``None`` (:class:`csv.DictReader`)."""
+    under the key ``None`` (:class:`csv.DictReader`). A header that names a column twice is
+    refused: a row would keep only its last cell."""
     try:
         text = _read(path).decode("utf-8")
-        return list(csv.DictReader(io.StringIO(text, newline="")))
+        reader = csv.DictReader(io.StringIO(text, newline=""))
+        header = reader.fieldnames or []
+        repeated = [name for position, name in enumerate(header) if name in header[:position]]
+        if repeated:
+            raise ValueError(f"names the column {terminal(repeated[0])} twice")
+        return list(reader)
     except (ValueError, csv.Error) as error:
         raise UserError(f"{path}: cannot read: {_reason(error)}") from None
 
