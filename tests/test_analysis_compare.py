@@ -111,6 +111,24 @@ def test_command_line(tmp_path: Path) -> None:
     assert missing.exit_code == 2 and missing.stderr.startswith("error: ")
 
 
+def test_an_infinite_tolerance_is_a_tolerance(tmp_path: Path) -> None:
+    """``--rtol inf`` or ``--atol inf`` of a report against itself: the same (``inf * 0`` is
+    no NaN that fails every zero); against another, ``rtol = inf`` still holds an expected 0
+    to ``atol``, ``atol = inf`` agrees any finite numbers."""
+    zeros = {**RESULTS, "zero": 0.0, "zeros": [0.0, 0, -0.0]}
+    a = report(tmp_path / "a", zeros)
+    for option in ("--rtol", "--atol"):
+        same = CliRunner().invoke(app, ["compare", str(a), str(a), option, "inf"])
+        assert same.exit_code == 0, same.output
+        assert same.stdout.endswith(": the same at " + ("rtol=inf, atol=1e-12\n" if option ==
+                                    "--rtol" else "rtol=1e-09, atol=inf\n"))  # fmt: skip
+    b = report(tmp_path / "b", {**scaled(zeros, 1e6), "zero": 1.0})
+    loose = CliRunner().invoke(app, ["compare", str(a), str(b), "--rtol", "inf"])
+    assert loose.exit_code == 1 and "different (1 differences)" in loose.stdout, loose.stdout
+    assert "results.json.zero: 0.0 != 1.0" in loose.stdout
+    assert CliRunner().invoke(app, ["compare", str(a), str(b), "--atol", "inf"]).exit_code == 0
+
+
 def test_report_text_must_be_identical(tmp_path: Path) -> None:
     a, b = report(tmp_path / "a"), report(tmp_path / "b")
     (a / "report.md").write_text("# Report\n\nF = 76.73\n")
