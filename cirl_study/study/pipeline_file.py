@@ -14,6 +14,7 @@ from __future__ import annotations
 import codecs
 import hashlib
 import itertools
+import math
 import tomllib
 from collections import ChainMap
 from collections.abc import Callable
@@ -22,7 +23,8 @@ from pathlib import Path
 from typing import Any
 
 from cirl_study.errors import UserError
-from cirl_study.study.limits import check_resources
+from cirl_study.study.limits import check_resources, check_universe_count, single_study_problem
+from cirl_study.study.plan import trial_counts
 from cirl_study.study.settings import Table, applies, shown
 from cirl_study.study.spec import (
     AXES,
@@ -97,8 +99,7 @@ def parse_pipeline(
     main = top.spec("main", MainSpec, ChainMap({"game": game, "tasks": tasks}))
     lambda_sweep = _lambda_sweep(top, main)
     ascent = _ascent_table(top)
-    multiverse = _multiverse(top, game, eta_cv, main, ascent) if "multiverse" in top.data else None
-    pipeline = Pipeline(
+    study = Pipeline(
         name=name,
         description=description,
         seed=seed,
@@ -107,12 +108,18 @@ def parse_pipeline(
         eta_cv=eta_cv,
         main=main,
         lambda_sweep=lambda_sweep,
-        multiverse=multiverse,
-        teaching=_teaching(top, game, main, tasks),
-        gradient_ascent=_gradient_ascent(top, main, multiverse, ascent),
         path=path,
         text=text,
         sha256=hashlib.sha256(text.encode()).hexdigest(),
+    )
+    multiverse = None
+    if "multiverse" in top.data:
+        multiverse = _multiverse(top, replace(study, gradient_ascent=ascent), ascent)
+    pipeline = replace(
+        study,
+        multiverse=multiverse,
+        teaching=_teaching(top, game, main, tasks),
+        gradient_ascent=_gradient_ascent(top, main, multiverse, ascent),
     )
     check_resources(pipeline, label)
     return pipeline
@@ -178,18 +185,19 @@ def _teaching(
     return spec
 
 
-def _multiverse(
-    top: Table,
-    game: GameSpec,
-    eta_cv: EtaCVSpec,
-    main: MainSpec,
-    ascent: GradientAscentSpec | None,
-) -> MultiverseSpec:
+def _multiverse(top: Table, study: Pipeline, ascent: GradientAscentSpec | None) -> MultiverseSpec:
     """The universes of ``[multiverse]``: the file's own (the base) first, then those of
     ``cross`` (a full factorial), ``alone`` (one level varied at a time) and ``universes``
     (listed), each once, in that order, each with the settings of its robot alone
     (:meth:`~cirl_study.study.spec.Universe.fitted`: ``ascent`` the ``[gradient_ascent]``
-    table)."""
+    table).
+
+    ``study`` is the file's single study (its own settings, ``[gradient_ascent]`` as written,
+    no multiverse). Before any universe is built, every level is held to the limits of a
+    single study (:class:`_AxisLevels`), and the plan is counted from the axes
+    (:func:`~cirl_study.study.limits.check_universe_count`).
+    """
+    game, eta_cv, main = study.game, study.eta_cv, study.main
     if game.tiles is not None:
         top.fail(
             "multiverse",
@@ -210,41 +218,49 @@ def _multiverse(
         )
     base = Universe(**{name: axis.read(game, main) for name, axis in AXES.items()}).fitted(ascent)
     block = top.table("multiverse", ("cross", "alone", "universes"))
-    levels = _AxisLevels(game)
-    universes = [base]
+    levels = _AxisLevels(study)
+    crossed: dict[str, list[Any]] = {}
     if "cross" in block.data:
         cross = block.table("cross", tuple(AXES))
-        axes = {axis: levels.of(cross, axis) for axis in AXES if axis in cross.data}
-        universes += [
-            replace(base, **dict(zip(axes, chosen, strict=True)))
-            for chosen in itertools.product(*axes.values())
-        ]
+        crossed = {axis: levels.of(cross, axis) for axis in AXES if axis in cross.data}
+    varied: dict[str, list[Any]] = {}
     if "alone" in block.data:
         alone = block.table("alone", tuple(AXES))
-        universes += [
-            replace(base, **{axis: level})
-            for axis in AXES
-            if axis in alone.data
-            for level in levels.of(alone, axis)
-        ]
+        varied = {axis: levels.of(alone, axis) for axis in AXES if axis in alone.data}
+    chosen: list[dict[str, Any]] = []
     if "universes" in block.data:
         listed = block.value("universes")
         if not isinstance(listed, list) or not all(isinstance(u, dict) for u in listed):
             block.fail("universes", f"must be an array of tables, got {shown(listed)}")
         for position, entry in enumerate(listed):
             table = Table(top.label, f"multiverse.universes[{position}].", entry, tuple(AXES))
-            universes.append(
-                replace(base, **{axis: levels.one(table, axis) for axis in AXES if axis in entry})
-            )
+            chosen.append({axis: levels.one(table, axis) for axis in AXES if axis in entry})
+    # The universes that play trials: an axis of the analysis alone (regret) shares them.
+    playing = {axis for axis in AXES if not AXES[axis].analysis_only}
+    count = 1 + math.prod(len(each) for axis, each in crossed.items() if axis in playing)
+    count += sum(len(each) for axis, each in varied.items() if axis in playing) + len(chosen)
+    check_universe_count(top.label, count, sum(trial_counts(study).values()))
+    universes = [base]
+    universes += [
+        replace(base, **dict(zip(crossed, choice, strict=True)))
+        for choice in itertools.product(*crossed.values())
+    ]
+    universes += [replace(base, **{axis: one}) for axis, each in varied.items() for one in each]
+    universes += [replace(base, **choice) for choice in chosen]
     return MultiverseSpec(base, tuple(dict.fromkeys(u.fitted(ascent) for u in universes)))
 
 
 class _AxisLevels:
     """Validation of an axis's levels: the range the same setting has in ``[game]``/``[main]``
-    (:attr:`Axis.levels`)."""
+    (:attr:`Axis.levels`), and the limits of a single study: ``study`` (the file's own, no
+    multiverse) with the level set (:attr:`Axis.apply`) must pass
+    :func:`~cirl_study.study.limits.single_study_problem`, as the same value given in
+    ``[game]`` or ``[main]`` would (``steps`` sets both horizons, whose batch must fit)."""
 
-    def __init__(self, game: GameSpec):
-        self.checks = {name: axis.levels(game) for name, axis in AXES.items()}
+    def __init__(self, study: Pipeline):
+        self.study = study
+        self.checks = {name: axis.levels(study.game) for name, axis in AXES.items()}
+        self.passed: set[tuple[str, Any]] = set()
 
     def of(self, table: Table, axis: str) -> list[Any]:
         """The distinct levels ``table[axis]`` lists."""
@@ -254,7 +270,7 @@ class _AxisLevels:
             table.fail(axis, f"must be a non-empty list of {what}, got {shown(value)}")
         if len(set(value)) != len(value):
             table.fail(axis, f"must not repeat a level, got {shown(value)}")
-        return [AXES[axis].convert(v) for v in value]
+        return [self._within_limits(table, axis, AXES[axis].convert(v)) for v in value]
 
     def one(self, table: Table, axis: str) -> Any:
         """The one level ``table[axis]`` names."""
@@ -262,7 +278,16 @@ class _AxisLevels:
         value = table.value(axis)
         if not ok(value):
             table.fail(axis, f"must be one of {what}, got {shown(value)}")
-        return AXES[axis].convert(value)
+        return self._within_limits(table, axis, AXES[axis].convert(value))
+
+    def _within_limits(self, table: Table, axis: str, level: Any) -> Any:
+        """``level`` of ``axis``, once the single study of that level is within the limits."""
+        if (axis, level) not in self.passed:
+            problem = single_study_problem(AXES[axis].apply(self.study, level))
+            if problem is not None:
+                table.fail(axis, f"level {shown(level)}: {problem}")
+            self.passed.add((axis, level))
+        return level
 
 
 def _ascent_table(top: Table) -> GradientAscentSpec | None:

@@ -815,9 +815,14 @@ def _one_of(choices: tuple[str, ...]) -> Callable[[GameSpec], LevelCheck]:
 
 
 def _robot_levels(_game: GameSpec) -> LevelCheck:
+    """The robots a universe may have: those without a hypothesis space (a multiverse has no
+    ``[teaching]``)."""
     from cirl_study.core.players import ROBOTS
 
-    return (lambda v: isinstance(v, str) and v in ROBOTS), ", ".join(ROBOTS)
+    playable = [name for name in ROBOTS if not ROBOTS[name].needs_hypotheses]
+    return (lambda v: isinstance(v, str) and v in playable), (
+        f"{', '.join(playable)} (a multiverse has no hypothesis space)"
+    )
 
 
 def _sigmas(game: GameSpec) -> LevelCheck:
