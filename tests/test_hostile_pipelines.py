@@ -1,10 +1,11 @@
-"""A pipeline from someone else: every size in it is checked before it is spent.
+"""A pipeline from someone else: every size and number in it is checked before it is spent.
 
 Each case builds the hostile pipeline (or a log carrying it) and runs the command line: one
 ``error:`` line naming the file and the key, exit code 2, no traceback, and nothing written.
 A multiverse is counted from its axes before any universe is built, and each level of an axis
-is held to the limits of a single study; a learning phase too long for the best response's
-exact search is refused where the file is read.
+is held to the limits of a single study; a number outside the 64-bit integers and floats, a
+name too long for a file name, too few subjects to analyse and a learning phase too long for
+the best response's exact search are refused where the file is read.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.study.limits import MAX_SEARCH_STEPS
 from cirl_study.study.pipeline_file import parse_pipeline
+from cirl_study.study.spec import MAX_NAME_LENGTH
 
 ROOT = Path(__file__).resolve().parent.parent
 SMOKE = (ROOT / "pipelines" / "smoke.toml").read_text()
@@ -218,3 +220,124 @@ def test_the_best_response_is_held_to_the_horizon_its_search_affords(tmp_path: P
         MULTIVERSE + f"[multiverse.alone]\nsteps = [3, {longer}]\n",
         f"multiverse.alone.steps level {longer}: {problem}",
     )
+
+
+# --- numbers past what the code represents ------------------------------------------------------
+
+HUGE = "1" + "0" * 400
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "says"),
+    [
+        ("seed = 7", f"seed = {HUGE}", "seed holds an integer of 401 digits, beyond the 64-bit"),
+        ("seed = 7", f"seed = {'9' * 5000}", "holds an integer of more than 4300 digits"),
+        ("width = 5", f"width = {HUGE}", "game.width holds an integer of 401 digits"),
+        ("width = 5", "width = 9223372036854775808", "game.width holds an integer of 19 digits"),
+        ("sigma = 0.75", f"sigma = {HUGE}", "game.sigma holds an integer of 401"),
+        ("sigma = 0.75", "sigma = 1e400", "game.sigma holds 1e400, which overflows a 64-bit"),
+        ("sigma = 0.75", "sigma = -1e400", "game.sigma holds -1e400, which overflows"),
+        ("sigma = 0.75", "sigma = 1e-400", "game.sigma holds 1e-400, which underflows"),
+        ("learning_steps = 4", f"learning_steps = {HUGE}", "game.learning_steps holds an"),
+        ("feature_levels = [3, 10]", f"feature_levels = [3, {HUGE}]", "game.feature_levels hold"),
+        ("etas = [0.1, 1.0, 10.0]", "etas = [0.1, 1e999]", "eta_cv.etas holds 1e999"),
+        ("[main]\nsubjects = 4", f"[main]\nsubjects = {HUGE}", "main.subjects holds an integer"),
+        ("rationality = 1.0\nhumans", f"rationality = {HUGE}\nhumans", "main.rationality holds"),
+        ("rationalities = [0.1, 1.0, 10.0]", f"rationalities = [{HUGE}]", "rationalities holds"),
+    ],
+)
+def test_a_number_past_64_bits_is_one_line_naming_its_key(
+    tmp_path: Path, old: str, new: str, says: str
+) -> None:
+    refused_by_run(tmp_path, replaced(SMOKE, old, new), says)
+
+
+@pytest.mark.parametrize(
+    ("level", "says"),
+    [
+        (f"sigma = [1.0, {HUGE}]", "sigma holds an integer of 401 digits"),
+        ("rationality = [1e400]", "rationality holds 1e400, which overflows"),
+        (f"steps = [{HUGE}]", "steps holds an integer of 401 digits"),
+    ],
+)
+def test_a_number_past_64_bits_in_a_level_is_one_line(
+    tmp_path: Path, level: str, says: str
+) -> None:
+    refused_by_run(
+        tmp_path, MULTIVERSE + f"[multiverse.alone]\n{level}\n", "multiverse.alone." + says
+    )
+
+
+def test_the_largest_64_bit_numbers_are_read_as_any_other(tmp_path: Path) -> None:
+    seed = replaced(SMOKE, "seed = 7", "seed = 9223372036854775807")
+    assert parse_pipeline(seed, Path("x.toml")).seed == 2**63 - 1
+    refused_by_run(tmp_path, replaced(SMOKE, "sigma = 0.75", "sigma = 1.7e308"), "game.sigma must")
+    refused_by_run(tmp_path, replaced(SMOKE, "width = 5", f"width = {2**63 - 1}"), "one batch of")
+
+
+# --- names, subjects ----------------------------------------------------------------------------
+
+
+def test_a_name_too_long_for_a_file_name_is_refused_before_a_directory_is_made(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A 300-character name would name ``data/runs/<name>`` (refused by the OS as too long),
+    and a report's staging directory, 18 characters longer."""
+    monkeypatch.chdir(tmp_path)
+    pipeline = tmp_path / "long.toml"
+    pipeline.write_text(replaced(SMOKE, 'name = "smoke"', f'name = "{"a" * 300}"'))
+    for _ in range(2):  # the second run was where the OS's error came, as a traceback
+        one_line(
+            invoke("run", pipeline),
+            f"long.toml: name must be at most {MAX_NAME_LENGTH} characters (it names a "
+            "directory, and a file name holds 255 bytes with the suffixes added to it), got 300 "
+            "characters",
+        )
+        assert not (tmp_path / "data").exists()
+    longest = replaced(SMOKE, 'name = "smoke"', f'name = "{"a" * MAX_NAME_LENGTH}"')
+    assert len(parse_pipeline(longest, Path("x.toml")).name) == MAX_NAME_LENGTH
+    staged = f".{'a' * MAX_NAME_LENGTH}.tmp-abcdefgh-old"
+    assert len(staged) == 255
+    (tmp_path / staged).mkdir()  # the longest name the code makes of it fits a file name
+    refused_by_run(
+        tmp_path,
+        replaced(MULTIVERSE, 'name = "smoke"', f'name = "{"a" * MAX_NAME_LENGTH}"')
+        + "[multiverse.alone]\nsteps = [3]\n",
+        f"name must be at most {MAX_NAME_LENGTH - 6} characters in a multiverse",
+    )
+
+
+@pytest.mark.parametrize(
+    ("old", "new", "key"),
+    [
+        ("[main]\nsubjects = 4", "[main]\nsubjects = 1", "main.subjects"),
+        ("[eta_cv]\nsubjects = 3", "[eta_cv]\nsubjects = 1", "eta_cv.subjects"),
+        ("[lambda_sweep]\nsubjects = 4", "[lambda_sweep]\nsubjects = 1", "lambda_sweep.subjects"),
+    ],
+)
+def test_too_few_subjects_to_analyse_are_refused_before_the_first_trial(
+    tmp_path: Path, old: str, new: str, key: str
+) -> None:
+    """One reward draw per feature level leaves the analysis no spread to test against (the
+    ANOVA's error terms, a mean's standard error): refused by ``run``, not by ``analyze``
+    after the run."""
+    refused_by_run(
+        tmp_path,
+        replaced(SMOKE, old, new),
+        f"{key} must be an integer of at least 2 (the analysis needs the spread of two reward "
+        "draws per feature level), got 1",
+    )
+
+
+def test_two_subjects_are_enough_to_analyse(tmp_path: Path) -> None:
+    text = replaced(SMOKE, "[main]\nsubjects = 4", "[main]\nsubjects = 2")
+    text = replaced(text, "[eta_cv]\nsubjects = 3", "[eta_cv]\nsubjects = 2")
+    text = replaced(text, "[lambda_sweep]\nsubjects = 4", "[lambda_sweep]\nsubjects = 2")
+    pipeline = tmp_path / "two.toml"
+    pipeline.write_text(text)
+    run, report = tmp_path / "run", tmp_path / "report"
+    played = invoke("run", pipeline, "--out", run, "--workers", "1")
+    assert played.exit_code == 0, played.output
+    analysed = invoke("analyze", run, "--out", report)
+    assert analysed.exit_code == 0, analysed.output
+    assert (report / "results.json").is_file()

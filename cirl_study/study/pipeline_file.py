@@ -28,6 +28,8 @@ from cirl_study.study.plan import trial_counts
 from cirl_study.study.settings import Table, applies, shown
 from cirl_study.study.spec import (
     AXES,
+    MAX_NAME_LENGTH,
+    PROBE_SUFFIX,
     EtaCVSpec,
     GameSpec,
     GradientAscentSpec,
@@ -78,14 +80,20 @@ def parse_pipeline(
     _check_size(label, len(text) if len(text) > MAX_PIPELINE_BYTES else len(text.encode()))
     nested = f"nests deeper than {MAX_PIPELINE_NESTING} levels of tables and arrays"
     try:
-        data = tomllib.loads(text)
+        data = tomllib.loads(text, parse_float=_float)
     except tomllib.TOMLDecodeError as error:
         raise UserError(f"{label}: not valid TOML: {error}") from None
+    except ValueError:  # Python's bound on the digits of an integer it converts from text
+        raise UserError(
+            f"{label}: holds an integer of more than {_MAX_INTEGER_DIGITS} digits, beyond "
+            "the 64-bit integers a pipeline's numbers are held in"
+        ) from None
     except RecursionError:
         raise UserError(f"{label}: {nested}") from None
     deep = _too_deep(data)
     if deep is not None:
         raise UserError(f"{label}: {deep} {nested}")
+    _refuse_unheld_numbers(label, data)
     if rename is not None:
         data = rename(data)
     top = Table(label, "", data, TOP_KEYS)
@@ -198,6 +206,13 @@ def _multiverse(top: Table, study: Pipeline, ascent: GradientAscentSpec | None) 
     (:func:`~cirl_study.study.limits.check_universe_count`).
     """
     game, eta_cv, main = study.game, study.eta_cv, study.main
+    if len(study.name) > MAX_NAME_LENGTH - len(PROBE_SUFFIX):
+        top.fail(
+            "name",
+            f"must be at most {MAX_NAME_LENGTH - len(PROBE_SUFFIX)} characters in a multiverse "
+            f"(a calibration probe's pipeline is named <name>{PROBE_SUFFIX}), got "
+            f"{len(study.name)} characters",
+        )
     if game.tiles is not None:
         top.fail(
             "multiverse",
@@ -335,6 +350,62 @@ def _too_deep(data: dict[str, Any]) -> str | None:
             return key
         pending += [(child, depth + 1, name) for name, child in children]
     return None
+
+
+INTEGER_RANGE = (-(2**63), 2**63 - 1)
+"""The integers a pipeline may write: the signed 64-bit ones, in which its counts, sizes and
+seeds are computed (a larger one would overflow where it meets a float or an array)."""
+
+_MAX_INTEGER_DIGITS = 4300
+"""The most digits of an integer Python converts from text (:func:`sys.get_int_max_str_digits`
+by default); TOML's parser raises past it."""
+
+
+class _UnheldFloat:
+    """A TOML float no 64-bit float holds: its literal overflows to an infinity or underflows
+    to zero. Put in the parsed document in its place, and refused by
+    :func:`_refuse_unheld_numbers` before any setting is read."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+
+def _float(text: str) -> float | _UnheldFloat:
+    """A TOML float literal as a float, or as an :class:`_UnheldFloat` where rounding to a
+    64-bit float would change it past recognition: ``1e400`` (to ``inf``; TOML's ``inf`` is
+    written so) or ``1e-400`` (to ``0.0``)."""
+    value = float(text)
+    if math.isinf(value) and "inf" not in text:
+        return _UnheldFloat(text)
+    mantissa = text.lower().split("e")[0]
+    if value == 0.0 and any(digit in mantissa for digit in "123456789"):
+        return _UnheldFloat(text)
+    return value
+
+
+def _refuse_unheld_numbers(label: str, data: dict[str, Any]) -> None:
+    """Refuse, in one line naming its key, a number of ``data`` (a parsed TOML document)
+    outside what the study computes with: an integer outside :data:`INTEGER_RANGE`, a float
+    past the 64-bit floats (:class:`_UnheldFloat`)."""
+    low, high = INTEGER_RANGE
+    pending: list[tuple[object, str]] = [(data, "")]
+    while pending:
+        value, key = pending.pop()
+        if isinstance(value, dict):
+            pending += [(v, f"{key}.{k}" if key else k) for k, v in reversed(value.items())]
+        elif isinstance(value, list):
+            pending += [(v, key) for v in reversed(value)]
+        elif isinstance(value, _UnheldFloat):
+            kind = "overflows" if math.isinf(float(value.text)) else "underflows"
+            raise UserError(
+                f"{label}: {key} holds {shown(value.text)[1:-1]}, which {kind} a 64-bit float "
+                "(magnitudes from about 5e-324 to 1.8e308)"
+            )
+        elif isinstance(value, int) and not isinstance(value, bool) and not low <= value <= high:
+            raise UserError(
+                f"{label}: {key} holds an integer of {len(str(abs(value)))} digits, beyond "
+                f"the 64-bit integers a pipeline's numbers are held in ({low} to {high})"
+            )
 
 
 def _display_path(path: Path) -> str:
