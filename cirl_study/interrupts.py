@@ -112,14 +112,53 @@ def _raise_again(
 def leave_to_parent(parent: int | None = None) -> None:
     """Ignore :data:`STOPPING` in this worker process: its parent stops it.
 
-    With ``parent`` (the parent's process id, read before the fork), a daemon thread also
-    ends this worker at once when that parent is gone: one whose parent was killed (SIGKILL
-    leaves it no chance to stop its workers) would otherwise wait for work forever.
+    With ``parent`` (the parent's process id, read before the fork; called in the worker
+    right after it), the worker also ends when that parent does, whatever the parent died of
+    (SIGKILL leaves it no chance to stop its workers) and whatever the worker is computing:
+
+    * on Linux the kernel kills it (:func:`end_with_parent`: ``PR_SET_PDEATHSIG`` with
+      SIGKILL), at once, even inside a compiled kernel that holds the GIL;
+    * where that is not available (macOS, the BSDs), a daemon thread polls the parent
+      (:data:`PARENT_POLL_SECONDS`) and ends the worker within that time whenever the
+      worker runs Python code or a kernel that releases the GIL; a worker inside a compiled
+      kernel that holds the GIL ends when the kernel returns.
+
+    A worker whose parent is already gone when it gets here ends at once.
     """
     for signum in STOPPING:
         signal.signal(signum, signal.SIG_IGN)
     if parent is not None:
+        end_with_parent(parent)
         threading.Thread(target=_exit_with_parent, args=(parent,), daemon=True).start()
+
+
+PR_SET_PDEATHSIG = 1
+"""The ``prctl`` option that names the signal a process gets when its parent ends
+(``<linux/prctl.h>``)."""
+
+
+def end_with_parent(parent: int) -> bool:
+    """Have the kernel SIGKILL this process when its parent ``parent`` ends (Linux's
+    ``prctl(PR_SET_PDEATHSIG, SIGKILL)``); end at once if ``parent`` is no longer its parent
+    (it ended between the fork and the call). Whether the kernel will.
+
+    The signal comes when the *thread* that forked this process ends: callers fork from the
+    main thread (:mod:`cirl_study.workers` forks only with no other thread running,
+    :class:`cirl_study.study.engines.LocalEngine` before the run starts any), whose end is
+    the process's.
+    """
+    armed = False
+    if sys.platform.startswith("linux"):
+        try:
+            import ctypes
+
+            libc = ctypes.CDLL(None, use_errno=True)
+            armed = libc.prctl(PR_SET_PDEATHSIG, int(signal.SIGKILL), 0, 0, 0) == 0
+        except (OSError, AttributeError):
+            armed = False
+    if os.getppid() != parent:  # the parent ended before the kernel was told to watch it
+        os._exit(1)
+    return armed
 
 
 PARENT_POLL_SECONDS = 0.5

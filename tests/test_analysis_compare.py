@@ -112,6 +112,24 @@ def test_command_line(tmp_path: Path) -> None:
     assert missing.exit_code == 2 and missing.stderr.startswith("error: ")
 
 
+def test_an_infinite_tolerance_is_a_tolerance(tmp_path: Path) -> None:
+    """``--rtol inf`` or ``--atol inf`` of a report against itself: the same (``inf * 0`` is
+    no NaN that fails every zero); against another, ``rtol = inf`` still holds an expected 0
+    to ``atol``, ``atol = inf`` agrees any finite numbers."""
+    zeros = {**RESULTS, "zero": 0.0, "zeros": [0.0, 0, -0.0]}
+    a = report(tmp_path / "a", zeros)
+    for option in ("--rtol", "--atol"):
+        same = CliRunner().invoke(app, ["compare", str(a), str(a), option, "inf"])
+        assert same.exit_code == 0, same.output
+        assert same.stdout.endswith(": the same at " + ("rtol=inf, atol=1e-12\n" if option ==
+                                    "--rtol" else "rtol=1e-09, atol=inf\n"))  # fmt: skip
+    b = report(tmp_path / "b", {**scaled(zeros, 1e6), "zero": 1.0})
+    loose = CliRunner().invoke(app, ["compare", str(a), str(b), "--rtol", "inf"])
+    assert loose.exit_code == 1 and "different (1 differences)" in loose.stdout, loose.stdout
+    assert "results.json.zero: 0.0 != 1.0" in loose.stdout
+    assert CliRunner().invoke(app, ["compare", str(a), str(b), "--atol", "inf"]).exit_code == 0
+
+
 def test_report_text_must_be_identical(tmp_path: Path) -> None:
     a, b = report(tmp_path / "a"), report(tmp_path / "b")
     (a / "report.md").write_text("# Report\n\nF = 76.73\n")
@@ -236,6 +254,10 @@ def _replaced(path: Path, make) -> None:
         (lambda d: (d / "tri\nals.csv").unlink(), "tri\\nals.csv: cannot read: No such file"),
         (lambda d: (d / "trials.csv").write_bytes(b"trial_id\n\xff\xfe\n"), "can't decode"),
         (lambda d: (d / "trials.csv").write_text("a\n" + "x" * 200_000), "field limit"),
+        (
+            lambda d: (d / "trials.csv").write_text("trial_id,regret,regret\nmain:a,0.5,0.7\n"),
+            "trials.csv: cannot read: names the column regret twice",
+        ),
         (lambda d: (d / "report.md").write_bytes(b"\xff"), "report.md: cannot read: "),
         (lambda d: (d / "results.json").write_text("[" * 100_000), "results.json: cannot read"),
         (lambda d: (d / "results.json").write_bytes(b'{"\xff": 1}'), "results.json: cannot"),

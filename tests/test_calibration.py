@@ -56,6 +56,10 @@ def test_a_target_reads_its_cells_and_their_log_scale_uncertainty(tmp_path: Path
     [
         ("measure,num_features,human,value,colour\n", "column colour is not one of"),
         ("measure,num_features,value\n", "has no column human"),
+        (
+            "measure,num_features,human,value,value\nregret,3,expert,0.5,0.7\n",
+            "target.csv: names the column value twice",
+        ),
         (HEADER, "holds no cell"),
         (HEADER + "regrets,3,expert,0.5,\n", "line 2: measure must be one of regret, kl"),
         (HEADER + "regret,0,expert,0.5,\n", "line 2: num_features must be a positive integer"),

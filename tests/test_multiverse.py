@@ -8,9 +8,11 @@ against exact enumeration, and the report end to end.
 
 from __future__ import annotations
 
+import errno
 import itertools
 import json
 import math
+import os
 import re
 import shutil
 from dataclasses import replace
@@ -411,6 +413,38 @@ def test_calibrate_finds_the_universe_a_target_was_taken_from(tmp_path: Path, mu
         "error: no universe of the run measures the target's cell (regret, K=7, expert)"
     )
     assert (out / "report.md").read_text() == text
+    # a target naming a column twice is refused in one line, not read by its last column
+    target.write_text("measure,num_features,human,value,value\nregret,3,expert,0.5,0.7\n")
+    refused = CliRunner().invoke(app, command)
+    assert refused.exit_code == 2 and refused.stderr.count("\n") == 1, refused.output
+    assert refused.stderr == f"error: {target}: names the column value twice\n"
+    assert (out / "report.md").read_text() == text
+
+
+def test_a_full_disk_while_calibrating_is_one_line_and_keeps_the_report(
+    tmp_path: Path, multiverse_run: Path, monkeypatch: pytest.MonkeyPatch
+):
+    """The report's lock file cannot be written (``ENOSPC``): one line naming it, the
+    report there kept."""
+    target = tmp_path / "target.csv"
+    target.write_text("measure,num_features,human,value\nregret,3,expert,0.5\n")
+    out = tmp_path / "calibration"
+    out.mkdir()
+    (out / "report.md").write_text("kept\n")
+
+    def pwrite(descriptor: int, data: bytes, offset: int) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "pwrite", pwrite)
+    command = ["calibrate", str(multiverse_run), "--target", str(target), "--out", str(out)]
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 2 and "Traceback" not in result.output, result.output
+    assert result.stderr == (
+        f"error: {out}: cannot lock the report directory: {tmp_path / '.calibration.lock'}: "
+        "No space left on device; the report there is unchanged\n"
+    )
+    assert [path.name for path in out.iterdir()] == ["report.md"]
+    assert (out / "report.md").read_text() == "kept\n"
 
 
 def test_reproduce_compares_a_multiverse_report_with_the_one_it_replaces(

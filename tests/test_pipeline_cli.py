@@ -16,7 +16,7 @@ SMOKE = Path(__file__).resolve().parent.parent / "pipelines" / "smoke.toml"
     ("old", "new", "expected"),
     [
         ("subjects = 4\nrationality", "subjects = 0\nrationality",
-         "pipelines/bad.toml: main.subjects must be a positive integer, got 0"),
+         "pipelines/bad.toml: main.subjects must be an integer of at least 2 (the analysis needs"),
         ("width = 5", "width = 1",
          "pipelines/bad.toml: game.width must be an integer of at least 2, got 1"),
         ("start = [2, 2]", "start = [2, 5]", "pipelines/bad.toml: game.start must be a cell"),

@@ -3,14 +3,18 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import shutil
 import signal
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from typer.testing import CliRunner
 
+from cirl_study.cli import app
 from cirl_study.logs.lock import LOCK_NAME, writer_pid
 from cirl_study.logs.reader import read_run
 from cirl_study.logs.validate import validate_run
@@ -112,3 +116,60 @@ def test_the_lock_ends_with_its_holder_not_with_the_children_it_forked(tmp_path:
         with contextlib.suppress(ProcessLookupError):
             os.kill(child, signal.SIGKILL)
         holder.wait(timeout=10)
+
+
+def full_disk(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Every ``os.pwrite`` fails as on a full disk: the first is the lock file's."""
+
+    def pwrite(descriptor: int, data: bytes, offset: int) -> int:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+
+    monkeypatch.setattr(os, "pwrite", pwrite)
+
+
+def one_line(result) -> str:
+    assert result.exit_code == 2, result.output
+    assert result.stderr.count("\n") == 1 and "Traceback" not in result.output, result.output
+    return result.stderr
+
+
+def test_a_full_disk_while_locking_a_run_is_one_line_and_keeps_everything(
+    tmp_path: Path, smoke_run: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A new run directory is left as it was, that is not at all; a run there keeps every
+    log file as it was."""
+    full_disk(monkeypatch)
+    new = tmp_path / "new" / "run"
+    assert one_line(CliRunner().invoke(app, ["run", str(SMOKE), "--out", str(new)])) == (
+        f"error: {new}: cannot lock the run directory: {new / LOCK_NAME}: No space left on "
+        "device; no trial was played, and every log file there is kept\n"
+    )
+    assert not (tmp_path / "new").exists()
+    old = tmp_path / "old"
+    shutil.copytree(smoke_run, old)
+    before = files(old)
+    line = one_line(CliRunner().invoke(app, ["run", str(SMOKE), "--out", str(old)]))
+    assert line.startswith(f"error: {old}: cannot lock the run directory: {old / LOCK_NAME}: ")
+    assert files(old) == before
+
+
+def test_a_full_disk_while_locking_a_report_is_one_line_and_keeps_it(
+    tmp_path: Path, smoke_run: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    report = tmp_path / "report"
+    report.mkdir()
+    (report / "report.md").write_text("the report there\n")
+    full_disk(monkeypatch)
+    result = CliRunner().invoke(app, ["analyze", str(smoke_run), "--out", str(report)])
+    assert one_line(result) == (
+        f"error: {report}: cannot lock the report directory: {tmp_path / '.report.lock'}: No "
+        "space left on device; the report there is unchanged\n"
+    )
+    assert files(report) == {"report.md": b"the report there\n"}
+
+
+def files(directory: Path) -> dict[str, bytes]:
+    """Every file of ``directory`` (the run's lock file aside) by name, with its bytes."""
+    return {
+        path.name: path.read_bytes() for path in directory.iterdir() if path.name != LOCK_NAME
+    }

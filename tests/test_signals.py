@@ -472,3 +472,68 @@ def test_a_deferred_step_ends_before_the_signal_acts_whichever_thread_it_reached
         os.kill(process.pid, signal.SIGTERM)
         stdout, stderr = process.communicate(timeout=SECONDS)
     assert (stdout, stderr) == ("held\nthen interrupted (SIGTERM)\n", "")
+
+
+_STUCK_WORKERS = """
+import ctypes, os, sys
+from pathlib import Path
+
+marks = Path(sys.argv[1])
+MAIN = os.getpid()
+
+
+def stuck(*arguments):
+    '''In a worker: note its pid, then a minute in libc's sleep holding the GIL, as a compiled
+    kernel does (no Python thread of the worker runs meanwhile).'''
+    if os.getpid() != MAIN:
+        (marks / str(os.getpid())).touch()
+        ctypes.PyDLL(None).sleep(60)
+    return arguments
+
+
+if sys.argv[2] == "pool":
+    import cirl_study.workers as workers
+
+    workers.cores = lambda: 2
+    list(workers.map_in_workers(stuck, [1, 2]))
+else:
+    from cirl_study.core.players import HUMANS, Human, register_human
+    from cirl_study.study.engines import LocalEngine
+    from cirl_study.study.pipeline_file import load_pipeline
+    from cirl_study.study.runner import run_pipeline
+
+    def demonstrate(game, theta, eta, seeds):
+        stuck()
+        return HUMANS["expert"].demonstrate(game, theta, eta, seeds)
+
+    register_human("stuck", Human(demonstrate, takes_eta=False))
+    run_pipeline(load_pipeline(Path(sys.argv[3])), Path(sys.argv[4]), LocalEngine(2))
+"""
+
+
+@pytest.mark.parametrize("workers", ["pool", "run"])
+def test_workers_end_with_a_killed_parent_whatever_they_compute(
+    tmp_path: Path, workers: str
+) -> None:
+    """SIGKILL to the parent while every worker is inside a call that holds the GIL (where no
+    thread of the worker can poll for its parent): the kernel ends each worker at once, on
+    its own (``prctl(PR_SET_PDEATHSIG)``), whether the workers are a pool's
+    (:func:`cirl_study.workers.map_in_workers`, as ``analyze`` and ``aside`` fork them) or a
+    run's (:class:`cirl_study.study.engines.LocalEngine`)."""
+    marks = tmp_path / "workers"
+    marks.mkdir()
+    pipeline = tmp_path / "stuck.toml"
+    text = SMOKE.read_text().replace('humans = ["expert", "best_response"]', 'humans = ["stuck"]')
+    pipeline.write_text(text)
+    arguments = [str(marks), workers, str(pipeline), str(tmp_path / "run")]
+    process = popen([sys.executable, "-c", _STUCK_WORKERS, *arguments], stdout=None)
+    with group_ended(process):
+        wait_for(lambda: len(list(marks.iterdir())) == 2, process)
+        stuck = [int(mark.name) for mark in marks.iterdir()]
+        assert all(map(running, stuck))
+        os.kill(process.pid, signal.SIGKILL)
+        process.wait(timeout=SECONDS)
+        gone = time.monotonic() + 5
+        while any(map(running, stuck)) and time.monotonic() < gone:
+            time.sleep(0.05)
+        assert not any(map(running, stuck)), "a worker outlived its killed parent"

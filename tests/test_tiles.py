@@ -305,11 +305,14 @@ def test_hypotheses_of_tasks_are_refused_in_one_line_where_wrong(new: str, messa
     assert "\n" not in str(refused.value) and message in str(refused.value)
 
 
-def test_hypotheses_of_tasks_need_two_tasks() -> None:
-    text = SMALL.replace("hypotheses = 4", 'hypotheses = "tasks"', 1)
-    text = text.replace("ba = { amber = -1, blue = 0, step = -0.1 }\n", "")
-    with pytest.raises(UserError, match='may be "tasks" only in a study of two or more'):
+def test_a_study_of_tasks_needs_two_tasks() -> None:
+    """Each task is a subject, and the analysis needs the spread of two; so do hypotheses
+    that are the tasks."""
+    text = SMALL.replace("ba = { amber = -1, blue = 0, step = -0.1 }\n", "")
+    with pytest.raises(UserError, match="tasks must name at least 2 tasks .*, got 1$"):
         parse(text)
+    with pytest.raises(UserError, match="tasks must name at least 2 tasks"):
+        parse(text.replace("hypotheses = 4", 'hypotheses = "tasks"', 1))
 
 
 def test_the_hypotheses_of_tasks_are_the_tasks_the_trials_own_first() -> None:

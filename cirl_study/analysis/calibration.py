@@ -78,7 +78,7 @@ def read_target(path: Path) -> tuple[list[TargetCell], str]:
 
     Raises:
         UserError: the file cannot be read, is not UTF-8 CSV with a header of
-            :data:`TARGET_COLUMNS` (required ones present), or a row is not a cell: an
+            :data:`TARGET_COLUMNS` (required ones present, none twice), or a row is not a cell: an
             unknown measure, a feature count that is not a positive integer, an empty
             human, a value that is not a positive number (distances are on the log scale),
             an uncertainty that is not positive, an interval that does not hold its value,
@@ -92,6 +92,9 @@ def read_target(path: Path) -> tuple[list[TargetCell], str]:
         raise UserError(f"{label}: not UTF-8 text") from None
     reader = csv.DictReader(io.StringIO(text, newline=""))
     header = reader.fieldnames or []
+    repeated = [name for position, name in enumerate(header) if name in header[:position]]
+    if repeated:
+        raise UserError(f"{label}: names the column {terminal(repeated[0])} twice")
     unknown = [name for name in header if name not in TARGET_COLUMNS]
     if unknown:
         raise UserError(

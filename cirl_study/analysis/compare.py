@@ -83,17 +83,24 @@ class Tolerance:
 
     def agree(self, expected: float, got: float) -> bool:
         """Whether ``got`` equals ``expected`` within the tolerance: NaN agrees with NaN, an
-        infinity only with the same infinity.
+        infinity only with the same infinity. A tolerance may be infinite: ``atol = inf``
+        agrees any two finite numbers, ``rtol = inf`` any two with ``expected`` non-zero
+        (``rtol |expected|`` is 0 at ``expected = 0``, whatever ``rtol``).
 
         Examples:
             >>> Tolerance().agree(math.inf, math.inf), Tolerance().agree(math.inf, 1e308)
             (True, False)
+            >>> loose = Tolerance(rtol=math.inf)
+            >>> loose.agree(0.0, 0.0), loose.agree(2.0, 1e300), loose.agree(0.0, 1.0)
+            (True, True, False)
         """
         if math.isnan(expected) or math.isnan(got):
             return math.isnan(expected) and math.isnan(got)
         if math.isinf(expected) or math.isinf(got):
             return expected == got
-        return abs(expected - got) <= self.atol + self.rtol * abs(expected)
+        # rtol scales |expected|: an expected 0 is matched within atol alone, also at rtol = inf.
+        relative = self.rtol * abs(expected) if expected != 0 else 0.0
+        return abs(expected - got) <= self.atol + relative
 
 
 def compare_reports(expected: Path, got: Path, tolerance: Tolerance | None = None) -> list[str]:
@@ -250,6 +257,10 @@ def _table_differences(name: str, expected: Path, got: Path, tolerance: Toleranc
     of rows."""
     ours, theirs = _csv_rows(expected), _csv_rows(got)
     header, other = next(ours, []), next(theirs, [])
+    for path, names in ((expected, header), (got, other)):
+        repeated = [name for position, name in enumerate(names) if name in names[:position]]
+        if repeated:  # a row would keep only its last cell of that name
+            raise UserError(f"{path}: cannot read: names the column {terminal(repeated[0])} twice")
     if header != other:
         for _ in itertools.chain(ours, theirs):  # each table is still read whole
             pass

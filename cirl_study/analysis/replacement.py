@@ -138,6 +138,7 @@ def replacing_report(
             f"{target}: another cirl-study process (pid {pid}) is writing this "
             "report; wait for it to end, or choose another report directory"
         ),
+        kept="the report there is unchanged",
     ):
         mode = _existing_mode(target, absolute)
         if not force:

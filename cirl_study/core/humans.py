@@ -83,6 +83,10 @@ def best_response_target(model: MaxEnt, theta: FloatArray, eta: FloatArray) -> F
 def best_response_paths(model: MaxEnt, theta: FloatArray, eta: FloatArray) -> IntArray:
     """Instructive best response: the exact maximiser of the paper's section 3.4 rule.
 
+    Its search grows about fourfold a learning step (:func:`nearest_paths`): a pipeline where
+    she plays has at most :data:`cirl_study.study.limits.MAX_SEARCH_STEPS` (14) of them, about
+    0.2 s a trial on the paper's grid.
+
     Args:
         model: the robot's model of the learning phase; its :math:`\\lambda` defines
             :math:`\\phi_\\theta`.

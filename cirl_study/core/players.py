@@ -60,11 +60,16 @@ class Human:
             cross-validation before the test trials (docs/design.md §3).
         needs_hypotheses: whether she needs the trials' hypothesis space (a pipeline's
             ``[teaching]``).
+        path_search: whether her demonstration runs the exact nearest-path search
+            (:func:`cirl_study.core.path_search.nearest_paths`), whose time grows about
+            fourfold a learning step: a pipeline where she plays is held to
+            :data:`cirl_study.study.limits.MAX_SEARCH_STEPS` learning steps.
     """
 
     demonstrate: Callable[[Apprenticeship, FloatArray, FloatArray | None, IntArray], IntArray]
     takes_eta: bool
     needs_hypotheses: bool = False
+    path_search: bool = False
 
 
 @dataclass(frozen=True)
@@ -316,10 +321,13 @@ def _pragmatic(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estima
 
 
 register_human(EXPERT, Human(_expert, takes_eta=False))
-register_human(BEST_RESPONSE, Human(_best_response, takes_eta=True))
+register_human(BEST_RESPONSE, Human(_best_response, takes_eta=True, path_search=True))
 register_human(LITERAL, Human(_literal, takes_eta=False))
 register_human(PEDAGOGIC, Human(_pedagogic, takes_eta=False, needs_hypotheses=True))
-register_human(REGRET_OPTIMAL, Human(_regret_optimal, takes_eta=False, needs_hypotheses=True))
+register_human(
+    REGRET_OPTIMAL,
+    Human(_regret_optimal, takes_eta=False, needs_hypotheses=True, path_search=True),
+)
 
 register_robot(MAP, Robot(_map))
 register_robot(POSTERIOR_MEAN, Robot(_posterior_mean))

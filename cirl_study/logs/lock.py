@@ -65,46 +65,67 @@ def writer_lock(run_dir: Path) -> Iterator[None]:
             f"{run_dir}: another cirl-study run (pid {pid}) is writing to it; "
             "wait for it to end, or use another --out directory"
         ),
+        kept="no trial was played, and every log file there is kept",
     ):
         yield
 
 
 @contextlib.contextmanager
-def exclusive_lock(lock_file: Path, *, cannot: str, busy: Callable[[str], str]) -> Iterator[None]:
+def exclusive_lock(
+    lock_file: Path, *, cannot: str, busy: Callable[[str], str], kept: str
+) -> Iterator[None]:
     """Hold the lock on ``lock_file`` (created if missing) for the ``with`` block, with this
     process's id written in the file.
 
     Args:
         lock_file: the lock file.
-        cannot: the start of the error when the lock file cannot be opened.
+        cannot: the start of the error when the lock cannot be taken or its file written.
         busy: the error when another process holds the lock, of the process id the file
             names (``unknown`` if it names none).
+        kept: what is left as it was when the lock cannot be taken, the end of that error
+            (nothing the lock guards is touched before it is held).
 
     Raises:
-        UserError: another process holds the lock (after :data:`LOCK_ATTEMPTS` tries), or the
-            lock file cannot be opened (a link or anything but a regular file in its place is
-            refused: :func:`cirl_study.files.open_descriptor`).
+        UserError: another process holds the lock (after :data:`LOCK_ATTEMPTS` tries); or
+            the lock file cannot be opened (a link or anything but a regular file in its place
+            is refused: :func:`cirl_study.files.open_descriptor`), locked or written (any OS
+            error: a full disk, a quota, a file system without locks), in one line naming
+            the file, the OS's reason and ``kept``.
     """
     try:
         descriptor = open_descriptor(lock_file, os.O_RDWR, truncate=False)
     except UserError as error:
-        raise UserError(f"{cannot}: {error}") from None
+        raise UserError(f"{cannot}: {error}; {kept}") from None
     _HELD.add(descriptor)
     try:
-        for attempt in range(LOCK_ATTEMPTS):
-            try:
-                fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
-                break
-            except BlockingIOError:
-                if attempt == LOCK_ATTEMPTS - 1:
-                    raise UserError(busy(_holder(descriptor))) from None
-                time.sleep(0.01)
-        os.ftruncate(descriptor, 0)
-        os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
+        try:
+            _take(descriptor, busy)
+        except OSError as error:
+            reason = error.strerror or str(error)
+            raise UserError(f"{cannot}: {lock_file}: {reason}; {kept}") from None
         yield
     finally:
         _HELD.discard(descriptor)
         os.close(descriptor)  # closing releases the lock
+
+
+def _take(descriptor: int, busy: Callable[[str], str]) -> None:
+    """Lock the open lock file ``descriptor`` and write this process's id in it.
+
+    Raises:
+        UserError: another process holds the lock (``busy`` of its id).
+        OSError: locking or writing the file failed.
+    """
+    for attempt in range(LOCK_ATTEMPTS):
+        try:
+            fcntl.flock(descriptor, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            break
+        except BlockingIOError:
+            if attempt == LOCK_ATTEMPTS - 1:
+                raise UserError(busy(_holder(descriptor))) from None
+            time.sleep(0.01)
+    os.ftruncate(descriptor, 0)
+    os.pwrite(descriptor, f"{os.getpid()}\n".encode(), 0)
 
 
 def writer_pid(run_dir: Path) -> str | None:

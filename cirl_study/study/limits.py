@@ -1,5 +1,7 @@
 """What one run may plan: the limits every pipeline is held to, read from its file or from a
-run's logs (:func:`cirl_study.study.pipeline_file.parse_pipeline` applies :func:`check_resources`).
+run's logs (:func:`cirl_study.study.pipeline_file.parse_pipeline` applies :func:`check_resources`,
+and to a multiverse, before any of its universes is built, :func:`check_universe_count` and
+:func:`single_study_problem` of each level of each axis).
 
 A pipeline that passes them plays on the machine this study is sized for; one that does not
 is refused before anything is written, and a run's logs that carry one are refused before
@@ -8,6 +10,7 @@ the trials it plans are listed (a run's plan is held in memory).
 
 from __future__ import annotations
 
+from cirl_study.core.players import HUMANS
 from cirl_study.errors import UserError
 from cirl_study.logs.bounds import MAX_FILE_RECORDS, MAX_FILE_TRIALS
 from cirl_study.study.plan import trial_counts
@@ -25,6 +28,19 @@ BATCH_MEMORY_BUDGET = 4 * 2**30
 """Bytes a worker may need to play one batch (:func:`batch_memory`): the 2-core, 24 GiB
 machine this study is sized for runs two workers beside the parent with room to spare."""
 
+
+MAX_SEARCH_STEPS = 14
+"""Most learning steps of a pipeline where a human plays whose demonstration is the exact
+nearest-path search (:attr:`cirl_study.core.players.Human.path_search`: ``best_response``,
+and ``regret_optimal``'s candidates; :func:`cirl_study.core.path_search.nearest_paths`). Its
+branch and bound visits, at worst, every one of the about ``5^T`` paths, and its time grows
+about fourfold a step whatever the memory: measured on the paper's 10x10 grid from the
+center (``eta_cv`` trials, both feature levels, every eta of the paper's grid, one core of a
+busy 2-core machine), a trial's search takes on average (at most) 0.6 ms (2 ms) at ``T = 9``,
+1.5 ms (6 ms) at 10, 16 ms (61 ms) at 12, 0.17 s (0.75 s) at 14, 1.1 s (3.3 s) at 15 and
+6.9 s (22 s) at 16. At 14 steps the paper's 10,800 best-response trials search for about half
+an hour on one core; at 16, for most of a day, and every further step multiplies that again
+(``docs/pipelines.md``)."""
 
 ENUMERATION_BYTES_PER_PATH = 200
 """Peak bytes per learning path of enumerating a teaching study's visit classes
@@ -97,11 +113,9 @@ def check_resources(pipeline: Pipeline, label: str) -> None:
     refuse, in one line beginning with ``label`` (the file it was read from).
 
     Raises:
-        UserError: more than :data:`MAX_TRIALS` trials, a batch over
-            :data:`BATCH_MEMORY_BUDGET` (:func:`batch_memory`), or a batch's log file of
-            more than half the records a reader takes of a file
-            (:data:`~cirl_study.logs.bounds.MAX_FILE_RECORDS`; the other records of a file,
-            its chunks and indexes, are far fewer than its messages).
+        UserError: more than :data:`MAX_TRIALS` trials, or a problem of
+            :func:`single_study_problem` (of a multiverse, its base universe's; each level of
+            its axes is held to it as the file is read).
     """
     total = sum(trial_counts(pipeline).values())
     if total > MAX_TRIALS:
@@ -109,16 +123,53 @@ def check_resources(pipeline: Pipeline, label: str) -> None:
             f"{label}: plans {total} trials, more than the {MAX_TRIALS} one run may "
             "hold; split the study into several pipelines"
         )
+    problem = single_study_problem(pipeline)
+    if problem is not None:
+        raise UserError(f"{label}: {problem}")
+
+
+def single_study_problem(pipeline: Pipeline) -> str | None:
+    """Why one batch of ``pipeline``'s trials cannot be played, if it cannot, as the end of a
+    line naming the pipeline (or a level of a multiverse's axis): ``None`` when it can.
+
+    A batch over :data:`BATCH_MEMORY_BUDGET` (:func:`batch_memory`); a batch's log file of
+    more than half the records a reader takes of a file
+    (:data:`~cirl_study.logs.bounds.MAX_FILE_RECORDS`; the other records of a file, its chunks
+    and indexes, are far fewer than its messages); or more than :data:`MAX_SEARCH_STEPS`
+    learning steps where a human plays who searches her path exactly.
+    """
     need = batch_memory(pipeline)
     if need > BATCH_MEMORY_BUDGET:
-        raise UserError(
-            f"{label}: one batch of trials would need about {need / 2**30:.3g} GiB, "
-            f"more than the {BATCH_MEMORY_BUDGET / 2**30:g} GiB budget; shrink the grid, "
-            "the horizons or the largest feature level"
+        return (
+            f"one batch of trials would need about {need / 2**30:.3g} GiB, more than the "
+            f"{BATCH_MEMORY_BUDGET / 2**30:g} GiB budget; shrink the grid, the horizons or "
+            "the largest feature level"
         )
     messages = batch_messages(pipeline)
     if messages > MAX_FILE_RECORDS // 2:
+        return (
+            f"one batch's log file would hold {messages} messages, more than the "
+            f"{MAX_FILE_RECORDS // 2} a log file may; shorten the horizons"
+        )
+    steps = pipeline.game.learning_steps
+    searching = [human for human in pipeline.main.humans if HUMANS[human].path_search]
+    if searching and steps > MAX_SEARCH_STEPS:
+        return (
+            f"{steps} learning steps, more than the {MAX_SEARCH_STEPS} where {searching[0]} "
+            "plays: her exact path search grows about fourfold a step (on the paper's 10x10 "
+            "grid 0.2 s a trial at 14 steps, 7 s at 16); shorten the learning phase"
+        )
+    return None
+
+
+def check_universe_count(label: str, universes: int, per_universe: int) -> None:
+    """Refuse a multiverse of at most ``universes`` universes that play trials, each of
+    ``per_universe`` trials, whose plan may exceed :data:`MAX_TRIALS`: counted from its axes
+    (the product of the level counts of ``cross``, plus those of ``alone`` and the listed
+    universes), before any universe is built, in one line beginning with ``label``."""
+    if universes * per_universe > MAX_TRIALS:
         raise UserError(
-            f"{label}: one batch's log file would hold {messages} messages, more than "
-            f"the {MAX_FILE_RECORDS // 2} a log file may; shorten the horizons"
+            f"{label}: multiverse may plan {universes} universes of {per_universe} trials "
+            f"each, {universes * per_universe} trials, more than the {MAX_TRIALS} one run may "
+            "hold; vary fewer levels, or split the study into several pipelines"
         )

@@ -16,6 +16,7 @@ import codecs
 import functools
 import hashlib
 import itertools
+import math
 import tomllib
 from collections import ChainMap
 from collections.abc import Callable
@@ -34,10 +35,13 @@ from cirl_study.logs.format import (
 )
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.versions import pipeline_table
-from cirl_study.study.limits import check_resources
+from cirl_study.study.limits import check_resources, check_universe_count, single_study_problem
+from cirl_study.study.plan import trial_counts
 from cirl_study.study.settings import Table, applies, shown
 from cirl_study.study.spec import (
     AXES,
+    MAX_NAME_LENGTH,
+    PROBE_SUFFIX,
     EtaCVSpec,
     GameSpec,
     GradientAscentSpec,
@@ -86,14 +90,20 @@ def parse_pipeline(
     _check_size(label, len(text) if len(text) > MAX_PIPELINE_BYTES else len(text.encode()))
     nested = f"nests deeper than {MAX_PIPELINE_NESTING} levels of tables and arrays"
     try:
-        data = tomllib.loads(text)
+        data = tomllib.loads(text, parse_float=_float)
     except tomllib.TOMLDecodeError as error:
         raise UserError(f"{label}: not valid TOML: {error}") from None
+    except ValueError:  # Python's bound on the digits of an integer it converts from text
+        raise UserError(
+            f"{label}: holds an integer of more than {_MAX_INTEGER_DIGITS} digits, beyond "
+            "the 64-bit integers a pipeline's numbers are held in"
+        ) from None
     except RecursionError:
         raise UserError(f"{label}: {nested}") from None
     deep = _too_deep(data)
     if deep is not None:
         raise UserError(f"{label}: {deep} {nested}")
+    _refuse_unheld_numbers(label, data)
     if rename is not None:
         data = rename(data)
     top = Table(label, "", data, TOP_KEYS)
@@ -107,8 +117,7 @@ def parse_pipeline(
     main = top.spec("main", MainSpec, ChainMap({"game": game, "tasks": tasks}))
     lambda_sweep = _lambda_sweep(top, main)
     ascent = _ascent_table(top)
-    multiverse = _multiverse(top, game, eta_cv, main, ascent) if "multiverse" in top.data else None
-    pipeline = Pipeline(
+    study = Pipeline(
         name=name,
         description=description,
         seed=seed,
@@ -117,12 +126,18 @@ def parse_pipeline(
         eta_cv=eta_cv,
         main=main,
         lambda_sweep=lambda_sweep,
-        multiverse=multiverse,
-        teaching=_teaching(top, game, main, tasks),
-        gradient_ascent=_gradient_ascent(top, main, multiverse, ascent),
         path=path,
         text=text,
         sha256=hashlib.sha256(text.encode()).hexdigest(),
+    )
+    multiverse = None
+    if "multiverse" in top.data:
+        multiverse = _multiverse(top, replace(study, gradient_ascent=ascent), ascent)
+    pipeline = replace(
+        study,
+        multiverse=multiverse,
+        teaching=_teaching(top, game, main, tasks),
+        gradient_ascent=_gradient_ascent(top, main, multiverse, ascent),
     )
     check_resources(pipeline, label)
     return pipeline
@@ -188,18 +203,26 @@ def _teaching(
     return spec
 
 
-def _multiverse(
-    top: Table,
-    game: GameSpec,
-    eta_cv: EtaCVSpec,
-    main: MainSpec,
-    ascent: GradientAscentSpec | None,
-) -> MultiverseSpec:
+def _multiverse(top: Table, study: Pipeline, ascent: GradientAscentSpec | None) -> MultiverseSpec:
     """The universes of ``[multiverse]``: the file's own (the base) first, then those of
     ``cross`` (a full factorial), ``alone`` (one level varied at a time) and ``universes``
     (listed), each once, in that order, each with the settings of its robot alone
     (:meth:`~cirl_study.study.spec.Universe.fitted`: ``ascent`` the ``[gradient_ascent]``
-    table)."""
+    table).
+
+    ``study`` is the file's single study (its own settings, ``[gradient_ascent]`` as written,
+    no multiverse). Before any universe is built, every level is held to the limits of a
+    single study (:class:`_AxisLevels`), and the plan is counted from the axes
+    (:func:`~cirl_study.study.limits.check_universe_count`).
+    """
+    game, eta_cv, main = study.game, study.eta_cv, study.main
+    if len(study.name) > MAX_NAME_LENGTH - len(PROBE_SUFFIX):
+        top.fail(
+            "name",
+            f"must be at most {MAX_NAME_LENGTH - len(PROBE_SUFFIX)} characters in a multiverse "
+            f"(a calibration probe's pipeline is named <name>{PROBE_SUFFIX}), got "
+            f"{len(study.name)} characters",
+        )
     if game.tiles is not None:
         top.fail(
             "multiverse",
@@ -220,41 +243,49 @@ def _multiverse(
         )
     base = Universe(**{name: axis.read(game, main) for name, axis in AXES.items()}).fitted(ascent)
     block = top.table("multiverse", ("cross", "alone", "universes"))
-    levels = _AxisLevels(game)
-    universes = [base]
+    levels = _AxisLevels(study)
+    crossed: dict[str, list[Any]] = {}
     if "cross" in block.data:
         cross = block.table("cross", tuple(AXES))
-        axes = {axis: levels.of(cross, axis) for axis in AXES if axis in cross.data}
-        universes += [
-            replace(base, **dict(zip(axes, chosen, strict=True)))
-            for chosen in itertools.product(*axes.values())
-        ]
+        crossed = {axis: levels.of(cross, axis) for axis in AXES if axis in cross.data}
+    varied: dict[str, list[Any]] = {}
     if "alone" in block.data:
         alone = block.table("alone", tuple(AXES))
-        universes += [
-            replace(base, **{axis: level})
-            for axis in AXES
-            if axis in alone.data
-            for level in levels.of(alone, axis)
-        ]
+        varied = {axis: levels.of(alone, axis) for axis in AXES if axis in alone.data}
+    chosen: list[dict[str, Any]] = []
     if "universes" in block.data:
         listed = block.value("universes")
         if not isinstance(listed, list) or not all(isinstance(u, dict) for u in listed):
             block.fail("universes", f"must be an array of tables, got {shown(listed)}")
         for position, entry in enumerate(listed):
             table = Table(top.label, f"multiverse.universes[{position}].", entry, tuple(AXES))
-            universes.append(
-                replace(base, **{axis: levels.one(table, axis) for axis in AXES if axis in entry})
-            )
+            chosen.append({axis: levels.one(table, axis) for axis in AXES if axis in entry})
+    # The universes that play trials: an axis of the analysis alone (regret) shares them.
+    playing = {axis for axis in AXES if not AXES[axis].analysis_only}
+    count = 1 + math.prod(len(each) for axis, each in crossed.items() if axis in playing)
+    count += sum(len(each) for axis, each in varied.items() if axis in playing) + len(chosen)
+    check_universe_count(top.label, count, sum(trial_counts(study).values()))
+    universes = [base]
+    universes += [
+        replace(base, **dict(zip(crossed, choice, strict=True)))
+        for choice in itertools.product(*crossed.values())
+    ]
+    universes += [replace(base, **{axis: one}) for axis, each in varied.items() for one in each]
+    universes += [replace(base, **choice) for choice in chosen]
     return MultiverseSpec(base, tuple(dict.fromkeys(u.fitted(ascent) for u in universes)))
 
 
 class _AxisLevels:
     """Validation of an axis's levels: the range the same setting has in ``[game]``/``[main]``
-    (:attr:`Axis.levels`)."""
+    (:attr:`Axis.levels`), and the limits of a single study: ``study`` (the file's own, no
+    multiverse) with the level set (:attr:`Axis.apply`) must pass
+    :func:`~cirl_study.study.limits.single_study_problem`, as the same value given in
+    ``[game]`` or ``[main]`` would (``steps`` sets both horizons, whose batch must fit)."""
 
-    def __init__(self, game: GameSpec):
-        self.checks = {name: axis.levels(game) for name, axis in AXES.items()}
+    def __init__(self, study: Pipeline):
+        self.study = study
+        self.checks = {name: axis.levels(study.game) for name, axis in AXES.items()}
+        self.passed: set[tuple[str, Any]] = set()
 
     def of(self, table: Table, axis: str) -> list[Any]:
         """The distinct levels ``table[axis]`` lists."""
@@ -264,7 +295,7 @@ class _AxisLevels:
             table.fail(axis, f"must be a non-empty list of {what}, got {shown(value)}")
         if len(set(value)) != len(value):
             table.fail(axis, f"must not repeat a level, got {shown(value)}")
-        return [AXES[axis].convert(v) for v in value]
+        return [self._within_limits(table, axis, AXES[axis].convert(v)) for v in value]
 
     def one(self, table: Table, axis: str) -> Any:
         """The one level ``table[axis]`` names."""
@@ -272,7 +303,16 @@ class _AxisLevels:
         value = table.value(axis)
         if not ok(value):
             table.fail(axis, f"must be one of {what}, got {shown(value)}")
-        return AXES[axis].convert(value)
+        return self._within_limits(table, axis, AXES[axis].convert(value))
+
+    def _within_limits(self, table: Table, axis: str, level: Any) -> Any:
+        """``level`` of ``axis``, once the single study of that level is within the limits."""
+        if (axis, level) not in self.passed:
+            problem = single_study_problem(AXES[axis].apply(self.study, level))
+            if problem is not None:
+                table.fail(axis, f"level {shown(level)}: {problem}")
+            self.passed.add((axis, level))
+        return level
 
 
 def _ascent_table(top: Table) -> GradientAscentSpec | None:
@@ -320,6 +360,62 @@ def _too_deep(data: dict[str, Any]) -> str | None:
             return key
         pending += [(child, depth + 1, name) for name, child in children]
     return None
+
+
+INTEGER_RANGE = (-(2**63), 2**63 - 1)
+"""The integers a pipeline may write: the signed 64-bit ones, in which its counts, sizes and
+seeds are computed (a larger one would overflow where it meets a float or an array)."""
+
+_MAX_INTEGER_DIGITS = 4300
+"""The most digits of an integer Python converts from text (:func:`sys.get_int_max_str_digits`
+by default); TOML's parser raises past it."""
+
+
+class _UnheldFloat:
+    """A TOML float no 64-bit float holds: its literal overflows to an infinity or underflows
+    to zero. Put in the parsed document in its place, and refused by
+    :func:`_refuse_unheld_numbers` before any setting is read."""
+
+    def __init__(self, text: str) -> None:
+        self.text = text
+
+
+def _float(text: str) -> float | _UnheldFloat:
+    """A TOML float literal as a float, or as an :class:`_UnheldFloat` where rounding to a
+    64-bit float would change it past recognition: ``1e400`` (to ``inf``; TOML's ``inf`` is
+    written so) or ``1e-400`` (to ``0.0``)."""
+    value = float(text)
+    if math.isinf(value) and "inf" not in text:
+        return _UnheldFloat(text)
+    mantissa = text.lower().split("e")[0]
+    if value == 0.0 and any(digit in mantissa for digit in "123456789"):
+        return _UnheldFloat(text)
+    return value
+
+
+def _refuse_unheld_numbers(label: str, data: dict[str, Any]) -> None:
+    """Refuse, in one line naming its key, a number of ``data`` (a parsed TOML document)
+    outside what the study computes with: an integer outside :data:`INTEGER_RANGE`, a float
+    past the 64-bit floats (:class:`_UnheldFloat`)."""
+    low, high = INTEGER_RANGE
+    pending: list[tuple[object, str]] = [(data, "")]
+    while pending:
+        value, key = pending.pop()
+        if isinstance(value, dict):
+            pending += [(v, f"{key}.{k}" if key else k) for k, v in reversed(value.items())]
+        elif isinstance(value, list):
+            pending += [(v, key) for v in reversed(value)]
+        elif isinstance(value, _UnheldFloat):
+            kind = "overflows" if math.isinf(float(value.text)) else "underflows"
+            raise UserError(
+                f"{label}: {key} holds {shown(value.text)[1:-1]}, which {kind} a 64-bit float "
+                "(magnitudes from about 5e-324 to 1.8e308)"
+            )
+        elif isinstance(value, int) and not isinstance(value, bool) and not low <= value <= high:
+            raise UserError(
+                f"{label}: {key} holds an integer of {len(str(abs(value)))} digits, beyond "
+                f"the 64-bit integers a pipeline's numbers are held in ({low} to {high})"
+            )
 
 
 def _display_path(path: Path) -> str:

@@ -39,7 +39,7 @@ from cirl_study.study.multiverse import cv_universe, universe_pipeline
 from cirl_study.study.pipeline_file import parse_pipeline
 from cirl_study.study.runner import ProgressHooks, run_pipeline
 from cirl_study.study.settings import written
-from cirl_study.study.spec import AXES, GradientAscentSpec, Pipeline, Universe
+from cirl_study.study.spec import AXES, PROBE_SUFFIX, GradientAscentSpec, Pipeline, Universe
 
 PIPELINE_FILE_NAME = "pipeline.toml"
 """The pipeline file in a probe's directory."""
@@ -100,7 +100,7 @@ def probe_text(pipeline: Pipeline, universe: Universe) -> str:
         if getattr(universe, name) is not None and getattr(universe, name) != getattr(cv, name)
     }
     top = {
-        "name": f"{pipeline.name}-probe",
+        "name": f"{pipeline.name}{PROBE_SUFFIX}",
         "description": f"A probe of the calibration of the run {pipeline.run_id}: {universe.id}",
         "seed": pipeline.seed,
     }

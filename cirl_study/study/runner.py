@@ -41,7 +41,7 @@ from cirl_study.escape import terminal
 from cirl_study.files import RUNS_DIRECTORY, non_regular, remove_file
 from cirl_study.interrupts import Interrupted
 from cirl_study.logs.format import LOG_SUFFIX, log_files, temp_files
-from cirl_study.logs.lock import LOCK_NAME, writer_lock
+from cirl_study.logs.lock import LOCK_NAME, writer_lock, writer_pid
 from cirl_study.logs.provenance import RunIdentity, collect_provenance
 from cirl_study.logs.reader import AnotherRunLogged, LoggedRun, logged_run
 from cirl_study.logs.versions import LOG_FORMAT
@@ -292,11 +292,23 @@ def run_pipeline(
 
     ``pipeline`` is as :func:`~cirl_study.study.pipeline_file.parse_pipeline` validates it,
     within the limits of :mod:`cirl_study.study.limits`.
+
+    Raises:
+        UserError: among others, the run directory cannot be created or locked (another run
+            holds it; an OS error such as a full disk while its lock file is written), in one
+            line; nothing is played, every log file there is kept, and a directory this run
+            created is removed again.
     """
     hooks = progress or ProgressHooks()
     began = time.perf_counter()
     created = _make_directory(out_dir)
-    with writer_lock(out_dir):
+    with contextlib.ExitStack() as stack:
+        try:
+            stack.enter_context(writer_lock(out_dir))
+        except BaseException:
+            if writer_pid(out_dir) is None:  # the lock failed, and no other run holds it
+                _remove_unused(out_dir, created)
+            raise
         try:
             return _run_locked(pipeline, out_dir, engine, hooks, began)
         except BaseException:

@@ -7,7 +7,7 @@ by its fields alone, in their order: the keys the table may have, what each must
 order in which the file is checked are all read from the spec's declaration. Every failure is
 one :class:`~cirl_study.errors.UserError` line naming the file and the key::
 
-    pipelines/x.toml: main.subjects must be a positive integer, got 0
+    pipelines/x.toml: game.learning_steps must be a positive integer, got 0
 
 A check returns the value as the spec stores it, or raises :class:`Invalid` with what the
 value must be; it sees the settings read so far (:data:`Known`), so a setting may be

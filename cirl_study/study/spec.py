@@ -83,8 +83,8 @@ played in many *universes*, each a choice of the open settings :data:`AXES`
 Each field of the frozen dataclasses below states its constraint beside it
 (:func:`~cirl_study.study.settings.setting`); :func:`cirl_study.study.pipeline_file.load_pipeline`
 reads a file into them, and every problem is one :class:`~cirl_study.errors.UserError` line
-naming the file and the key, e.g. ``pipelines/x.toml: main.subjects must be a positive integer,
-got 0``.
+naming the file and the key, e.g. ``pipelines/x.toml: game.learning_steps must be a positive
+integer, got 0``.
 """
 
 from __future__ import annotations
@@ -166,6 +166,22 @@ PEDAGOGIC_CHOICES = ("draw", "mode")
 PEDAGOGIC_ALPHA = Limits(1e-3, 1e3, "from a choice all but uniform to all but the mode")
 """The pedagogic exponent alpha: at 1e-3 the pedagogic human's choice is all but uniform over
 the paths, at 1e3 all but certain to be the most telling path (``demonstration = "mode"``)."""
+
+
+MIN_SUBJECTS = 2
+"""Fewest reward draws a block plays per feature level (``eta_cv.subjects``,
+``main.subjects``, ``lambda_sweep.subjects``, the tasks of a tile study): the analysis
+estimates every effect against the spread of its draws, and one draw has none. The human x
+num_features ANOVA has ``L (n - 1)`` error degrees of freedom for ``n`` draws at each of ``L``
+levels, and each mean's standard error and interval (the chosen eta's, the sweep's curves)
+needs ``n >= 2``."""
+
+SUBJECTS = integer_at_least(
+    MIN_SUBJECTS,
+    f"an integer of at least {MIN_SUBJECTS} (the analysis needs the spread of two reward "
+    "draws per feature level)",
+)
+"""The check of a block's reward draws per feature level (:data:`MIN_SUBJECTS`)."""
 
 
 def sigma_limits(width: int, height: int) -> Limits:
@@ -478,7 +494,7 @@ class GameSpec:
 class EtaCVSpec:
     """Cross-validation of eta: each human with a trade-off on ``subjects`` draws per level."""
 
-    subjects: int = setting(POSITIVE_INTEGER)
+    subjects: int = setting(SUBJECTS)
     etas: tuple[float, ...] = setting(numbers_in(ETA))
     rationality: float = setting(number_in(RATIONALITY))
 
@@ -511,12 +527,19 @@ class Task:
 
 
 def _tasks(value: Any, known: Known) -> tuple[Task, ...]:
-    """``[tasks]``: one or more named rewards, each a table giving every feature of the tile
-    game its weight, a number in ``[-1, 1]`` (the prior's box), and no other key."""
+    """``[tasks]``: at least :data:`MIN_SUBJECTS` named rewards (each task is one subject),
+    each a table giving every feature of the tile game its weight, a number in ``[-1, 1]``
+    (the prior's box), and no other key."""
     features: TileFeatures = known["game"].tile_features
     wanted = ", ".join(features.names)
     if not isinstance(value, dict) or not value:
         raise Invalid(f"must be a table of named tasks, each a table of weights ({wanted})")
+    if len(value) < MIN_SUBJECTS:
+        raise Invalid(
+            f"must name at least {MIN_SUBJECTS} tasks (each is one subject, and the analysis "
+            "needs the spread of two)",
+            got=f"{len(value)}",
+        )
     tasks = []
     for name, weights in value.items():
         if not TASK_NAME.fullmatch(name):
@@ -571,7 +594,7 @@ class MainSpec:
     """
 
     subjects: int = setting(
-        POSITIVE_INTEGER, only=_without_tasks, otherwise=lambda known: len(known["tasks"])
+        SUBJECTS, only=_without_tasks, otherwise=lambda known: len(known["tasks"])
     )
     rationality: float = setting(number_in(RATIONALITY))
     humans: tuple[str, ...] = setting(names(_humans, "humans"))
@@ -663,8 +686,8 @@ class GradientAscentSpec:
 
 
 def _sweep_subjects(value: Any, known: Known) -> int:
-    """A positive number of the main block's reward draws."""
-    subjects = POSITIVE_INTEGER(value, known)
+    """At least :data:`MIN_SUBJECTS` of the main block's reward draws."""
+    subjects = SUBJECTS(value, known)
     main: MainSpec = known["main"]
     if subjects > main.subjects:
         raise Invalid(
@@ -815,9 +838,14 @@ def _one_of(choices: tuple[str, ...]) -> Callable[[GameSpec], LevelCheck]:
 
 
 def _robot_levels(_game: GameSpec) -> LevelCheck:
+    """The robots a universe may have: those without a hypothesis space (a multiverse has no
+    ``[teaching]``)."""
     from cirl_study.core.players import ROBOTS
 
-    return (lambda v: isinstance(v, str) and v in ROBOTS), ", ".join(ROBOTS)
+    playable = [name for name in ROBOTS if not ROBOTS[name].needs_hypotheses]
+    return (lambda v: isinstance(v, str) and v in playable), (
+        f"{', '.join(playable)} (a multiverse has no hypothesis space)"
+    )
 
 
 def _sigmas(game: GameSpec) -> LevelCheck:
@@ -939,12 +967,33 @@ def _tile_game_known(known: Known) -> str | None:
 
 _NAME_PATTERN = re.compile(r"[A-Za-z0-9][A-Za-z0-9._-]*")
 
+FILE_NAME_BYTES = 255
+"""The longest file name of the common file systems (ext4, XFS, btrfs, APFS; NTFS counts 255
+UTF-16 units)."""
+
+MAX_NAME_LENGTH = FILE_NAME_BYTES - len(".") - len(".tmp-XXXXXXXX") - len("-old")
+"""The longest pipeline name, 237 characters: a name is a file name (the default run directory
+``data/runs/<name>`` and report directory ``reports/<name>``), and the longest the code makes
+of it is a report's staging directory set aside, ``.<name>.tmp-XXXXXXXX-old``
+(:mod:`cirl_study.analysis.replacement`), which must fit :data:`FILE_NAME_BYTES`."""
+
+PROBE_SUFFIX = "-probe"
+"""What a calibration probe's pipeline adds to its multiverse's name
+(:mod:`cirl_study.study.probes`): a multiverse's name leaves room for it."""
+
 
 def _pipeline_name(value: Any, known: Known) -> str:
-    """A name that can name a directory: letters, digits, ``.``, ``_`` and ``-``."""
+    """A name that can name a directory: letters, digits, ``.``, ``_`` and ``-``, at most
+    :data:`MAX_NAME_LENGTH` of them."""
     name = string(value, known)
     if not _NAME_PATTERN.fullmatch(name):
         raise Invalid("must be letters, digits, '.', '_' or '-' (it names a directory)")
+    if len(name) > MAX_NAME_LENGTH:
+        raise Invalid(
+            f"must be at most {MAX_NAME_LENGTH} characters (it names a directory, and a file "
+            f"name holds {FILE_NAME_BYTES} bytes with the suffixes added to it)",
+            got=f"{len(name)} characters",
+        )
     return name
 
 
