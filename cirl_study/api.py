@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import pandas as pd
 
-    from cirl_study.analysis.result_types import MultiverseResults, StudyResults
+    from cirl_study.analysis.results.types import MultiverseResults, StudyResults
 
 
 def run(
@@ -102,7 +102,7 @@ def analyze(
     run_dir: str | os.PathLike[str], partial: bool = False
 ) -> StudyResults | MultiverseResults:
     """Every number of the report of a run, as typed results
-    (:mod:`cirl_study.analysis.result_types`): what ``cirl-study analyze`` writes to
+    (:mod:`cirl_study.analysis.results.types`): what ``cirl-study analyze`` writes to
     ``results.json``, without writing anything.
 
     Args:
@@ -118,12 +118,12 @@ def analyze(
 
     analysed = read_for_analysis(Path(run_dir), partial=partial)
     if analysed.pipeline.multiverse is not None:
-        from cirl_study.analysis.multiverse import analyse_multiverse
+        from cirl_study.analysis.multiverse.results import analyse_multiverse
 
         return analyse_multiverse(analysed.trials, analysed.pipeline, run_id=analysed.run_id)
-    from cirl_study.analysis.results import analyse, with_claims
+    from cirl_study.analysis.results.study import analyse, with_claims
+    from cirl_study.analysis.results.theory_claims import theory_claims
     from cirl_study.analysis.table import check_design
-    from cirl_study.analysis.theory_claims import theory_claims
 
     check_design(analysed.trials)
     return with_claims(

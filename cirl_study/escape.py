@@ -53,7 +53,7 @@ def markdown(value: object) -> str:
     the span's paragraph, and the text is bounded likewise); the span is fenced by one backtick
     more than the longest run of them in the text, and padded with a space where the text
     starts or ends with a backtick or a space, so the text cannot close it. In a table cell,
-    :func:`cirl_study.analysis.markdown.table` escapes ``|``.
+    :func:`cirl_study.analysis.report.markdown.table` escapes ``|``.
 
     Examples:
         >>> markdown("paper"), markdown("a`b")

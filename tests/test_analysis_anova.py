@@ -18,7 +18,10 @@ import pandas as pd
 import pingouin as pg
 import pytest
 
-from cirl_study.analysis.anova import (
+from cirl_study.analysis.report.study_sections import anova_table
+from cirl_study.analysis.results.per_measure import plain
+from cirl_study.analysis.results.types import Sphericity
+from cirl_study.analysis.statistics.anova import (
     NO_ERROR_VARIANCE,
     SINGULAR,
     TOO_FEW_SUBJECTS,
@@ -26,11 +29,8 @@ from cirl_study.analysis.anova import (
     contrasts,
     repeated_measures_anova,
 )
-from cirl_study.analysis.measure_rows import plain
-from cirl_study.analysis.result_types import Sphericity
-from cirl_study.analysis.statistics import holm, holm_log10, pairwise_differences
-from cirl_study.analysis.study_report import anova_table
-from cirl_study.analysis.tails import chi2_tail, f_tail, t_tail
+from cirl_study.analysis.statistics.procedures import holm, holm_log10, pairwise_differences
+from cirl_study.analysis.statistics.tails import chi2_tail, f_tail, t_tail
 
 FIXTURES = Path(__file__).parent / "fixtures" / "factorial"
 

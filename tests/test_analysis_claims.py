@@ -1,4 +1,4 @@
-"""The claim rows and their verdict rules (cirl_study.analysis.claims).
+"""The claim rows and their verdict rules (cirl_study.analysis.results.claims).
 
 Starting from real results of a synthetic study, as ``results.json`` stores them, the numbers
 a rule reads are set so that every claim holds; then each test breaks exactly one condition
@@ -14,8 +14,8 @@ import msgspec
 import pytest
 from analysis_fixtures import pipeline, rows, synthetic_records
 
-from cirl_study.analysis.result_types import ClaimRow, StudyResults, checked
-from cirl_study.analysis.results import analyse, with_claims
+from cirl_study.analysis.results.study import analyse, with_claims
+from cirl_study.analysis.results.types import ClaimRow, StudyResults, checked
 from cirl_study.errors import UserError
 from cirl_study.measure_registry import PAPER_MEASURES
 
@@ -27,7 +27,7 @@ CLAIM_IDS = [
     "tukey_br_ahead",
     "lambda_intermediate",
 ]
-"""The paper's claims; :data:`~cirl_study.analysis.claims.CLAIMS` lists them first."""
+"""The paper's claims; :data:`~cirl_study.analysis.results.claims.CLAIMS` lists them first."""
 
 OTHER_IDS = [
     "paper_best_response",

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from cirl_study.analysis.compare import Tolerance, compare_reports
+from cirl_study.analysis.report.compare import Tolerance, compare_reports
 from cirl_study.cli import app
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
@@ -310,7 +310,7 @@ def test_what_a_report_would_make_us_allocate_is_bounded_before_it_is(
     """A results.json of more values than a report holds, and a figure of more pixels than a
     report draws, are refused from their bytes and header, before they are parsed or
     decoded."""
-    from cirl_study.analysis import compare as module
+    from cirl_study.analysis.report import compare as module
 
     monkeypatch.setattr(module, "MAX_JSON_VALUES", 1000)
     a, b = report(tmp_path / "a"), report(tmp_path / "b")

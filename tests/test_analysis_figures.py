@@ -1,4 +1,4 @@
-"""The figures (cirl_study.analysis.figures): reward maps and deterministic PNG bytes."""
+"""The figures (cirl_study.analysis.report.figures): reward maps and deterministic PNG bytes."""
 
 from __future__ import annotations
 
@@ -15,7 +15,7 @@ import pytest
 from analysis_fixtures import synthetic_records
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 
-from cirl_study.analysis import figures
+from cirl_study.analysis.report import figures
 from cirl_study.core.gridworld import feature_matrix
 from cirl_study.record import TrialRecord, from_builtins, to_builtins
 
@@ -67,7 +67,7 @@ _RENDER = """
 import sys
 sys.path.insert(0, {tests!r})
 from analysis_fixtures import synthetic_records
-from cirl_study.analysis import figures
+from cirl_study.analysis.report import figures
 records = synthetic_records(subjects_per_level=1, lambdas=(), etas=(), cv_subjects=0)
 main = [r for r in records if r.block == "main" and r.num_features == 3]
 sys.stdout.buffer.write(figures.reward_maps(main[0], main[1], "draw").png)

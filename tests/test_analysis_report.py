@@ -1,4 +1,4 @@
-"""The report directory (cirl_study.analysis.report.write_report)."""
+"""The report directory (cirl_study.analysis.report.study.write_report)."""
 
 from __future__ import annotations
 
@@ -13,9 +13,9 @@ import pingouin as pg
 import pytest
 from analysis_fixtures import pipeline, records_of, rows, synthetic_records
 
-from cirl_study.analysis import report
-from cirl_study.analysis.markdown import anchor
-from cirl_study.analysis.report import write_report
+from cirl_study.analysis.report import study as report
+from cirl_study.analysis.report.markdown import anchor
+from cirl_study.analysis.report.study import write_report
 from cirl_study.analysis.table import trial_table
 from cirl_study.errors import UserError
 from cirl_study.measure_registry import analysed_measures
@@ -234,7 +234,7 @@ def test_the_reports_results_are_analyses_whether_its_figures_are_drawn_in_worke
     records, tmp_path, monkeypatch
 ):
     from cirl_study import workers
-    from cirl_study.analysis.results import analyse
+    from cirl_study.analysis.results.study import analyse
 
     here = analyse(rows(records), PAPER)
     for cores, name in ((1, "here"), (2, "workers")):

@@ -22,9 +22,9 @@ from hypothesis import strategies as st
 from scipy import stats
 from test_logs_helpers import run_records
 
-from cirl_study.analysis.anova import repeated_measures_anova
-from cirl_study.analysis.report import write_report
-from cirl_study.analysis.statistics import paired_differences
+from cirl_study.analysis.report.study import write_report
+from cirl_study.analysis.statistics.anova import repeated_measures_anova
+from cirl_study.analysis.statistics.procedures import paired_differences
 from cirl_study.analysis.table import check_design
 from cirl_study.logs.reader import read_run, read_trials
 from cirl_study.record import ETA_CV, MAIN, MAP, POSTERIOR_MEAN

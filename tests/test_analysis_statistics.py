@@ -1,4 +1,4 @@
-"""The statistical tests (cirl_study.analysis.statistics).
+"""The statistical tests (cirl_study.analysis.statistics.procedures).
 
 Two kinds of check: published reference values for datasets bundled with pingouin
 (computed by JASP, JAMOVI and R, as quoted in pingouin's own test-suite), and an
@@ -22,9 +22,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 
-from cirl_study.analysis import statistics
-from cirl_study.analysis.anova import repeated_measures_anova
-from cirl_study.analysis.result_types import CellMean
+from cirl_study.analysis.results.types import CellMean
+from cirl_study.analysis.statistics import procedures as statistics
+from cirl_study.analysis.statistics.anova import repeated_measures_anova
 from cirl_study.analysis.table import trial_table
 
 ANOVA_ORDER = ["num_features", "human", "human:num_features"]
@@ -413,7 +413,7 @@ def test_a_non_finite_value_is_refused_naming_its_trial_never_averaged(value: fl
     sum of squares NaN."""
     from analysis_fixtures import pipeline
 
-    from cirl_study.analysis.results import estimates, tests
+    from cirl_study.analysis.results.study import estimates, tests
     from cirl_study.errors import UserError
 
     trials = rows(synthetic_records(subjects_per_level=4, lambdas=(1.0,), etas=(1.0,)))
@@ -433,7 +433,7 @@ def test_a_measure_a_trial_may_lack_leaves_its_draws_out_as_before() -> None:
     two different weights, and not logged before format 8) is a missing value: its reward draw
     is left out of that measure's statistics, and a measure missing from every trial has none;
     a missing value of a measure every trial has is refused."""
-    from cirl_study.analysis.measure_rows import measured
+    from cirl_study.analysis.results.per_measure import measured
     from cirl_study.errors import UserError
 
     table = trial_table(rows(synthetic_records(subjects_per_level=4, lambdas=(1.0,), etas=(1.0,))))

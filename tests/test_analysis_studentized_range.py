@@ -1,4 +1,5 @@
-"""The studentized range tail (cirl_study.analysis.studentized_range) and Tukey's p-values.
+"""The studentized range tail (cirl_study.analysis.statistics.studentized_range) and Tukey's
+p-values.
 
 Four independent checks of :func:`studentized_range_sf`: an mpmath evaluation of the usual
 ``1 - CDF`` form at enough digits, the closed form for two groups, SciPy where SciPy is
@@ -24,9 +25,13 @@ from hypothesis import strategies as st
 from mpmath.calculus.quadrature import GaussLegendre
 from scipy import integrate, stats
 
-from cirl_study.analysis import statistics, studentized_range
-from cirl_study.analysis.studentized_range import studentized_range_log10_sf, studentized_range_sf
-from cirl_study.analysis.tails import t_tail
+from cirl_study.analysis.statistics import procedures as statistics
+from cirl_study.analysis.statistics import studentized_range
+from cirl_study.analysis.statistics.studentized_range import (
+    studentized_range_log10_sf,
+    studentized_range_sf,
+)
+from cirl_study.analysis.statistics.tails import t_tail
 
 TINY = np.finfo(np.float64).tiny
 """The smallest normal double, below which the tail may be 0.0."""

@@ -4,8 +4,8 @@ import copy
 
 import pytest
 
-from cirl_study.analysis.claims import external_claims
-from cirl_study.analysis.theory_claims import office_supplies_claims
+from cirl_study.analysis.results.claims import external_claims
+from cirl_study.analysis.results.theory_claims import office_supplies_claims
 from cirl_study.theory import office_supplies_results
 
 

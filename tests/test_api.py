@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 import cirl_study
-from cirl_study.analysis.result_types import StudyResults, checked
+from cirl_study.analysis.results.types import StudyResults, checked
 from cirl_study.cli import app
 from cirl_study.errors import UserError
 

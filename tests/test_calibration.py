@@ -1,5 +1,6 @@
 """Calibration against a target table: the target's parsing, the distances by hand, and the
-recovery of a known universe from its own cell means (``cirl_study.analysis.calibration``)."""
+recovery of a known universe from its own cell means
+(``cirl_study.analysis.calibration.results``)."""
 
 from __future__ import annotations
 
@@ -12,7 +13,7 @@ import pandas as pd
 import pytest
 from scipy import stats
 
-from cirl_study.analysis.calibration import (
+from cirl_study.analysis.calibration.results import (
     Z_95,
     calibrate,
     cell_means,
@@ -20,7 +21,7 @@ from cirl_study.analysis.calibration import (
     read_target,
 )
 from cirl_study.analysis.reading import read_for_analysis
-from cirl_study.analysis.result_types import TargetCell
+from cirl_study.analysis.results.types import TargetCell
 from cirl_study.errors import UserError
 
 ROOT = Path(__file__).resolve().parent.parent

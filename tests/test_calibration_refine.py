@@ -1,6 +1,6 @@
 """The refinement of a calibration (``cirl-study calibrate --refine``): the coordinate search
-by hand and as properties on synthetic distances (``cirl_study.analysis.refine``), the probe
-pipelines (``cirl_study.study.probes``), and end to end on tiny runs: back to the true sigma
+by hand and as properties on synthetic distances (``cirl_study.analysis.calibration.refine``), the
+probe pipelines (``cirl_study.study.probes``), and end to end on tiny runs: back to the true sigma
 from a neighbour, resumed rather than replayed, within the budget, and refusals."""
 
 from __future__ import annotations
@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from typer.testing import CliRunner
 
-from cirl_study.analysis.refine import (
+from cirl_study.analysis.calibration.refine import (
     MIN_STEP,
     SearchAxis,
     coordinate_search,

@@ -15,9 +15,9 @@ import pytest
 from test_logs_helpers import make_record, run_records
 
 import cirl_study
-from cirl_study.analysis.anova import repeated_measures_anova
 from cirl_study.analysis.reading import read_for_analysis
-from cirl_study.analysis.report import write_report
+from cirl_study.analysis.report.study import write_report
+from cirl_study.analysis.statistics.anova import repeated_measures_anova
 from cirl_study.analysis.table import check_design
 from cirl_study.core.apprenticeship import Outcome
 from cirl_study.core.gridworld import feature_matrix

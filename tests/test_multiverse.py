@@ -1,4 +1,4 @@
-"""The multiverse (cirl_study.study.multiverse and cirl_study.analysis.multiverse).
+"""The multiverse (cirl_study.study.multiverse and cirl_study.analysis.multiverse.results).
 
 Expansion of ``[multiverse]`` into universes, their ids and trials, the open settings each
 axis varies (center placement, a demonstrator who may not stay, the deployment start), the
@@ -27,9 +27,9 @@ from scipy import special, stats
 from test_logs_helpers import run_records
 from typer.testing import CliRunner
 
-from cirl_study.analysis import statistics
-from cirl_study.analysis.multiverse import analyse_multiverse
-from cirl_study.analysis.results import analyse
+from cirl_study.analysis.multiverse.results import analyse_multiverse
+from cirl_study.analysis.results.study import analyse
+from cirl_study.analysis.statistics import procedures as statistics
 from cirl_study.cli import app
 from cirl_study.core.gridworld import Gridworld, rbf_features
 from cirl_study.core.maxent import MaxEnt, Phase
@@ -366,7 +366,7 @@ def test_the_multiverse_report(tmp_path: Path, multiverse_run: Path):
 
 
 def test_calibrate_finds_the_universe_a_target_was_taken_from(tmp_path: Path, multiverse_run: Path):
-    from cirl_study.analysis.result_types import CalibrationResults
+    from cirl_study.analysis.results.types import CalibrationResults
     from cirl_study.api import load_trials
 
     table = load_trials(multiverse_run)
@@ -640,7 +640,7 @@ def test_the_regret_reading_is_an_axis_that_plays_no_trial_of_its_own(tmp_path: 
 
 
 def test_a_universe_judged_by_regret_under_the_estimate_reads_it_as_regret(tmp_path: Path):
-    from cirl_study.analysis.multiverse import judged_rows
+    from cirl_study.analysis.multiverse.results import judged_rows
     from cirl_study.measure_registry import MEASURES
     from cirl_study.record import TrialRow
 

@@ -1,6 +1,6 @@
 """Nothing the project writes goes through a link or into anything but a regular file
 (cirl_study.files): the lock file, a log's temporary file and every file of a report (a
-link in an old report leaves with it: cirl_study.analysis.replacement). Each
+link in an old report leaves with it: cirl_study.analysis.report.replacement). Each
 case plants the hostile entry, runs the command, and checks one line, a non-zero exit and
 the target outside untouched."""
 

@@ -1,4 +1,4 @@
-"""A report is replaced atomically and by one writer (cirl_study.analysis.replacement): a
+"""A report is replaced atomically and by one writer (cirl_study.analysis.report.replacement): a
 failure anywhere leaves the old report byte for byte and no temporary directory; a second
 writer, a link as the report or its lock, and another run's report are refused in one line;
 ``reproduce`` keeps a report equal by value and judges ``git_dirty`` without its outputs."""
@@ -17,8 +17,8 @@ import pytest
 from cli_results import one_line_error
 from typer.testing import CliRunner
 
-from cirl_study.analysis import output, replacement
-from cirl_study.analysis.replacement import replacing_report
+from cirl_study.analysis.report import output, replacement
+from cirl_study.analysis.report.replacement import replacing_report
 from cirl_study.cli import app
 from cirl_study.errors import UserError
 from cirl_study.logs.provenance import git_state
@@ -149,7 +149,7 @@ def test_the_temporary_directory_of_a_killed_writer_is_removed_by_the_next(
 
 _HOLD = (
     "import sys, time; from pathlib import Path\n"
-    "from cirl_study.analysis.replacement import replacing_report\n"
+    "from cirl_study.analysis.report.replacement import replacing_report\n"
     "with replacing_report(Path(sys.argv[1]), run_id='smoke-x', force=True):\n"
     "    print('writing', flush=True); time.sleep(120)\n"
 )

@@ -1,4 +1,4 @@
-"""``results.json`` against its types (cirl_study.analysis.result_types) and the JSON Schemas
+"""``results.json`` against its types (cirl_study.analysis.results.types) and the JSON Schemas
 kept in ``docs/``: the schemas are the types', and every report's results decode under them
 (CI runs this again on the reports it regenerates)."""
 
@@ -11,7 +11,7 @@ from pathlib import Path
 import msgspec
 import pytest
 
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.results.types import (
     SCHEMAS,
     MultiverseResults,
     StudyResults,

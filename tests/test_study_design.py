@@ -15,7 +15,7 @@ import pytest
 from scipy import stats
 from typer.testing import CliRunner
 
-from cirl_study.analysis import figures
+from cirl_study.analysis.report import figures
 from cirl_study.cli import app
 from cirl_study.core.apprenticeship import Apprenticeship
 from cirl_study.core.players import HUMANS, Human, register_human

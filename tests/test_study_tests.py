@@ -1,6 +1,6 @@
-"""The typed results (cirl_study.analysis.result_types): a record holds to its contracts
+"""The typed results (cirl_study.analysis.results.types): a record holds to its contracts
 however it is made, every table is a Table with ``to_frame()``, and the per-measure tests are
-registered by the fields that hold their rows (cirl_study.analysis.study_tests)."""
+registered by the fields that hold their rows (cirl_study.analysis.results.registry)."""
 
 from __future__ import annotations
 
@@ -14,9 +14,12 @@ import pandas as pd
 import pytest
 from analysis_fixtures import pipeline, rows, synthetic_records
 
-from cirl_study.analysis.measure_rows import run_tests
-from cirl_study.analysis.report import render_markdown
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.report.sections import HEADINGS
+from cirl_study.analysis.report.study import render_markdown
+from cirl_study.analysis.results.per_measure import run_tests
+from cirl_study.analysis.results.registry import StudyTest, held_tests, registered, study_tests
+from cirl_study.analysis.results.study import analyse, design_of, with_claims
+from cirl_study.analysis.results.types import (
     AnovaEffect,
     CellMean,
     CronbachAlpha,
@@ -30,9 +33,6 @@ from cirl_study.analysis.result_types import (
     WilcoxonRow,
     checked,
 )
-from cirl_study.analysis.results import analyse, design_of, with_claims
-from cirl_study.analysis.sections import HEADINGS
-from cirl_study.analysis.study_tests import StudyTest, held_tests, registered, study_tests
 from cirl_study.analysis.table import trial_table
 from cirl_study.measure_registry import analysed_measures
 
@@ -150,7 +150,7 @@ def test_the_report_has_the_section_of_every_registered_test_with_rows(results):
 
 def _means(frame: pd.DataFrame, measure: str, design) -> list[CellMean]:
     """A test of the test below: each human's mean of ``measure`` at each feature level."""
-    from cirl_study.analysis.statistics import group_mean_rows
+    from cirl_study.analysis.statistics.procedures import group_mean_rows
 
     return group_mean_rows(frame, measure, ["num_features", "human", "robot"], CellMean)
 

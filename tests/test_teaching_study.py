@@ -4,7 +4,7 @@ A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human,
 ``literal_observer`` or ``pragmatic`` robot) declares their hypothesis space in ``[teaching]``
 (:mod:`cirl_study.study.spec`); every trial carries it (:mod:`cirl_study.study.plan`); the run
 is analysed by :mod:`cirl_study.analysis.study` into the report of
-:mod:`cirl_study.analysis.study_report`.
+:mod:`cirl_study.analysis.report.study_sections`.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ import pytest
 from test_logs_helpers import run_records
 from typer.testing import CliRunner
 
-from cirl_study.analysis.results import analyse, with_claims
+from cirl_study.analysis.results.study import analyse, with_claims
 from cirl_study.cli import app
 from cirl_study.core.gridworld import Gridworld
 from cirl_study.core.hypotheses import MAX_PATHS, path_count

@@ -420,7 +420,7 @@ def test_every_csv_we_write_is_safe_to_open_in_a_spreadsheet(tmp_path: Path) -> 
     negative ones too, are written as they are; the frame itself is not changed."""
     import pandas as pd
 
-    from cirl_study.analysis.output import csv_file, write_report_directory
+    from cirl_study.analysis.report.output import csv_file, write_report_directory
 
     frame = pd.DataFrame(
         {

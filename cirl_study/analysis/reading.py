@@ -126,8 +126,8 @@ def _load_report_libraries() -> None:
     gc.disable()
     try:
         for module in (
-            "cirl_study.analysis.statistics",
-            "cirl_study.analysis.figures",
+            "cirl_study.analysis.statistics.procedures",
+            "cirl_study.analysis.report.figures",
             "cirl_study.analysis.table",
         ):
             importlib.import_module(module)

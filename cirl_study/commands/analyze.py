@@ -12,7 +12,7 @@ from cirl_study.commands.parameters import Command, RunArgument
 from cirl_study.escape import terminal
 
 if TYPE_CHECKING:
-    from cirl_study.analysis.replacement import Replacement
+    from cirl_study.analysis.report.replacement import Replacement
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``analyze`` command, merged into :data:`cirl_study.cli.app`."""
@@ -86,7 +86,7 @@ def report_run(
 
     The report replaces the one there whole, and only a report of the same run unless
     ``force``; with ``keep_if_equal`` a report there equal by value to the new one is kept
-    untouched (:func:`~cirl_study.analysis.replacement.replacing_report`).
+    untouched (:func:`~cirl_study.analysis.report.replacement.replacing_report`).
 
     Returns:
         What the replacement did.
@@ -105,14 +105,14 @@ def report_run(
     stage(f"reading the logs of {run}")
     analysed = read_for_analysis(run, partial=partial, outputs=(target,), warn=warn)
 
-    from cirl_study.analysis.replacement import replacing_report
+    from cirl_study.analysis.report.replacement import replacing_report
 
     pipeline, trials, run_id = analysed.pipeline, analysed.trials, analysed.run_id
     with replacing_report(
         target, run_id=run_id, force=force, keep_if_equal=keep_if_equal
     ) as replacement:
         if pipeline.multiverse is not None:
-            from cirl_study.analysis.multiverse_report import write_multiverse_report
+            from cirl_study.analysis.multiverse.report import write_multiverse_report
 
             multiverse = write_multiverse_report(
                 trials,
@@ -129,8 +129,8 @@ def report_run(
             what += "universes"
             summary = f"universes reproducing each claim: {shares}"
         else:
-            from cirl_study.analysis.report import write_report
-            from cirl_study.analysis.theory_claims import theory_claims
+            from cirl_study.analysis.report.study import write_report
+            from cirl_study.analysis.results.theory_claims import theory_claims
 
             results = write_report(
                 trials,

@@ -8,14 +8,14 @@ from typing import TYPE_CHECKING, Annotated
 
 import typer
 
-from cirl_study.analysis.refine import DEFAULT_MAX_PROBES
+from cirl_study.analysis.calibration.refine import DEFAULT_MAX_PROBES
 from cirl_study.commands.analyze import ForceOption, warn
 from cirl_study.commands.parameters import Command, RunArgument, number
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 
 if TYPE_CHECKING:
-    from cirl_study.analysis.result_types import Refinement, UniverseDistance
+    from cirl_study.analysis.results.types import Refinement, UniverseDistance
 
 app = typer.Typer(rich_markup_mode=None)
 """The ``calibrate`` command, merged into :data:`cirl_study.cli.app`."""
@@ -121,7 +121,7 @@ def calibrate(
     numeric settings while the distance falls, each probe played, logged and read as a run;
     the report adds the search's path. Progress of the probes goes to stderr.
     """
-    from cirl_study.analysis.calibration import read_target
+    from cirl_study.analysis.calibration.results import read_target
     from cirl_study.analysis.reading import read_for_analysis
 
     if not refine:
@@ -141,9 +141,9 @@ def calibrate(
     cells, sha256 = read_target(target)
     outputs = (target_dir, probes_dir) if refine else (target_dir,)
     analysed = read_for_analysis(run, outputs=outputs, warn=warn)
-    from cirl_study.analysis.calibration import calibrate as calibrate_run
-    from cirl_study.analysis.calibration_report import write_calibration_report
-    from cirl_study.analysis.replacement import replacing_report
+    from cirl_study.analysis.calibration.report import write_calibration_report
+    from cirl_study.analysis.calibration.results import calibrate as calibrate_run
+    from cirl_study.analysis.report.replacement import replacing_report
 
     if refine and analysed.pipeline.multiverse is None:
         raise UserError(f"{terminal(run)}: --refine needs a multiverse run, not a single study")
@@ -195,7 +195,7 @@ STOPS = {
 def refinement_summary(refinement: Refinement, nearest: UniverseDistance) -> str:
     """The line a refinement ends with: its probes, why it stopped, and where it ended
     against where it began (the ``nearest`` universe of the run)."""
-    from cirl_study.analysis.multiverse import level_label
+    from cirl_study.analysis.multiverse.results import level_label
 
     final = refinement.final
     moves = ", ".join(

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from cirl_study.analysis.compare import ABSOLUTE_TOLERANCE, RELATIVE_TOLERANCE, Tolerance
+from cirl_study.analysis.report.compare import ABSOLUTE_TOLERANCE, RELATIVE_TOLERANCE, Tolerance
 from cirl_study.commands.parameters import Command, number
 from cirl_study.escape import terminal
 
@@ -50,7 +50,7 @@ def compare(
     agrees within the tolerance and everything else is equal, 1 otherwise (the differences
     are listed), 2 when a report cannot be read.
     """
-    from cirl_study.analysis.compare import compare_reports
+    from cirl_study.analysis.report.compare import compare_reports
 
     differences = compare_reports(expected, got, Tolerance(rtol=rtol, atol=atol))
     for line in differences[:SHOWN]:

@@ -1,12 +1,12 @@
 """``cirl-study calibrate --refine``: the coordinate search around the nearest universe, each
 probe played as a run of its own (``docs/multiverse.md``, *Refinement*).
 
-:func:`refine` joins the three steps: the search (:func:`cirl_study.analysis.refine.
+:func:`refine` joins the three steps: the search (:func:`cirl_study.analysis.calibration.refine.
 coordinate_search`) asks for a point's distance; the point is played as a probe
 (:func:`cirl_study.study.probes.play_probe`), read as any run is analysed
 (:func:`cirl_study.analysis.reading.read_for_analysis`) and measured as every universe of the
-run is (:func:`cirl_study.analysis.calibration.universe_distance`). Each probe's progress goes
-to stderr as a run's does.
+run is (:func:`cirl_study.analysis.calibration.results.universe_distance`). Each probe's progress
+goes to stderr as a run's does.
 """
 
 from __future__ import annotations
@@ -18,16 +18,16 @@ from pathlib import Path
 
 import typer
 
-from cirl_study.analysis.calibration import universe_distance
-from cirl_study.analysis.reading import read_for_analysis
-from cirl_study.analysis.refine import (
+from cirl_study.analysis.calibration.refine import (
     FIRST_STEP,
     MIN_STEP,
     Point,
     SearchAxis,
     coordinate_search,
 )
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.calibration.results import universe_distance
+from cirl_study.analysis.reading import read_for_analysis
+from cirl_study.analysis.results.types import (
     CalibrationResults,
     Refinement,
     RefinementProbe,

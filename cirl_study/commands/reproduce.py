@@ -60,7 +60,7 @@ def reproduce(
     replaces them. It also says how long the run and the analysis took. A report of another
     run is refused (before the run) unless --force.
     """
-    from cirl_study.analysis.replacement import refuse_another_runs_report
+    from cirl_study.analysis.report.replacement import refuse_another_runs_report
     from cirl_study.study.pipeline_file import load_pipeline, resolve_pipeline
     from cirl_study.study.runner import default_out_dir
 

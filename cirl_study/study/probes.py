@@ -1,9 +1,9 @@
 """A calibration's probes: each universe its refinement measures, played as a run of its own.
 
 A *probe* of a multiverse run is a universe the run may lack: the universe nearest a target
-with other values of its numeric settings (:mod:`cirl_study.analysis.refine`). Its pipeline
-(:func:`probe_pipeline`) is a multiverse of that universe, written as a pipeline file of its
-own: the run's seed and subjects, the tables of the probe's cross-validation universe
+with other values of its numeric settings (:mod:`cirl_study.analysis.calibration.refine`). Its
+pipeline (:func:`probe_pipeline`) is a multiverse of that universe, written as a pipeline file of
+its own: the run's seed and subjects, the tables of the probe's cross-validation universe
 (:func:`~cirl_study.study.multiverse.cv_universe`: the probe with the run's base robot), and,
 where the probe differs from that (another robot, or a reading of regret), the probe as the
 one entry of ``[[multiverse.universes]]``. Universe ids and trial seeds depend on the choices

@@ -975,7 +975,7 @@ MAX_NAME_LENGTH = FILE_NAME_BYTES - len(".") - len(".tmp-XXXXXXXX") - len("-old"
 """The longest pipeline name, 237 characters: a name is a file name (the default run directory
 ``data/runs/<name>`` and report directory ``reports/<name>``), and the longest the code makes
 of it is a report's staging directory set aside, ``.<name>.tmp-XXXXXXXX-old``
-(:mod:`cirl_study.analysis.replacement`), which must fit :data:`FILE_NAME_BYTES`."""
+(:mod:`cirl_study.analysis.report.replacement`), which must fit :data:`FILE_NAME_BYTES`."""
 
 PROBE_SUFFIX = "-probe"
 """What a calibration probe's pipeline adds to its multiverse's name

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 from typing import NamedTuple
 
-from cirl_study.analysis.markdown import anchor
-from cirl_study.analysis.study_tests import study_tests
+from cirl_study.analysis.report.markdown import anchor
+from cirl_study.analysis.results.registry import study_tests
 
 HEADINGS = {
     "claims": "Claims",
@@ -26,7 +26,7 @@ HEADINGS = {
     "rules": "How the verdicts are decided",
 }
 """Section headings of ``report.md``, by the ``results.json`` key they present (a registered
-test's, its :attr:`~cirl_study.analysis.study_tests.StudyTest.heading`)."""
+test's, its :attr:`~cirl_study.analysis.results.registry.StudyTest.heading`)."""
 
 
 class Figure(NamedTuple):

@@ -1,9 +1,9 @@
 """The sections of ``report.md`` that every study has, whatever its humans, robots and feature
 levels: the cell means, the repeated-measures ANOVA with its sphericity corrections, every
 pairwise comparison, every human against the baseline, the lambda sweep and the eta
-cross-validation. Each is a function of the results alone (:mod:`cirl_study.analysis.results`)
+cross-validation. Each is a function of the results alone (:mod:`cirl_study.analysis.results.study`)
 and returns its lines, or none when the run has nothing for it; a registered test's renderer
-(:mod:`cirl_study.analysis.study_tests`) takes its rows and the results and returns the lines
+(:mod:`cirl_study.analysis.results.registry`) takes its rows and the results and returns the lines
 below its heading.
 """
 
@@ -12,8 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable, Sequence
 from typing import Any
 
-from cirl_study.analysis.cells import papers_own
-from cirl_study.analysis.markdown import (
+from cirl_study.analysis.report.markdown import (
     ci,
     formatted,
     image,
@@ -24,21 +23,22 @@ from cirl_study.analysis.markdown import (
     p_value,
     table,
 )
-from cirl_study.analysis.result_types import (
-    AnovaEffect,
-    EtaUncertainty,
-    PairedComparison,
-    PairedDifference,
-    StudyResults,
-    Table,
-)
-from cirl_study.analysis.sections import (
+from cirl_study.analysis.report.sections import (
     CELL_MEANS,
     ETA_CV_CURVE,
     FIGURE2_LAMBDA,
     FIGURE2_MEASURES,
     OTHER_MEASURES,
     heading,
+)
+from cirl_study.analysis.results.cells import papers_own
+from cirl_study.analysis.results.types import (
+    AnovaEffect,
+    EtaUncertainty,
+    PairedComparison,
+    PairedDifference,
+    StudyResults,
+    Table,
 )
 from cirl_study.measure_registry import PAPER_MEASURES, analysed_measures
 from cirl_study.record import LAMBDA_SWEEP
@@ -52,7 +52,7 @@ def paper_only(results: StudyResults) -> bool:
 def other_measures(measures: Iterable[str]) -> tuple[str, ...]:
     """The measures the analysis tests beyond the paper's three that are among ``measures``
     (those of a study's cells), in the registry's order: those the figure beside Figure 2 (left)
-    draws (:data:`~cirl_study.analysis.sections.OTHER_MEASURES`)."""
+    draws (:data:`~cirl_study.analysis.report.sections.OTHER_MEASURES`)."""
     present = set(measures)
     return tuple(m for m in analysed_measures() if m not in PAPER_MEASURES and m in present)
 

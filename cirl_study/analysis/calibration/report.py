@@ -1,10 +1,11 @@
 """The report of a calibration: ``report.md``, ``results.json``, ``universes.csv``, the figure.
 
-:func:`write_calibration_report` writes what :func:`cirl_study.analysis.calibration.calibrate`
-found: the universes nearest the target with their settings, the search's path and the
-refined universe beside the nearest (with ``--refine``), the target beside the nearest
-universes' measurements cell by cell, the paper's claims in the nearest universe, and per axis
-the best level and how far the distance moves (``docs/multiverse.md``, *Calibration*).
+:func:`write_calibration_report` writes what
+:func:`cirl_study.analysis.calibration.results.calibrate` found: the universes nearest the target
+with their settings, the search's path and the refined universe beside the nearest (with
+``--refine``), the target beside the nearest universes' measurements cell by cell, the paper's
+claims in the nearest universe, and per axis the best level and how far the distance moves
+(``docs/multiverse.md``, *Calibration*).
 """
 
 from __future__ import annotations
@@ -18,11 +19,11 @@ import msgspec
 import pandas as pd
 
 from cirl_study import escape
-from cirl_study.analysis import figures
-from cirl_study.analysis.markdown import document, measure_name, number, p_text, table
-from cirl_study.analysis.multiverse import level_label
-from cirl_study.analysis.output import write_report_directory
-from cirl_study.analysis.result_types import CalibrationResults, Refinement, UniverseDistance
+from cirl_study.analysis.multiverse.results import level_label
+from cirl_study.analysis.report import figures
+from cirl_study.analysis.report.markdown import document, measure_name, number, p_text, table
+from cirl_study.analysis.report.output import write_report_directory
+from cirl_study.analysis.results.types import CalibrationResults, Refinement, UniverseDistance
 
 FIGURE_NAME = "calibration.png"
 """Target against measured, per cell, for the nearest universes."""

@@ -2,12 +2,12 @@
 
 A claim (:class:`Claim`) is one declarative entry of :data:`CLAIMS`: its source, the
 statement, the rule that decides it in words, the cells of the design it needs
-(:class:`~cirl_study.analysis.cells.Cells`), the results it reads (``evidence``: keys of
+(:class:`~cirl_study.analysis.results.cells.Cells`), the results it reads (``evidence``: keys of
 ``results.json`` and figures) and the function that applies the rule. A report judges every
 claim whose cells the run has and lists the others as not tested; a new claim is one entry.
 :func:`evaluate_claims` judges them on a study's typed results
-(:class:`~cirl_study.analysis.result_types.StudyResults`) and returns one
-:class:`~cirl_study.analysis.result_types.ClaimRow` per claim.
+(:class:`~cirl_study.analysis.results.types.StudyResults`) and returns one
+:class:`~cirl_study.analysis.results.types.ClaimRow` per claim.
 ``reproduced`` is the verdict (never written by hand): ``True`` or ``False``, ``None`` for a
 claim that asks a question the measurement answers; a claim that is not tested is not
 reproduced. Claims from another analysis (the office-supplies theory results) are appended
@@ -53,7 +53,8 @@ from typing import Any, TypeVar
 
 import numpy as np
 
-from cirl_study.analysis.cells import (
+from cirl_study.analysis.report.markdown import measure_name, number, p_text, p_value
+from cirl_study.analysis.results.cells import (
     MILLI_DRAGAN,
     PAPER,
     REGRET_OPTIMAL_GAP,
@@ -61,9 +62,8 @@ from cirl_study.analysis.cells import (
     Cells,
     Design,
 )
-from cirl_study.analysis.markdown import measure_name, number, p_text, p_value
-from cirl_study.analysis.measure_rows import plain
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.results.per_measure import plain
+from cirl_study.analysis.results.types import (
     AnovaEffect,
     CellMean,
     ClaimRow,
@@ -511,7 +511,7 @@ CLAIMS: tuple[Claim, ...] = (
 
 
 def design_of_results(results: StudyResults) -> Design:
-    """The :class:`~cirl_study.analysis.cells.Design` of a run's results."""
+    """The :class:`~cirl_study.analysis.results.cells.Design` of a run's results."""
     design = results.design
     return Design(
         humans=tuple(design.humans),

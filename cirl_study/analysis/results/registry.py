@@ -2,29 +2,29 @@
 computation and its renderer.
 
 A test is registered by the field of the results that holds its rows
-(:mod:`cirl_study.analysis.result_types`), annotated with its :class:`StudyTest`::
+(:mod:`cirl_study.analysis.results.types`), annotated with its :class:`StudyTest`::
 
     wilcoxon: Annotated[
         Rows[WilcoxonRow],
         StudyTest(
             "Wilcoxon signed-rank tests",
-            "cirl_study.analysis.measure_rows:wilcoxon",
-            "cirl_study.analysis.paper_report:wilcoxon",
+            "cirl_study.analysis.results.per_measure:wilcoxon",
+            "cirl_study.analysis.report.paper_sections:wilcoxon",
         ),
     ]
 
 The field's name is the test's key in ``results.json``, its place the key's place, and its row
 type (``Rows[R]``) the type of the rows. A field of
-:class:`~cirl_study.analysis.result_types.StudyResults` holds a test of the ``main`` block's
-trials, one of :class:`~cirl_study.analysis.result_types.PaperSection` (key ``paper.<name>``)
+:class:`~cirl_study.analysis.results.types.StudyResults` holds a test of the ``main`` block's
+trials, one of :class:`~cirl_study.analysis.results.types.PaperSection` (key ``paper.<name>``)
 a test of the paper's (the reference robot's trials of the expert and the best response,
 where the run has them). Registered, a test is computed for every measure the analysis tests,
-on the trials that have a value of it (:func:`~cirl_study.analysis.measure_rows.measured`),
+on the trials that have a value of it (:func:`~cirl_study.analysis.results.per_measure.measured`),
 the measures in the registry's order; its rows are in the typed results and ``results.json``;
 and its section is in ``report.md``, with the main block's tests after the cell means and the
 paper's after them, each in field order, its heading a link target for a claim's
-``evidence`` (:mod:`cirl_study.analysis.sections`). A new test is its computation and renderer
-(in any module), its row type, and its field.
+``evidence`` (:mod:`cirl_study.analysis.report.sections`). A new test is its computation and
+renderer (in any module), its row type, and its field.
 
 Computations and renderers are named ``"module:function"`` and imported when first used, as
 the measures' computations are (:mod:`cirl_study.measure_registry`): the types of the results
@@ -43,8 +43,8 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 if TYPE_CHECKING:
     import pandas as pd
 
-    from cirl_study.analysis.cells import Design
-    from cirl_study.analysis.result_types import Record, StudyResults, Table
+    from cirl_study.analysis.results.cells import Design
+    from cirl_study.analysis.results.types import Record, StudyResults, Table
 
 
 def _imported(name: str) -> Callable[..., Any]:
@@ -62,11 +62,11 @@ class StudyTest:
         compute: ``"module:function"``, where ``function(frame, measure, design)`` returns
             the test's rows of one measure (a sequence of the field's row type) from ``frame``,
             the trials it tests that have a value of ``measure``, in a study of ``design``
-            (:class:`~cirl_study.analysis.cells.Design`); no rows where the design has nothing
-            for it. A family of p-values adjusted together lies within one measure's rows.
+            (:class:`~cirl_study.analysis.results.cells.Design`); no rows where the design has
+            nothing for it. A family of p-values adjusted together lies within one measure's rows.
         render: ``"module:function"``, where ``function(rows, results)`` returns the lines of
             its section below the heading, from its rows (a
-            :class:`~cirl_study.analysis.result_types.Table`) and the whole typed results;
+            :class:`~cirl_study.analysis.results.types.Table`) and the whole typed results;
             none to leave the section out.
     """
 
@@ -109,7 +109,7 @@ def registered(record: type[Record]) -> tuple[Registered, ...]:
 def study_tests() -> dict[str, Registered]:
     """Every registered test by its key in ``results.json``: the main block's (``anova``),
     then the paper's (``paper.anova``)."""
-    from cirl_study.analysis.result_types import PaperSection, StudyResults
+    from cirl_study.analysis.results.types import PaperSection, StudyResults
 
     return {
         **{test.name: test for test in registered(StudyResults)},

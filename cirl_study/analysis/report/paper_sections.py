@@ -3,15 +3,17 @@ mixed ANOVA, the simple effects of human, Tukey HSD as the paper ran it, the Wil
 Cronbach's alpha and Figure 1 (results ``paper``), and every other robot against the
 reference (results ``robots``). Each is a function of the results alone and returns its
 lines, or none when the run has nothing for it; the renderers of the paper's registered tests
-(:mod:`cirl_study.analysis.study_tests`) take their rows and the results and return the lines
+(:mod:`cirl_study.analysis.results.registry`) take their rows and the results and return the lines
 below their headings.
 """
 
 from __future__ import annotations
 
-from cirl_study.analysis import markdown as md
-from cirl_study.analysis.claims import SIGNIFICANCE
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.report import markdown as md
+from cirl_study.analysis.report.sections import FIGURE1, ROBOTS_LAMBDA, heading
+from cirl_study.analysis.report.study_sections import anova_table
+from cirl_study.analysis.results.claims import SIGNIFICANCE
+from cirl_study.analysis.results.types import (
     AnovaEffect,
     PairedDifference,
     RobotComparison,
@@ -21,8 +23,6 @@ from cirl_study.analysis.result_types import (
     TukeyRow,
     WilcoxonRow,
 )
-from cirl_study.analysis.sections import FIGURE1, ROBOTS_LAMBDA, heading
-from cirl_study.analysis.study_report import anova_table
 
 
 def paper_anova(rows: Table[AnovaEffect], results: StudyResults) -> list[str]:

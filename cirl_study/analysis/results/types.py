@@ -19,8 +19,8 @@ its default, so a missing optional field reads as ``null``; and every table (a f
 it where the double ``p`` underflows to 0.
 
 The per-measure tests of a study are registered by the fields that hold their rows
-(:mod:`cirl_study.analysis.study_tests`): those of :class:`StudyResults` and
-:class:`PaperSection` annotated with a :class:`~cirl_study.analysis.study_tests.StudyTest`.
+(:mod:`cirl_study.analysis.results.registry`): those of :class:`StudyResults` and
+:class:`PaperSection` annotated with a :class:`~cirl_study.analysis.results.registry.StudyTest`.
 """
 
 from __future__ import annotations
@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 import msgspec
 from msgspec import inspect
 
-from cirl_study.analysis.study_tests import StudyTest
+from cirl_study.analysis.results.registry import StudyTest
 from cirl_study.errors import UserError
 
 if TYPE_CHECKING:
@@ -239,7 +239,7 @@ class Probability(Record, kw_only=True):
 
 class Sphericity(Record, kw_only=True):
     """Mauchly's test of one within effect, and its Greenhouse-Geisser and Huynh-Feldt
-    corrections (:mod:`cirl_study.analysis.anova`).
+    corrections (:mod:`cirl_study.analysis.statistics.anova`).
 
     ``reason`` says why some of them are ``null`` (left out where every one is reported): no
     error variance, or fewer error degrees of freedom than contrasts (all of them ``null``),
@@ -257,7 +257,7 @@ class Sphericity(Record, kw_only=True):
 
 
 class AnovaEffect(Record, kw_only=True):
-    """One effect of :func:`cirl_study.analysis.anova.repeated_measures_anova`.
+    """One effect of :func:`cirl_study.analysis.statistics.anova.repeated_measures_anova`.
 
     ``sphericity`` is ``None`` for a between-subjects effect and for a within effect on one
     degree of freedom (where sphericity holds trivially).
@@ -293,7 +293,7 @@ class PairedT(Record, kw_only=True):
 
 class PairedComparison(PairedT, kw_only=True):
     """One paired comparison of two levels of a within factor in one cell of the others
-    (:func:`cirl_study.analysis.statistics.pairwise_differences`).
+    (:func:`cirl_study.analysis.statistics.procedures.pairwise_differences`).
 
     ``human`` and ``robot`` name the cell (``None`` for the factor compared); the
     difference is ``level_a - level_b``; ``p_holm`` is Holm's adjustment over the family,
@@ -315,8 +315,8 @@ class PairedComparison(PairedT, kw_only=True):
 
 
 class PairedDifference(PairedT, kw_only=True):
-    """One row of :func:`cirl_study.analysis.statistics.paired_differences`: ``level`` against
-    the baseline in one group (its keys among ``human, robot, num_features, rationality,
+    """One row of :func:`cirl_study.analysis.statistics.procedures.paired_differences`: ``level``
+    against the baseline in one group (its keys among ``human, robot, num_features, rationality,
     pooled, universe``); a multiverse's human effects have neither ``level`` nor Holm."""
 
     measure: str
@@ -336,7 +336,7 @@ class PairedDifference(PairedT, kw_only=True):
 
 class SimpleEffect(PairedT, kw_only=True):
     """The simple effect of human at one feature level, with its BCa bootstrap intervals
-    (:func:`cirl_study.analysis.statistics.simple_effects`)."""
+    (:func:`cirl_study.analysis.statistics.procedures.simple_effects`)."""
 
     measure: str
     num_features: int
@@ -400,39 +400,39 @@ class Figure1(Record, kw_only=True):
 
 class PaperSection(Record, kw_only=True):
     """The paper's analyses on the reference robot's trials of its two humans: its registered
-    tests (:mod:`cirl_study.analysis.study_tests`), Cronbach's alpha of its three measures and
+    tests (:mod:`cirl_study.analysis.results.registry`), Cronbach's alpha of its three measures and
     the reward draw of Figure 1."""
 
     anova: Annotated[
         Rows[AnovaEffect],
         StudyTest(
             "The paper's mixed ANOVA",
-            "cirl_study.analysis.measure_rows:paper_anova",
-            "cirl_study.analysis.paper_report:paper_anova",
+            "cirl_study.analysis.results.per_measure:paper_anova",
+            "cirl_study.analysis.report.paper_sections:paper_anova",
         ),
     ]
     simple_effects: Annotated[
         Rows[SimpleEffect],
         StudyTest(
             "Simple effects of human",
-            "cirl_study.analysis.measure_rows:simple_effects",
-            "cirl_study.analysis.paper_report:simple_effects",
+            "cirl_study.analysis.results.per_measure:simple_effects",
+            "cirl_study.analysis.report.paper_sections:simple_effects",
         ),
     ]
     tukey_hsd: Annotated[
         Rows[TukeyRow],
         StudyTest(
             "Tukey HSD",
-            "cirl_study.analysis.measure_rows:tukey_hsd",
-            "cirl_study.analysis.paper_report:tukey",
+            "cirl_study.analysis.results.per_measure:tukey_hsd",
+            "cirl_study.analysis.report.paper_sections:tukey",
         ),
     ]
     wilcoxon: Annotated[
         Rows[WilcoxonRow],
         StudyTest(
             "Wilcoxon signed-rank tests",
-            "cirl_study.analysis.measure_rows:wilcoxon",
-            "cirl_study.analysis.paper_report:wilcoxon",
+            "cirl_study.analysis.results.per_measure:wilcoxon",
+            "cirl_study.analysis.report.paper_sections:wilcoxon",
         ),
     ]
     cronbach_alpha: CronbachAlpha
@@ -530,7 +530,7 @@ class RegretOptimal(Record, kw_only=True):
 
 
 class ClaimRow(Record, kw_only=True):
-    """One claim as judged (:func:`cirl_study.analysis.claims.evaluate_claims`)."""
+    """One claim as judged (:func:`cirl_study.analysis.results.claims.evaluate_claims`)."""
 
     id: str
     source: str
@@ -557,7 +557,7 @@ class Teaching(Record, kw_only=True):
 
 class StudyDesign(Record, kw_only=True):
     """The design section of a study's results: its factors
-    (:class:`cirl_study.analysis.cells.Design`), subjects, lambdas and etas."""
+    (:class:`cirl_study.analysis.results.cells.Design`), subjects, lambdas and etas."""
 
     humans: list[str]
     baseline: str
@@ -575,7 +575,7 @@ class Undefined(Record, kw_only=True):
     """A measure ``trials`` of the analysed trials have no value of (``null`` in their records:
     undefined for them, or not logged by their log format), of ``subjects`` reward draws: each
     is left out of all the measure's statistics
-    (:func:`cirl_study.analysis.measure_rows.measured`)."""
+    (:func:`cirl_study.analysis.results.per_measure.measured`)."""
 
     measure: str
     trials: int
@@ -596,7 +596,7 @@ class Partial(Record, kw_only=True):
 
 class Estimates(Record, kw_only=True):
     """What a study's trials measured, with confidence intervals
-    (:func:`cirl_study.analysis.results.estimates`): everything its figures draw, and the part
+    (:func:`cirl_study.analysis.results.study.estimates`): everything its figures draw, and the part
     of :class:`StudyResults` known before any test. ``figure1`` is the paper's Figure 1 reward
     draw, where the run has the paper's humans (``None`` otherwise); ``undefined`` is ``None``
     unless some trials have no value of a measure."""
@@ -614,12 +614,12 @@ class Estimates(Record, kw_only=True):
 
 
 class StudyResults(Record, kw_only=True):
-    """``results.json`` of a study (:func:`cirl_study.analysis.results.analyse`, with the
+    """``results.json`` of a study (:func:`cirl_study.analysis.results.study.analyse`, with the
     report's ``run_id``, ``partial``, ``claims`` and ``theory``,
-    :func:`cirl_study.analysis.results.with_claims`); ``undefined`` only where some trials have
-    no value of a measure (``None`` otherwise). ``anova``, ``pairwise``, ``against_baseline``
+    :func:`cirl_study.analysis.results.study.with_claims`); ``undefined`` only where some trials
+    have no value of a measure (``None`` otherwise). ``anova``, ``pairwise``, ``against_baseline``
     and the paper's ``anova``, ``simple_effects``, ``tukey_hsd`` and ``wilcoxon`` are
-    registered tests (:mod:`cirl_study.analysis.study_tests`)."""
+    registered tests (:mod:`cirl_study.analysis.results.registry`)."""
 
     pipeline: str
     trials: dict[str, int]
@@ -629,24 +629,24 @@ class StudyResults(Record, kw_only=True):
         Rows[AnovaEffect],
         StudyTest(
             "Repeated-measures ANOVA",
-            "cirl_study.analysis.measure_rows:anova",
-            "cirl_study.analysis.study_report:anova",
+            "cirl_study.analysis.results.per_measure:anova",
+            "cirl_study.analysis.report.study_sections:anova",
         ),
     ]
     pairwise: Annotated[
         Rows[PairedComparison],
         StudyTest(
             "Pairwise comparisons",
-            "cirl_study.analysis.measure_rows:pairwise",
-            "cirl_study.analysis.study_report:pairwise",
+            "cirl_study.analysis.results.per_measure:pairwise",
+            "cirl_study.analysis.report.study_sections:pairwise",
         ),
     ]
     against_baseline: Annotated[
         Rows[PairedDifference],
         StudyTest(
             "Every human against the baseline",
-            "cirl_study.analysis.measure_rows:against_baseline",
-            "cirl_study.analysis.study_report:against_baseline",
+            "cirl_study.analysis.results.per_measure:against_baseline",
+            "cirl_study.analysis.report.study_sections:against_baseline",
         ),
     ]
     lambda_sweep: Rows[CellMean]
@@ -739,8 +739,9 @@ class JointTest(Record, kw_only=True):
 
 
 class MultiverseResults(Record, kw_only=True):
-    """``results.json`` of a multiverse (:func:`cirl_study.analysis.multiverse.analyse_multiverse`,
-    with the report's ``run_id``)."""
+    """``results.json`` of a multiverse
+    (:func:`cirl_study.analysis.multiverse.results.analyse_multiverse`, with the report's
+    ``run_id``)."""
 
     pipeline: str
     base_universe: str
@@ -755,7 +756,7 @@ class MultiverseResults(Record, kw_only=True):
 
 
 class TargetCell(Record, kw_only=True):
-    """One published cell of a calibration target (:func:`cirl_study.analysis.calibration.
+    """One published cell of a calibration target (:func:`cirl_study.analysis.calibration.results.
     read_target`): a measure's mean in one ``num_features`` x ``human`` cell, of ``robot``
     (``None``: the reference robot of each universe), and its uncertainty on the log scale
     (``log_se``: the standard error of :math:`\\ln` of the value; ``None`` when the target
@@ -850,8 +851,8 @@ class RefinementProbe(Record, kw_only=True):
 
 class Refinement(Record, kw_only=True):
     """The coordinate search from the nearest universe (``start``) over the numeric settings
-    ``axes`` (:mod:`cirl_study.analysis.refine`): its step factors, from ``first_step`` down
-    to ``min_step``, its budget, every point measured, the probes played now and reused, why
+    ``axes`` (:mod:`cirl_study.analysis.calibration.refine`): its step factors, from ``first_step``
+    down to ``min_step``, its budget, every point measured, the probes played now and reused, why
     it stopped (``exact``, ``converged`` or ``budget``) and the universe it ended at with its
     distance (``final``; ``start``'s own when no probe was nearer)."""
 
@@ -868,10 +869,10 @@ class Refinement(Record, kw_only=True):
 
 
 class CalibrationResults(Record, kw_only=True):
-    """``results.json`` of a calibration (:func:`cirl_study.analysis.calibration.calibrate`):
-    the target, every universe's distance to it (ranked universes first, nearest first), the
-    axes, the claims judged in the nearest universe, and with ``--refine`` the refinement
-    (left out without)."""
+    """``results.json`` of a calibration
+    (:func:`cirl_study.analysis.calibration.results.calibrate`): the target, every universe's
+    distance to it (ranked universes first, nearest first), the axes, the claims judged in the
+    nearest universe, and with ``--refine`` the refinement (left out without)."""
 
     pipeline: str
     target_file: str
@@ -915,7 +916,7 @@ def json_schema(kind: type[msgspec.Struct]) -> dict[str, Any]:
 
 def write_schemas(directory: Path | str) -> None:
     """Write the schema files of :data:`SCHEMAS` into ``directory`` (``docs/``): ``python -c
-    "from cirl_study.analysis.result_types import write_schemas; write_schemas('docs')"``."""
+    "from cirl_study.analysis.results.types import write_schemas; write_schemas('docs')"``."""
     for name, kind in SCHEMAS.items():
         text = json.dumps(json_schema(kind), indent=2, sort_keys=True)
         (Path(directory) / name).write_text(text + "\n", encoding="utf-8", newline="\n")

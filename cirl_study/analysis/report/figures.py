@@ -36,7 +36,7 @@ from matplotlib.lines import Line2D
 from matplotlib.textpath import TextPath
 from numpy.typing import NDArray
 
-from cirl_study.analysis.markdown import HIGHER_IS_BETTER, svg_name
+from cirl_study.analysis.report.markdown import HIGHER_IS_BETTER, svg_name
 from cirl_study.core.gridworld import feature_matrix
 from cirl_study.features import RBFFeatures, TileFeatures
 from cirl_study.measure_registry import MEASURES, analysed_measures
@@ -410,7 +410,7 @@ def measure_label(measure: str) -> str:
 
 def _titled(measure: str) -> str:
     """A panel's title: the measure's label, marked with
-    :data:`~cirl_study.analysis.markdown.HIGHER_IS_BETTER` where a higher value is better."""
+    :data:`~cirl_study.analysis.report.markdown.HIGHER_IS_BETTER` where a higher value is better."""
     higher = "" if MEASURES[measure].lower_is_better else f" {HIGHER_IS_BETTER}"
     return measure_label(measure) + higher
 
@@ -644,7 +644,7 @@ def eta_curve(means: pd.DataFrame, choice: pd.DataFrame) -> Rendered:
     Args:
         means: rows ``num_features, eta, mean, ci95_low, ci95_high``.
         choice: rows ``num_features, eta, mean, se``
-            (:func:`cirl_study.analysis.statistics.eta_choice_uncertainty`).
+            (:func:`cirl_study.analysis.statistics.procedures.eta_choice_uncertainty`).
     """
     levels = sorted(means["num_features"].unique())
     style = {
@@ -683,7 +683,7 @@ def robot_difference_curve(sweep: pd.DataFrame, reference: str, other: str) -> R
 
     Args:
         sweep: rows ``measure, rationality, num_features, human, mean_diff, ci95_low,
-            ci95_high`` (:func:`cirl_study.analysis.statistics.paired_differences`).
+            ci95_high`` (:func:`cirl_study.analysis.statistics.procedures.paired_differences`).
         reference: the reference robot's name.
         other: the other robot's name.
     """

@@ -1,5 +1,5 @@
 """Each test of every measure: the computations of the registered tests
-(:mod:`cirl_study.analysis.study_tests`), and the per-measure tests of the teaching sections.
+(:mod:`cirl_study.analysis.results.registry`), and the per-measure tests of the teaching sections.
 
 A registered test's computation (``anova``, ``pairwise``, ``against_baseline``; the paper's
 ``paper_anova``, ``simple_effects``, ``tukey_hsd``, ``wilcoxon``) returns its rows of one
@@ -19,10 +19,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cirl_study.analysis import statistics
-from cirl_study.analysis.anova import refuse_non_finite, repeated_measures_anova
-from cirl_study.analysis.cells import Design
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.results.cells import Design
+from cirl_study.analysis.results.registry import registered
+from cirl_study.analysis.results.types import (
     AnovaEffect,
     PairedComparison,
     PairedDifference,
@@ -33,7 +32,8 @@ from cirl_study.analysis.result_types import (
     Undefined,
     WilcoxonRow,
 )
-from cirl_study.analysis.study_tests import registered
+from cirl_study.analysis.statistics import procedures as statistics
+from cirl_study.analysis.statistics.anova import refuse_non_finite, repeated_measures_anova
 from cirl_study.errors import UserError
 from cirl_study.measure_registry import MEASURES, analysed_measures
 
@@ -68,8 +68,8 @@ def measured(frame: pd.DataFrame) -> Iterator[tuple[str, pd.DataFrame]]:
     averaged; a measure without a value in ``frame`` has no statistics and is not yielded.
 
     A value no record can hold is refused
-    (:func:`~cirl_study.analysis.anova.refuse_non_finite`), as the record checks refuse it
-    (:func:`~cirl_study.measure_registry.measure_faults`): an infinity, and NaN where the
+    (:func:`~cirl_study.analysis.statistics.anova.refuse_non_finite`), as the record checks refuse
+    it (:func:`~cirl_study.measure_registry.measure_faults`): an infinity, and NaN where the
     measure has a value in every trial (:attr:`~cirl_study.measure_registry.Measure.undefined`
     is ``None``), so a frame handed to the analysis with a NaN there is a fault, never
     averaged nor silently dropped.
@@ -123,8 +123,8 @@ def run_tests(record: type[Record], frame: pd.DataFrame, design: Design) -> dict
 def paired_rows(
     frame: pd.DataFrame, factor: str, baseline: str, by: list[str]
 ) -> Table[PairedDifference]:
-    """:func:`~cirl_study.analysis.statistics.paired_differences` for every measure, one Holm
-    family per measure."""
+    """:func:`~cirl_study.analysis.statistics.procedures.paired_differences` for every measure, one
+    Holm family per measure."""
     return Table(
         PairedDifference,
         (
@@ -136,7 +136,7 @@ def paired_rows(
 
 
 def _anova(frame: pd.DataFrame, measure: str, within: list[str]) -> list[AnovaEffect]:
-    """:func:`~cirl_study.analysis.anova.repeated_measures_anova` of ``measure`` with
+    """:func:`~cirl_study.analysis.statistics.anova.repeated_measures_anova` of ``measure`` with
     ``num_features`` between subjects where ``frame`` has two levels or more of it."""
     between = "num_features" if frame["num_features"].nunique() > 1 else None
     return repeated_measures_anova(frame, measure, within, between)
@@ -158,8 +158,8 @@ def anova(frame: pd.DataFrame, measure: str, design: Design) -> list[AnovaEffect
 
 def pairwise(frame: pd.DataFrame, measure: str, design: Design) -> list[PairedComparison]:
     """The registered ``pairwise``: every pair of humans, and of robots, in every cell of the
-    other factors (:func:`~cirl_study.analysis.statistics.pairwise_differences`; one Holm family
-    per factor)."""
+    other factors (:func:`~cirl_study.analysis.statistics.procedures.pairwise_differences`; one
+    Holm family per factor)."""
     factors = (("human", design.humans), ("robot", design.robots))
     return [
         row
@@ -171,8 +171,8 @@ def pairwise(frame: pd.DataFrame, measure: str, design: Design) -> list[PairedCo
 
 def against_baseline(frame: pd.DataFrame, measure: str, design: Design) -> list[PairedDifference]:
     """The registered ``against_baseline``: every other human against the baseline per robot
-    and feature level (:func:`~cirl_study.analysis.statistics.paired_differences`); none with
-    one human."""
+    and feature level (:func:`~cirl_study.analysis.statistics.procedures.paired_differences`); none
+    with one human."""
     if not design.humans[1:]:
         return []
     return statistics.paired_differences(
@@ -187,15 +187,17 @@ def paper_anova(frame: pd.DataFrame, measure: str, design: Design) -> list[Anova
 
 def simple_effects(frame: pd.DataFrame, measure: str, design: Design) -> list[SimpleEffect]:
     """The registered ``paper.simple_effects``
-    (:func:`~cirl_study.analysis.statistics.simple_effects`)."""
+    (:func:`~cirl_study.analysis.statistics.procedures.simple_effects`)."""
     return statistics.simple_effects(frame, measure)
 
 
 def tukey_hsd(frame: pd.DataFrame, measure: str, design: Design) -> list[TukeyRow]:
-    """The registered ``paper.tukey_hsd`` (:func:`~cirl_study.analysis.statistics.tukey_hsd`)."""
+    """The registered ``paper.tukey_hsd``
+    (:func:`~cirl_study.analysis.statistics.procedures.tukey_hsd`)."""
     return statistics.tukey_hsd(frame, measure)
 
 
 def wilcoxon(frame: pd.DataFrame, measure: str, design: Design) -> list[WilcoxonRow]:
-    """The registered ``paper.wilcoxon`` (:func:`~cirl_study.analysis.statistics.wilcoxon`)."""
+    """The registered ``paper.wilcoxon``
+    (:func:`~cirl_study.analysis.statistics.procedures.wilcoxon`)."""
     return statistics.wilcoxon(frame, measure)

@@ -1,15 +1,15 @@
 """The teaching sections of ``report.md``: Milli & Dragan's 2 x 2, the paper's best response
 against the pedagogic human, and every human against the regret-optimal demonstration
-(:mod:`cirl_study.analysis.teaching`). Each is a function of the results alone and returns its
-lines, or none when the run lacks the section's cells.
+(:mod:`cirl_study.analysis.results.teaching`). Each is a function of the results alone and returns
+its lines, or none when the run lacks the section's cells.
 """
 
 from __future__ import annotations
 
-from cirl_study.analysis.markdown import ci, formatted, table
-from cirl_study.analysis.result_types import StudyResults
-from cirl_study.analysis.sections import heading
-from cirl_study.analysis.study_report import anova_table, paired_table
+from cirl_study.analysis.report.markdown import ci, formatted, table
+from cirl_study.analysis.report.sections import heading
+from cirl_study.analysis.report.study_sections import anova_table, paired_table
+from cirl_study.analysis.results.types import StudyResults
 
 
 def _section(key: str, *blocks: str) -> list[str]:

@@ -39,8 +39,9 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from cirl_study.analysis.multiverse import PAPER_CLAIMS, settings, universe_trials
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.multiverse.results import PAPER_CLAIMS, settings, universe_trials
+from cirl_study.analysis.results.study import analyse, with_claims
+from cirl_study.analysis.results.types import (
     AxisDistance,
     CalibrationResults,
     CellComparison,
@@ -49,9 +50,8 @@ from cirl_study.analysis.result_types import (
     TargetCell,
     UniverseDistance,
 )
-from cirl_study.analysis.results import analyse, with_claims
+from cirl_study.analysis.statistics.tails import chi2_tail
 from cirl_study.analysis.table import trial_table
-from cirl_study.analysis.tails import chi2_tail
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.files import read_regular_file
@@ -324,7 +324,7 @@ def _distance(
     means: Mapping[CellKey, Measured],
     target: Sequence[TargetCell],
 ) -> UniverseDistance:
-    """One universe's :class:`~cirl_study.analysis.result_types.UniverseDistance`."""
+    """One universe's :class:`~cirl_study.analysis.results.types.UniverseDistance`."""
     cells, missing = [], []
     for cell in target:
         key = _key(cell, reference)
@@ -377,7 +377,7 @@ def _distance(
 
 def _axes(ranked: Sequence[UniverseDistance]) -> list[AxisDistance]:
     """Per axis that varies among the ``ranked`` universes (nearest first), its levels'
-    distances (:class:`~cirl_study.analysis.result_types.AxisDistance`)."""
+    distances (:class:`~cirl_study.analysis.results.types.AxisDistance`)."""
     summaries = []
     for axis in AXES:
         levels = list(dict.fromkeys(u.settings[axis] for u in ranked if axis in u.settings))

@@ -3,7 +3,7 @@
 Every file is written with ``\\n`` line ends and UTF-8, so identical results give identical
 bytes on every platform; ``provenance.json`` (what made the report, which differs from machine
 to machine by design) is apart from the numbers. A report replaces another by being written
-into a fresh directory, swapped in whole (:mod:`cirl_study.analysis.replacement`).
+into a fresh directory, swapped in whole (:mod:`cirl_study.analysis.report.replacement`).
 """
 
 from __future__ import annotations
@@ -82,7 +82,7 @@ def write_report_directory(
     its file as :func:`csv_file` made it), the ``figures`` (by file name; ``None``: a figure
     the run has no data for, not written) and ``provenance.json`` (if given) into
     ``out_dir``, created if needed. It writes in place: to replace a report, write it into
-    the stage of :func:`~cirl_study.analysis.replacement.replacing_report`.
+    the stage of :func:`~cirl_study.analysis.report.replacement.replacing_report`.
 
     Every file is written by :func:`cirl_study.files.write_file`: a link or anything but a
     regular file in a file's place is refused, never written through.

@@ -1,24 +1,24 @@
 """The teaching sections of a study's results: humans who teach and robots who read them.
 
-Each section is computed where the run has its cells (:mod:`cirl_study.analysis.cells`), and
-is ``None`` otherwise (:func:`cirl_study.analysis.results.tests`); its paired sections hold
+Each section is computed where the run has its cells (:mod:`cirl_study.analysis.results.cells`), and
+is ``None`` otherwise (:func:`cirl_study.analysis.results.study.tests`); its paired sections hold
 each measure the analysis tests, and the gap to the regret-optimal demonstration is in regret
 (a loss: lower is better):
 
-* ``milli_dragan`` (:data:`~cirl_study.analysis.cells.MILLI_DRAGAN`): the 2 x 2 of Milli &
+* ``milli_dragan`` (:data:`~cirl_study.analysis.results.cells.MILLI_DRAGAN`): the 2 x 2 of Milli &
   Dragan (2019), human {literal, pedagogic} x robot {literal_observer, pragmatic}: the
   repeated-measures ANOVA with both within subjects and the feature level between
-  (:func:`cirl_study.analysis.anova.repeated_measures_anova`), and the simple effect of the
-  robot, ``pragmatic - literal_observer``, under each human, pooled over the feature levels and
+  (:func:`cirl_study.analysis.statistics.anova.repeated_measures_anova`), and the simple effect of
+  the robot, ``pragmatic - literal_observer``, under each human, pooled over the feature levels and
   at each (paired t, Holm per measure);
-* ``best_response_vs_pedagogic`` (:data:`~cirl_study.analysis.cells.VERSUS_PEDAGOGIC`): per
+* ``best_response_vs_pedagogic`` (:data:`~cirl_study.analysis.results.cells.VERSUS_PEDAGOGIC`): per
   robot and feature level, ``best_response - pedagogic``, paired (Holm per measure);
-* ``regret_optimal`` (:data:`~cirl_study.analysis.cells.REGRET_OPTIMAL_GAP`): with the MAP
+* ``regret_optimal`` (:data:`~cirl_study.analysis.results.cells.REGRET_OPTIMAL_GAP`): with the MAP
   robot, every human's regret gap to the regret-optimal demonstration, ``regret(human) -
   regret(regret_optimal)``, per feature level (paired t, its smallest value, and the share of
   subjects at which the human's demonstration is as good as the best found).
 
-The claims that read them are in :mod:`cirl_study.analysis.claims`.
+The claims that read them are in :mod:`cirl_study.analysis.results.claims`.
 """
 
 from __future__ import annotations
@@ -26,15 +26,15 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from cirl_study.analysis import statistics
-from cirl_study.analysis.measure_rows import anova_rows, paired_rows
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.results.per_measure import anova_rows, paired_rows
+from cirl_study.analysis.results.types import (
     MilliDragan,
     PairedDifference,
     RegretGap,
     RegretOptimal,
     Table,
 )
+from cirl_study.analysis.statistics import procedures as statistics
 from cirl_study.record import (
     BEST_RESPONSE,
     LITERAL,

@@ -93,7 +93,7 @@ class Replacement:
     """The fresh directory to write the new report into."""
     differences: list[str] | None = None
     """With ``keep_if_equal``, after the block: every difference from the report that was
-    there (:func:`cirl_study.analysis.compare.compare_reports`); ``None`` if there was none
+    there (:func:`cirl_study.analysis.report.compare.compare_reports`); ``None`` if there was none
     to compare with."""
 
     @property
@@ -235,7 +235,7 @@ def _existing_mode(target: Path, absolute: Path) -> int | None:
 def _differences(existing: Path, new: Path) -> list[str] | None:
     """Every difference between the report ``existing`` (``None`` if it has no results and
     table to compare) and ``new``; a report there that cannot be read differs."""
-    from cirl_study.analysis.compare import compare_reports
+    from cirl_study.analysis.report.compare import compare_reports
 
     if not (existing / "results.json").is_file() or not any(existing.glob("*.csv")):
         return None

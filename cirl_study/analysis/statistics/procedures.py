@@ -1,8 +1,8 @@
 """The statistical tests of the study (docs/design.md §5), one function per test.
 
 Every function takes a slice of the trial table (:func:`cirl_study.analysis.table.trial_table`)
-and returns its typed rows at full precision (a :class:`~cirl_study.analysis.result_types.Table`
-of rows of :mod:`cirl_study.analysis.result_types`, whose ``to_frame()`` is the tidy
+and returns its typed rows at full precision (a :class:`~cirl_study.analysis.results.types.Table`
+of rows of :mod:`cirl_study.analysis.results.types`, whose ``to_frame()`` is the tidy
 :class:`pandas.DataFrame`), or its typed record. Notation:
 ``y_{s,p}`` is a measure of subject (reward draw) ``s`` under human ``p``, subject ``s``
 belongs to exactly one feature level ``g(s)``; ``d_s = y_{s,br} - y_{s,expert}`` is its
@@ -26,7 +26,7 @@ import pandas as pd
 import pingouin as pg
 from scipy import special, stats
 
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.results.types import (
     CellMean,
     CronbachAlpha,
     EtaMean,
@@ -40,8 +40,8 @@ from cirl_study.analysis.result_types import (
     TukeyRow,
     WilcoxonRow,
 )
-from cirl_study.analysis.studentized_range import studentized_range_log10_sf
-from cirl_study.analysis.tails import NORMAL_TAIL, p_from_log10, t_tail
+from cirl_study.analysis.statistics.studentized_range import studentized_range_log10_sf
+from cirl_study.analysis.statistics.tails import NORMAL_TAIL, p_from_log10, t_tail
 from cirl_study.record import BEST_RESPONSE, EXPERT, PAPER_HUMANS
 
 CONFIDENCE = 0.95
@@ -200,7 +200,7 @@ def _d_z(differences: np.ndarray, axis: int = -1) -> np.ndarray:
 
 class PairedTest(NamedTuple):
     """A paired t-test of ``d = first - second`` (:func:`_paired_t`): the fields of
-    :class:`~cirl_study.analysis.result_types.PairedT`, NaN where undefined."""
+    :class:`~cirl_study.analysis.results.types.PairedT`, NaN where undefined."""
 
     mean_diff: float
     ci95_low: float
@@ -215,7 +215,7 @@ class PairedTest(NamedTuple):
 def _paired_t(first: np.ndarray, second: np.ndarray) -> PairedTest:
     """Paired t-test of ``d = first - second``: ``mean_diff``, its t-based CI, ``t``, ``df``,
     ``p`` (two-sided, ``scipy.stats.ttest_rel``), ``log10_p`` (in log space,
-    :func:`cirl_study.analysis.tails.t_tail`) and ``d_z``."""
+    :func:`cirl_study.analysis.statistics.tails.t_tail`) and ``d_z``."""
     difference = first - second
     test = stats.ttest_rel(first, second)
     interval = test.confidence_interval(CONFIDENCE)
@@ -446,7 +446,7 @@ def tukey_hsd(main: pd.DataFrame, measure: str) -> Table[TukeyRow]:
     on (``k = 4``, ``N = 2000``), so they are not computed. Here
     ``p_tukey`` is the accurate tail ``P(Q > q)`` (relative error ``<= 1e-8``) and
     ``log10_p_tukey`` its common logarithm, computed in log space by
-    :func:`cirl_study.analysis.studentized_range.studentized_range_log10_sf`: where the
+    :func:`cirl_study.analysis.statistics.studentized_range.studentized_range_log10_sf`: where the
     p-value is below the smallest double, ``p_tukey`` is 0.0 and ``log10_p_tukey`` holds it.
 
     References:
@@ -549,7 +549,7 @@ def wilcoxon(main: pd.DataFrame, measure: str) -> Table[WilcoxonRow]:
 def wilcoxon_log10_p(differences: np.ndarray, p: float) -> float:
     """``log10 p`` of the two-sided signed-rank test ``p`` of ``scipy.stats.wilcoxon`` (zeros
     dropped, continuity correction), in log space where ``p`` is below
-    :data:`~cirl_study.analysis.tails.NORMAL_TAIL`.
+    :data:`~cirl_study.analysis.statistics.tails.NORMAL_TAIL`.
 
     There SciPy used the normal approximation (its exact null has ``p >= 2^(1-n)``, and it is
     exact only up to ``n = 50``): ``z = (T - n (n + 1) / 4 - sign / 2) / se``, ``T`` the smaller

@@ -32,7 +32,7 @@ P_VALUES = ("p", "p_holm", "p_tukey")
 
 Column = str | Callable[[Any], str]
 """A column of a statistics table: a field of the rows (an attribute of the typed results,
-:mod:`cirl_study.analysis.result_types`), or a function of the row."""
+:mod:`cirl_study.analysis.results.types`), or a function of the row."""
 
 
 def number(value: float | int | None, digits: int = 4) -> str:
@@ -49,8 +49,8 @@ def p_value(value: float | None) -> str:
 
     Every p-value of the study is accurate down to the smallest normal double (t and F tails
     by scipy's regularised incomplete beta, the Tukey tail by
-    :func:`cirl_study.analysis.studentized_range.studentized_range_sf`), so a p of 0 means the
-    true value is below ``2.2e-308``: the bound printed holds.
+    :func:`cirl_study.analysis.statistics.studentized_range.studentized_range_sf`), so a p of 0
+    means the true value is below ``2.2e-308``: the bound printed holds.
     """
     if value is None:
         return "–"

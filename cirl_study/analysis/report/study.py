@@ -1,10 +1,11 @@
 """The report of a run: ``report.md``, ``results.json``, ``trials.csv`` and the figures.
 
 :func:`write_report` turns trial records of any study into a directory that reads well on
-GitHub: every claim (:mod:`cirl_study.analysis.claims`) with its verdict and links to the
+GitHub: every claim (:mod:`cirl_study.analysis.results.claims`) with its verdict and links to the
 tables and figures that support it, then every section the run's design has
-(:mod:`~cirl_study.analysis.study_report`, :mod:`~cirl_study.analysis.paper_report`,
-:mod:`~cirl_study.analysis.teaching_report`). The output is a deterministic function of the
+(:mod:`~cirl_study.analysis.report.study_sections`,
+:mod:`~cirl_study.analysis.report.paper_sections`,
+:mod:`~cirl_study.analysis.report.teaching_sections`). The output is a deterministic function of the
 records (their order does not matter): no timestamps, no machine paths, and byte-identical
 files for identical input.
 """
@@ -18,13 +19,13 @@ from typing import Any
 import msgspec
 
 from cirl_study import escape
-from cirl_study.analysis import figures, paper_report, study_report, teaching_report
-from cirl_study.analysis.cells import papers_own
-from cirl_study.analysis.markdown import document, measure_name, number, svg_name, table
-from cirl_study.analysis.output import csv_file, write_report_directory
-from cirl_study.analysis.result_types import ClaimRow, Estimates, StudyResults, Teaching, Undefined
-from cirl_study.analysis.results import estimates, tests, with_claims
-from cirl_study.analysis.sections import (
+from cirl_study.analysis.report import figures
+from cirl_study.analysis.report import paper_sections as paper_report
+from cirl_study.analysis.report import study_sections as study_report
+from cirl_study.analysis.report import teaching_sections as teaching_report
+from cirl_study.analysis.report.markdown import document, measure_name, number, svg_name, table
+from cirl_study.analysis.report.output import csv_file, write_report_directory
+from cirl_study.analysis.report.sections import (
     CELL_MEANS,
     ETA_CV_CURVE,
     FIGURE1,
@@ -36,7 +37,10 @@ from cirl_study.analysis.sections import (
     heading,
     link,
 )
-from cirl_study.analysis.study_tests import held_tests
+from cirl_study.analysis.results.cells import papers_own
+from cirl_study.analysis.results.registry import held_tests
+from cirl_study.analysis.results.study import estimates, tests, with_claims
+from cirl_study.analysis.results.types import ClaimRow, Estimates, StudyResults, Teaching, Undefined
 from cirl_study.analysis.table import check_design, trial_table
 from cirl_study.measure_registry import MEASURES, PAPER_MEASURES, analysed_measures
 from cirl_study.record import BEST_RESPONSE, EXPERT, MAIN, PAPER_HUMANS, TrialRecord, TrialRow
@@ -253,9 +257,9 @@ def _drawings(
     records_of: Callable[[set[str]], Sequence[TrialRecord]],
     estimated: Estimates,
 ) -> dict[str, Call]:
-    """The drawing of every figure the estimates (:func:`~cirl_study.analysis.results.estimates`)
-    support, by PNG name. Figure 1 draws two whole records, fetched by trial id with
-    ``records_of``."""
+    """The drawing of every figure the estimates
+    (:func:`~cirl_study.analysis.results.study.estimates`) support, by PNG name. Figure 1 draws two
+    whole records, fetched by trial id with ``records_of``."""
     design = estimated.design
     reference = design.reference_robot
     drawings: dict[str, Call] = {}
@@ -348,7 +352,8 @@ def write_report(
         records_of: the whole records of the given trial ids (for Figure 1), e.g. read
             back from the logs (:attr:`cirl_study.analysis.reading.AnalysedRun.records`).
         run_id: the run's id, stored as ``run_id`` in ``results.json``.
-        theory: optional extra claims (see :func:`cirl_study.analysis.claims.external_claims`);
+        theory: optional extra claims (see
+        :func:`cirl_study.analysis.results.claims.external_claims`);
             stored under ``theory`` in ``results.json``.
         provenance: optional provenance, written as ``provenance.json``.
         partial: for a report on an incomplete run, what it lacks (``planned``, ``logged``,

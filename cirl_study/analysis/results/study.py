@@ -2,7 +2,7 @@
 
 One analysis serves every design of humans x robots x feature levels (``docs/pipelines.md``):
 :func:`analyse` builds the study's typed results
-(:class:`~cirl_study.analysis.result_types.StudyResults`, floats at full precision, ``None``
+(:class:`~cirl_study.analysis.results.types.StudyResults`, floats at full precision, ``None``
 for an undefined number), statistic by statistic; :func:`with_claims` adds what the report
 adds (its run's id, what a partial run lacks, the claims judged on them): what the report
 reads and ``results.json`` stores. Its halves, :func:`estimates` (everything the figures
@@ -11,8 +11,8 @@ report draws its figures in worker processes while it computes the tests. Every 
 section holds each
 measure the analysis tests (:func:`~cirl_study.measure_registry.analysed_measures`, in
 the registry's order), each on the trials that have a value of it
-(:func:`~cirl_study.analysis.measure_rows.measured`: a reward draw without a value of a measure
-in some trial is left out of all that measure's statistics); Cronbach's alpha, the paper's
+(:func:`~cirl_study.analysis.results.per_measure.measured`: a reward draw without a value of a
+measure in some trial is left out of all that measure's statistics); Cronbach's alpha, the paper's
 three (:data:`~cirl_study.measure_registry.PAPER_MEASURES`).
 
 The sections, by key:
@@ -22,33 +22,35 @@ The sections, by key:
   cross-validation), the feature levels and subjects per level, the main block's rationality
   and etas, the sweep's rationalities, the teaching players' hypothesis space;
 * ``cells``: each measure's mean with its t-based 95% CI per feature level, human and robot
-  (:func:`cirl_study.analysis.statistics.group_means`);
+  (:func:`cirl_study.analysis.statistics.procedures.group_means`);
 * ``anova``: per measure, the repeated-measures ANOVA with ``human`` and, with
   two robots or more, ``robot`` within subjects and ``num_features`` between (with two levels
   or more), sphericity tested and corrected
-  (:func:`cirl_study.analysis.anova.repeated_measures_anova`);
+  (:func:`cirl_study.analysis.statistics.anova.repeated_measures_anova`);
 * ``pairwise``: per measure and within factor, every pair of its levels in every cell of the
   other factors, paired by subject, Holm over the measure's and factor's rows
-  (:func:`cirl_study.analysis.statistics.pairwise_differences`);
+  (:func:`cirl_study.analysis.statistics.procedures.pairwise_differences`);
 * ``against_baseline``: per robot and feature level, each human against the baseline,
-  paired (:func:`cirl_study.analysis.statistics.paired_differences`, Holm per measure);
-  these three are the main block's registered tests (:mod:`cirl_study.analysis.study_tests`,
-  computed in :mod:`cirl_study.analysis.measure_rows`);
+  paired (:func:`cirl_study.analysis.statistics.procedures.paired_differences`, Holm per measure);
+  these three are the main block's registered tests (:mod:`cirl_study.analysis.results.registry`,
+  computed in :mod:`cirl_study.analysis.results.per_measure`);
 * ``lambda_sweep``: the means of the sweep per rationality, human, robot and feature level;
 * ``eta_cv``: the cross-validation of the best response's eta (:func:`eta_cv`);
 * ``converged``: per robot, block and rationality, the trials whose estimate met
   the robot's stopping rule;
-* ``paper``, where the run has the paper's humans (:data:`~cirl_study.analysis.cells.PAPER`):
-  the paper's analyses on the reference robot's trials of the expert and the best response:
-  its registered tests, the mixed ANOVA, the simple effects of human, Tukey HSD as the paper
-  ran it and the Wilcoxon checks (each per measure), Cronbach's alpha of the paper's three
-  measures (:func:`paper_tests`), and the reward draw of Figure 1;
+* ``paper``, where the run has the paper's humans
+  (:data:`~cirl_study.analysis.results.cells.PAPER`): the paper's analyses on the reference robot's
+  trials of the expert and the best response: its registered tests, the mixed ANOVA, the simple
+  effects of human, Tukey HSD as the paper ran it and the Wilcoxon checks (each per measure),
+  Cronbach's alpha of the paper's three measures (:func:`paper_tests`), and the reward draw of
+  Figure 1;
 * ``robots``, with two robots or more: every other robot against the reference, paired, in
   the main block and at every rationality of the sweep (:func:`robot_comparison`);
-* the teaching sections, where the run has their cells (:mod:`cirl_study.analysis.teaching`);
+* the teaching sections, where the run has their cells
+  (:mod:`cirl_study.analysis.results.teaching`);
 * ``undefined``, only where some trials have no value of a measure (``None`` otherwise): per
   such measure, those trials and their reward draws, left out of its statistics
-  (:func:`~cirl_study.analysis.measure_rows.undefined`).
+  (:func:`~cirl_study.analysis.results.per_measure.undefined`).
 """
 
 from __future__ import annotations
@@ -59,16 +61,22 @@ from typing import Any
 import msgspec
 import pandas as pd
 
-from cirl_study.analysis import statistics, teaching
-from cirl_study.analysis.cells import (
+from cirl_study.analysis.results import teaching
+from cirl_study.analysis.results.cells import (
     MILLI_DRAGAN,
     PAPER,
     REGRET_OPTIMAL_GAP,
     VERSUS_PEDAGOGIC,
     Design,
 )
-from cirl_study.analysis.measure_rows import measured, paired_rows, plain, run_tests, undefined
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.results.per_measure import (
+    measured,
+    paired_rows,
+    plain,
+    run_tests,
+    undefined,
+)
+from cirl_study.analysis.results.types import (
     CellMean,
     ClaimRow,
     Converged,
@@ -88,6 +96,7 @@ from cirl_study.analysis.result_types import (
     Table,
     Teaching,
 )
+from cirl_study.analysis.statistics import procedures as statistics
 from cirl_study.analysis.table import trial_table
 from cirl_study.core.players import reference_robot
 from cirl_study.errors import UserError
@@ -192,14 +201,14 @@ def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> EtaCrossValidatio
     """The cross-validation of the best response's eta, and whether the main block used it.
 
     ``means``: mean best-response regret with its CI per feature level and eta
-    (:func:`~cirl_study.analysis.statistics.eta_means`). ``uncertainty``: how clear-cut each
-    choice is (:func:`~cirl_study.analysis.statistics.eta_choice_uncertainty`). ``chosen``:
-    per feature level, the eta :func:`~cirl_study.study.eta_cv.choose_etas` picks from the
-    ``eta_cv`` rows of ``trials`` (the choice the run made) and its mean regret. ``main_block``: per
-    feature level of the ``main`` block, the etas its best-response trials were played with
-    (``main_etas``, one in a sound run), the cross-validated eta (``chosen_eta``, ``None`` without
-    cross-validation at that level) and whether they agree (``None`` when there is nothing
-    to compare with).
+    (:func:`~cirl_study.analysis.statistics.procedures.eta_means`). ``uncertainty``: how clear-cut
+    each choice is (:func:`~cirl_study.analysis.statistics.procedures.eta_choice_uncertainty`).
+    ``chosen``: per feature level, the eta :func:`~cirl_study.study.eta_cv.choose_etas` picks from
+    the ``eta_cv`` rows of ``trials`` (the choice the run made) and its mean regret.
+    ``main_block``: per feature level of the ``main`` block, the etas its best-response trials were
+    played with (``main_etas``, one in a sound run), the cross-validated eta (``chosen_eta``,
+    ``None`` without cross-validation at that level) and whether they agree (``None`` when there is
+    nothing to compare with).
 
     Raises:
         UserError: the ``eta_cv`` trials admit no choice (see ``choose_etas``).
@@ -265,8 +274,8 @@ def robot_comparison(table: pd.DataFrame, reference: str) -> RobotComparison:
 
     ``main``: per measure, the paired difference ``other - reference`` within each feature
     level and human, Holm over the measure's cells
-    (:func:`~cirl_study.analysis.statistics.paired_differences`). ``lambda_sweep``: the same
-    per rationality, feature level and human of the sweep, Holm over the measure's whole
+    (:func:`~cirl_study.analysis.statistics.procedures.paired_differences`). ``lambda_sweep``: the
+    same per rationality, feature level and human of the sweep, Holm over the measure's whole
     sweep. A negative difference means the other robot did better.
     """
     main = table[table["block"] == MAIN]
@@ -357,8 +366,8 @@ def estimates(
 def tests(estimated: Estimates, everything: pd.DataFrame, pipeline: Pipeline) -> StudyResults:
     """The results of :func:`analyse`: the ``estimated`` sections of the trials' table
     ``everything`` with the tests of the study's design, those the results register
-    (:func:`~cirl_study.analysis.measure_rows.run_tests`), the paper's (``paper``,
-    :func:`paper_tests`) and the teaching sections (:mod:`cirl_study.analysis.teaching`)."""
+    (:func:`~cirl_study.analysis.results.per_measure.run_tests`), the paper's (``paper``,
+    :func:`paper_tests`) and the teaching sections (:mod:`cirl_study.analysis.results.teaching`)."""
     design = design_of(everything, pipeline)
     main = everything[everything["block"] == MAIN]
     return StudyResults(
@@ -390,7 +399,7 @@ def tests(estimated: Estimates, everything: pd.DataFrame, pipeline: Pipeline) ->
 
 def paper_tests(paper_main: pd.DataFrame, design: Design, figure1: Figure1) -> PaperSection:
     """The paper's tests on the ``main`` block of its humans and the reference robot
-    (:func:`paper_main_block`): those :class:`~cirl_study.analysis.result_types.PaperSection`
+    (:func:`paper_main_block`): those :class:`~cirl_study.analysis.results.types.PaperSection`
     registers (each per measure), ``cronbach_alpha`` (of the paper's three measures), and the
     reward draw of Figure 1."""
     rows = (
@@ -413,9 +422,9 @@ def with_claims(
     """``results`` with what the report adds to them: the run's id, what a partial run lacks
     (``None`` for a complete one: its ``planned``, ``logged``, ``missing``, ``damaged_files``
     and ``main_subjects_left_out``), ``theory`` itself (when given) and every claim judged on
-    them (:func:`cirl_study.analysis.claims.evaluate_claims`, then those of ``theory``): the
+    them (:func:`cirl_study.analysis.results.claims.evaluate_claims`, then those of ``theory``): the
     content of ``results.json``."""
-    from cirl_study.analysis.claims import evaluate_claims
+    from cirl_study.analysis.results.claims import evaluate_claims
 
     return msgspec.structs.replace(
         results,

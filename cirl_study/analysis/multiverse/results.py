@@ -2,25 +2,26 @@
 
 :func:`analyse_multiverse` takes the rows of a multiverse run (:mod:`cirl_study.study.multiverse`)
 and its pipeline, and returns them typed
-(:class:`~cirl_study.analysis.result_types.MultiverseResults`):
+(:class:`~cirl_study.analysis.results.types.MultiverseResults`):
 
 * ``universes``: per universe, its settings, the paper's claims judged on its trials with the
-  paper report's own rules (:func:`cirl_study.analysis.claims.evaluate_claims` on
-  :func:`cirl_study.analysis.results.analyse` of its ``main`` block and the cross-validation it
-  used), the cross-validated etas, the paper's mixed ANOVA, the cell means and Cronbach's
+  paper report's own rules (:func:`cirl_study.analysis.results.claims.evaluate_claims` on
+  :func:`cirl_study.analysis.results.study.analyse` of its ``main`` block and the cross-validation
+  it used), the cross-validated etas, the paper's mixed ANOVA, the cell means and Cronbach's
   alpha;
 * ``effects``: per universe and measure of the paper's three
   (:data:`~cirl_study.measure_registry.PAPER_MEASURES`, those its claims are about; so
   ``regression`` and ``joint_test`` too), the human effect: the mean over every ``main``
   subject (both feature levels) of ``d_s = y_{s,br} - y_{s,expert}``, with its paired-t 95%
-  CI, ``t``, ``p`` and ``d_z`` (:func:`cirl_study.analysis.statistics.paired_differences`);
+  CI, ``t``, ``p`` and ``d_z``
+  (:func:`cirl_study.analysis.statistics.procedures.paired_differences`);
 * ``claims``: per claim, how many universes reproduce it (``tested`` universes only), whether
   the base universe does, and the share reproduced at each level of each axis;
 * ``regression``: per measure, an OLS regression of the universes' human effects on the axis
   levels (treatment coding, each axis's base level as the reference), with each axis's share
   of the effect's variance across universes (type II sums of squares over the total);
 * ``joint_test``: per measure, the joint test of Simonsohn et al. that the best response beats
-  the expert (:func:`cirl_study.analysis.statistics.joint_sign_flip_test`).
+  the expert (:func:`cirl_study.analysis.statistics.procedures.joint_sign_flip_test`).
 """
 
 from __future__ import annotations
@@ -35,9 +36,9 @@ import pandas as pd
 import statsmodels.api as sm
 from statsmodels.stats.anova import anova_lm
 
-from cirl_study.analysis import statistics
-from cirl_study.analysis.measure_rows import plain
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.results.per_measure import plain
+from cirl_study.analysis.results.study import analyse, with_claims
+from cirl_study.analysis.results.types import (
     ClaimShare,
     Coefficient,
     JointTest,
@@ -49,9 +50,9 @@ from cirl_study.analysis.result_types import (
     UniverseClaim,
     UniverseSummary,
 )
-from cirl_study.analysis.results import analyse, with_claims
+from cirl_study.analysis.statistics import procedures as statistics
+from cirl_study.analysis.statistics.tails import t_tail
 from cirl_study.analysis.table import check_design, trial_table
-from cirl_study.analysis.tails import t_tail
 from cirl_study.errors import UserError
 from cirl_study.measure_registry import MEASURES, PAPER_MEASURES
 from cirl_study.record import ETA_CV, EXPERT, MAIN, TrialRow
@@ -341,7 +342,8 @@ def _term(name: str, axes: list[str]) -> tuple[str | None, str | None]:
 
 
 def _joint_test(main: pd.DataFrame, measure: str) -> JointTest:
-    """:func:`~cirl_study.analysis.statistics.joint_sign_flip_test` on the ``main`` block."""
+    """:func:`~cirl_study.analysis.statistics.procedures.joint_sign_flip_test` on the ``main``
+    block."""
     wide = main.pivot_table(
         index="universe", columns=["subject", "human"], values=measure, aggfunc="first"
     ).sort_index()

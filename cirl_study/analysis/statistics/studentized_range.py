@@ -17,7 +17,7 @@ from collections.abc import Callable
 import numpy as np
 from scipy import integrate, special
 
-from cirl_study.analysis.tails import p_from_log10
+from cirl_study.analysis.statistics.tails import p_from_log10
 
 _LOG_TINY = math.log(np.finfo(np.float64).tiny)
 """Log of the smallest normal double, ``log(2.2250738585072014e-308)``."""
@@ -298,8 +298,9 @@ def studentized_range_log10_sf(q: float, k: int, df: float) -> float:
     The same integral, kept in log scale to the end: every ``log Phibar`` of the inner rule
     is ``scipy.special.log_ndtr`` of its argument, exact far into the tail, so ``log P`` is
     accurate below the smallest double as above it. Checked against the closed form for ``k
-    = 2`` (``P(Q > q) = P(|T_df| > q / sqrt 2)``, :func:`cirl_study.analysis.tails.t_tail`)
-    down to ``P = 1e-600``, and for ``k = 4`` between its Bonferroni bounds there.
+    = 2`` (``P(Q > q) = P(|T_df| > q / sqrt 2)``,
+    :func:`cirl_study.analysis.statistics.tails.t_tail`) down to ``P = 1e-600``, and for ``k = 4``
+    between its Bonferroni bounds there.
 
     Raises:
         ValueError: as :func:`studentized_range_sf`.

@@ -4,7 +4,7 @@ Each row's verdict is computed from the exact results of
 :func:`cirl_study.theory.office_supplies_results` (fractions compared exactly), never
 written by hand; those results are plain data (every number an exact fraction string), read
 here as the typed :class:`OfficeSupplies` (the parts the claims read). The rows have the shape
-:func:`cirl_study.analysis.claims.external_claims` expects:
+:func:`cirl_study.analysis.results.claims.external_claims` expects:
 
 1. ``office_supplies_thresholds``: in the optimal equilibrium the human makes (1, 1)
    exactly when theta is in [41/92, 51/92] (appendix; section 3.3).

@@ -43,7 +43,7 @@ freedom (R's ``mauchly.test``, ``car::Anova``):
   the effect's interaction with the between factor takes the same epsilons.
 
 Where these are not defined they are ``None`` (NaN until the results are made plain), and
-:attr:`~cirl_study.analysis.result_types.Sphericity.reason` says why (:func:`_sphericity`):
+:attr:`~cirl_study.analysis.results.types.Sphericity.reason` says why (:func:`_sphericity`):
 
 * no error variance (``tr E_T`` within rounding of 0, as the F test decides it): none of them;
 * fewer error degrees of freedom than contrasts (``n < d``): ``E_T`` is singular whatever the
@@ -55,7 +55,7 @@ Where these are not defined they are ``None`` (NaN until the results are made pl
   scored alike by every subject, do not have); the epsilons are reported, Box's epsilon being
   defined for any covariance of positive trace.
 
-Every p-value carries ``log10 p`` (:mod:`cirl_study.analysis.tails`), exact where ``p``
+Every p-value carries ``log10 p`` (:mod:`cirl_study.analysis.statistics.tails`), exact where ``p``
 underflows.
 
 References:
@@ -80,8 +80,8 @@ import numpy as np
 import pandas as pd
 from numpy.typing import NDArray
 
-from cirl_study.analysis.result_types import AnovaEffect, Probability, Sphericity
-from cirl_study.analysis.tails import chi2_tail, f_tail
+from cirl_study.analysis.results.types import AnovaEffect, Probability, Sphericity
+from cirl_study.analysis.statistics.tails import chi2_tail, f_tail
 from cirl_study.errors import UserError
 
 

@@ -20,8 +20,9 @@ import msgspec
 import pandas as pd
 
 from cirl_study import escape
-from cirl_study.analysis import figures
-from cirl_study.analysis.markdown import (
+from cirl_study.analysis.multiverse.results import PAPER_CLAIMS, analyse_multiverse, level_label
+from cirl_study.analysis.report import figures
+from cirl_study.analysis.report.markdown import (
     document,
     interval,
     measure_name,
@@ -29,9 +30,8 @@ from cirl_study.analysis.markdown import (
     p_value,
     table,
 )
-from cirl_study.analysis.multiverse import PAPER_CLAIMS, analyse_multiverse, level_label
-from cirl_study.analysis.output import write_report_directory
-from cirl_study.analysis.result_types import (
+from cirl_study.analysis.report.output import write_report_directory
+from cirl_study.analysis.results.types import (
     ClaimShare,
     LevelShare,
     MultiverseResults,
