@@ -12,12 +12,12 @@ from __future__ import annotations
 
 from typing import Any
 
+from cirl_study.version import __version__
+
 API = ("run", "load_trials", "analyze")
 """The functions of :mod:`cirl_study.api` this package exports."""
 
-__version__ = "0.1.0"
-"""The package's version, and its one source: ``pyproject.toml`` reads it from here, so no
-command's start-up reads the installed metadata for it."""
+__all__ = ["__version__", *API]
 
 
 def __getattr__(name: str) -> Any:

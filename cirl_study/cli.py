@@ -14,7 +14,7 @@ from typing import Annotated, Any
 import typer
 from typer.core import TyperGroup
 
-from cirl_study import __version__, interrupts
+from cirl_study import interrupts
 from cirl_study.commands import (
     analyze,
     calibrate,
@@ -27,6 +27,7 @@ from cirl_study.commands import (
 )
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
+from cirl_study.version import __version__
 
 
 class _Commands(TyperGroup):

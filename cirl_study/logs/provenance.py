@@ -23,7 +23,6 @@ from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from cirl_study import __version__
 from cirl_study.core.players import HUMANS, PACKAGES, ROBOTS
 from cirl_study.escape import terminal
 from cirl_study.logs.format import (
@@ -37,6 +36,7 @@ from cirl_study.logs.format import (
     RUN_ID_KEY,
 )
 from cirl_study.logs.versions import LOG_FORMAT, READABLE, pipeline_table, readable
+from cirl_study.version import __version__
 
 KEY_PACKAGES: tuple[str, ...] = (
     "numpy",

@@ -17,7 +17,6 @@ from typing import IO, Self
 import mcap
 from mcap.writer import CompressionType, Writer
 
-from cirl_study import __version__
 from cirl_study.files import open_for_writing
 from cirl_study.logs.episode import episode_messages
 from cirl_study.logs.format import (
@@ -33,6 +32,7 @@ from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.schemas import CHANNELS
 from cirl_study.measure_registry import measure_faults
 from cirl_study.record import DecodeError, TrialRecord, decode, encode
+from cirl_study.version import __version__
 
 #: Chunks are closed once they hold this many uncompressed bytes; a truncated file loses at
 #: most the chunk being written.

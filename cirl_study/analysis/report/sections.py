@@ -9,7 +9,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 from cirl_study.analysis.report.markdown import anchor
-from cirl_study.analysis.results.registry import study_tests
+from cirl_study.analysis.results.types import study_tests
 
 HEADINGS = {
     "claims": "Claims",

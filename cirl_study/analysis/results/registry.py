@@ -44,7 +44,6 @@ if TYPE_CHECKING:
     import pandas as pd
 
     from cirl_study.analysis.results.cells import Design
-    from cirl_study.analysis.results.types import Record, StudyResults, Table
 
 
 def _imported(name: str) -> Callable[..., Any]:
@@ -78,7 +77,7 @@ class StudyTest:
         """The rows of ``measure``: see :attr:`compute`."""
         return _imported(self.compute)(frame, measure, design)
 
-    def rendered(self, rows: Table[Any], results: StudyResults) -> list[str]:
+    def rendered(self, rows: Sequence[Any], results: Any) -> list[str]:
         """The lines of the section below its heading: see :attr:`render`."""
         return _imported(self.render)(rows, results)
 
@@ -92,8 +91,10 @@ class Registered(NamedTuple):
 
 
 @functools.cache
-def registered(record: type[Record]) -> tuple[Registered, ...]:
-    """The tests registered by the fields of ``record``, in field order."""
+def registered(record: type) -> tuple[Registered, ...]:
+    """The tests registered by the fields of the results record ``record`` (a class of
+    :mod:`cirl_study.analysis.results.types`, which this module does not import: the types
+    import the registry), in field order."""
     found = []
     for name, hint in typing.get_type_hints(record, include_extras=True).items():
         if typing.get_origin(hint) is not typing.Annotated:
@@ -106,21 +107,11 @@ def registered(record: type[Record]) -> tuple[Registered, ...]:
     return tuple(found)
 
 
-def study_tests() -> dict[str, Registered]:
-    """Every registered test by its key in ``results.json``: the main block's (``anova``),
-    then the paper's (``paper.anova``)."""
-    from cirl_study.analysis.results.types import PaperSection, StudyResults
-
-    return {
-        **{test.name: test for test in registered(StudyResults)},
-        **{f"paper.{test.name}": test for test in registered(PaperSection)},
-    }
-
-
-def held_tests(results: StudyResults) -> list[tuple[str, Registered, Table[Any]]]:
-    """Every registered test ``results`` hold, with its key and its rows: the main block's,
-    then the paper's where the run has its section."""
-    held: list[tuple[str, Record]] = [("", results)]
+def held_tests(results: Any) -> list[tuple[str, Registered, Sequence[Any]]]:
+    """Every registered test the study's results ``results``
+    (:class:`~cirl_study.analysis.results.types.StudyResults`) hold, with its key and its rows:
+    the main block's, then the paper's where the run has its section."""
+    held: list[tuple[str, Any]] = [("", results)]
     if results.paper is not None:
         held.append(("paper.", results.paper))
     return [

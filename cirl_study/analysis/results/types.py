@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING, Annotated, Any, TypeVar
 import msgspec
 from msgspec import inspect
 
-from cirl_study.analysis.results.registry import StudyTest
+from cirl_study.analysis.results.registry import Registered, StudyTest, registered
 from cirl_study.errors import UserError
 
 if TYPE_CHECKING:
@@ -920,3 +920,12 @@ def write_schemas(directory: Path | str) -> None:
     for name, kind in SCHEMAS.items():
         text = json.dumps(json_schema(kind), indent=2, sort_keys=True)
         (Path(directory) / name).write_text(text + "\n", encoding="utf-8", newline="\n")
+
+
+def study_tests() -> dict[str, Registered]:
+    """Every registered test by its key in ``results.json``: the main block's (``anova``),
+    then the paper's (``paper.anova``)."""
+    return {
+        **{test.name: test for test in registered(StudyResults)},
+        **{f"paper.{test.name}": test for test in registered(PaperSection)},
+    }
