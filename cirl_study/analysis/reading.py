@@ -81,14 +81,17 @@ def read_for_analysis(
         warn(warning)
     pipeline = logged_pipeline(contents.identity)
     audit = audit_run(pipeline, contents.rows)
-    resume = resume_advice(contents.identity, run_dir)
+    incomplete = not audit.complete or bool(contents.damaged)
+    # How to complete the run, only where it is not: the advice reads the run's lock and
+    # hashes the pipeline files it may name.
+    resume = resume_advice(contents.identity, run_dir) if incomplete else ""
     faults = audit.faults(resume)
     whole = pipeline.multiverse is not None
     if audit.foreign or (faults and not partial):
         advice = "" if audit.foreign or whole else ", or analyze it with --partial"
         raise UserError(f"{terminal(run_dir)}: not a complete run: {faults[0]}{advice}")
     trials, lacks = contents.rows, None
-    if not audit.complete or contents.damaged:
+    if incomplete:
         if whole:
             raise UserError(
                 f"{terminal(run_dir)}: a multiverse is analysed only whole (its universes "
