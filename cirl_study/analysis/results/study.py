@@ -330,6 +330,7 @@ def _cell_means(frame: pd.DataFrame, by: list[str]) -> Table[CellMean]:
     )
 
 
+@statistics.undefined_as_nan()
 def estimates(
     trials: Sequence[TrialRow], everything: pd.DataFrame, pipeline: Pipeline
 ) -> Estimates:
@@ -363,6 +364,7 @@ def estimates(
     )
 
 
+@statistics.undefined_as_nan()
 def tests(estimated: Estimates, everything: pd.DataFrame, pipeline: Pipeline) -> StudyResults:
     """The results of :func:`analyse`: the ``estimated`` sections of the trials' table
     ``everything`` with the tests of the study's design, those the results register

@@ -15,9 +15,11 @@ number here is a deterministic function of the table.
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import itertools
 import math
+import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from typing import NamedTuple, TypeVar
 
@@ -192,8 +194,30 @@ def paired_by_subject(main: pd.DataFrame, measure: str, level: int) -> pd.DataFr
     return paired[list(PAPER_HUMANS)].sort_index()
 
 
+@contextlib.contextmanager
+def undefined_as_nan() -> Iterator[None]:
+    """Compute statistics of samples that may be too small for them, quietly: a variance of one
+    value, a t of differences all alike, an effect size over no spread are NaN (or infinite) by
+    their definitions, and the results record each as ``null`` (shown as a dash), saying so;
+    numpy's, scipy's and pingouin's warnings of them would only repeat it, hundreds of times.
+    Usable as a decorator. Any other warning is shown as it is."""
+    with np.errstate(divide="ignore", invalid="ignore"), warnings.catch_warnings():
+        for message in (
+            "Degrees of freedom <= 0",
+            "invalid value encountered",
+            "divide by zero encountered",
+            "Precision loss occurred in moment calculation",
+            "Mean of empty slice",
+        ):
+            warnings.filterwarnings("ignore", message, RuntimeWarning)
+        yield
+
+
 def _d_z(differences: np.ndarray, axis: int = -1) -> np.ndarray:
-    """Cohen's ``d_z = mean(d) / sd(d)`` (``ddof = 1``) along ``axis``; ``sd = 0`` gives inf/NaN."""
+    """Cohen's ``d_z = mean(d) / sd(d)`` (``ddof = 1``) along ``axis``; ``sd = 0`` gives inf/NaN,
+    and fewer than two differences NaN (no ``sd``)."""
+    if np.shape(differences)[axis] < 2:
+        return np.full(np.delete(np.shape(differences), axis), math.nan)
     with np.errstate(divide="ignore", invalid="ignore"):
         return np.mean(differences, axis=axis) / np.std(differences, axis=axis, ddof=1)
 
@@ -217,8 +241,15 @@ def _paired_t(first: np.ndarray, second: np.ndarray) -> PairedTest:
     ``p`` (two-sided, ``scipy.stats.ttest_rel``), ``log10_p`` (in log space,
     :func:`cirl_study.analysis.statistics.tails.t_tail`) and ``d_z``."""
     difference = first - second
-    test = stats.ttest_rel(first, second)
-    interval = test.confidence_interval(CONFIDENCE)
+    if len(difference) < 2:  # no spread to test against: everything but the mean undefined
+        mean = float(difference.mean()) if len(difference) else math.nan
+        return PairedTest(mean, math.nan, math.nan, math.nan, 0, math.nan, math.nan, math.nan)
+    with warnings.catch_warnings():
+        # Differences all alike leave no variance: scipy's t is then infinite (or 0 / 0, NaN)
+        # and its p 0 or NaN, as the definitions have them; it warns of it, and so do not we.
+        warnings.simplefilter("ignore", RuntimeWarning)
+        test = stats.ttest_rel(first, second)
+        interval = test.confidence_interval(CONFIDENCE)
     return PairedTest(
         mean_diff=float(difference.mean()),
         ci95_low=float(interval.low),
@@ -283,6 +314,8 @@ def bootstrap_mean_d_z(differences: np.ndarray) -> BootstrapIntervals:
     """
     d = np.asarray(differences, dtype=np.float64)
     n = d.size
+    if n < 2:  # no resample differs from the sample: no interval
+        return BootstrapIntervals(mean=(math.nan, math.nan), d_z=(math.nan, math.nan))
     means, d_zs = [], []
     for indices in _resample_indices(n):
         batch_means, batch_d_zs = _resampled_mean_and_d_z(d, indices)
