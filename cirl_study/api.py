@@ -87,9 +87,10 @@ def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
     ``trial_id, run_id, universe, block, subject, human, robot, num_features, rationality,
     eta, seed``, a column per registered measure
     (:data:`cirl_study.measure_registry.MEASURES`: ``regret, kl, reward_l2,
-    regret_under_estimate, ...``; NaN where a trial has no value of it), ``converged``; rows in a
-    fixed order whatever the order of the logs. The run may be incomplete: it holds what the
-    logs hold.
+    regret_under_estimate, ...``; NaN where a trial has no value of it), ``converged`` and
+    ``file``, the name of the MCAP log file in ``run_dir`` that holds the trial's record (to
+    open one trial in Foxglove, say); rows in a fixed order whatever the order of the logs.
+    The run may be incomplete: it holds what the logs hold.
     """
     from cirl_study.analysis.table import trial_table
     from cirl_study.logs.reader import read_run

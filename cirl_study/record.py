@@ -236,7 +236,9 @@ class TrialRow(msgspec.Struct, **_STRUCT):
     record without a fit report counts as converged). ``draw``: a
     digest of the subject's reward draw (``num_features``, ``theta``, the features, the grid
     and the start cell), equal for two records exactly when their draws are (up to a
-    BLAKE2b collision), so one subject's trials can be checked to share one draw.
+    BLAKE2b collision), so one subject's trials can be checked to share one draw. ``file``:
+    the name of the log file, in the run directory, the record was read from (empty for a
+    row made of a record not read from a run's file).
     """
 
     trial_id: str
@@ -253,10 +255,12 @@ class TrialRow(msgspec.Struct, **_STRUCT):
     measures: tuple[float | None, ...]
     converged: bool
     draw: str
+    file: str = ""
 
     @classmethod
-    def of(cls, record: TrialRecord) -> TrialRow:
-        """The row of ``record`` (repeated names are interned: one copy per run)."""
+    def of(cls, record: TrialRecord, file: str = "") -> TrialRow:
+        """The row of ``record``, read from the log file named ``file`` (repeated names are
+        interned: one copy per run)."""
         return cls(
             trial_id=record.trial_id,
             run_id=sys.intern(record.run_id),
@@ -272,6 +276,7 @@ class TrialRow(msgspec.Struct, **_STRUCT):
             measures=tuple(record.measures[name] for name in MEASURES),
             converged=record.irl is None or record.irl.converged,
             draw=draw_digest(record),
+            file=sys.intern(file),
         )
 
     def measure(self, name: str) -> float | None:

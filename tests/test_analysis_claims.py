@@ -14,6 +14,7 @@ import msgspec
 import pytest
 from analysis_fixtures import pipeline, rows, synthetic_records
 
+from cirl_study.analysis.results.claims import MIN_SUBJECTS, ClaimCounts, count_claims
 from cirl_study.analysis.results.study import analyse, with_claims
 from cirl_study.analysis.results.types import ClaimRow, StudyResults, checked
 from cirl_study.errors import UserError
@@ -267,3 +268,71 @@ def test_every_p_of_a_claims_values_carries_its_log10(holding):
         for row in _p_objects(claim.values):
             for key in {"p", "p_holm", "p_tukey"} & set(row):
                 assert f"log10_{key}" in row, (claim.id, row)
+
+
+def test_every_claim_of_the_run_is_data_judged_on_its_cells_subjects(holding):
+    """The synthetic study has 10 reward draws per feature level: each judged claim says so,
+    the lambda claim from its sweep's cells; a claim not tested counts none."""
+    claims = evaluate_claims(holding)
+    assert {claim.kind for claim in claims} == {"data"}
+    assert {claim.id: claim.subjects for claim in claims if claim.tested} == dict.fromkeys(
+        [*CLAIM_IDS, "paper_best_response"], 10
+    )
+    assert all(claim.subjects is None for claim in claims if not claim.tested)
+    results = copy.deepcopy(holding)
+    for row in results["lambda_sweep"]:
+        row["n"] = 7
+    lambda_claim = next(c for c in evaluate_claims(results) if c.id == "lambda_intermediate")
+    assert lambda_claim.subjects == 7
+
+
+def test_external_claims_are_theorems_unless_they_say_otherwise(holding):
+    theory = {"claims": [_theory_claim(), _theory_claim(id="on_data", kind="data")]}
+    claims = {claim.id: claim for claim in evaluate_claims(holding, theory)}
+    assert claims["office_supplies_instructive"].kind == "theory"
+    assert claims["on_data"].kind == "data"
+    assert claims["on_data"].subjects is None
+    with pytest.raises(UserError, match="'kind' must be 'data' or 'theory'"):
+        evaluate_claims(holding, {"claims": [_theory_claim(kind="theorem")]})
+
+
+def test_the_counts_keep_data_theorems_and_untested_claims_apart(holding):
+    theory = {
+        "claims": [
+            _theory_claim(),
+            _theory_claim(id="broken", reproduced=False),
+            _theory_claim(id="untested", tested=False),
+        ]
+    }
+    counts = count_claims(evaluate_claims(holding, theory))
+    # the paper's claims and paper_best_response judged; the teaching ones and "untested" not
+    assert (counts.data, counts.reproduced + counts.not_reproduced, counts.answered) == (7, 7, 0)
+    assert (counts.theorems, counts.theorems_hold, counts.not_tested) == (2, 1, 5)
+    assert counts.subjects == 10 < MIN_SUBJECTS and counts.few_subjects
+    summary = counts.summary()
+    assert summary.startswith(f"7 claims on this run's data: {counts.reproduced} reproduced, ")
+    assert "(judged on cells of 10 subjects, fewer than 20: the verdicts mean little)" in summary
+    assert summary.endswith(
+        "; 2 theorems checked exactly, independent of the run: 1 holds, 1 does not; "
+        "5 claims not tested, the run lacks their cells"
+    )
+
+
+def test_enough_subjects_leave_out_the_warning():
+    counts = ClaimCounts(
+        data=1,
+        reproduced=0,
+        not_reproduced=0,
+        answered=1,
+        theorems=0,
+        theorems_hold=0,
+        not_tested=0,
+        subjects=MIN_SUBJECTS,
+    )
+    assert not counts.few_subjects and counts.subjects_text() is None
+    assert counts.summary() == (
+        "1 claim on this run's data: 0 reproduced, 0 not reproduced, 1 question answered"
+    )
+    assert ClaimCounts(0, 0, 0, 0, 0, 0, 3, None).summary() == (
+        "no claim on this run's data judged; 3 claims not tested, the run lacks their cells"
+    )

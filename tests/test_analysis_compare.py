@@ -97,6 +97,23 @@ def test_everything_else_must_be_equal(
     assert any(d.startswith(expected) for d in differences), differences
 
 
+def test_the_log_file_of_a_trial_is_not_compared(tmp_path: Path) -> None:
+    """Which file holds a trial depends on the workers that played the run, not the trial;
+    every other text cell of the row still counts."""
+    files = (
+        "trial_id,human,eta,regret,file\n"
+        "main:a,expert,,0.5,main-1.mcap\nmain:a,best_response,0.316,0.125,main-1.mcap\n"
+    )
+    a = report(tmp_path / "a", trials=files)
+    b = report(tmp_path / "b", trials=files.replace("main-1.mcap", "main-2.mcap"))
+    assert compare_reports(a, b) == []
+    c = report(tmp_path / "c", trials=files.replace("expert,", "oracle,"))
+    assert compare_reports(a, c) == ["trials.csv row 2 (main:a): human expert != oracle"]
+    for directory, name in ((a, "main-1"), (b, "main-2")):  # only trials.csv passes it over
+        (directory / "universes.csv").write_text(f"universe,file\nu,{name}.mcap\n")
+    assert compare_reports(a, b) == ["universes.csv row 2 (u): file main-1.mcap != main-2.mcap"]
+
+
 def test_command_line(tmp_path: Path) -> None:
     a, b = report(tmp_path / "a"), report(tmp_path / "b", scaled(RESULTS, 1 + 1e-6))
     same = CliRunner().invoke(app, ["compare", str(a), str(a)])

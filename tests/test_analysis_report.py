@@ -167,9 +167,14 @@ def test_every_claim_has_a_verdict_and_every_link_resolves(reports):
     first, _ = reports
     text = (first / "report.md").read_text(encoding="utf-8")
     results = json.loads((first / "results.json").read_text(encoding="utf-8"))
-    claims_table = text.split("## Claims")[1].split("\n## ")[0]
-    verdict_rows = re.findall(r"(✅ reproduced|❌ not reproduced|➖ not tested)", claims_table)
-    assert len(verdict_rows) == len(results["claims"]) == 11  # no theory claims given here
+    claims_section = text.split("## Claims\n")[1].split("\n## ")[0]
+    numbered = re.findall(r"^\| (\d+) \|", claims_section, flags=re.MULTILINE)
+    assert numbered == [str(k) for k in range(1, len(results["claims"]) + 1)]
+    assert len(results["claims"]) == 11  # no theory claims given here
+    judged = claims_section.split("### Claims on this run's data")[1].split("### ")[0]
+    verdicts = re.findall(r"(✅ reproduced|❌ not reproduced|💬 answered)", judged)
+    assert len(verdicts) == sum(claim["tested"] for claim in results["claims"])
+    assert "### Theorems checked exactly" not in claims_section
     anchors = {anchor(line.lstrip("#")) for line in text.splitlines() if line.startswith("#")}
     for target in re.findall(r"\]\(([^)]+)\)", text):
         if target.startswith("#"):
@@ -208,7 +213,9 @@ def test_a_run_without_sweep_or_cross_validation_still_reports(records, tmp_path
     lambda_claim = next(c for c in results["claims"] if c["id"] == "lambda_intermediate")
     assert not lambda_claim["tested"]
     text = (out / "report.md").read_text(encoding="utf-8")
-    assert "➖ not tested" in text and "no trials in the `lambda_sweep` block" in text
+    not_tested = text.split("### Claims not tested")[1].split("\n## ")[0]
+    assert "the run lacks a lambda sweep" in not_tested
+    assert "no trials in the `lambda_sweep` block" in text
     assert results["claims"][-1]["id"] == "office_supplies"
     assert results["theory"] == theory
     assert results["eta_cv"] == {

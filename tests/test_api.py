@@ -15,6 +15,7 @@ import cirl_study
 from cirl_study.analysis.results.types import StudyResults, checked
 from cirl_study.cli import app
 from cirl_study.errors import UserError
+from cirl_study.logs.contents import read_file_contents
 
 
 def test_analyze_returns_the_reports_results_typed(smoke_run: Path, tmp_path: Path) -> None:
@@ -24,6 +25,21 @@ def test_analyze_returns_the_reports_results_typed(smoke_run: Path, tmp_path: Pa
     assert cirl_study.analyze(smoke_run) == written
     table = cirl_study.load_trials(smoke_run)
     assert list(table["trial_id"]) == list(pd.read_csv(out / "trials.csv")["trial_id"])
+
+
+def test_the_trial_table_names_the_log_file_of_each_trial(smoke_run: Path, tmp_path: Path) -> None:
+    """Each row names the file of the run directory that holds its record, as trials.csv
+    does: open it to find the trial."""
+    table = cirl_study.load_trials(smoke_run)
+    assert table.columns[-1] == "file"
+    assert set(table["file"]) == {path.name for path in smoke_run.glob("*.mcap")}
+    for name, trials in table.groupby("file")["trial_id"]:
+        records = read_file_contents(smoke_run / name).records
+        assert sorted(record.trial_id for record in records) == sorted(trials)
+    out = tmp_path / "report"
+    assert CliRunner().invoke(app, ["analyze", str(smoke_run), "--out", str(out)]).exit_code == 0
+    written = pd.read_csv(out / "trials.csv")
+    assert written["file"].tolist() == table["file"].tolist()
 
 
 def test_an_incomplete_run_is_refused_unless_partial(smoke_run: Path, tmp_path: Path) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -259,3 +260,123 @@ def test_the_calibrate_command_reports_a_target_on_regret_under_the_estimate(
     assert universe["mean_squared_log_ratio"] == pytest.approx(math.log(2) ** 2, rel=1e-12)
     assert "| regret under the estimate | 10 | `best_response` |" in (out / "report.md").read_text()
     assert (out / "calibration.png").is_file()
+
+
+ASCENT_MULTIVERSE = """
+[gradient_ascent]
+steps = 30
+learning_rate = 0.1
+
+[multiverse.cross]
+robot = ["map", "gradient_ascent"]
+ascent_steps = [30, 300]
+sigma = [0.75, 1.5]
+"""
+"""Six universes: two of the map robot, which lacks the gradient-ascent settings, and four of
+the gradient-ascent robot."""
+
+
+@pytest.fixture(scope="module")
+def ascent_calibration(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
+    """The calibration report of a multiverse of the map and gradient-ascent robots against
+    the cell means of one of its gradient-ascent universes, and that universe's id."""
+    import sys
+
+    from typer.testing import CliRunner
+
+    from cirl_study.api import load_trials
+    from cirl_study.cli import app
+    from cirl_study.study.engines import LocalEngine
+    from cirl_study.study.pipeline_file import load_pipeline
+    from cirl_study.study.runner import run_pipeline
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from test_multiverse import multiverse_text
+
+    directory = tmp_path_factory.mktemp("ascent-calibration")
+    (directory / "mva.toml").write_text(multiverse_text(ASCENT_MULTIVERSE, "mva"))
+    pipeline = load_pipeline(directory / "mva.toml")
+    run_pipeline(pipeline, directory / "run", LocalEngine(1))
+    source = next(u.id for u in pipeline.multiverse.universes if "ga_steps=30," in u.id)
+    table = load_trials(directory / "run")
+    main = table[(table["block"] == "main") & (table["universe"] == source)]
+    rows = [HEADER.strip()]
+    for (k, human), cell in main.groupby(["num_features", "human"]):
+        for measure in ("regret", "kl"):
+            rows.append(f"{measure},{k},{human},{float(cell[measure].mean())!r},0.1")
+    target = _target(directory, "\n".join(rows) + "\n")
+    out = directory / "calibration"
+    command = ["calibrate", str(directory / "run"), "--target", str(target), "--out", str(out)]
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 0, result.output
+    return out, source
+
+
+def test_a_setting_that_does_not_apply_reads_n_a(ascent_calibration: tuple[Path, str]) -> None:
+    out, _ = ascent_calibration
+    text = (out / "report.md").read_text(encoding="utf-8")
+    assert "–" not in text
+    assert re.search(r"^\| `ascent_steps` \| n/a( \(best\))? \| 2 \|", text, flags=re.MULTILINE)
+    nearest = text.split("## The nearest universes")[1].split("\n## ")[0]
+    assert "n/a: the setting does not apply (the universe's robot lacks it)." in nearest
+    assert re.search(r"\| `map` \| n/a \| n/a \|$", nearest, flags=re.MULTILINE)
+    universes = pd.read_csv(out / "universes.csv")
+    lacking = universes[universes["robot"] == "map"]
+    assert len(lacking) == 2 and lacking["ascent_steps"].isna().all()
+
+
+def test_each_universe_of_the_table_and_figure_is_named(
+    ascent_calibration: tuple[Path, str],
+) -> None:
+    from cirl_study.analysis.calibration.report import SHOWN, comparison_frame, short_labels
+    from cirl_study.analysis.results.types import CalibrationResults, checked
+
+    out, source = ascent_calibration
+    results = checked(json.loads((out / "results.json").read_text()), CalibrationResults)
+    shown = results.universes[:SHOWN]
+    labels = short_labels(list(shown))
+    assert labels[0] == "sigma=0.75,ga_steps=30" and source == shown[0].id
+    assert len(set(labels)) == SHOWN and all(len(label) <= 40 for label in labels)
+    assert all(label.startswith("sigma=") for label in labels)
+    text = (out / "report.md").read_text(encoding="utf-8")
+    legend = text.split("`#k` is the universe of rank k:")[1].split("\n## ")[0]
+    for rank, (universe, label) in enumerate(zip(shown, labels, strict=True), start=1):
+        assert f"| #{rank} | `{label}` | `{universe.id}` |" in legend
+    frame = comparison_frame(results)
+    assert frame.groupby("rank")["universe"].first().tolist() == labels
+
+
+def test_every_universes_cell_means_are_a_table(ascent_calibration: tuple[Path, str]) -> None:
+    from cirl_study.analysis.calibration.report import CELL_COLUMNS
+
+    out, _ = ascent_calibration
+    results = json.loads((out / "results.json").read_text())
+    cells = pd.read_csv(out / "cells.csv", keep_default_na=False, na_values=[""])
+    assert list(cells.columns) == CELL_COLUMNS
+    expected = [
+        (u["id"], rank, c["measure"], c["num_features"], c["human"], c["robot"], c["n"],
+         c["measured"], c["target"])
+        for rank, u in enumerate(results["universes"], start=1)
+        for c in u["cells"]
+    ]  # fmt: skip
+    assert len(expected) == 6 * len(results["target"])
+    got = cells[CELL_COLUMNS[:9]].itertuples(index=False, name=None)
+    assert [tuple(row) for row in got] == expected
+    assert (cells["n"] == 4).all()
+    assert "[`cells.csv`](cells.csv)" in (out / "report.md").read_text(encoding="utf-8")
+
+
+def test_a_single_study_is_the_run_in_the_legend_and_cells(smoke_run: Path, tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from cirl_study.cli import app
+
+    target = _target(tmp_path, HEADER + "kl,3,expert,0.5,\nregret,10,best_response,0.1,0.01\n")
+    out = tmp_path / "calibration"
+    command = ["calibrate", str(smoke_run), "--target", str(target), "--out", str(out)]
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 0, result.output
+    assert "| #1 | `the run` | the run |" in (out / "report.md").read_text(encoding="utf-8")
+    cells = pd.read_csv(out / "cells.csv")
+    assert cells["universe"].isna().all() and cells["rank"].tolist() == [1, 1]
+    assert cells[["measure", "n"]].values.tolist() == [["kl", 4], ["regret", 4]]

@@ -34,8 +34,9 @@ def run(tmp_path: Path) -> Path:
     return directory
 
 
-def rows(records: list[TrialRecord]) -> list[TrialRow]:
-    return [TrialRow.of(record) for record in records]
+def rows(records: list[TrialRecord], file: str) -> list[TrialRow]:
+    """The rows of ``records`` as read from the log file named ``file``."""
+    return [TrialRow.of(record, file) for record in records]
 
 
 def test_the_rows_of_every_file_sorted_by_trial_id(run: Path) -> None:
@@ -43,7 +44,8 @@ def test_the_rows_of_every_file_sorted_by_trial_id(run: Path) -> None:
     write(run / "b.mcap", study[:5])
     write(run / "a.mcap", study[5:])
     contents = read_run(run, logged_pipeline)
-    assert contents.rows == rows(sorted(study, key=lambda r: r.trial_id))
+    read = [*rows(study[:5], "b.mcap"), *rows(study[5:], "a.mcap")]
+    assert contents.rows == sorted(read, key=lambda r: r.trial_id)  # each names its file
     assert contents.provenance == [PROVENANCE, PROVENANCE]
     assert contents.identity == IDENTITY and contents.identity.pipeline_name == "test"
     assert contents.warnings == [] and contents.damaged == []
@@ -82,7 +84,7 @@ def test_temporary_files_are_ignored(run: Path) -> None:
     assert (run / "b.mcap.tmp").exists()
     assert logged_run(run, IDENTITY, logged_pipeline).trial_ids == {r.trial_id for r in study[:2]}
     contents = read_run(run, logged_pipeline)
-    assert contents.rows == rows(sorted(study[:2], key=lambda r: r.trial_id))
+    assert contents.rows == rows(sorted(study[:2], key=lambda r: r.trial_id), "a.mcap")
     assert contents.warnings == [
         f"{run}: 1 unfinished temporary file(s) of an interrupted run ignored; "
         "run the pipeline again to complete the run"
@@ -123,7 +125,7 @@ def test_a_damaged_chunk_is_skipped_and_counted(run: Path) -> None:
         read_run(run, logged_pipeline)
     contents = read_run(run, logged_pipeline, salvage=True)
     assert 0 < len(contents.rows) < len(study)
-    assert all(r in rows(study) for r in contents.rows)
+    assert all(r in rows(study, "a.mcap") for r in contents.rows)
     (warning,) = contents.warnings
     assert warning.startswith(f"{path}: damaged (damaged chunk at byte {chunk}: ")
     assert f"recovered {len(contents.rows)} trial(s) of {len(study)} from " in warning

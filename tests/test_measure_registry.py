@@ -89,7 +89,7 @@ class TestARegisteredMeasure:
 
     def test_the_measure_is_a_column_of_the_trial_table(self, run: Path) -> None:
         table = cirl_study.load_trials(run)
-        assert list(table.columns[11:]) == [*MEASURES, "converged"]
+        assert list(table.columns[11:]) == [*MEASURES, "converged", "file"]
         assert list(MEASURES)[-1] == "reward_l1"
         records = {r.trial_id: r for r in run_records(run)}
         for trial_id, value in zip(table["trial_id"], table["reward_l1"], strict=True):

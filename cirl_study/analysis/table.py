@@ -39,13 +39,19 @@ IDENTITY: tuple[str, ...] = (
 trial's multiverse universe (empty in a single study)."""
 
 
+FILE = "file"
+"""The trial table's last column: the name of the log file, in the run directory, that holds
+the trial's record (:attr:`~cirl_study.record.TrialRow.file`). It depends on how the run was cut
+into batches, not on the trial: comparisons of two reports pass over it."""
+
+
 def columns() -> tuple[str, ...]:
     """Columns of the trial table, in order: :data:`IDENTITY`, every registered measure
     (:data:`~cirl_study.measure_registry.MEASURES`; NaN where the trial has no value of it:
-    undefined for it, or not logged by its log format), and ``converged``: the robot's estimate
+    undefined for it, or not logged by its log format), ``converged``: the robot's estimate
     met its stopping rule (``irl.converged``; a record without a fit report counts as
-    converged)."""
-    return (*IDENTITY, *MEASURES, "converged")
+    converged), and :data:`FILE`, the log file that holds the trial."""
+    return (*IDENTITY, *MEASURES, "converged", FILE)
 
 
 SORT_KEYS: tuple[str, ...] = (
@@ -70,6 +76,7 @@ def _columns(rows: Sequence[TrialRow]) -> dict[str, list[Any]]:
         values = (row.measures[position] for row in rows)
         data[measure] = [math.nan if value is None else value for value in values]
     data["converged"] = [row.converged for row in rows]
+    data[FILE] = [row.file for row in rows]
     return data
 
 

@@ -66,9 +66,11 @@ def analyze(
     give an identical report. Any design of humans x robots x feature levels is analysed
     alike: the repeated-measures ANOVA with sphericity corrections, every pairwise
     comparison, and every published claim whose cells the run has (the paper's, Milli &
-    Dragan's, ...), the others listed as not tested. A multiverse gets the paper's claims in
-    every universe. The new report replaces the old one at once, when it is complete: a
-    failure leaves the old one whole.
+    Dragan's, ...), the others listed as not tested; the claims on the run's data, the
+    theorems checked exactly (independent of the run) and the claims not tested are counted
+    apart, with a warning when the judged claims' cells have fewer than 20 subjects. A
+    multiverse gets the paper's claims in every universe. The new report replaces the old
+    one at once, when it is complete: a failure leaves the old one whole.
     """
     report_run(run, out if out is not None else run / REPORT_NAME, partial=partial, force=force)
 
@@ -130,6 +132,7 @@ def report_run(
             summary = f"universes reproducing each claim: {shares}"
         else:
             from cirl_study.analysis.report.study import write_report
+            from cirl_study.analysis.results.claims import count_claims
             from cirl_study.analysis.results.theory_claims import theory_claims
 
             results = write_report(
@@ -143,17 +146,8 @@ def report_run(
                 partial=analysed.partial,
                 progress=stage,
             )
-            claims = results.claims
-            tested = [claim for claim in claims if claim.tested]
-            reproduced = sum(claim.reproduced is True for claim in tested)
-            answered = sum(claim.reproduced is None for claim in tested)
             what = f"{'partial ' if analysed.partial else ''}report of {len(trials)} trials"
-            summary = (
-                f"{len(claims)} claims, {reproduced} reproduced, "
-                f"{len(tested) - reproduced - answered} not reproduced, "
-                f"{len(claims) - len(tested)} not tested"
-                + (f", {answered} questions answered" if answered else "")
-            )
+            summary = count_claims(results.claims).summary()
     where = "equal by value to the one kept in" if replacement.kept else "written to"
     typer.echo(f"{what} {where} {terminal(target)}: {summary}")
     return replacement

@@ -43,7 +43,7 @@ CalibrationDirectoryOption = Annotated[
         "--out",
         metavar="DIR",
         show_default="RUN/calibration",
-        help="Report directory: report.md, results.json, universes.csv and the figure, "
+        help="Report directory: report.md, results.json, universes.csv, cells.csv and the figure, "
         "replaced whole once written. A report of another run there is refused unless --force.",
     ),
 ]

@@ -44,7 +44,9 @@ def compare(
 ) -> None:
     """Compare the report directory GOT with EXPECTED: every number of results.json and of
     each table (trials.csv, a multiverse's universes.csv) within the tolerance, the text of
-    report.md, each figure within an image tolerance, and that every SVG exists.
+    report.md, each figure within an image tolerance, and that every SVG exists. The file
+    column of trials.csv (which log file holds a trial: it depends on the number of workers
+    that played the run) is not compared.
 
     Each difference names EXPECTED's value first, then GOT's. Exit code 0 when every number
     agrees within the tolerance and everything else is equal, 1 otherwise (the differences

@@ -246,7 +246,7 @@ def _reading(path: Path) -> _FileReading:
         identity=identity,
         trial_ids=[record.trial_id for record in contents.records],
         provenance=contents.provenance,
-        rows=[TrialRow.of(record) for record in contents.records] if sound else [],
+        rows=[TrialRow.of(record, path.name) for record in contents.records] if sound else [],
     )
 
 

@@ -1,11 +1,15 @@
-"""The report of a calibration: ``report.md``, ``results.json``, ``universes.csv``, the figure.
+"""The report of a calibration: ``report.md``, ``results.json``, ``universes.csv``,
+``cells.csv``, the figure.
 
 :func:`write_calibration_report` writes what
 :func:`cirl_study.analysis.calibration.results.calibrate` found: the universes nearest the target
 with their settings, the search's path and the refined universe beside the nearest (with
-``--refine``), the target beside the nearest universes' measurements cell by cell, the paper's
-claims in the nearest universe, and per axis the best level and how far the distance moves
-(``docs/multiverse.md``, *Calibration*).
+``--refine``), the target beside the nearest universes' measurements cell by cell (and every
+universe's in ``cells.csv``), the paper's claims in the nearest universe, and per axis the best
+level and how far the distance moves (``docs/multiverse.md``, *Calibration*). A setting a
+universe's robot lacks reads ``n/a`` (:data:`NOT_APPLICABLE`); the table and the figure name
+the nearest universes ``#1``, ``#2``, ... by rank, which a legend maps to their ids and the
+settings they differ in (:func:`short_labels`).
 """
 
 from __future__ import annotations
@@ -24,6 +28,7 @@ from cirl_study.analysis.report import figures
 from cirl_study.analysis.report.markdown import document, measure_name, number, p_text, table
 from cirl_study.analysis.report.output import write_report_directory
 from cirl_study.analysis.results.types import CalibrationResults, Refinement, UniverseDistance
+from cirl_study.study.spec import AXES
 
 FIGURE_NAME = "calibration.png"
 """Target against measured, per cell, for the nearest universes."""
@@ -31,13 +36,94 @@ FIGURE_NAME = "calibration.png"
 SHOWN = 5
 """Universes shown in the report's tables and figure, nearest first."""
 
+COMPARED = 3
+"""Universes beside the target in the report's table of cells, nearest first."""
+
+NOT_APPLICABLE = "n/a"
+"""A setting's level where the universe's robot lacks the setting (``None`` in the results)."""
+
+THE_RUN = "the run"
+"""The label of the one universe of a single study (its id is empty)."""
+
 
 def _label(universe: UniverseDistance) -> str:
-    return escape.markdown(universe.id) if universe.id else "the run"
+    return escape.markdown(universe.id) if universe.id else THE_RUN
+
+
+def _level(value: Any) -> str:
+    """A setting's level as the report writes it: :data:`NOT_APPLICABLE` where the universe's
+    robot lacks the setting, else as the multiverse report does."""
+    return NOT_APPLICABLE if value is None else level_label(value)
+
+
+def _setting(value: Any) -> str:
+    """A setting's level in a table of ``report.md``: code, or a plain ``n/a``."""
+    return NOT_APPLICABLE if value is None else escape.markdown(level_label(value))
+
+
+def _not_applicable(levels: list[Any]) -> str:
+    """The sentence that says what ``n/a`` means, where ``levels`` hold one."""
+    if all(level is not None for level in levels):
+        return ""
+    return f" {NOT_APPLICABLE}: the setting does not apply (the universe's robot lacks it)."
+
+
+def _ranked(results: CalibrationResults) -> list[UniverseDistance]:
+    """The ranked universes, nearest first."""
+    return [u for u in results.universes if u.mean_squared_log_ratio is not None]
+
+
+def short_labels(universes: list[UniverseDistance]) -> list[str]:
+    """A short label per universe that tells ``universes`` apart: its levels, as its id
+    writes them (``sigma=1.5,robot=map``), of the settings whose levels differ among them. A
+    setting that only some universes have (the gradient-ascent robot's, or an analysis-only
+    reading at its default in others) counts where it has levels that differ, or else where
+    the labels need it to differ; where a label shows a setting of its robot alone
+    (``ga_steps=30``), it leaves the robot out. A universe with no such level is labelled by
+    its id, a single study's universe (whose id is empty) ``the run``.
+
+    Examples:
+        >>> from cirl_study.analysis.results.types import UniverseDistance
+        >>> def universe(**settings):
+        ...     return UniverseDistance(
+        ...         id=",".join(f"{k}={v}" for k, v in settings.items()), base=False,
+        ...         settings={"centers": "lattice", **settings}, cells=[],
+        ...         mean_squared_log_ratio=None, chi_square=None, chi_square_df=0, p=None,
+        ...         log10_p=None, missing=[])
+        >>> short_labels([universe(sigma=0.75, robot="map", ascent_steps=None),
+        ...               universe(sigma=1.5, robot="gradient_ascent", ascent_steps=30)])
+        ['sigma=0.75,robot=map', 'sigma=1.5,robot=gradient_ascent']
+        >>> short_labels([universe(robot="map"), universe(robot="gradient_ascent", ascent_steps=30),
+        ...               universe(robot="gradient_ascent", ascent_steps=300)])
+        ['robot=map', 'ga_steps=30', 'ga_steps=300']
+        >>> short_labels([universe(sigma=1.5), universe(sigma=1.5, regret="estimate")])
+        ['sigma=1.5', 'regret=estimate']
+    """
+
+    def levels(axis: str, where: bool) -> set[Any]:
+        return {
+            u.settings.get(axis) for u in universes if where or u.settings.get(axis) is not None
+        }
+
+    def label(u: UniverseDistance, axes: list[str]) -> str:
+        shown = [axis for axis in axes if u.settings.get(axis) is not None]
+        if any(AXES[axis].nested for axis in shown):  # a setting of its robot alone names it
+            shown = [axis for axis in shown if axis != "robot"]
+        return ",".join(f"{AXES[axis].label}={level_label(u.settings[axis])}" for axis in shown)
+
+    def labels(axes: list[str]) -> list[str]:
+        return [label(u, axes) for u in universes]
+
+    found = labels([axis for axis in AXES if len(levels(axis, False)) > 1])
+    if len(set(found)) < len(found):
+        found = labels([axis for axis in AXES if len(levels(axis, True)) > 1])
+    if len(set(found)) < len(found):
+        found = [""] * len(universes)
+    return [label or u.id or THE_RUN for label, u in zip(found, universes, strict=True)]
 
 
 def _header(results: CalibrationResults) -> list[str]:
-    ranked = [u for u in results.universes if u.mean_squared_log_ratio is not None]
+    ranked = _ranked(results)
     nearest = ranked[0]
     factor = math.exp(math.sqrt(nearest.mean_squared_log_ratio))
     lines = [
@@ -62,7 +148,7 @@ def _header(results: CalibrationResults) -> list[str]:
 
 
 def _nearest(results: CalibrationResults) -> list[str]:
-    ranked = [u for u in results.universes if u.mean_squared_log_ratio is not None][:SHOWN]
+    ranked = _ranked(results)[:SHOWN]
     varied = [axis.axis for axis in results.axes]
     rows = [
         [
@@ -72,7 +158,7 @@ def _nearest(results: CalibrationResults) -> list[str]:
             number(math.exp(math.sqrt(u.mean_squared_log_ratio))),
             number(u.chi_square) + (f" ({u.chi_square_df})" if u.chi_square_df else ""),
             p_text(u.log10_p),
-            *[escape.markdown(level_label(u.settings[axis])) for axis in varied],
+            *[_setting(u.settings[axis]) for axis in varied],
         ]
         for rank, u in enumerate(ranked, start=1)
     ]
@@ -82,7 +168,8 @@ def _nearest(results: CalibrationResults) -> list[str]:
         "Distance `D`: the mean over the target's cells of the squared log ratio of measured to "
         "target; `e^sqrt(D)`: the typical factor between them; the chi-square on the log scale "
         "(its degrees of freedom: the cells with an uncertainty) and its p, where the target "
-        "gives uncertainties.",
+        "gives uncertainties."
+        + _not_applicable([u.settings.get(axis) for u in ranked for axis in varied]),
         "",
         table(
             ["rank", "universe", "D", "e^sqrt(D)", "chi-square (df)", "p", *varied],
@@ -94,7 +181,7 @@ def _nearest(results: CalibrationResults) -> list[str]:
 
 
 def _cells(results: CalibrationResults) -> list[str]:
-    ranked = [u for u in results.universes if u.mean_squared_log_ratio is not None][:3]
+    ranked = _ranked(results)[:COMPARED]
     header = ["measure", "K", "human", "target"]
     header += [f"#{rank} measured" for rank in range(1, len(ranked) + 1)]
     rows = []
@@ -112,11 +199,29 @@ def _cells(results: CalibrationResults) -> list[str]:
     return [
         "## Target against measured",
         "",
-        "Each target cell beside the nearest universes' means (in brackets: measured over target).",
+        "Each target cell beside the nearest universes' means (in brackets: measured over target); "
+        "every universe's, with the number of subjects, is in [`cells.csv`](cells.csv).",
         "",
         table(header, rows, [False, True, False, True, *[True] * len(ranked)]),
         "",
         f"![Target against measured]({FIGURE_NAME})",
+        "",
+        *_legend(results),
+    ]
+
+
+def _legend(results: CalibrationResults) -> list[str]:
+    """Which universe each ``#k`` of the table and the figure is: its rank, the settings it
+    differs in from the others shown (:func:`short_labels`) and its id."""
+    shown = _ranked(results)[:SHOWN]
+    rows = [
+        [f"#{rank}", escape.markdown(label), _label(u)]
+        for rank, (u, label) in enumerate(zip(shown, short_labels(shown), strict=True), start=1)
+    ]
+    return [
+        "In the table and the figure, `#k` is the universe of rank k:",
+        "",
+        table(["#", "differs in", "universe"], rows, [False, False, False]),
         "",
     ]
 
@@ -147,8 +252,7 @@ def _axes(results: CalibrationResults) -> list[str]:
     rows = [
         [
             escape.markdown(axis.axis),
-            escape.markdown(level_label(level.level))
-            + (" (best)" if level.level == axis.best else ""),
+            _setting(level.level) + (" (best)" if level.level == axis.best else ""),
             str(level.universes),
             number(level.nearest_distance),
             number(level.median_distance),
@@ -162,7 +266,8 @@ def _axes(results: CalibrationResults) -> list[str]:
         "",
         "Per setting that varies among the ranked universes, each level's nearest and median "
         "distance; the spread is how far the nearest distance moves across the setting's "
-        "levels.",
+        "levels."
+        + _not_applicable([level.level for axis in results.axes for level in axis.levels]),
         "",
         table(
             ["setting", "level", "universes", "nearest D", "median D", "spread"],
@@ -193,7 +298,7 @@ def _refinement(results: CalibrationResults) -> list[str]:
             str(index),
             escape.markdown(row.axis),
             f"x{row.step:.3g}",
-            *[escape.markdown(level_label(row.settings[axis])) for axis in refinement.axes],
+            *[_setting(row.settings[axis]) for axis in refinement.axes],
             row.source,
             number(row.mean_squared_log_ratio),
             number(row.chi_square) + (f" ({row.chi_square_df})" if row.chi_square_df else ""),
@@ -205,8 +310,8 @@ def _refinement(results: CalibrationResults) -> list[str]:
     beside = [
         [
             escape.markdown(axis),
-            escape.markdown(level_label(nearest.settings.get(axis))),
-            escape.markdown(level_label(final.settings.get(axis)))
+            _setting(nearest.settings.get(axis)),
+            _setting(final.settings.get(axis))
             + (" (moved)" if nearest.settings.get(axis) != final.settings.get(axis) else ""),
         ]
         for axis in final.settings
@@ -268,12 +373,13 @@ def render_markdown(results: CalibrationResults) -> str:
 
 
 def universe_table(results: CalibrationResults) -> pd.DataFrame:
-    """``universes.csv``: one row per universe, its settings, distance and chi-square."""
+    """``universes.csv``: one row per universe, its settings (empty where its robot lacks the
+    setting), distance and chi-square."""
     return pd.DataFrame(
         [
             {
                 "universe": u.id,
-                **{k: level_label(v) for k, v in u.settings.items()},
+                **{k: None if v is None else level_label(v) for k, v in u.settings.items()},
                 "mean_squared_log_ratio": u.mean_squared_log_ratio,
                 "chi_square": u.chi_square,
                 "chi_square_df": u.chi_square_df,
@@ -283,6 +389,56 @@ def universe_table(results: CalibrationResults) -> pd.DataFrame:
             for u in results.universes
         ]
     )
+
+
+CELL_COLUMNS = [
+    "universe",
+    "rank",
+    "measure",
+    "num_features",
+    "human",
+    "robot",
+    "n",
+    "mean",
+    "target",
+    "log_ratio",
+    "measured_log_se",
+    "target_log_se",
+]
+"""The columns of ``cells.csv`` (:func:`cell_table`)."""
+
+
+def cell_table(results: CalibrationResults) -> pd.DataFrame:
+    """``cells.csv``: every universe's measurement of every target cell it has, a row each:
+    the universe (empty: a single study) and its ``rank`` (empty: not ranked), the cell, the
+    ``n`` subjects and their ``mean`` beside the ``target`` value, ``log_ratio``
+    (``ln(mean / target)``) and the standard errors on the log scale; then, of a refinement,
+    the refined universe's (rank empty) where it is not a universe of the run. The
+    universes in the order of ``results.json``, nearest first."""
+    ranks = {u.id: rank for rank, u in enumerate(_ranked(results), start=1)}
+    universes = list(results.universes)
+    refinement = results.refinement
+    if refinement is not None and refinement.final.id not in {u.id for u in universes}:
+        universes.append(refinement.final)
+    rows = [
+        {
+            "universe": u.id,
+            "rank": ranks.get(u.id),
+            "measure": c.measure,
+            "num_features": c.num_features,
+            "human": c.human,
+            "robot": c.robot,
+            "n": c.n,
+            "mean": c.measured,
+            "target": c.target,
+            "log_ratio": c.log_ratio,
+            "measured_log_se": c.measured_log_se,
+            "target_log_se": c.target_log_se,
+        }
+        for u in universes
+        for c in u.cells
+    ]
+    return pd.DataFrame(rows, columns=CELL_COLUMNS).astype({"rank": "Int64"})
 
 
 def probe_table(refinement: Refinement) -> pd.DataFrame:
@@ -307,18 +463,19 @@ def probe_table(refinement: Refinement) -> pd.DataFrame:
 
 
 def comparison_frame(results: CalibrationResults) -> pd.DataFrame:
-    """The figure's points: per shown universe (by rank) and cell, target and measured."""
-    ranked = [u for u in results.universes if u.mean_squared_log_ratio is not None][:SHOWN]
+    """The figure's points: per shown universe (by rank, with its short label,
+    :func:`short_labels`) and cell, target and measured."""
+    shown = _ranked(results)[:SHOWN]
     return pd.DataFrame(
         [
             {
                 "rank": rank,
-                "universe": u.id or "the run",
+                "universe": label,
                 "measure": c.measure,
                 "target": c.target,
                 "measured": c.measured,
             }
-            for rank, u in enumerate(ranked, start=1)
+            for rank, (u, label) in enumerate(zip(shown, short_labels(shown), strict=True), 1)
             for c in u.cells
         ]
     )
@@ -328,8 +485,8 @@ def write_calibration_report(
     results: CalibrationResults, out_dir: Path | str, *, provenance: Mapping[str, Any] | None
 ) -> None:
     """Write the calibration ``results`` into ``out_dir``: ``report.md``, ``results.json``,
-    ``universes.csv`` (and of a refinement ``probes.csv``), the figure (PNG and SVG) and
-    ``provenance.json`` (if given).
+    ``universes.csv``, ``cells.csv`` (and of a refinement ``probes.csv``), the figure (PNG
+    and SVG) and ``provenance.json`` (if given).
 
     Raises:
         UserError: the report cannot be written.
@@ -340,6 +497,7 @@ def write_calibration_report(
         results=msgspec.to_builtins(results),
         tables={
             "universes.csv": universe_table(results),
+            "cells.csv": cell_table(results),
             **(
                 {}
                 if results.refinement is None

@@ -7,7 +7,7 @@ the CPU's and the BLAS kernels' rounding. :func:`compare_reports` compares
   (``trials.csv``: every measure of every trial; a multiverse's ``universes.csv``: every
   universe's verdicts and effects): two numbers ``a`` (expected) and ``b`` agree when
   ``|a - b| <= atol + rtol * |a|``; strings, booleans, nulls, keys and row identities must be
-  equal;
+  equal; the columns of :data:`UNCOMPARED` are passed over;
 * ``report.md``: the text must be identical (it prints numbers to four significant digits);
 * every figure ``*.png`` of the expected directory: the same size, and at most
   :data:`PIXEL_SHARE` of the pixels differing by more than :data:`PIXEL_TOLERANCE` in a
@@ -56,6 +56,11 @@ PIXEL_TOLERANCE = 8 / 255
 
 PIXEL_SHARE = 1e-3
 """Largest share of a figure's pixels that may differ beyond :data:`PIXEL_TOLERANCE`."""
+
+UNCOMPARED = {"trials.csv": frozenset({"file"})}
+"""Columns of a table that two reproductions of a report may differ in, by table: the log
+file that holds a trial depends on how its run was cut into batches (on the number of workers
+that played it), not on the trial (:data:`cirl_study.analysis.table.FILE`)."""
 
 MAX_REPORT_FILE_BYTES = 1 << 29
 """Largest file of a report read (512 MiB: a trial table of over a million trials); a report
@@ -278,7 +283,8 @@ def _table_differences(name: str, expected: Path, got: Path, tolerance: Toleranc
 def _row_differences(
     name: str, header: list[str], line: int, x: list[str], y: list[str], tolerance: Tolerance
 ) -> Iterator[str]:
-    """The differences between the rows ``x`` and ``y`` at ``line`` of a table."""
+    """The differences between the rows ``x`` and ``y`` at ``line`` of a table (but in its
+    columns of :data:`UNCOMPARED`)."""
     cells = dict(zip(header, x, strict=False))
     where = (
         f"{terminal(name)} row {line} ({terminal(cells.get('trial_id', cells.get('universe')))})"
@@ -286,7 +292,10 @@ def _row_differences(
     if len(x) != len(header) or len(y) != len(header):
         yield f"{where}: {len(x)} and {len(y)} cells where the header has {len(header)}"
         return
+    passed_over = UNCOMPARED.get(name, frozenset())
     for column, value, other in zip(header, x, y, strict=True):
+        if column in passed_over:
+            continue
         try:
             same = tolerance.agree(float(value), float(other))
         except ValueError:  # text

@@ -13,6 +13,9 @@ from cirl_study.analysis.results.types import study_tests
 
 HEADINGS = {
     "claims": "Claims",
+    "claims.data": "Claims on this run's data",
+    "claims.theory": "Theorems checked exactly",
+    "claims.not_tested": "Claims not tested",
     "cells": "Cell means",
     **{key: registered.test.heading for key, registered in study_tests().items()},
     "paper.cronbach_alpha": "Cronbach's alpha",

@@ -2,7 +2,8 @@
 
 :func:`write_report` turns trial records of any study into a directory that reads well on
 GitHub: every claim (:mod:`cirl_study.analysis.results.claims`) with its verdict and links to the
-tables and figures that support it, then every section the run's design has
+tables and figures that support it (the claims on the run's data, the theorems checked exactly
+and the claims not tested apart), then every section the run's design has
 (:mod:`~cirl_study.analysis.report.study_sections`,
 :mod:`~cirl_study.analysis.report.paper_sections`,
 :mod:`~cirl_study.analysis.report.teaching_sections`). The output is a deterministic function of the
@@ -38,6 +39,13 @@ from cirl_study.analysis.report.sections import (
     link,
 )
 from cirl_study.analysis.results.cells import papers_own
+from cirl_study.analysis.results.claims import (
+    DATA,
+    MIN_SUBJECTS,
+    NOT_TESTED,
+    THEORY,
+    count_claims,
+)
 from cirl_study.analysis.results.registry import held_tests
 from cirl_study.analysis.results.study import estimates, tests, with_claims
 from cirl_study.analysis.results.types import ClaimRow, Estimates, StudyResults, Teaching, Undefined
@@ -51,31 +59,99 @@ VERDICTS = {True: "✅ reproduced", False: "❌ not reproduced", None: "💬 ans
 """A tested claim's verdict as the report shows it; ``None``: a question, answered."""
 
 
+THEOREM_VERDICTS = {True: "✅ holds", False: "❌ does not hold"}
+"""A theorem's verdict as the report shows it."""
+
+
 def _verdict(claim: ClaimRow) -> str:
-    return VERDICTS[claim.reproduced] if claim.tested else "➖ not tested"
+    if not claim.tested:
+        return "➖ not tested"
+    if claim.kind == THEORY and claim.reproduced is not None:
+        return THEOREM_VERDICTS[claim.reproduced]
+    return VERDICTS[claim.reproduced]
 
 
-def _claims(results: StudyResults) -> list[str]:
-    rows = [
+def _capital(text: str) -> str:
+    """``text`` with its first letter a capital."""
+    return text[:1].upper() + text[1:]
+
+
+def _claim_rows(claims: Sequence[ClaimRow], first: int, tested: bool) -> list[list[str]]:
+    """The rows of a table of ``claims``, numbered from ``first``: with what was measured,
+    the verdict and the evidence (``tested``), else with why not."""
+    if not tested:
+        return [
+            [str(position), claim.claim, claim.source, claim.measurement.removeprefix(NOT_TESTED)]
+            for position, claim in enumerate(claims, start=first)
+        ]
+    return [
         [
             str(position),
             claim.claim,
             claim.source,
             claim.measurement,
             _verdict(claim),
-            ", ".join(link(key) for key in claim.evidence) if claim.tested else "–",
+            ", ".join(link(key) for key in claim.evidence),
         ]
-        for position, claim in enumerate(results.claims, start=1)
+        for position, claim in enumerate(claims, start=first)
     ]
-    header = ["#", "Claim", "Source", "We measured", "Verdict", "Evidence"]
-    return [
-        heading(2, "claims"),
-        "",
-        table(header, rows, [True, False, False, False, False, False]),
-        "",
-        "Each verdict is computed from the data by a fixed rule; a claim is tested where the "
-        f"run has its cells; see {link('rules')}.",
-    ]
+
+
+def _claims(results: StudyResults) -> list[str]:
+    """The claims section: the counts, then a table each of the claims on the run's data
+    (with a warning when their cells are small), the theorems checked exactly, and the claims
+    not tested."""
+    counts = count_claims(results.claims)
+    data = [c for c in results.claims if c.tested and c.kind == DATA]
+    theory = [c for c in results.claims if c.tested and c.kind == THEORY]
+    untested = [c for c in results.claims if not c.tested]
+    measured = ["#", "Claim", "Source", "We measured", "Verdict", "Evidence"]
+    right = [True, False, False, False, False, False]
+    lines = [heading(2, "claims"), "", f"{_capital(counts.summary())}."]
+    if data:
+        lines += ["", heading(3, "claims.data"), ""]
+        if counts.few_subjects:
+            lines += [
+                f"**{_capital(counts.subjects_text() or '')}.** "
+                f"A claim's verdict wants at least {MIN_SUBJECTS} subjects (reward draws) "
+                "per cell: with fewer, its tests miss even large effects.",
+                "",
+            ]
+        lines += [
+            table(measured, _claim_rows(data, 1, True), right),
+            "",
+            "Each verdict is computed from the data by a fixed rule; see "
+            f"{link('rules')}. The fewest subjects in a claim's cells are in "
+            "[`results.json`](results.json) (`claims`, `subjects`).",
+        ]
+    if theory:
+        lines += [
+            "",
+            heading(3, "claims.theory"),
+            "",
+            "Exact results of the paper's theory (the office-supplies example), computed with "
+            "fractions: they do not depend on the run.",
+            "",
+            table(
+                ["#", "Theorem", "Source", "We computed", "Verdict", "Evidence"],
+                _claim_rows(theory, len(data) + 1, True),
+                right,
+            ),
+        ]
+    if untested:
+        lines += [
+            "",
+            heading(3, "claims.not_tested"),
+            "",
+            "The run lacks the cells these claims need.",
+            "",
+            table(
+                ["#", "Claim", "Source", "Why not tested"],
+                _claim_rows(untested, len(data) + len(theory) + 1, False),
+                [True, False, False, False],
+            ),
+        ]
+    return lines
 
 
 def _rules(results: StudyResults) -> list[str]:
@@ -85,7 +161,10 @@ def _rules(results: StudyResults) -> list[str]:
         *(f"- `{claim.id}` ({claim.source}): {claim.rule}." for claim in results.claims),
         "",
         "A claim is *not tested* when the run lacks the humans, robots, feature levels or "
-        "rationalities it needs. Every number of this report is in "
+        "rationalities it needs. A claim judged on cells of fewer than "
+        f"{MIN_SUBJECTS} subjects (reward draws) is flagged: its verdict means little. The "
+        "theorems are checked on exact fractions, whatever the run. Every number of this "
+        "report is in "
         "[`results.json`](results.json) at full precision; the trials are in "
         "[`trials.csv`](trials.csv). What made the run and this report (commit, date, "
         "platform, CPU, BLAS and package versions) is in [`provenance.json`](provenance.json).",

@@ -13,6 +13,13 @@ claim that asks a question the measurement answers; a claim that is not tested i
 reproduced. Claims from another analysis (the office-supplies theory results) are appended
 with :func:`external_claims`.
 
+A row's ``kind`` says what it is about: ``"data"`` (every claim of :data:`CLAIMS`), the run's
+data, judged on its cells; ``"theory"`` (the office-supplies theorems), exact results that do
+not depend on the run. A judged data claim's row gives the fewest subjects in its cells
+(``subjects``); below :data:`MIN_SUBJECTS` its verdict means little. :func:`count_claims`
+counts the three kinds of row apart (:class:`ClaimCounts`): the claims on the run's data, the
+theorems, and the claims not tested, as the report and ``analyze`` summarise them.
+
 The rules, on the paper's tests (results ``paper``, the reference robot's trials of the expert
 and the best response) unless they say otherwise, and on the paper's three measures
 (:data:`~cirl_study.measure_registry.PAPER_MEASURES`, each a loss), the measures every
@@ -47,9 +54,9 @@ claim was made on, whatever else is registered:
 
 from __future__ import annotations
 
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, TypeVar
+from typing import Any, Literal, TypeVar
 
 import numpy as np
 
@@ -75,7 +82,9 @@ from cirl_study.measure_registry import PAPER_MEASURES
 from cirl_study.record import (
     BEST_RESPONSE,
     EXPERT,
+    LAMBDA_SWEEP,
     LITERAL,
+    MAIN,
     MAP,
     PEDAGOGIC,
 )
@@ -95,6 +104,26 @@ PAPER_F = 962.0
 
 PAPER_ALPHA = 0.47
 """The paper's Cronbach's alpha across the three measures."""
+
+Kind = Literal["data", "theory"]
+"""What a claim is about (:class:`~cirl_study.analysis.results.types.ClaimRow` ``kind``)."""
+
+DATA: Kind = "data"
+"""A claim on the run's data, judged on its cells: every claim of :data:`CLAIMS`."""
+
+THEORY: Kind = "theory"
+"""A theorem checked exactly (the office-supplies results): it does not depend on the run."""
+
+MIN_SUBJECTS = 20
+"""The fewest subjects (reward draws) per cell on which a claim's verdict means something;
+the report and ``analyze`` say when a judged claim's cells have fewer.
+
+The rules read tests of paired differences across subjects. Below 20 subjects per cell such a
+test misses even a large effect often: a paired t test at .05 detects Cohen's d = 0.8 with
+probability 0.92 at 20 subjects, 0.62 at 10 and 0.21 at 4, where its critical t has grown from
+2.09 to 3.18. A claim not reproduced on so few draws says more about the run's size than about
+the claim, and one reproduced rests on a handful of draws (a smoke run plays 4 per feature
+level)."""
 
 SECTION_HUMAN = "paper, section 4.2"
 SECTION_LAMBDA = "paper, section 4.3"
@@ -124,6 +153,8 @@ class Claim:
     needs: Cells
     evidence: tuple[str, ...]
     judge: Callable[[StudyResults], Verdict]
+    block: str = MAIN
+    """The block whose cells the rule reads: ``main`` or ``lambda_sweep``."""
 
 
 def _num(value: float | None) -> str:
@@ -451,6 +482,7 @@ CLAIMS: tuple[Claim, ...] = (
         Cells(humans=(BEST_RESPONSE,), rationalities=3),
         ("lambda_sweep", "figure2_lambda"),
         _lambda_minimum,
+        block=LAMBDA_SWEEP,
     ),
     Claim(
         "paper_best_response",
@@ -521,16 +553,34 @@ def design_of_results(results: StudyResults) -> Design:
     )
 
 
+def cell_subjects(claim: Claim, results: StudyResults) -> int | None:
+    """The fewest subjects (reward draws) in a cell of ``results`` that ``claim`` reads
+    (``None`` when there is none): in the ``main`` block, the fewest of a feature level (every
+    human and robot plays a level's draws); in the ``lambda_sweep``, the fewest trials of a
+    cell of the claim's humans (one per draw and lambda)."""
+    if claim.block == LAMBDA_SWEEP:
+        humans = claim.needs.humans
+        counts = [row.n for row in results.lambda_sweep if not humans or row.human in humans]
+    else:
+        counts = list(results.design.subjects_per_level.values())
+    return min(counts, default=None)
+
+
+NOT_TESTED = "not tested: "
+"""How the measurement of a claim not tested begins: what the run lacks follows."""
+
+
 def judged(claim: Claim, results: StudyResults) -> ClaimRow:
     """The row of one claim on ``results``: judged where the run has its cells."""
     lacking = claim.needs.lacking(design_of_results(results))
     verdict = (
-        Verdict(f"not tested: the run lacks {lacking}", {}, False)
+        Verdict(f"{NOT_TESTED}the run lacks {lacking}", {}, False)
         if lacking
         else claim.judge(results)
     )
     return ClaimRow(
         id=claim.id,
+        kind=DATA,
         source=claim.source,
         claim=claim.statement,
         rule=claim.rule,
@@ -538,6 +588,7 @@ def judged(claim: Claim, results: StudyResults) -> ClaimRow:
         values=plain(verdict.values),
         tested=lacking is None,
         reproduced=None if verdict.reproduced is None else bool(verdict.reproduced),
+        subjects=None if lacking else cell_subjects(claim, results),
         evidence=list(claim.evidence),
     )
 
@@ -550,8 +601,10 @@ def external_claims(theory: Mapping[str, Any]) -> list[ClaimRow]:
 
     ``theory["claims"]`` must be a list of rows with the string fields ``id, source, claim,
     rule, measurement``, a boolean ``reproduced`` computed by that analysis, and optionally
-    ``tested`` (boolean, default true), ``values`` (JSON data) and ``evidence`` (list of
-    strings: keys of ``results.json``, figure names or relative links).
+    ``kind`` (``"theory"``, the default: a result checked exactly, independent of the run; or
+    ``"data"``), ``tested`` (boolean, default true), ``values`` (JSON data) and ``evidence``
+    (list of strings: keys of ``results.json``, figure names or relative links). Such a row
+    counts no subjects.
 
     Raises:
         UserError: ``theory`` does not have that shape.
@@ -570,15 +623,20 @@ def external_claims(theory: Mapping[str, Any]) -> list[ClaimRow]:
         tested = entry.get("tested", True)
         if not isinstance(entry.get("reproduced"), bool) or not isinstance(tested, bool):
             raise UserError(f"{where}: 'reproduced' and 'tested' must be booleans")
+        kind = entry.get("kind", THEORY)
+        if kind not in (DATA, THEORY):
+            raise UserError(f"{where}: 'kind' must be {DATA!r} or {THEORY!r}")
         evidence = entry.get("evidence", [])
         if not isinstance(evidence, list) or not all(isinstance(e, str) for e in evidence):
             raise UserError(f"{where}: 'evidence' must be a list of strings")
         claims.append(
             ClaimRow(
                 **{key: entry[key] for key in _EXTERNAL_TEXT},
+                kind=kind,
                 values=plain(entry.get("values", {})),
                 tested=tested,
                 reproduced=bool(tested and entry["reproduced"]),
+                subjects=None,
                 evidence=list(evidence),
             )
         )
@@ -597,3 +655,94 @@ def evaluate_claims(
         ids.add(claim.id)
         claims.append(claim)
     return claims
+
+
+def _count(n: int, word: str, plural: str | None = None) -> str:
+    """``1 claim``, ``2 claims``."""
+    return f"{n} {word if n == 1 else plural or word + 's'}"
+
+
+@dataclass(frozen=True)
+class ClaimCounts:
+    """The claim rows of a report counted apart (:func:`count_claims`): the claims judged on
+    the run's data and their verdicts, the theorems checked exactly (independent of the run),
+    and the claims not tested (the run lacks their cells)."""
+
+    data: int
+    """Claims on the run's data that were judged."""
+    reproduced: int
+    not_reproduced: int
+    answered: int
+    """Of ``data``: questions, answered by the measurement without a verdict."""
+    theorems: int
+    """Theorems checked exactly."""
+    theorems_hold: int
+    not_tested: int
+    """Claims of either kind not tested."""
+    subjects: int | None
+    """The fewest subjects in a cell of a judged data claim (``None``: none judged)."""
+
+    @property
+    def few_subjects(self) -> bool:
+        """Whether a judged data claim's cells have fewer than :data:`MIN_SUBJECTS`."""
+        return self.subjects is not None and self.subjects < MIN_SUBJECTS
+
+    def data_text(self) -> str:
+        """The claims on the run's data and their verdicts, in words."""
+        if not self.data:
+            return "no claim on this run's data judged"
+        verdicts = [f"{self.reproduced} reproduced", f"{self.not_reproduced} not reproduced"]
+        if self.answered:
+            verdicts.append(_count(self.answered, "question") + " answered")
+        return f"{_count(self.data, 'claim')} on this run's data: {', '.join(verdicts)}"
+
+    def subjects_text(self) -> str | None:
+        """The warning when the judged claims' cells are small (``None`` when they are not)."""
+        if not self.few_subjects:
+            return None
+        return (
+            f"judged on cells of {self.subjects} subjects, fewer than {MIN_SUBJECTS}: the "
+            "verdicts mean little"
+        )
+
+    def theory_text(self) -> str | None:
+        """The theorems and how many hold (``None`` when there is none)."""
+        if not self.theorems:
+            return None
+        fail = self.theorems - self.theorems_hold
+        holds = f"{self.theorems_hold} {'holds' if self.theorems_hold == 1 else 'hold'}"
+        holds += f", {fail} {'does' if fail == 1 else 'do'} not" if fail else ""
+        theorems = _count(self.theorems, "theorem")
+        return f"{theorems} checked exactly, independent of the run: {holds}"
+
+    def not_tested_text(self) -> str | None:
+        """The claims not tested (``None`` when every claim is)."""
+        if not self.not_tested:
+            return None
+        return f"{_count(self.not_tested, 'claim')} not tested, the run lacks their cells"
+
+    def summary(self) -> str:
+        """One line: the data claims (with the subjects warning), the theorems, the claims
+        not tested, separated by semicolons."""
+        data = self.data_text()
+        if self.few_subjects:
+            data += f" ({self.subjects_text()})"
+        parts = [data, self.theory_text(), self.not_tested_text()]
+        return "; ".join(part for part in parts if part)
+
+
+def count_claims(claims: Sequence[ClaimRow]) -> ClaimCounts:
+    """The rows ``claims`` counted apart by kind and verdict (:class:`ClaimCounts`)."""
+    data = [c for c in claims if c.tested and c.kind == DATA]
+    theorems = [c for c in claims if c.tested and c.kind == THEORY]
+    subjects = [c.subjects for c in data if c.subjects is not None]
+    return ClaimCounts(
+        data=len(data),
+        reproduced=sum(c.reproduced is True for c in data),
+        not_reproduced=sum(c.reproduced is False for c in data),
+        answered=sum(c.reproduced is None for c in data),
+        theorems=len(theorems),
+        theorems_hold=sum(c.reproduced is True for c in theorems),
+        not_tested=sum(not c.tested for c in claims),
+        subjects=min(subjects, default=None),
+    )

@@ -4,7 +4,8 @@ Each row's verdict is computed from the exact results of
 :func:`cirl_study.theory.office_supplies_results` (fractions compared exactly), never
 written by hand; those results are plain data (every number an exact fraction string), read
 here as the typed :class:`OfficeSupplies` (the parts the claims read). The rows have the shape
-:func:`cirl_study.analysis.results.claims.external_claims` expects:
+:func:`cirl_study.analysis.results.claims.external_claims` expects, each of ``kind`` ``"theory"``
+(exact, independent of any run):
 
 1. ``office_supplies_thresholds``: in the optimal equilibrium the human makes (1, 1)
    exactly when theta is in [41/92, 51/92] (appendix; section 3.3).
@@ -107,6 +108,7 @@ def office_supplies_claims(results: dict[str, Any]) -> dict[str, list[dict[str, 
     claims = [
         {
             "id": "office_supplies_thresholds",
+            "kind": "theory",
             "source": SOURCE_EXAMPLE,
             "claim": "In the optimal equilibrium the human selects (1, 1) iff theta is in "
             "[41/92, 51/92].",
@@ -121,6 +123,7 @@ def office_supplies_claims(results: dict[str, Any]) -> dict[str, list[dict[str, 
         },
         {
             "id": "theorem_3",
+            "kind": "theory",
             "source": "paper, Theorem 3",
             "claim": "br(br(delta_E)) != delta_E: at theta = 0.49 the best response makes "
             "(1, 1) where the expert makes (0, 2).",
@@ -137,6 +140,7 @@ def office_supplies_claims(results: dict[str, Any]) -> dict[str, list[dict[str, 
         },
         {
             "id": "section_3_3_mean_theta",
+            "kind": "theory",
             "source": "paper, section 3.3 (Theorem 2)",
             "claim": "With the 1/3, 2/3 rule and a uniform prior, after (0, 2) the robot "
             "behaves as though theta = 1/6.",
@@ -151,6 +155,7 @@ def office_supplies_claims(results: dict[str, Any]) -> dict[str, list[dict[str, 
         },
         {
             "id": "expert_not_optimal",
+            "kind": "theory",
             "source": "paper, section 3.3",
             "claim": "Expert demonstrations are not part of an optimal policy pair: the "
             "instructive pair earns more.",

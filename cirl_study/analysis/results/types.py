@@ -31,7 +31,7 @@ import math
 import numbers
 from collections.abc import Callable, Iterable
 from pathlib import Path
-from typing import TYPE_CHECKING, Annotated, Any, TypeVar
+from typing import TYPE_CHECKING, Annotated, Any, Literal, TypeVar
 
 import msgspec
 from msgspec import inspect
@@ -530,9 +530,16 @@ class RegretOptimal(Record, kw_only=True):
 
 
 class ClaimRow(Record, kw_only=True):
-    """One claim as judged (:func:`cirl_study.analysis.results.claims.evaluate_claims`)."""
+    """One claim as judged (:func:`cirl_study.analysis.results.claims.evaluate_claims`).
+
+    ``kind`` says what the claim is about: ``"data"``, the run's data, judged on its cells;
+    ``"theory"``, a theorem checked exactly, which does not depend on the run. ``subjects`` is
+    the fewest subjects (reward draws) in a cell a data claim was judged on; ``None`` for a
+    theorem and for a claim not tested.
+    """
 
     id: str
+    kind: Literal["data", "theory"]
     source: str
     claim: str
     rule: str
@@ -540,6 +547,7 @@ class ClaimRow(Record, kw_only=True):
     values: dict[str, Any]
     tested: bool
     reproduced: bool | None
+    subjects: int | None
     evidence: list[str]
 
 
