@@ -14,8 +14,10 @@ import pandas as pd
 import pytest
 from analysis_fixtures import synthetic_records
 from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
 
 from cirl_study.analysis.report import figures
+from cirl_study.analysis.results.study import FIGURE1_DIFFERENCE, figure1_subject
 from cirl_study.core.gridworld import feature_matrix
 from cirl_study.record import TrialRecord, from_builtins, to_builtins
 
@@ -140,9 +142,9 @@ def test_figure1_draws_every_step_and_names_each_regret(pair):
     assert stayed.get_title().startswith(f"expert: regret {stays.measures['regret']:.3g}")
     assert moved.get_title().startswith(f"best response: regret {best.measures['regret']:.3g}")
     assert all(axes.get_xlabel() == "x (cell)" for axes in (true_map, stayed, moved))
-    # Two stays on the start cell: two rings, the second larger; the step label covers both.
+    # Two stays on the start cell: one ring; the step label covers both.
     rings = [line for line in stayed.get_lines() if line.get_markerfacecolor() == "none"]
-    assert [ring.get_markersize() for ring in rings] == [12, 17]
+    assert [ring.get_markersize() for ring in rings] == [figures.RING_SIZE]
     assert "0-2" in [text.get_text() for text in stayed.texts]
     # Every move of the best response is an arrow.
     arrows = [text for text in moved.texts if text.arrow_patch is not None]
@@ -194,3 +196,72 @@ def test_the_cell_figure_labels_its_axes_and_its_human_names_do_not_collide(huma
     for axes in panels:
         boxes = [label.get_window_extent(renderer) for label in axes.get_xticklabels()]
         assert all(a.x1 <= b.x0 for a, b in zip(boxes, boxes[1:], strict=False)), axes.get_title()
+
+
+def _paper_main(regrets: dict[str, tuple[float, float]]) -> pd.DataFrame:
+    """Main-block rows of the paper's humans: subject -> (expert's, best response's) regret,
+    at 3 features, and a subject at 10 features that never counts."""
+    rows = [
+        {"subject": subject, "num_features": 3, "human": human, "regret": regret}
+        for subject, pair in regrets.items()
+        for human, regret in zip(("expert", "best_response"), pair, strict=True)
+    ]
+    rows += [
+        {"subject": "k10", "num_features": 10, "human": human, "regret": 1.0 + i}
+        for i, human in enumerate(("expert", "best_response"))
+    ]
+    return pd.DataFrame(rows)
+
+
+def test_figure1_shows_a_draw_whose_two_regrets_differ():
+    """The median improvement of all subjects is a draw with two equal regrets (s2, improvement
+    0); Figure 1 takes the median of the draws whose regrets differ by more than 5%."""
+    paper_main = _paper_main(
+        {
+            "s1": (0.5, 0.5),
+            "s2": (0.3, 0.3),
+            "s3": (0.05739, 0.05739),
+            "s4": (0.6, 0.2),
+            "s5": (0.4, 0.1),
+            "s6": (0.2, 0.25),
+            "s7": (0.05739, 0.0574),  # differ, but by far less than 5%
+        }
+    )
+    chosen = figure1_subject(paper_main, "map")
+    assert (chosen.subject, chosen.num_features, chosen.robot) == ("s5", 3, "map")
+    assert (chosen.regret_expert, chosen.regret_best_response) == (0.4, 0.1)
+    assert f"differ by more than {FIGURE1_DIFFERENCE:.0%}" in chosen.rule
+    assert "no subject" not in chosen.rule
+
+
+def test_figure1_falls_back_to_the_median_with_a_note_when_no_draws_regrets_differ():
+    paper_main = _paper_main({"s1": (0.5, 0.5), "s2": (0.0, 0.0), "s3": (0.2, 0.2001)})
+    chosen = figure1_subject(paper_main, "map")
+    assert chosen.subject == "s1"  # improvements -1e-4, 0, 0: the lower median, by subject id
+    assert "median of its feature level" in chosen.rule
+    assert f"no subject's two regrets differ by more than {FIGURE1_DIFFERENCE:.0%}" in chosen.rule
+
+
+def test_repeated_stays_draw_one_ring_per_cell_with_its_steps_beside_it():
+    """Three stays on a cell, a move, two stays, and a return with one more stay: a ring per
+    stayed cell, not one per stay, and each cell's combined step label clear of its ring."""
+    states = np.array(
+        [[2, 2], [2, 2], [2, 2], [2, 2], [3, 2], [3, 2], [3, 2], [2, 2], [2, 2]], dtype=float
+    )
+    figure = Figure(figsize=(3, 3), dpi=figures.DPI)
+    axes = figure.add_subplot()
+    axes.set_xlim(-0.5, 4.5)
+    axes.set_ylim(-0.5, 4.5)
+    figures._draw_path(axes, states)
+    renderer = FigureCanvasAgg(figure).get_renderer()
+    rings = [line for line in axes.get_lines() if line.get_markerfacecolor() == "none"]
+    assert sorted(tuple(ring.get_xydata()[0]) for ring in rings) == [(2.0, 2.0), (3.0, 2.0)]
+    labels = {text.get_text(): text for text in axes.texts if text.arrow_patch is None}
+    assert {"0-3,7-8", "4-6"} <= set(labels)
+    for ring in rings:
+        (label,) = [t for t in labels.values() if tuple(t.xy) == tuple(ring.get_xydata()[0])]
+        centre = axes.transData.transform(ring.get_xydata()[0])
+        radius = (ring.get_markersize() + ring.get_markeredgewidth()) / 2 * figure.dpi / 72
+        box = label.get_window_extent(renderer)
+        nearest = np.clip(centre, [box.x0, box.y0], [box.x1, box.y1])
+        assert np.hypot(*(nearest - centre)) > radius, label.get_text()

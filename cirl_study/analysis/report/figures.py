@@ -271,34 +271,41 @@ def _draw_map(axes: Axes, values: NDArray[np.float64], limit: float, title: str)
 
 def _draw_path(axes: Axes, states: NDArray[np.float64]) -> None:
     """The demonstration, step by step: each move an arrow coloured by its time step (light to
-    dark), a stay a ring, each cell numbered by the step it is reached at; back-and-forth moves
-    are offset sideways so both directions show."""
+    dark), each cell numbered by the steps it is occupied at (:func:`_step_label`); back-and-forth
+    moves are offset sideways so both directions show.
+
+    A cell the demonstration stays on gets one ring, however many steps it stays there and
+    however often it comes back (shaded as its last stay): its number says when (``3-5``: steps
+    3 to 5), and it is set just outside the ring (:data:`RING_SIZE`), so neither hides the
+    other.
+    """
     steps = len(states) - 1
     colours = matplotlib.colormaps["Greys"](np.linspace(0.35, 1.0, max(steps, 1)))
     seen: dict[frozenset[tuple[float, float]], int] = {}
+    stays: dict[tuple[float, float], int] = {}
     for t in range(steps):
         start, end = states[t], states[t + 1]
         edge = frozenset({(float(start[0]), float(start[1])), (float(end[0]), float(end[1]))})
+        if len(edge) == 1:  # a stay: its cell's ring, drawn below once every stay is known
+            stays[next(iter(edge))] = t
+            continue
         repeat = seen.get(edge, 0)
         seen[edge] = repeat + 1
-        if len(edge) == 1:  # a stay: a ring, larger for each further stay on the cell
-            ring = {
-                "markerfacecolor": "none",
-                "markeredgecolor": colours[t],
-                "markeredgewidth": 1.5,
-            }
-            axes.plot(*start, marker="o", markersize=12 + 5 * repeat, linestyle="none", **ring)
-            continue
         shift = 0.12 * repeat
         normal = np.array([-(end - start)[1], (end - start)[0]]) * shift
         arrow = {"arrowstyle": "-|>", "color": colours[t], "linewidth": 1.8}
         axes.annotate("", xy=end + normal, xytext=start + normal, arrowprops=arrow)
+    for cell, last in stays.items():
+        axes.plot(*cell, marker="o", markersize=RING_SIZE, linestyle="none",
+                  markerfacecolor="none", markeredgecolor=colours[last],
+                  markeredgewidth=1.5)  # fmt: skip
     visits: dict[tuple[float, float], list[int]] = {}
     for t, cell in enumerate(states):
         visits.setdefault((float(cell[0]), float(cell[1])), []).append(t)
     for cell, times in visits.items():
-        axes.annotate(_step_label(times), cell, xytext=(4, 4), textcoords="offset points",
-                      fontsize=6)  # fmt: skip
+        offset = RING_SIZE / 2 + 1 if cell in stays else 4
+        axes.annotate(_step_label(times), cell, xytext=(offset, offset),
+                      textcoords="offset points", fontsize=6)  # fmt: skip
     for index, marker in ((0, "o"), (-1, "s")):
         axes.plot(
             states[index, 0],
@@ -310,6 +317,11 @@ def _draw_path(axes: Axes, states: NDArray[np.float64]) -> None:
             linestyle="none",
             zorder=3,
         )
+
+
+RING_SIZE = 12.0
+"""Diameter of the ring on a cell the demonstration stays on, in points; the cell's step
+label starts just beyond its radius, up and to the right."""
 
 
 def _step_label(times: list[int]) -> str:
@@ -328,8 +340,8 @@ MAP_SIZE = 2.5
 
 FIGURE1_KEY = (
     "Demonstration: white dot = start, white square = end; arrows shade from light (first "
-    "step) to dark (last); a ring is a stay.\nNumbers: the steps at which the demonstration "
-    "is on the cell (3-4: steps 3 to 4; 2,5: steps 2 and 5). Crosses: RBF centers."
+    "step) to dark (last); a ring: it stays on the cell.\nNumbers: the steps at which the "
+    "demonstration is on the cell (3-4: steps 3 to 4; 2,5: steps 2 and 5). Crosses: RBF centers."
 )
 """The key printed under Figure 1's panels."""
 
@@ -347,11 +359,11 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
     (2 sigma^2))`` for RBF features or the one-hot colours (and the step) of a tile layout;
     the three panels share one symmetric colour scale. The demonstration runs from the white
     dot (step 0) to the white square, every step drawn and numbered, in shades from light
-    (first) to dark (last), a stay as a ring; crosses mark the RBF centers, or each cell's
-    letter its tile (:meth:`RewardScene.mark_features`). The number beside a cell lists the
-    steps at which the demonstration is there (``3-4``: steps 3 to 4; ``2,5``: steps 2 and
-    5). Each demonstration panel names its regret, and a legend line under the panels says
-    how to read them.
+    (first) to dark (last), one ring on each cell it stays on (:func:`_draw_path`); crosses
+    mark the RBF centers, or each cell's letter its tile (:meth:`RewardScene.mark_features`).
+    The number beside a cell lists the steps at which the demonstration is there (``3-4``:
+    steps 3 to 4; ``2,5``: steps 2 and 5). Each demonstration panel names its regret, and a
+    legend line under the panels says how to read them.
 
     Args:
         expert: the expert's trial record of the reward draw.
