@@ -13,9 +13,11 @@ import pingouin as pg
 import pytest
 from analysis_fixtures import pipeline, records_of, rows, synthetic_records
 
+from cirl_study.analysis.report import figures
 from cirl_study.analysis.report import study as report
 from cirl_study.analysis.report.markdown import anchor
 from cirl_study.analysis.report.study import write_report
+from cirl_study.analysis.results.study import estimates
 from cirl_study.analysis.table import trial_table
 from cirl_study.errors import UserError
 from cirl_study.measure_registry import analysed_measures
@@ -252,3 +254,35 @@ def test_the_reports_results_are_analyses_whether_its_figures_are_drawn_in_worke
         )
         assert results.claims  # the report judges the claims; analyse leaves them to it
         assert msgspec.structs.replace(results, claims=here.claims) == here, name
+
+
+def test_figure2_lambda_draws_every_human_and_robot_of_the_sweep(records):
+    """Not only the expert and the best response with the reference robot: the sweep's whole
+    table goes to the figure, with the run's humans and robots in its pipeline's order."""
+    humans, robots = ("expert", "best_response", "literal"), ("map", "posterior_mean")
+
+    def played(record: TrialRecord, human: str, robot: str) -> TrialRecord:
+        return msgspec.structs.replace(
+            record, human=human, robot=robot, trial_id=f"{record.trial_id}/{human}/{robot}"
+        )
+
+    more = [
+        played(record, human, robot)
+        for record in records
+        for human in ("literal", record.human)
+        for robot in robots
+        if record.block != "eta_cv"
+        and (human, robot) != (record.human, "map")
+        and (human != "literal" or record.human == "expert")
+    ]
+    trials = rows([*records, *more])
+    estimated = estimates(trials, trial_table(trials), pipeline("many", humans, robots))
+    drawing, (sweep, drawn_humans, drawn_robots) = report._drawings(
+        trials, records_of([*records, *more]), estimated
+    )["figure2_lambda.png"]
+    assert drawing is figures.lambda_curve
+    assert (tuple(drawn_humans), tuple(drawn_robots)) == (humans, robots)
+    regret = sweep[sweep["measure"] == "regret"]
+    assert set(zip(regret["human"], regret["robot"], strict=True)) == {
+        (human, robot) for human in humans for robot in robots
+    }

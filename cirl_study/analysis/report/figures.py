@@ -9,7 +9,7 @@ plus :data:`STYLE`, at a fixed size and :data:`DPI`, and saved as PNG without th
   human's demonstration over the MAP reward map the robot inferred from it.
 - Figure 2 (:func:`measure_bars`, :func:`lambda_curve`): the paper's three measures by human
   and feature level (and the other measures the analysis tests, in a figure of their own); the
-  regret against the robot's rationality lambda.
+  regret of every human of the sweep with every robot against the robot's rationality lambda.
 - :func:`eta_curve`: the cross-validation of the best response's eta.
 - :func:`robot_difference_curve`: a run with two robots, the paired regret difference of
   the other robot to the reference against lambda.
@@ -27,7 +27,7 @@ from typing import Any
 import matplotlib.style
 import numpy as np
 import pandas as pd
-from matplotlib import rc_context, ticker, transforms
+from matplotlib import rc_context, ticker
 from matplotlib.axes import Axes
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
@@ -271,34 +271,41 @@ def _draw_map(axes: Axes, values: NDArray[np.float64], limit: float, title: str)
 
 def _draw_path(axes: Axes, states: NDArray[np.float64]) -> None:
     """The demonstration, step by step: each move an arrow coloured by its time step (light to
-    dark), a stay a ring, each cell numbered by the step it is reached at; back-and-forth moves
-    are offset sideways so both directions show."""
+    dark), each cell numbered by the steps it is occupied at (:func:`_step_label`); back-and-forth
+    moves are offset sideways so both directions show.
+
+    A cell the demonstration stays on gets one ring, however many steps it stays there and
+    however often it comes back (shaded as its last stay): its number says when (``3-5``: steps
+    3 to 5), and it is set just outside the ring (:data:`RING_SIZE`), so neither hides the
+    other.
+    """
     steps = len(states) - 1
     colours = matplotlib.colormaps["Greys"](np.linspace(0.35, 1.0, max(steps, 1)))
     seen: dict[frozenset[tuple[float, float]], int] = {}
+    stays: dict[tuple[float, float], int] = {}
     for t in range(steps):
         start, end = states[t], states[t + 1]
         edge = frozenset({(float(start[0]), float(start[1])), (float(end[0]), float(end[1]))})
+        if len(edge) == 1:  # a stay: its cell's ring, drawn below once every stay is known
+            stays[next(iter(edge))] = t
+            continue
         repeat = seen.get(edge, 0)
         seen[edge] = repeat + 1
-        if len(edge) == 1:  # a stay: a ring, larger for each further stay on the cell
-            ring = {
-                "markerfacecolor": "none",
-                "markeredgecolor": colours[t],
-                "markeredgewidth": 1.5,
-            }
-            axes.plot(*start, marker="o", markersize=12 + 5 * repeat, linestyle="none", **ring)
-            continue
         shift = 0.12 * repeat
         normal = np.array([-(end - start)[1], (end - start)[0]]) * shift
         arrow = {"arrowstyle": "-|>", "color": colours[t], "linewidth": 1.8}
         axes.annotate("", xy=end + normal, xytext=start + normal, arrowprops=arrow)
+    for cell, last in stays.items():
+        axes.plot(*cell, marker="o", markersize=RING_SIZE, linestyle="none",
+                  markerfacecolor="none", markeredgecolor=colours[last],
+                  markeredgewidth=1.5)  # fmt: skip
     visits: dict[tuple[float, float], list[int]] = {}
     for t, cell in enumerate(states):
         visits.setdefault((float(cell[0]), float(cell[1])), []).append(t)
     for cell, times in visits.items():
-        axes.annotate(_step_label(times), cell, xytext=(4, 4), textcoords="offset points",
-                      fontsize=6)  # fmt: skip
+        offset = RING_SIZE / 2 + 1 if cell in stays else 4
+        axes.annotate(_step_label(times), cell, xytext=(offset, offset),
+                      textcoords="offset points", fontsize=6)  # fmt: skip
     for index, marker in ((0, "o"), (-1, "s")):
         axes.plot(
             states[index, 0],
@@ -310,6 +317,11 @@ def _draw_path(axes: Axes, states: NDArray[np.float64]) -> None:
             linestyle="none",
             zorder=3,
         )
+
+
+RING_SIZE = 12.0
+"""Diameter of the ring on a cell the demonstration stays on, in points; the cell's step
+label starts just beyond its radius, up and to the right."""
 
 
 def _step_label(times: list[int]) -> str:
@@ -328,8 +340,8 @@ MAP_SIZE = 2.5
 
 FIGURE1_KEY = (
     "Demonstration: white dot = start, white square = end; arrows shade from light (first "
-    "step) to dark (last); a ring is a stay.\nNumbers: the steps at which the demonstration "
-    "is on the cell (3-4: steps 3 to 4; 2,5: steps 2 and 5). Crosses: RBF centers."
+    "step) to dark (last); a ring: it stays on the cell.\nNumbers: the steps at which the "
+    "demonstration is on the cell (3-4: steps 3 to 4; 2,5: steps 2 and 5). Crosses: RBF centers."
 )
 """The key printed under Figure 1's panels."""
 
@@ -347,11 +359,11 @@ def reward_figure(expert: TrialRecord, best_response: TrialRecord, title: str) -
     (2 sigma^2))`` for RBF features or the one-hot colours (and the step) of a tile layout;
     the three panels share one symmetric colour scale. The demonstration runs from the white
     dot (step 0) to the white square, every step drawn and numbered, in shades from light
-    (first) to dark (last), a stay as a ring; crosses mark the RBF centers, or each cell's
-    letter its tile (:meth:`RewardScene.mark_features`). The number beside a cell lists the
-    steps at which the demonstration is there (``3-4``: steps 3 to 4; ``2,5``: steps 2 and
-    5). Each demonstration panel names its regret, and a legend line under the panels says
-    how to read them.
+    (first) to dark (last), one ring on each cell it stays on (:func:`_draw_path`); crosses
+    mark the RBF centers, or each cell's letter its tile (:meth:`RewardScene.mark_features`).
+    The number beside a cell lists the steps at which the demonstration is there (``3-4``:
+    steps 3 to 4; ``2,5``: steps 2 and 5). Each demonstration panel names its regret, and a
+    legend line under the panels says how to read them.
 
     Args:
         expert: the expert's trial record of the reward draw.
@@ -550,7 +562,7 @@ def _curves(
     for label, rows, style in series:
         rows = rows.sort_values(x)
         errors = np.vstack([rows["mean"] - rows["ci95_low"], rows["ci95_high"] - rows["mean"]])
-        axes.errorbar(rows[x], rows["mean"], yerr=errors, capsize=3, label=label, **style)
+        axes.errorbar(rows[x], rows["mean"], yerr=errors, label=label, **{"capsize": 3, **style})
     if (frame[x] > 0).all():
         _log_axis(axes)
 
@@ -568,68 +580,190 @@ def _log_axis(axes: Axes) -> None:
     axes.xaxis.set_minor_locator(ticker.NullLocator())
 
 
-STAR_OFFSET = 9.0
-"""How far above a point's confidence interval its star sits, in points: a star marks a point
-without hiding it or its interval."""
+STAR_SIZE = 22.0
+"""Size of the gold star that marks a point (:func:`_star_on`), in points: about four times a
+point's marker, so it shows around the marker it lies beneath."""
+
+LOWEST_REGRET = "lowest best-response regret"
+"""The legend's name for the star of :func:`lambda_figure`."""
 
 
-def _star_above(axes: Axes, x: float, top: float, label: str) -> None:
-    """A gold star :data:`STAR_OFFSET` points above ``(x, top)``, the upper end of a point's
-    interval."""
-    above = transforms.offset_copy(axes.transData, fig=axes.figure, y=STAR_OFFSET, units="points")
-    axes.plot(x, top, marker="*", markersize=13, color="gold", markeredgecolor="black",
-              linestyle="none", label=label, zorder=4, transform=above)  # fmt: skip
+def _star_on(axes: Axes, x: float, y: float, label: str) -> None:
+    """A gold star centred on the data point ``(x, y)`` it marks, beneath every line and
+    marker (``zorder`` 1.5, below the lines' 2): it rims the point's own marker and hides
+    nothing, neither that marker, its interval, nor a neighbour's."""
+    axes.plot(x, y, marker="*", markersize=STAR_SIZE, color="gold", markeredgecolor="#7f6000",
+              markeredgewidth=0.8, linestyle="none", label=label, zorder=1.5)  # fmt: skip
 
 
-def lambda_curve(sweep: pd.DataFrame) -> Rendered:
+OTHER_HUMAN_COLOURS = ("#E69F00", "#009E73", "#D55E00", "#CC79A7", "#56B4E9", "#000000", "#F0E442")
+"""Colours of the humans beyond the paper's two, in the run's order: Okabe and Ito's
+colour-blind-safe palette (yellow last: it is faint on white). The paper's humans keep their
+grey and blue (:data:`HUMAN_COLOURS`), as in every figure."""
+
+OTHER_HUMAN_MARKERS = ("^", "D", "v", "P", "X", "h", "<", ">")
+"""Markers of the humans beyond the paper's two (circle and square: :data:`HUMAN_MARKERS`), in
+the run's order, so that no two humans share colour and marker even in grey print."""
+
+
+def human_styles(humans: Sequence[str]) -> dict[str, dict[str, str]]:
+    """Each human's colour and marker, by name: the paper's humans their own
+    (:data:`HUMAN_COLOURS`, :data:`HUMAN_MARKERS`), every other one the next of
+    :data:`OTHER_HUMAN_COLOURS` and :data:`OTHER_HUMAN_MARKERS` in the order of ``humans``
+    (distinct for up to seven others)."""
+    styles = {}
+    others = 0
+    for human in humans:
+        if human in HUMAN_COLOURS:
+            styles[human] = {"color": HUMAN_COLOURS[human], "marker": HUMAN_MARKERS[human]}
+            continue
+        styles[human] = {
+            "color": OTHER_HUMAN_COLOURS[others % len(OTHER_HUMAN_COLOURS)],
+            "marker": OTHER_HUMAN_MARKERS[others % len(OTHER_HUMAN_MARKERS)],
+        }
+        others += 1
+    return styles
+
+
+def human_label(human: str) -> str:
+    """A human as the figures name it: the paper's by :data:`HUMAN_LABELS`, others by name."""
+    return HUMAN_LABELS.get(human, human)
+
+
+def _dodge(humans: Sequence[str], rationalities: Sequence[float]) -> dict[str, float]:
+    """Factors that shift each human's points sideways on a log lambda axis, in the order of
+    ``humans`` from left to right around the true lambda: neighbours a factor ``1.08**2``
+    apart (:data:`DODGE`, for two humans), closer where that would spread the group over more
+    than half the gap between neighbouring lambdas."""
+    values = sorted({float(value) for value in rationalities if value > 0})
+    gaps = np.diff(np.log10(values))
+    gap = float(gaps.min()) if len(gaps) else 1.0
+    step = min(2 * float(np.log10(DODGE[BEST_RESPONSE])), 0.5 * gap / max(len(humans) - 1, 1))
+    middle = (len(humans) - 1) / 2
+    return {human: 10 ** (step * (i - middle)) for i, human in enumerate(humans)}
+
+
+def lambda_curve(
+    sweep: pd.DataFrame, humans: Sequence[str] = (), robots: Sequence[str] = ()
+) -> Rendered:
     """Figure 2 (right), rendered: see :func:`lambda_figure`."""
     with matplotlib.style.context("default"), rc_context(STYLE):
-        return render(lambda_figure(sweep))
+        return render(lambda_figure(sweep, humans, robots))
 
 
-def lambda_figure(sweep: pd.DataFrame) -> Figure:
+LAMBDA_PANEL = (4.0, 2.65)
+"""Width and height of each panel of :func:`lambda_figure`, in inches."""
+
+
+def lambda_figure(
+    sweep: pd.DataFrame, humans: Sequence[str] = (), robots: Sequence[str] = ()
+) -> Figure:
     """Figure 2 (right): regret against the robot's rationality lambda, log axis.
 
-    One panel per feature level; in each, both humans in their colours and markers (expert
-    circles, best response squares), dodged sideways so that neither hides the other where
-    they coincide; bars are 95% CIs. A star above its interval marks the lambda at which the
-    best response's mean regret is lowest, the point of the paper's claim. Every panel has
-    its own regret scale, labelled.
+    A panel per feature level (across) and robot (down, titled with its name where the sweep
+    has several); in each, one line per human of the sweep, each in its colour and marker
+    (:func:`human_styles`: colour-blind safe, no two alike for up to 8 humans), dodged
+    sideways so that none hides another where they coincide (:func:`_dodge`); bars are 95%
+    CIs. A gold star beneath the best response's point of lowest mean regret, centred on it,
+    marks the point of the paper's claim. Every panel has its own regret scale, labelled; the
+    legend (the humans, the star) stands right of the panels, outside the data.
 
     Args:
-        sweep: rows ``measure, rationality, human, num_features, mean, ci95_low, ci95_high``.
+        sweep: rows ``measure, rationality, human, robot, num_features, mean, ci95_low,
+            ci95_high`` (without ``robot``: one robot).
+        humans: the humans in the order drawn (default: as they first appear in ``sweep``);
+            those without a row are left out.
+        robots: the robots in the order drawn, likewise.
     """
     regret = sweep[sweep["measure"] == "regret"]
+    if "robot" not in regret.columns:
+        regret = regret.assign(robot="")
+    humans = _present(humans, regret["human"])
+    robots = _present(robots, regret["robot"])
     levels = sorted(regret["num_features"].unique())
+    styles = human_styles(humans)
+    dodge = _dodge(humans, regret["rationality"])
+    labels = [human_label(human) for human in humans]
+    starred = BEST_RESPONSE in humans
+    legend = max(map(_text_width, [*labels, LOWEST_REGRET if starred else ""])) + 0.55
+    margins = Margins(right=legend + 0.25, down=0.6)
+    panel_width, panel_height = LAMBDA_PANEL
     with matplotlib.style.context("default"), rc_context(STYLE):
-        figure = _new_figure(4.2 * len(levels), 3.8)
-        panels = _panels(figure, 1, len(levels))[0]
-        for axes, level in zip(panels, levels, strict=True):
-            at_level = regret[regret["num_features"] == level]
-            _curves(axes, at_level, "rationality", _human_series(at_level))
-            best = at_level[at_level["human"] == BEST_RESPONSE]
-            lowest = best.loc[best["mean"].idxmin()]
-            _star_above(axes, lowest["rationality"] * DODGE[BEST_RESPONSE],
-                        lowest["ci95_high"], "lowest best-response regret")  # fmt: skip
-            axes.set_title(f"{level} features")
-            axes.set_xlabel("robot's rationality λ")
-            axes.set_ylabel("mean regret (95% CI)")
-        panels[0].legend(frameon=False, fontsize=8, markerscale=1.2)
-        figure.suptitle("Regret against the rationality the robot assumes (lower is better)")
+        figure = _new_figure(
+            margins.left + margins.right + len(levels) * panel_width
+            + (len(levels) - 1) * margins.across,
+            margins.bottom + margins.top + len(robots) * panel_height
+            + (len(robots) - 1) * margins.down,
+        )  # fmt: skip
+        grid = _panels(figure, len(robots), len(levels), margins)
+        for row, robot in enumerate(robots):
+            for axes, level in zip(grid[row], levels, strict=True):
+                cell = regret[(regret["robot"] == robot) & (regret["num_features"] == level)]
+                _curves(axes, cell, "rationality", _human_series(cell, humans, dodge, styles))
+                best = cell[cell["human"] == BEST_RESPONSE]
+                if best["mean"].notna().any():
+                    lowest = best.loc[best["mean"].idxmin()]
+                    _star_on(axes, lowest["rationality"] * dodge[BEST_RESPONSE],
+                             lowest["mean"], LOWEST_REGRET)  # fmt: skip
+                where = f"robot {robot}, " if len(robots) > 1 else ""
+                axes.set_title(f"{where}{level} features")
+                axes.set_ylabel("mean regret (95% CI)")
+                axes.tick_params(axis="x", labelsize=8)
+                if row == len(robots) - 1:
+                    axes.set_xlabel("robot's rationality λ")
+        keys = [
+            Line2D([], [], markersize=6, label=label, **styles[human])
+            for human, label in zip(humans, labels, strict=True)
+        ]
+        if starred:
+            keys.append(
+                Line2D([], [], marker="*", markersize=STAR_SIZE * 0.75, color="gold",
+                       markeredgecolor="#7f6000", linestyle="none", label=LOWEST_REGRET)
+            )  # fmt: skip
+        width, height = figure.get_size_inches()
+        figure.legend(
+            handles=keys,
+            loc="center left",
+            bbox_to_anchor=((width - margins.right + 0.15) / width, 0.5),
+            frameon=False,
+        )
+        figure.suptitle(
+            "Regret against the rationality the robot assumes (lower is better)",
+            y=1 - 0.1 / height,
+            va="top",
+        )
         return figure
 
 
-def _human_series(rows: pd.DataFrame) -> list[tuple[str, pd.DataFrame, dict[str, Any]]]:
+def _present(order: Sequence[str], column: pd.Series) -> list[str]:
+    """The values of ``column`` in the order of ``order`` (by first appearance without one),
+    those it lacks left out."""
+    present = list(dict.fromkeys(column.tolist()))
+    return [value for value in order if value in present] if order else present
+
+
+def _human_series(
+    rows: pd.DataFrame,
+    humans: Sequence[str],
+    dodge: Mapping[str, float],
+    styles: Mapping[str, Mapping[str, str]],
+) -> list[tuple[str, pd.DataFrame, dict[str, Any]]]:
     """Each human's rows, dodged along a log x axis, in the human's colour and marker."""
     return [
         (
-            HUMAN_LABELS[human],
+            human_label(human),
             rows[rows["human"] == human].assign(
-                rationality=rows.loc[rows["human"] == human, "rationality"] * DODGE[human]
+                rationality=rows.loc[rows["human"] == human, "rationality"] * dodge[human]
             ),
-            {"color": HUMAN_COLOURS[human], "marker": HUMAN_MARKERS[human], "markersize": 6},
+            {
+                **styles[human],
+                "markersize": 6,
+                "capsize": 3 if len(humans) < 4 else 2,
+                "elinewidth": 1.5 if len(humans) < 4 else 1.0,
+            },
         )
-        for human in PAPER_HUMANS
+        for human in humans
+        if (rows["human"] == human).any()
     ]
 
 
@@ -637,9 +771,9 @@ def eta_curve(means: pd.DataFrame, choice: pd.DataFrame) -> Rendered:
     """The eta cross-validation: mean best-response regret against eta, chosen eta starred.
 
     One panel per feature level (their regrets differ tenfold), in the best response's colour
-    as everywhere else; a gold star above its interval marks the chosen eta and a dashed line
-    one standard error above its mean: every eta below the line is as good by the
-    one-standard-error rule.
+    as everywhere else; a gold star beneath the chosen eta's point, centred on it
+    (:func:`_star_on`), marks the chosen eta, and a dashed line one standard error above its
+    mean: every eta below the line is as good by the one-standard-error rule.
 
     Args:
         means: rows ``num_features, eta, mean, ci95_low, ci95_high``.
@@ -664,12 +798,16 @@ def eta_curve(means: pd.DataFrame, choice: pd.DataFrame) -> Rendered:
                 axes.axhline(line, color="black", linestyle="--", linewidth=0.8,
                              label="one SE above the chosen")  # fmt: skip
                 chosen = rows[rows["eta"] == float(row["eta"].iloc[0])]
-                _star_above(axes, float(row["eta"].iloc[0]),
-                            float(chosen["ci95_high"].iloc[0]), "chosen η")  # fmt: skip
+                if not chosen.empty:
+                    _star_on(axes, float(chosen["eta"].iloc[0]), float(chosen["mean"].iloc[0]),
+                             "chosen η")  # fmt: skip
             axes.set_title(f"{level} features")
             axes.set_xlabel("η (trade-off between reward and feature matching)")
         panels[0].set_ylabel("mean best-response regret (95% CI)")
-        panels[0].legend(frameon=False, fontsize=8)
+        legend = panels[0].legend(frameon=False, fontsize=8)
+        for handle in legend.legend_handles:  # the star at the size of the lambda figure's key
+            if isinstance(handle, Line2D) and handle.get_marker() == "*":
+                handle.set_markersize(STAR_SIZE * 0.75)
         figure.suptitle("Cross-validation of η: the lowest mean regret is chosen")
         return render(figure)
 
@@ -695,7 +833,8 @@ def robot_difference_curve(sweep: pd.DataFrame, reference: str, other: str) -> R
         for axes, level in zip(panels, levels, strict=True):
             axes.axhline(0.0, color="black", linewidth=0.8)
             at_level = regret[regret["num_features"] == level]
-            _curves(axes, at_level, "rationality", _human_series(at_level))
+            series = _human_series(at_level, PAPER_HUMANS, DODGE, human_styles(PAPER_HUMANS))
+            _curves(axes, at_level, "rationality", series)
             axes.set_title(f"{level} features")
             axes.set_xlabel("robot's rationality λ")
         panels[0].set_ylabel(f"regret, {other} minus {reference} (95% CI)")

@@ -363,13 +363,10 @@ def _drawings(
                 figures.measure_bars,
                 (paper_cells.to_frame(), others, f"{figures.better(others)}: {OTHERS_TITLE}"),
             )
-        if estimated.lambda_sweep:
-            paper_sweep = estimated.lambda_sweep.filter(
-                lambda row: row.robot == reference and row.human in PAPER_HUMANS
-            )
+        if estimated.lambda_sweep:  # every human and robot of the sweep
             drawings[FIGURE2_LAMBDA.file] = (
                 figures.lambda_curve,
-                (paper_sweep.to_frame(),),
+                (estimated.lambda_sweep.to_frame(), design.humans, design.robots),
             )
     if not papers_own(design.humans, design.robots):
         drawings[CELL_MEANS.file] = (

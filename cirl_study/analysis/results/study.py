@@ -130,18 +130,45 @@ def design_of(table: pd.DataFrame, pipeline: Pipeline) -> Design:
     )
 
 
+FIGURE1_DIFFERENCE = 0.05
+"""How far apart a reward draw's two regrets must be for Figure 1 to show it: by more than
+this fraction of the larger (in absolute value), so the two demonstrations it sets side by
+side visibly teach the robot differently (two equal regrets, often two identical paths, show
+nothing of the paper's point)."""
+
+
 def figure1_subject(paper_main: pd.DataFrame, robot: str) -> Figure1:
     """The reward draw shown in Figure 1, watched by ``robot``: a typical one at the smallest
-    feature level.
+    feature level whose humans differ.
 
-    Among the subjects at the smallest feature level, the one whose regret improvement
-    ``regret(expert) - regret(best_response)`` is the median (the lower median for an
-    even count; ties broken by subject id).
+    Among the subjects at the smallest feature level whose two regrets differ by more than
+    :data:`FIGURE1_DIFFERENCE` (5%) of the larger, ``|regret(expert) - regret(best_response)|
+    > 0.05 * max(|regret(expert)|, |regret(best_response)|)``, the one whose regret improvement
+    ``regret(expert) - regret(best_response)`` is the median (the lower median for an even
+    count; ties broken by subject id). Where no subject's regrets differ so, the median of all
+    the level's subjects, and the ``rule`` says so.
     """
     level = int(paper_main["num_features"].min())
     paired = statistics.paired_by_subject(paper_main, "regret", level)
-    improvement = (paired[EXPERT] - paired[BEST_RESPONSE]).rename("improvement")
-    ordered = improvement.reset_index().sort_values(["improvement", "subject"], kind="mergesort")
+    expert, best = paired[EXPERT], paired[BEST_RESPONSE]
+    improvement = (expert - best).rename("improvement")
+    larger = pd.concat([expert.abs(), best.abs()], axis=1).max(axis=1)
+    differ = improvement.abs() > FIGURE1_DIFFERENCE * larger
+    percent = f"{FIGURE1_DIFFERENCE:.0%}"
+    rule = (
+        f"the subject at num_features={level} whose regret improvement (expert minus best "
+        f"response) is the median of those whose two regrets differ by more than {percent} of "
+        "the larger"
+    )
+    candidates = improvement[differ]
+    if candidates.empty:
+        candidates = improvement
+        rule = (
+            f"the subject at num_features={level} whose regret improvement (expert minus best "
+            f"response) is the median of its feature level (no subject's two regrets differ by "
+            f"more than {percent} of the larger)"
+        )
+    ordered = candidates.reset_index().sort_values(["improvement", "subject"], kind="mergesort")
     chosen = ordered.iloc[(len(ordered) - 1) // 2]
     subject = str(chosen["subject"])
     return Figure1(
@@ -149,10 +176,7 @@ def figure1_subject(paper_main: pd.DataFrame, robot: str) -> Figure1:
         num_features=level,
         regret_expert=float(paired.at[subject, EXPERT]),
         regret_best_response=float(paired.at[subject, BEST_RESPONSE]),
-        rule=(
-            f"the subject at num_features={level} whose regret improvement "
-            "(expert minus best response) is the median of its feature level"
-        ),
+        rule=rule,
         robot=robot,
     )
 
