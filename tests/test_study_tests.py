@@ -17,7 +17,7 @@ from analysis_fixtures import pipeline, rows, synthetic_records
 from cirl_study.analysis.report.sections import HEADINGS
 from cirl_study.analysis.report.study import render_markdown
 from cirl_study.analysis.results.per_measure import run_tests
-from cirl_study.analysis.results.registry import StudyTest, held_tests, registered, study_tests
+from cirl_study.analysis.results.registry import StudyTest, held_tests, registered
 from cirl_study.analysis.results.study import analyse, design_of, with_claims
 from cirl_study.analysis.results.types import (
     AnovaEffect,
@@ -32,6 +32,7 @@ from cirl_study.analysis.results.types import (
     Table,
     WilcoxonRow,
     checked,
+    study_tests,
 )
 from cirl_study.analysis.table import trial_table
 from cirl_study.measure_registry import analysed_measures
