@@ -97,11 +97,12 @@ def read_for_analysis(
                 f"{terminal(run_dir)}: a multiverse is analysed only whole (its universes "
                 f"share the reward draws); {resume}"
             )
+        missing = audit.missing_text() or None
         trials, left_out = complete_main_subjects(contents.rows)
         lacks = {
             "planned": audit.planned,
             "logged": audit.logged,
-            "missing": audit.missing_text() or None,
+            "missing": missing,
             "damaged_files": len(contents.damaged),
             "main_subjects_left_out": len(left_out),
         }
