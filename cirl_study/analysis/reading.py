@@ -82,9 +82,9 @@ def read_for_analysis(
     pipeline = logged_pipeline(contents.identity)
     audit = audit_run(pipeline, contents.rows)
     incomplete = not audit.complete or bool(contents.damaged)
-    # How to complete the run, only where it is not: the advice reads the run's lock and
-    # hashes the pipeline files it may name.
-    resume = resume_advice(contents.identity, run_dir) if incomplete else ""
+    # How to complete the run, only where it is not: the advice hashes the pipeline files it
+    # may name.
+    resume = resume_advice(contents.identity, run_dir, contents.writer) if incomplete else ""
     faults = audit.faults(resume)
     whole = pipeline.multiverse is not None
     if audit.foreign or (faults and not partial):
@@ -97,11 +97,12 @@ def read_for_analysis(
                 f"{terminal(run_dir)}: a multiverse is analysed only whole (its universes "
                 f"share the reward draws); {resume}"
             )
+        missing = audit.missing_text() or None
         trials, left_out = complete_main_subjects(contents.rows)
         lacks = {
             "planned": audit.planned,
             "logged": audit.logged,
-            "missing": audit.missing_text() or None,
+            "missing": missing,
             "damaged_files": len(contents.damaged),
             "main_subjects_left_out": len(left_out),
         }

@@ -60,8 +60,10 @@ from cirl_study.workers import started
 class RunContents:
     """The trials of a run as rows (:class:`~cirl_study.record.TrialRow`, sorted by
     ``trial_id``), each file's provenance, the run's identity, the damaged files salvaged,
-    the warnings raised while reading, and each file with the ids of the trials it logs
-    (``files``, in the order read)."""
+    the warnings raised while reading, each file with the ids of the trials it logs
+    (``files``, in the order read), and the process id of the run writing to the directory
+    as it was read (``writer``: :func:`~cirl_study.logs.lock.writer_pid`, ``None`` if none
+    was)."""
 
     rows: list[TrialRow]
     provenance: list[dict[str, str]]
@@ -69,6 +71,7 @@ class RunContents:
     damaged: list[Path]
     warnings: list[str]
     files: list[tuple[Path, list[str]]]
+    writer: str | None
 
     def records(self, wanted: set[str]) -> list[TrialRecord]:
         """The whole records of the ``wanted`` trials, decoding only the files that log one
@@ -287,12 +290,17 @@ def read_run(
             analysis needs while they are read.
     """
     run_dir = Path(run_dir)
+    # Everything asked of the directory first: its log files, whether a run writes to it,
+    # and what each temporary file is; then the files are read.
+    logs = _complete_files(run_dir)
+    writer = writer_pid(run_dir)
+    temporary = [(path, non_regular(path)) for path in temp_files(run_dir)]
     rows: list[TrialRow] = []
     identities: dict[RunIdentity, Path] = {}
     first_file: dict[str, Path] = {}
     provenance, damaged, warnings = [], [], []
     files: list[tuple[Path, list[str]]] = []
-    with started(_reading, _complete_files(run_dir)) as readings:
+    with started(_reading, logs) as readings:
         meanwhile()
         for reading in readings:
             path = reading.path
@@ -332,8 +340,7 @@ def read_run(
             files.append((path, [row.trial_id for row in reading.rows]))
             rows += reading.rows
     unfinished = []
-    for path in temp_files(run_dir):
-        reason = non_regular(path)
+    for path, reason in temporary:
         if reason is None:
             unfinished.append(path)
         elif salvage:
@@ -344,13 +351,12 @@ def read_run(
                 "analyze with --partial to read the rest"
             )
     if unfinished:
-        pid = writer_pid(run_dir)
         warnings.append(
             f"{run_dir}: {len(unfinished)} unfinished temporary file(s) of an interrupted run "
             "ignored; run the pipeline again to complete the run"
-            if pid is None
+            if writer is None
             else f"{run_dir}: {len(unfinished)} temporary file(s) ignored: a cirl-study run "
-            f"(pid {pid}) is still writing it"
+            f"(pid {writer}) is still writing it"
         )
     return RunContents(
         rows=sorted(rows, key=lambda row: row.trial_id),
@@ -359,6 +365,7 @@ def read_run(
         damaged=damaged,
         warnings=warnings,
         files=files,
+        writer=writer,
     )
 
 

@@ -156,15 +156,16 @@ def plan_faults(
     except ValueError:
         return []  # a fault of every file already
     rows = [row for _, file_rows, _ in files for row in file_rows]
-    return audit_run(pipeline, rows).faults(resume_advice(identity, run_dir))
+    writer = writer_pid(run_dir)
+    return audit_run(pipeline, rows).faults(resume_advice(identity, run_dir, writer))
 
 
-def resume_advice(identity: RunIdentity, run_dir: Path) -> str:
+def resume_advice(identity: RunIdentity, run_dir: Path, writer: str | None) -> str:
     """How to complete the run in ``run_dir``: that a run is writing to it, while one is
-    (:func:`~cirl_study.logs.lock.writer_pid`); else :func:`resume_command`."""
-    pid = writer_pid(run_dir)
-    if pid is not None:
-        return f"a cirl-study run (pid {pid}) is still writing it: wait for it to end"
+    (``writer``, its process id: :func:`~cirl_study.logs.lock.writer_pid`); else
+    :func:`resume_command`."""
+    if writer is not None:
+        return f"a cirl-study run (pid {writer}) is still writing it: wait for it to end"
     return resume_command(identity, run_dir)
 
 
@@ -176,16 +177,16 @@ def resume_command(identity: RunIdentity, run_dir: Path) -> str:
     The command's pipeline is a file that holds the run's pipeline text now
     (:func:`_pipeline_file`); when none does, the command says ``PIPELINE`` and what it must be.
     """
-    out = shell(path_argument(run_dir))
+    out = path_argument(run_dir)
     pipeline = _pipeline_file(identity)
     if pipeline is None:
         return (
-            f"resume with `cirl-study run PIPELINE --out {out}`, PIPELINE a file holding the "
-            f"run's pipeline text (its logs' pipeline_toml, sha256 "
+            f"resume with `cirl-study run PIPELINE --out {shell(out)}`, PIPELINE a file "
+            f"holding the run's pipeline text (its logs' pipeline_toml, sha256 "
             f"{identity.pipeline_sha256[:12]}...), which is no longer at "
             f"{terminal(identity.pipeline_file)}"
         )
-    return f"resume with `cirl-study run {shell(pipeline)} --out {out}`"
+    return f"resume with `cirl-study run {shell(pipeline)} --out {shell(out)}`"
 
 
 def _pipeline_file(identity: RunIdentity) -> str | None:
@@ -269,5 +270,5 @@ def run_status(run_dir: Path) -> RunStatus:
         audit=audit_run(pipeline, contents.rows),
         files=len(contents.files),
         damaged=tuple(contents.damaged),
-        advice=resume_advice(contents.identity, run_dir),
+        advice=resume_advice(contents.identity, run_dir, contents.writer),
     )

@@ -88,11 +88,10 @@ def universe_trials(
         by_universe[row.universe].append(row)
     chosen = {}
     for universe in universes(pipeline):
-        cv = cv_universe(pipeline, universe).id
         main = [r for r in by_universe[universe.played.id] if r.block == MAIN]
-        chosen[universe] = judged_rows(main, universe) + [
-            r for r in by_universe[cv] if r.block == ETA_CV
-        ]
+        judged = judged_rows(main, universe)
+        cv = cv_universe(pipeline, universe).id
+        chosen[universe] = judged + [r for r in by_universe[cv] if r.block == ETA_CV]
     return chosen
 
 
