@@ -72,16 +72,16 @@ def stages_for(k: int, n: int, game: dict, rationality: float, eta_value: float)
     print(f"K={k:<3} MAP robot: {fit.iterations.mean():.1f} iterations per fit on average")
     target = best_response_target(learning, theta, eta)
     specs = {
-        policy: [
+        human: [
             TrialSpec(
-                trial_id=f"{policy}-{i}",
+                trial_id=f"{human}-{i}",
                 run_id="bench",
                 block="main",
                 subject=f"s{i}",
-                policy=policy,
+                human=human,
                 num_features=k,
                 rationality=rationality,
-                eta=None if policy == EXPERT else eta_value,
+                eta=None if human == EXPERT else eta_value,
                 seed=i,
                 grid=Grid(width=game["width"], height=game["height"]),
                 start=tuple(game["start"]),
@@ -95,7 +95,7 @@ def stages_for(k: int, n: int, game: dict, rationality: float, eta_value: float)
             )
             for i in range(n)
         ]
-        for policy in (EXPERT, BEST_RESPONSE)
+        for human in (EXPERT, BEST_RESPONSE)
     }
     return {
         "expert demonstration": lambda: expert_paths(learning, theta),

@@ -38,7 +38,7 @@ def paper_records(count: int) -> list:
             run_id="bench",
             block="main",
             subject=f"bench-{i}",
-            policy="best_response",
+            human="best_response",
             num_features=10,
             rationality=1.0,
             eta=0.316,

@@ -54,7 +54,7 @@ rationality = 1.0
 [main]
 subjects = {subjects}
 rationality = 1.0
-policies = ["expert", "best_response"]
+humans = ["expert", "best_response"]
 robots = ["map"]
 
 [lambda_sweep]
@@ -124,7 +124,7 @@ def run_and_analyse(directory: Path, trials: int) -> tuple[int, float, float, in
     Returns the trials logged, the run's and the analysis's wall seconds and the analysis's
     peak memory in bytes (see :func:`measured`).
     """
-    subjects = max(2, trials // 4)  # 2 feature levels x 2 policies
+    subjects = max(2, trials // 4)  # 2 feature levels x 2 humans
     pipeline = directory / f"stream-{trials}.toml"
     pipeline.write_text(PIPELINE.format(trials=trials, subjects=subjects), encoding="utf-8")
     run_dir = directory / f"run-{trials}"

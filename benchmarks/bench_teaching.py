@@ -59,8 +59,8 @@ def main() -> None:
     teaching = pipeline.teaching
     assert teaching is not None
     etas = {
-        (None, policy, k): 1.0
-        for policy in pipeline.policies_with_eta
+        (None, human, k): 1.0
+        for human in pipeline.humans_with_eta
         for k in pipeline.game.feature_levels
     }
     planned = [
@@ -111,8 +111,8 @@ def main() -> None:
     )
     for name, run in stages.items():
         print(f"  {name:<40} {1e3 * median_seconds(run, options.repeats) / n:9.1f}")
-    for pair in dict.fromkeys((t.policy, t.robot) for t in trials):
-        specs = [t for t in trials if (t.policy, t.robot) == pair]
+    for pair in dict.fromkeys((t.human, t.robot) for t in trials):
+        specs = [t for t in trials if (t.human, t.robot) == pair]
         seconds = median_seconds(lambda specs=specs: play_trials(specs), options.repeats)
         label = f"whole trial, {pair[0]} + {pair[1]}"
         print(f"  {label:<40} {1e3 * seconds / len(specs):9.1f}")
