@@ -244,10 +244,7 @@ def _paired_t(first: np.ndarray, second: np.ndarray) -> PairedTest:
     if len(difference) < 2:  # no spread to test against: everything but the mean undefined
         mean = float(difference.mean()) if len(difference) else math.nan
         return PairedTest(mean, math.nan, math.nan, math.nan, 0, math.nan, math.nan, math.nan)
-    with warnings.catch_warnings():
-        # Differences all alike leave no variance: scipy's t is then infinite (or 0 / 0, NaN)
-        # and its p 0 or NaN, as the definitions have them; it warns of it, and so do not we.
-        warnings.simplefilter("ignore", RuntimeWarning)
+    with undefined_as_nan():  # differences all alike: t infinite (or 0 / 0), p 0 (or NaN)
         test = stats.ttest_rel(first, second)
         interval = test.confidence_interval(CONFIDENCE)
     return PairedTest(
