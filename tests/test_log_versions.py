@@ -187,7 +187,7 @@ def test_a_log_of_an_unknown_format_is_refused_in_one_line(tmp_path: Path) -> No
 
 
 def test_every_readable_format_is_named_and_the_current_one_is_written() -> None:
-    assert versions.READABLE[-1] == versions.LOG_FORMAT == "9"
+    assert versions.READABLE[-1] == versions.LOG_FORMAT == "10"
     assert (
         versions.readable("5")
         and versions.readable("6")

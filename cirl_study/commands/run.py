@@ -44,8 +44,7 @@ def _summary(result: RunResult, engine: str) -> str:
         etas = f"{len(result.etas)} choices in {len(universes)} universes (see the report)"
     else:
         etas = "; ".join(
-            f"{human} at K={k} -> {choice.eta:g} "
-            f"(mean regret {choice.mean_regret[choice.eta]:.4g})"
+            f"{human} at K={k} -> {choice.eta:g} (mean regret {choice.mean_regret[choice.eta]:.4g})"
             for (_, human, k), choice in sorted(result.etas.items())
         )
     return "\n".join(

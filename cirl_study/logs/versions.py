@@ -46,6 +46,12 @@ a trial record's player who shows     ``policy``                 ``human``
 the pipeline's humans                 ``main.policies``          ``main.humans``
 ===================================== ========================== ==========================
 
+Format 10 added people, renaming none: a trial of the ``recorded`` human carries the
+participant's demonstration (``recorded``: ``participant``, ``condition``, ``path`` and, where
+the file had them, ``seconds`` and ``order``), and the provenance of a run with participants
+its file of demonstrations (``participants_csv``, ``participants_sha256``), with which its
+pipeline is read; a record of an earlier format reads ``recorded`` as ``null``.
+
 The episode topics (``/cirl/demonstration``, ``/cirl/deployment``) are replay views that no
 reader decodes; their messages keep the name they were logged with.
 
@@ -61,8 +67,9 @@ import msgspec
 
 from cirl_study.measure_registry import MEASURES
 
-LOG_FORMAT = "9"
-"""The format this version writes: 9 the player who demonstrates named ``human`` (see the
+LOG_FORMAT = "10"
+"""The format this version writes: 10 the ``recorded`` human's demonstrations and the run's
+file of them (see the module docstring); 9 the player who demonstrates named ``human`` (see the
 module docstring); 8 ``measures`` by the measure registry, games of any
 feature kind (``features.kind`` ``tiles``) with goal cells (``goals``) and named tasks
 (``task``); 7 the ``gradient_ascent`` robot and its settings, and
@@ -71,7 +78,7 @@ record's ``teaching`` (hypothesis space), and ``seed`` shared by the robots of o
 demonstration; 4 the record's ``demonstrator_stays``, ``deployment_start`` and ``universe``;
 3 the run's identity and pipeline text in every file; 2 the typed record."""
 
-READABLE = ("5", "6", "7", "8", LOG_FORMAT)
+READABLE = ("5", "6", "7", "8", "9", LOG_FORMAT)
 """The formats this version reads."""
 
 _RENAMING = ("5",)

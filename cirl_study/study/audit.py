@@ -247,8 +247,7 @@ class RunStatus:
             f"({self.pipeline.description}), from {identity.pipeline_file}, "
             f"log format {identity.log_format}",
             f"status: {state}",
-            f"trials: {audit.logged} of {audit.planned} planned, in {self.files} file(s): "
-            f"{blocks}",
+            f"trials: {audit.logged} of {audit.planned} planned, in {self.files} file(s): {blocks}",
         ]
         if self.damaged:
             names = ", ".join(path.name for path in self.damaged)

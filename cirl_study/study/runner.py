@@ -122,6 +122,8 @@ def warm_up(pipeline: Pipeline) -> None:
     from cirl_study.core.trial import demonstrations, play_trials
 
     base = (eta_cv_trials(pipeline) or study_trials(pipeline, {}))[0]
+    participants = pipeline.participants
+    shown = None if participants is None else participants.shown().shown[0]
     trials = [
         msgspec.structs.replace(
             base,
@@ -130,6 +132,8 @@ def warm_up(pipeline: Pipeline) -> None:
             eta=1.0 if HUMANS[human].takes_eta else None,
             robot=robot,
             gradient_ascent=gradient_ascent_settings(pipeline, robot),
+            task=shown.task if shown and HUMANS[human].recorded else base.task,
+            recorded=shown.recorded if shown and HUMANS[human].recorded else None,
         )
         for human in pipeline.main.humans
         for robot in pipeline.main.robots
@@ -187,7 +191,14 @@ def batch_file_name(batch: Sequence[TrialSpec]) -> str:
 
 def run_identity(pipeline: Pipeline) -> RunIdentity:
     """The identity every log file of ``pipeline``'s run states in its provenance."""
-    return RunIdentity(pipeline.run_id, pipeline.name, path_argument(pipeline.path), pipeline.text)
+    participants = pipeline.participants
+    return RunIdentity(
+        pipeline.run_id,
+        pipeline.name,
+        path_argument(pipeline.path),
+        pipeline.text,
+        demonstrations="" if participants is None else participants.shown().text,
+    )
 
 
 def prepare_run_directory(out_dir: Path, identity: RunIdentity) -> LoggedRun:
@@ -391,6 +402,7 @@ def same_settings(first: Pipeline, second: Pipeline) -> bool:
     >>> same_settings(smoke, dataclasses.replace(smoke, seed=smoke.seed + 1))
     False
     """
+
     def settings(pipeline: Pipeline) -> Pipeline:
         return dataclasses.replace(pipeline, description="", path=Path(), text="", sha256="")
 
