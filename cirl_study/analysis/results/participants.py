@@ -138,7 +138,7 @@ def _anova(complete: pd.DataFrame, within: bool, robots: bool) -> Table[AnovaEff
     docstring); none where fewer than two participants are complete in some condition."""
     rows = Table(AnovaEffect)
     factors = ["task"] + (["robot"] if robots else []) + (["condition"] if within else [])
-    between = None if within else "condition"
+    between = () if within else ("condition",)
     sizes = complete.groupby("condition")["subject"].nunique()
     if complete.empty or sizes.min() < 2 or (within and len(sizes) < 2):
         return rows
