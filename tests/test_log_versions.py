@@ -140,7 +140,10 @@ def test_a_run_of_format_8_reads_its_policies_as_humans() -> None:
     results = cirl_study.analyze(run)
     assert results.design.humans == ["expert", "best_response"]
     assert {r.task for r in contents.records({row.trial_id for row in contents.rows})} == {
-        "oo", "ox", "xo", None
+        "oo",
+        "ox",
+        "xo",
+        None,
     }
 
 

@@ -62,13 +62,18 @@ def main() -> None:
             gaps = rng.lognormal(np.log(median), 0.4, size=len(cells) - 1)
             seconds = np.concatenate([[0.0], 2.0 * rng.lognormal(0, 0.3) + np.cumsum(gaps)])
             for step, ((x, y), time) in enumerate(zip(cells, seconds, strict=True)):
-                rows.append([participant, condition, spec.task, step, x, y, f"{time:.3f}", position])
+                rows.append(
+                    [participant, condition, spec.task, step, x, y, f"{time:.3f}", position]
+                )
     OUT.parent.mkdir(parents=True, exist_ok=True)
     with OUT.open("w", newline="") as stream:
         writer = csv.writer(stream, lineterminator="\n")
         writer.writerow(["participant", "condition", "task", "step", "x", "y", "seconds", "order"])
         writer.writerows(rows)
-    print(f"{OUT}: {len(rows)} moves of {2 * PARTICIPANTS_PER_CONDITION} participants", file=sys.stderr)
+    print(
+        f"{OUT}: {len(rows)} moves of {2 * PARTICIPANTS_PER_CONDITION} participants",
+        file=sys.stderr,
+    )
 
 
 if __name__ == "__main__":
