@@ -253,8 +253,12 @@ def test_a_pipeline_of_people_is_checked_whole(tmp_path: Path, edit, expected) -
 
 
 @settings(max_examples=12, deadline=None)
-@given(task=st.sampled_from(["ab", "ba"]), human=st.sampled_from(["expert", "literal"]),
-       seed=st.integers(0, 2**53 - 1), robot=st.sampled_from(["map", "posterior_mean"]))  # fmt: skip
+@given(
+    task=st.sampled_from(["ab", "ba"]),
+    human=st.sampled_from(["expert", "literal"]),
+    seed=st.integers(0, 2**53 - 1),
+    robot=st.sampled_from(["map", "posterior_mean"]),
+)
 def test_a_recorded_demonstration_is_watched_exactly_as_the_simulated_one(
     tmp_path_factory, task: str, human: str, seed: int, robot: str
 ) -> None:

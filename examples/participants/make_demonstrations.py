@@ -1,4 +1,4 @@
-"""Write a file of demonstrations made by simulated participants: ``pipelines/people/demonstrations.csv``.
+"""Write the file of demonstrations of ``pipelines/people.toml``, by simulated participants.
 
 A stand-in for a lab's data, in the shape ``[participants]`` reads (docs/participants.md):
 24 participants on Ho et al.'s coloured tiles (the game and tasks of ``pipelines/tiles.toml``),

@@ -51,8 +51,9 @@ claim was made on, whatever else is registered:
 10. ``best_response_vs_pedagogic`` and ``regret_optimal_gap``: questions, answered by the
     measurement without a verdict.
 11. ``showing_beats_doing``, listed in a run of people only, judged where its conditions
-    include ``do`` and ``show`` (results ``participants``): for every robot, each participant's mean reward
-    L2 distance over her tasks is lower under ``show`` than under ``do`` (Welch's t-test, or
+    include ``do`` and ``show`` (results ``participants``): for every robot, each
+    participant's mean reward L2 distance over her tasks is lower under ``show`` than under
+    ``do`` (Welch's t-test, or
     the paired one within participants), Holm p < .05.
 """
 
