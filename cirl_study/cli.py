@@ -22,6 +22,7 @@ from cirl_study.commands import (
     office_supplies,
     reproduce,
     run,
+    serve,
     show,
     validate,
 )
@@ -54,7 +55,17 @@ app = typer.Typer(
     # Plain click help: paragraphs reflowed to the terminal's width, flags without a type.
     rich_markup_mode=None,
 )
-for command in (run, validate, show, analyze, calibrate, reproduce, compare, office_supplies):
+for command in (
+    run,
+    serve,
+    validate,
+    show,
+    analyze,
+    calibrate,
+    reproduce,
+    compare,
+    office_supplies,
+):
     app.add_typer(command.app)
 
 

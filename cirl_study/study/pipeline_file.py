@@ -45,6 +45,7 @@ from cirl_study.study.spec import (
     MAX_NAME_LENGTH,
     PROBE_SUFFIX,
     EtaCVSpec,
+    ExperimentSpec,
     GameSpec,
     GradientAscentSpec,
     LambdaSweepSpec,
@@ -69,7 +70,7 @@ far from the interpreter's recursion limit (the parser itself recurses at about 
 
 TOP_KEYS = (
     "name", "description", "seed", "game", "tasks", "eta_cv", "main", "lambda_sweep",
-    "multiverse", "teaching", "gradient_ascent", "participants",
+    "multiverse", "teaching", "gradient_ascent", "participants", "experiment",
 )  # fmt: skip
 """The keys of a pipeline's top table, in the order they are checked."""
 
@@ -147,6 +148,7 @@ def parse_pipeline(
         gradient_ascent=_gradient_ascent(top, main, multiverse, ascent),
         participants=_participants(top, study, path, demonstrations),
     )
+    pipeline = replace(pipeline, experiment=_experiment(top, pipeline))
     check_resources(pipeline, label)
     return pipeline
 
@@ -221,6 +223,22 @@ def _participants(
         logged, label, study.game, study.tasks, spec.conditions, spec.within
     )
     return replace(spec, demonstrations=shown)
+
+
+def _experiment(top: Table, pipeline: Pipeline) -> ExperimentSpec | None:
+    """``[experiment]``: given only where ``cirl-study serve`` collects the demonstrations
+    (``participants.collect = true``), which refuses a pipeline without it."""
+    if "experiment" not in top.data:
+        return None
+    participants = pipeline.participants
+    if participants is None or not participants.collect:
+        top.fail(
+            "experiment",
+            "must not be given unless participants.collect = true (it describes the web "
+            "experiment that collects the demonstrations)",
+        )
+    known = ChainMap({"game": pipeline.game, "tasks": pipeline.tasks, "participants": participants})
+    return top.spec("experiment", ExperimentSpec, known)
 
 
 def _teaching(

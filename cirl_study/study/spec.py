@@ -560,31 +560,38 @@ def _tasks(value: Any, known: Known) -> tuple[Task, ...]:
                 "32 (it ends the subject's id)",
                 got=f'"{name}"',
             )
-        if not isinstance(weights, dict):
-            raise Invalid(f"must be a table of weights ({wanted})", got=shown(weights), at=name)
-        unknown = sorted(set(weights) - set(features.names))
-        if unknown:
-            raise Invalid(
-                f"is not a feature of the game ({wanted})", got="", at=f"{name}.{unknown[0]}"
-            )
-        missing = [feature for feature in features.names if feature not in weights]
-        if missing:
-            raise Invalid(
-                f"must give every feature a weight ({wanted}); {missing[0]} is missing",
-                got="",
-                at=name,
-            )
-        for feature in features.names:
-            weight = weights[feature]
-            number = isinstance(weight, int | float) and not isinstance(weight, bool)
-            if not (number and -1.0 <= weight <= 1.0):
-                raise Invalid(
-                    "must be a number in [-1, 1] (the prior's box, where the robots estimate)",
-                    at=f"{name}.{feature}",
-                    got=shown(weight),
-                )
-        tasks.append(Task(name, tuple(float(weights[feature]) for feature in features.names)))
+        tasks.append(_task(name, weights, features, at=name))
     return tuple(tasks)
+
+
+def _task(name: str, weights: Any, features: TileFeatures, at: str | None) -> Task:
+    """The task ``name`` of the table ``weights``: every feature of the tile game's
+    ``features`` given a number in ``[-1, 1]`` (the prior's box), and no other key; a fault is
+    :class:`~cirl_study.study.settings.Invalid` at the key ``at`` (``None``: the key checked)."""
+    wanted = ", ".join(features.names)
+    below = "" if at is None else f"{at}."
+    if not isinstance(weights, dict):
+        raise Invalid(f"must be a table of weights ({wanted})", got=shown(weights), at=at)
+    unknown = sorted(set(weights) - set(features.names))
+    if unknown:
+        raise Invalid(f"is not a feature of the game ({wanted})", got="", at=f"{below}{unknown[0]}")
+    missing = [feature for feature in features.names if feature not in weights]
+    if missing:
+        raise Invalid(
+            f"must give every feature a weight ({wanted}); {missing[0]} is missing",
+            got="",
+            at=at,
+        )
+    for feature in features.names:
+        weight = weights[feature]
+        number = isinstance(weight, int | float) and not isinstance(weight, bool)
+        if not (number and -1.0 <= weight <= 1.0):
+            raise Invalid(
+                "must be a number in [-1, 1] (the prior's box, where the robots estimate)",
+                at=f"{below}{feature}",
+                got=shown(weight),
+            )
+    return Task(name, tuple(float(weights[feature]) for feature in features.names))
 
 
 def _without_tasks(known: Known) -> str | None:
@@ -683,6 +690,133 @@ class ParticipantsSpec:
         if self.demonstrations is None:
             raise ValueError(f"{self.file} has not been read")
         return self.demonstrations
+
+
+MAX_EXPERIMENT_TEXT = 20_000
+"""Most characters of a text ``[experiment]`` shows a participant (the consent, one
+condition's instructions): some eight pages."""
+
+PRACTICE_TASK = "practice"
+"""The name of ``experiment.practice`` when it is a task of its own, not one of ``[tasks]``."""
+
+_CODE = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,63}")
+_PARAMETER = re.compile(r"[A-Za-z_][A-Za-z0-9_]{0,63}")
+_URL_CHARACTERS = re.compile(r"[!#-;=?-~]+")
+
+
+def _page_text(value: Any, _known: Known) -> str:
+    """A non-empty text of at most :data:`MAX_EXPERIMENT_TEXT` characters, shown as plain text
+    (paragraphs split at blank lines; nothing in it is markup)."""
+    if not isinstance(value, str) or not value.strip():
+        raise Invalid("must be a non-empty string (plain text; a blank line starts a paragraph)")
+    if len(value) > MAX_EXPERIMENT_TEXT:
+        raise Invalid(
+            f"must be at most {MAX_EXPERIMENT_TEXT} characters", got=f"{len(value)} characters"
+        )
+    return value.strip()
+
+
+def _instructions(value: Any, known: Known) -> tuple[tuple[str, str], ...]:
+    """One text per condition of ``participants.conditions``, in their order, and no other."""
+    participants: ParticipantsSpec = known["participants"]
+    conditions = participants.conditions
+    if not isinstance(value, dict):
+        raise Invalid(f"must be a table of one text per condition ({', '.join(conditions)})")
+    unknown = sorted(set(value) - set(conditions))
+    if unknown:
+        raise Invalid(
+            f"is not one of participants.conditions ({', '.join(conditions)})",
+            got="",
+            at=unknown[0],
+        )
+    missing = [condition for condition in conditions if condition not in value]
+    if missing:
+        raise Invalid(f"must give every condition its text; {missing[0]} is missing", got="")
+    return tuple((condition, _page_text(value[condition], known)) for condition in conditions)
+
+
+def _practice(value: Any, known: Known) -> Task:
+    """The practice task: the name of one of ``[tasks]``, or a table of weights (a task of its
+    own, named :data:`PRACTICE_TASK`)."""
+    tasks: tuple[Task, ...] = known["tasks"]
+    if isinstance(value, str):
+        named = [task for task in tasks if task.name == value]
+        if not named:
+            names = ", ".join(task.name for task in tasks)
+            raise Invalid(f"must be one of [tasks] ({names}) or a table of weights")
+        return named[0]
+    return _task(PRACTICE_TASK, value, known["game"].tile_features, at=None)
+
+
+def _completion_code(value: Any, _known: Known) -> str:
+    """A code shown at the end: a letter or digit, then letters, digits, ``_`` or ``-``."""
+    if not isinstance(value, str) or not _CODE.fullmatch(value):
+        raise Invalid("must be a code: a letter or digit, then letters, digits, _ or -; at most 64")
+    return value
+
+
+def _completion_url(value: Any, _known: Known) -> str:
+    """An ``https://`` (or ``http://``) address of at most 2,000 printable ASCII characters,
+    without spaces, quotes or angle brackets."""
+    ok = isinstance(value, str) and len(value) <= 2000 and _URL_CHARACTERS.fullmatch(value)
+    if not ok or not re.match(r"https?://[^/?#]+", value):
+        raise Invalid(
+            "must be an https:// (or http://) address of at most 2000 characters, without "
+            "spaces, quotes or angle brackets"
+        )
+    return value
+
+
+def _parameter(value: Any, _known: Known) -> str:
+    """The name of a URL parameter: a letter or ``_``, then letters, digits or ``_``."""
+    if not isinstance(value, str) or not _PARAMETER.fullmatch(value):
+        raise Invalid(
+            "must be a URL parameter's name (a letter or _, then letters, digits or _; at "
+            'most 64), e.g. "PROLIFIC_PID"'
+        )
+    return value
+
+
+def _one_completion(known: Known) -> str:
+    """How the experiment ends: ``code`` (``completion_code``) or ``url``
+    (``completion_url``), exactly one of them given."""
+    code, url = known["completion_code"], known["completion_url"]
+    if (code is None) == (url is None):
+        raise Invalid(
+            "or completion_url: exactly one of them must be given (a code the participant "
+            "copies, or the platform's completion address the page sends her to)",
+            at="completion_code",
+        )
+    return "code" if code is not None else "url"
+
+
+@dataclass(frozen=True)
+class ExperimentSpec:
+    """``[experiment]``: the web experiment ``cirl-study serve`` runs to collect the
+    demonstrations of a pipeline with ``participants.collect = true``
+    (:mod:`cirl_study.serve`, docs/participants.md).
+
+    ``consent`` is the text a participant agrees to first; ``instructions`` each condition's
+    text (by condition, in ``participants.conditions``' order), shown before its tasks;
+    ``practice`` the task played once before them, never stored (one of ``[tasks]``, or a task
+    of its own named :data:`PRACTICE_TASK`); the end shows ``completion_code`` or sends the
+    participant to ``completion_url`` (exactly one is given: ``completion`` says which);
+    ``participant_parameter`` names the URL parameter that carries the recruitment platform's
+    id of the participant (without it, or without the parameter in the address, she is given
+    a random id).
+    """
+
+    consent: str = setting(_page_text)
+    instructions: tuple[tuple[str, str], ...] = setting(_instructions)
+    practice: Task = setting(_practice)
+    completion_code: str | None = setting(_completion_code, default=None)
+    completion_url: str | None = setting(_completion_url, default=None)
+    participant_parameter: str | None = setting(_parameter, default=None)
+    completion: str = derived(_one_completion)
+
+    def instructions_for(self, condition: str) -> str:
+        """The instructions of ``condition``."""
+        return dict(self.instructions)[condition]
 
 
 def _hypotheses(value: Any, known: Known) -> int | Literal["tasks"]:
@@ -1107,6 +1241,7 @@ class Pipeline:
     teaching: TeachingSpec | None = None
     gradient_ascent: GradientAscentSpec | None = None
     participants: ParticipantsSpec | None = None
+    experiment: ExperimentSpec | None = None
 
     @property
     def hypothesis_count(self) -> int:
