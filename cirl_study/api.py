@@ -94,9 +94,9 @@ def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
     """
     from cirl_study.analysis.table import trial_table
     from cirl_study.logs.reader import read_run
-    from cirl_study.study.pipeline_file import logged_pipeline
+    from cirl_study.study.pipeline_file import pipelines_in
 
-    return trial_table(read_run(Path(run_dir), logged_pipeline).rows)
+    return trial_table(read_run(Path(run_dir), pipelines_in(Path(run_dir))).rows)
 
 
 def analyze(

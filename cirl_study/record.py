@@ -143,6 +143,14 @@ object of numbers either way.
 """
 
 
+class Collected(msgspec.Struct, **_STRUCT):
+    """A demonstration a participant submitted in the browser experiment (``cirl-study
+    serve``): her demonstration of ``task``, with the time of every move."""
+
+    task: NonEmptyText
+    recorded: Recorded
+
+
 class FitDiagnostics(msgspec.Struct, **_STRUCT):
     """How the robot's estimate was computed."""
 

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import csv
 import io
+import re
 import shutil
 from pathlib import Path
 
@@ -14,14 +15,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from msgspec.structs import replace
+from test_logs_helpers import run_records
 
 import cirl_study
 from cirl_study.core.gridworld import gridworld
 from cirl_study.core.trial import play_trials
 from cirl_study.errors import UserError
+from cirl_study.logs.collection import collected, collected_path, store
 from cirl_study.measure_registry import MEASURES
-from cirl_study.record import RECORDED, Recorded
-from cirl_study.study.participants import MAX_DEMONSTRATIONS_BYTES, file_text
+from cirl_study.record import RECORDED, Collected, Recorded
+from cirl_study.study.participants import (
+    MAX_DEMONSTRATIONS_BYTES,
+    check_demonstration,
+    file_text,
+)
 from cirl_study.study.pipeline_file import load_pipeline, parse_pipeline
 from cirl_study.study.plan import study_trials, trial_counts
 
@@ -283,8 +290,6 @@ def test_a_recorded_demonstration_is_watched_exactly_as_the_simulated_one(
 def test_a_run_of_people_replays_the_file_and_analyses_from_its_logs(tmp_path: Path) -> None:
     pipeline_file = write(tmp_path, moves())
     run = cirl_study.run(pipeline_file, tmp_path / "run", workers=1)
-    from test_logs_helpers import run_records
-
     records = [r for r in run_records(run) if r.human == RECORDED]
     assert len(records) == 16
     shown = {
@@ -324,3 +329,94 @@ def test_the_shipped_example_reads(tmp_path: Path) -> None:
     shutil.copy(PEOPLE, copy / "people.toml")
     assert load_pipeline(copy / "people.toml").run_id == pipeline.run_id
     assert gridworld(study_trials(pipeline, {})[0]).num_cells == 30
+
+
+def _collected(participant: str, condition: str, task: str, path) -> Collected:
+    seconds = tuple(0.5 * step for step in range(len(path)))
+    recorded = Recorded(
+        participant=participant, condition=condition, path=tuple(path), seconds=seconds, order=1
+    )
+    return Collected(task=task, recorded=recorded)
+
+
+def test_a_collected_demonstration_is_stored_once_and_read_back(tmp_path: Path) -> None:
+    shown = _collected("P1", "do", "ab", STRAIGHT)
+    assert store(tmp_path, "run-1", shown) is True
+    assert store(tmp_path, "run-1", shown) is False  # the page resent what was saved
+    with pytest.raises(UserError, match="already submitted another demonstration of task ab"):
+        store(tmp_path, "run-1", _collected("P1", "do", "ab", ROUND))
+    other = _collected("P2", "show", "ba", ROUND)
+    store(tmp_path, "run-1", other)
+    assert collected(tmp_path, "run-1") == [shown, other]
+    assert not list((tmp_path / "collected").glob("*/.*"))  # no temporary file left
+    with pytest.raises(UserError, match="a demonstration of run 'run-1', not of run-2"):
+        collected(tmp_path, "run-2")
+
+
+def test_a_damaged_or_misnamed_collected_file_is_refused(tmp_path: Path) -> None:
+    shown = _collected("P1", "do", "ab", STRAIGHT)
+    store(tmp_path, "run-1", shown)
+    path = collected_path(tmp_path, shown)
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(UserError, match="not a whole collected demonstration"):
+        collected(tmp_path, "run-1")
+    path.unlink()
+    store(tmp_path, "run-1", shown)
+    path.rename(path.with_name("show.ab.mcap"))
+    with pytest.raises(UserError, match="holds the demonstration of another name"):
+        collected(tmp_path, "run-1")
+
+
+def test_the_store_never_writes_through_a_link(tmp_path: Path) -> None:
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "collected").symlink_to(elsewhere)
+    with pytest.raises(UserError, match="symbolic link"):
+        store(run, "run-1", _collected("P1", "do", "ab", STRAIGHT))
+    assert not list(elsewhere.iterdir())
+
+
+@pytest.mark.parametrize(
+    ("shown", "expected"),
+    [
+        (_collected("P1", "do", "zz", STRAIGHT), "task zz is not one of"),
+        (_collected("P1", "watch", "ab", STRAIGHT), "condition watch is not one of"),
+        (_collected("P1", "do", "ab", STRAIGHT[:3]), "ends in [2, 1], not in a goal"),
+        (_collected("P1", "do", "ab", [(0, 1), (2, 1), (3, 1)]), "jumps from [0, 1] to [2, 1]"),
+    ],
+)
+def test_a_submission_is_checked_as_a_file_row_is(tmp_path: Path, shown, expected) -> None:
+    pipeline = load_pipeline(write(tmp_path, moves()))
+    with pytest.raises(UserError, match=re.escape(expected)):
+        check_demonstration(pipeline.game, pipeline.tasks, ("do", "show"), shown)
+
+
+def test_a_collecting_run_plays_what_was_collected_and_resumes_with_more(
+    tmp_path: Path,
+) -> None:
+    text = PIPELINE.replace("DESIGN", "between").replace('file = "moves.csv"', "collect = true")
+    pipeline_file = tmp_path / "people-small.toml"
+    pipeline_file.write_text(text)
+    run_id = load_pipeline(pipeline_file).run_id
+    run = tmp_path / "run"
+    with pytest.raises(UserError, match="no demonstration collected yet"):
+        cirl_study.run(pipeline_file, run, workers=1)
+    for number, condition in ((1, "do"), (2, "show")):
+        for task in ("ab", "ba"):
+            store(run, run_id, _collected(f"P{number}", condition, task, STRAIGHT))
+    cirl_study.run(pipeline_file, run, workers=1)
+    assert set(cirl_study.load_trials(run)["participant"].dropna()) == {"P1", "P2"}
+    for number, condition in ((3, "do"), (4, "show")):
+        for task in ("ab", "ba"):
+            store(run, run_id, _collected(f"P{number}", condition, task, ROUND))
+    with pytest.raises(UserError, match="main: 8 of 20 trials missing"):
+        cirl_study.analyze(run)  # the new demonstrations are planned, not yet played
+    cirl_study.run(pipeline_file, run, workers=1)
+    results = cirl_study.analyze(run)
+    assert results.participants.design.participants == {"do": 2, "show": 2}
+    seconds = {r.recorded.seconds for r in run_records(run) if r.recorded is not None}
+    assert seconds == {(0.0, 0.5, 1.0, 1.5), (0.0, 0.5, 1.0, 1.5, 2.0, 2.5)}

@@ -135,6 +135,7 @@ def _pipeline_value(key: str, value: Any) -> Any:
 _ADDED: dict[str, dict[str, Any]] = {
     "7": {"gradient_ascent": None},
     "8": {"goals": [], "task": None},
+    "10": {"recorded": None},
 }
 """The record's fields each format added, as a record of an earlier format reads them."""
 
@@ -153,16 +154,16 @@ def record_payload(data: bytes, log_format: str) -> bytes:
     no value in its records to take.
 
     >>> msgspec.json.decode(record_payload(b'{"robot":"literal","universe":"centres=x"}', "5"))
-    {'goals': [], 'gradient_ascent': None, 'robot': 'literal_observer', 'task': None, \
-'universe': 'centers=x'}
+    {'goals': [], 'gradient_ascent': None, 'recorded': None, 'robot': 'literal_observer', \
+'task': None, 'universe': 'centers=x'}
     >>> msgspec.json.decode(record_payload(b'{"measures":{"kl":1.5,"regret":0.25}}', "6"))[
     ...     "measures"]
     {'kl': 1.5, 'order_agreement': None, 'regret': 0.25, 'regret_under_estimate': None, \
 'reward_l2': None}
     >>> record_payload(b'{"robot":"map"}', "7")
-    b'{"goals":[],"robot":"map","task":null}'
+    b'{"goals":[],"recorded":null,"robot":"map","task":null}'
     >>> record_payload(b'{"policy":"expert","robot":"map"}', "8")
-    b'{"human":"expert","robot":"map"}'
+    b'{"human":"expert","recorded":null,"robot":"map"}'
     """
     if log_format == LOG_FORMAT or not readable(log_format):
         return data  # the current names; or a format the reader refuses, naming it

@@ -48,7 +48,7 @@ import msgspec
 
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
-from cirl_study.record import Recorded
+from cirl_study.record import Collected, Recorded
 
 if TYPE_CHECKING:
     from cirl_study.study.spec import GameSpec, Task
@@ -191,8 +191,6 @@ def read_demonstrations(
         key=lambda k: (first_seen[k[0]], list(conditions).index(k[1]), rank[k[2]]),
     )
     shown = tuple(_demonstration(key, moves[key], orders[key][0], label, game) for key in keys)
-    if len(first_seen) < 2:
-        raise UserError(f"{label}: has {len(first_seen)} participant; the analysis needs two")
     raw = text.encode()
     return Demonstrations(shown, hashlib.sha256(raw).hexdigest(), text)
 
@@ -287,57 +285,91 @@ def _demonstration(
         )
     path = tuple(steps[t][1] for t in range(count))
     lines = [steps[t][0] for t in range(count)]
-    goals = set(game.goals)
-    for t, (x, y) in enumerate(path):
-        where = f"{label} line {lines[t]}: {what}"
-        if not (0 <= x < game.width and 0 <= y < game.height):
-            raise UserError(
-                f"{where} leaves the {game.width}x{game.height} grid at step {t} ([{x}, {y}])"
-            )
-        if t == 0:
-            if (x, y) != tuple(game.start):
-                raise UserError(
-                    f"{where} starts in [{x}, {y}], not on the game's start {list(game.start)}"
-                )
-            continue
-        px, py = path[t - 1]
-        distance = abs(x - px) + abs(y - py)
-        if distance > 1 or (distance == 0 and not game.demonstrator_stays):
-            move = "stays put" if distance == 0 else "jumps"
-            allowed = "a neighbouring cell" + (" or stay" if game.demonstrator_stays else "")
-            raise UserError(
-                f"{where} {move} from [{px}, {py}] to [{x}, {y}] at step {t}: a move goes to "
-                f"{allowed}"
-            )
-        if (px, py) in goals:
-            raise UserError(f"{where} goes on after entering the goal [{px}, {py}] at step {t - 1}")
-    moves = count - 1
-    where = f"{label} line {lines[-1]}: {what}"
-    if moves > game.learning_steps:
-        raise UserError(
-            f"{where} takes {moves} moves, more than game.learning_steps = {game.learning_steps}"
-        )
-    if goals and path[-1] not in goals:
-        raise UserError(f"{where} ends in {list(path[-1])}, not in a goal")
-    if not goals and moves != game.learning_steps:
-        raise UserError(
-            f"{where} takes {moves} moves; a game without goals has paths of exactly "
-            f"game.learning_steps = {game.learning_steps}"
-        )
+    fault = path_fault(game, path)
+    if fault is not None:
+        step, text = fault
+        raise UserError(f"{label} line {lines[step]}: {what} {text}")
     times = [steps[t][2] for t in range(count)]
     seconds: tuple[float, ...] | None = None
     if any(time is not None for time in times):
         if any(time is None for time in times):
             t = times.index(None)
             raise UserError(f"{label} line {lines[t]}: {what} has no seconds at step {t}")
-        for t in range(1, count):
-            if times[t] < times[t - 1]:  # type: ignore[operator]
-                raise UserError(
-                    f"{label} line {lines[t]}: {what} arrives at step {t} before step {t - 1} "
-                    "(seconds decrease)"
-                )
+        fault = seconds_fault(times)  # type: ignore[arg-type]
+        if fault is not None:
+            step, text = fault
+            raise UserError(f"{label} line {lines[step]}: {what} {text}")
         seconds = tuple(times)  # type: ignore[arg-type]
     recorded = Recorded(
         participant=participant, condition=condition, path=path, seconds=seconds, order=order
     )
     return Shown(task=task, recorded=recorded, line=lines[0])
+
+
+def path_fault(game: GameSpec, path: Sequence[tuple[int, int]]) -> tuple[int, str] | None:
+    """The first way ``path`` (cells ``s_0..s_T``) is not a demonstration of the ``game``'s
+    learning phase, with the step at fault (the module docstring's rules), else ``None``."""
+    goals = set(game.goals)
+    for t, (x, y) in enumerate(path):
+        if not (0 <= x < game.width and 0 <= y < game.height):
+            return t, f"leaves the {game.width}x{game.height} grid at step {t} ([{x}, {y}])"
+        if t == 0:
+            if (x, y) != tuple(game.start):
+                return t, f"starts in [{x}, {y}], not on the game's start {list(game.start)}"
+            continue
+        px, py = path[t - 1]
+        distance = abs(x - px) + abs(y - py)
+        if distance > 1 or (distance == 0 and not game.demonstrator_stays):
+            move = "stays put" if distance == 0 else "jumps"
+            allowed = "a neighbouring cell" + (" or stay" if game.demonstrator_stays else "")
+            return (
+                t,
+                f"{move} from [{px}, {py}] to [{x}, {y}] at step {t}: a move goes to {allowed}",
+            )
+        if (px, py) in goals:
+            return t, f"goes on after entering the goal [{px}, {py}] at step {t - 1}"
+    moves, last = len(path) - 1, len(path) - 1
+    if moves > game.learning_steps:
+        return last, f"takes {moves} moves, more than game.learning_steps = {game.learning_steps}"
+    if goals and tuple(path[-1]) not in goals:
+        return last, f"ends in {list(path[-1])}, not in a goal"
+    if not goals and moves != game.learning_steps:
+        return last, (
+            f"takes {moves} moves; a game without goals has paths of exactly "
+            f"game.learning_steps = {game.learning_steps}"
+        )
+    return None
+
+
+def seconds_fault(seconds: Sequence[float]) -> tuple[int, str] | None:
+    """The first step whose time comes before the previous step's, else ``None``."""
+    for t in range(1, len(seconds)):
+        if seconds[t] < seconds[t - 1]:
+            return t, f"arrives at step {t} before step {t - 1} (seconds decrease)"
+    return None
+
+
+def check_demonstration(
+    game: GameSpec, tasks: Sequence[Task], conditions: Sequence[str], shown: Collected
+) -> None:
+    """Refuse ``shown`` unless it is a demonstration a file of them could hold: a known task
+    and condition, a path of the game's learning phase (:func:`path_fault`) with a time per
+    cell that never decreases.
+
+    Raises:
+        UserError: one line saying what is wrong.
+    """
+    recorded = shown.recorded
+    what = f"{recorded.participant}'s demonstration of task {shown.task}"
+    if shown.task not in [task.name for task in tasks]:
+        raise UserError(f"{what}: task {shown.task} is not one of the pipeline's [tasks]")
+    if recorded.condition not in conditions:
+        raise UserError(f"{what}: condition {recorded.condition} is not one of {list(conditions)}")
+    fault = path_fault(game, recorded.path)
+    if fault is None and recorded.seconds is not None:
+        if len(recorded.seconds) != len(recorded.path):
+            fault = 0, f"has {len(recorded.seconds)} times for {len(recorded.path)} cells"
+        else:
+            fault = seconds_fault(recorded.seconds)
+    if fault is not None:
+        raise UserError(f"{what} {fault[1]}")

@@ -26,6 +26,7 @@ from typing import Any
 
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
+from cirl_study.logs.collection import COLLECTED_DIRECTORY, collected, collected_text
 from cirl_study.logs.format import (
     MAX_PIPELINE_BYTES,
     PIPELINE_NAME_KEY,
@@ -193,7 +194,8 @@ def _participants(
 ) -> ParticipantsSpec | None:
     """``[participants]``: required exactly when the ``recorded`` human plays, in a single
     study of ``[tasks]``; its file of demonstrations read and checked whole (``logged``, its
-    text as a run's logs carry it, else the file beside ``path``)."""
+    text as a run's logs carry it, else the file beside ``path``). A collecting pipeline's
+    demonstrations are read with its run directory (:func:`with_collected`)."""
     from cirl_study.core.players import HUMANS
 
     recorded = [human for human in study.main.humans if HUMANS[human].recorded]
@@ -210,9 +212,13 @@ def _participants(
     if study.tasks is None:
         top.fail("participants", "must not be given without [tasks] (the tasks people show)")
     spec = top.spec("participants", ParticipantsSpec)
+    if (spec.file is None) == (not spec.collect):
+        top.fail("participants", "must give exactly one of file and collect = true")
+    if spec.collect:
+        return spec  # collected in the run directory: with_collected
     label = f"{top.label}: participants.file {spec.file}"
     if logged is None:
-        file = path.parent / spec.file
+        file = path.parent / str(spec.file)
         try:
             with file.open("rb") as stream:
                 raw = stream.read(MAX_DEMONSTRATIONS_BYTES + 1)
@@ -239,6 +245,27 @@ def _experiment(top: Table, pipeline: Pipeline) -> ExperimentSpec | None:
         )
     known = ChainMap({"game": pipeline.game, "tasks": pipeline.tasks, "participants": participants})
     return top.spec("experiment", ExperimentSpec, known)
+
+
+def with_collected(pipeline: Pipeline, run_dir: Path) -> Pipeline:
+    """``pipeline`` with the demonstrations collected in ``run_dir`` (a ``collect = true``
+    pipeline's, :mod:`cirl_study.logs.collection`), checked as a file of them is; any other
+    pipeline as it is.
+
+    Raises:
+        UserError: a collected demonstration is damaged, of another run, or not a legal one.
+    """
+    spec = pipeline.participants
+    if spec is None or not spec.collect:
+        return pipeline
+    text = collected_text(collected(run_dir, pipeline.run_id))
+    label = f"{run_dir / COLLECTED_DIRECTORY}"
+    if len(text.splitlines()) < 2:
+        raise UserError(f"{label}: no demonstration collected yet (cirl-study serve collects them)")
+    shown = read_demonstrations(
+        text, label, pipeline.game, pipeline.tasks or (), spec.conditions, spec.within
+    )
+    return replace(pipeline, participants=replace(spec, demonstrations=shown))
 
 
 def _teaching(
@@ -539,15 +566,19 @@ def load_pipeline(path: Path) -> Pipeline:
     return parse_pipeline(text, path)
 
 
-def logged_pipeline(identity: RunIdentity) -> Pipeline:
+def logged_pipeline(identity: RunIdentity, run_dir: Path | None = None) -> Pipeline:
     """The pipeline a run's logs carry in their ``identity``, validated as a pipeline file is
     (its limits included), read in the identity's log format; its name must be the
     identity's ``pipeline_name`` and its run id (:attr:`~cirl_study.study.spec.Pipeline.run_id`:
     the name and the start of the hash) the identity's ``run_id``. Every reader of a run is
-    given it (:data:`~cirl_study.logs.provenance.PipelineOf`).
+    given it (:data:`~cirl_study.logs.provenance.PipelineOf`). A collecting pipeline's
+    demonstrations are those collected in ``run_dir`` (:func:`with_collected`; none without
+    it), read once for every file of the run while the collection does not change.
 
     Raises:
         ValueError: any of these does not hold; the message names the provenance key.
+        UserError: a collected demonstration is damaged, of another run, or not a legal one:
+            the run directory's fault, not a file's.
     """
     try:
         pipeline = _parsed(
@@ -569,7 +600,34 @@ def logged_pipeline(identity: RunIdentity) -> Pipeline:
             f"its pipeline ({pipeline.run_id!r}: the name and the start of its "
             f"{PIPELINE_SHA_KEY})"
         )
-    return pipeline
+    if run_dir is None or pipeline.participants is None or not pipeline.participants.collect:
+        return pipeline
+    return _collected_pipeline(pipeline, run_dir, _listing(run_dir / COLLECTED_DIRECTORY))
+
+
+def pipelines_in(run_dir: Path) -> Callable[[RunIdentity], Pipeline]:
+    """The :data:`~cirl_study.logs.provenance.PipelineOf` of the run in ``run_dir``:
+    :func:`logged_pipeline` with the demonstrations collected there."""
+    return functools.partial(logged_pipeline, run_dir=run_dir)
+
+
+def _listing(folder: Path) -> tuple[tuple[str, int, int], ...]:
+    """What identifies the collected files' contents: each one's name, size and change time."""
+    if not folder.is_dir() or folder.is_symlink():
+        return ()
+    found = []
+    for path in folder.glob("*/*.mcap"):
+        status = path.lstat()
+        found.append((str(path.relative_to(folder)), status.st_size, status.st_mtime_ns))
+    return tuple(sorted(found))
+
+
+@functools.lru_cache(maxsize=4)
+def _collected_pipeline(
+    pipeline: Pipeline, run_dir: Path, listing: tuple[tuple[str, int, int], ...]
+) -> Pipeline:
+    """:func:`with_collected`, once per collection (``listing``)."""
+    return with_collected(pipeline, run_dir)
 
 
 @functools.lru_cache(maxsize=4)

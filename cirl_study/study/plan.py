@@ -265,12 +265,13 @@ def _participants(pipeline: Pipeline, num_features: int) -> list[Subject]:
     """Every participant's demonstration of a pipeline with ``[participants]``, as a subject
     of the test group, in the file's order
     (:class:`~cirl_study.study.participants.Demonstrations`)."""
-    if pipeline.participants is None:
-        return []
+    participants = pipeline.participants
+    if participants is None or participants.demonstrations is None:
+        return []  # a collecting pipeline before its run directory is read: none yet
     tasks = {task.name: task for task in pipeline.tasks or ()}
     return [
         Subject(pipeline, TEST_GROUP, num_features, index, tasks[shown.task], shown)
-        for index, shown in enumerate(pipeline.participants.shown().shown, start=1)
+        for index, shown in enumerate(participants.demonstrations.shown, start=1)
     ]
 
 
@@ -498,7 +499,7 @@ def trial_counts(pipeline: Pipeline) -> dict[str, int]:
     recorded = len(recorded_humans(pipeline))
     robots = len(pipeline.main.robots)
     humans = (len(pipeline.main.humans) - recorded) * robots
-    shown = 0 if pipeline.participants is None else len(pipeline.participants.shown().shown)
+    shown = len(_participants(pipeline, 0))
     sweep = pipeline.lambda_sweep
     cv = pipeline.eta_cv
     return {

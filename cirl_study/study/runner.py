@@ -51,7 +51,12 @@ from cirl_study.study.audit import resume_command
 from cirl_study.study.engines import Engine, WorkerLost
 from cirl_study.study.eta_cv import EtaChoice, choose_etas
 from cirl_study.study.limits import MAX_BATCH
-from cirl_study.study.pipeline_file import logged_pipeline, path_argument
+from cirl_study.study.pipeline_file import (
+    logged_pipeline,
+    path_argument,
+    pipelines_in,
+    with_collected,
+)
 from cirl_study.study.plan import (
     eta_cv_trials,
     gradient_ascent_settings,
@@ -197,7 +202,9 @@ def run_identity(pipeline: Pipeline) -> RunIdentity:
         pipeline.name,
         path_argument(pipeline.path),
         pipeline.text,
-        demonstrations="" if participants is None else participants.shown().text,
+        demonstrations=""
+        if participants is None or participants.collect
+        else participants.shown().text,
     )
 
 
@@ -211,7 +218,7 @@ def prepare_run_directory(out_dir: Path, identity: RunIdentity) -> LoggedRun:
     named like a temporary file that is no regular file (a link, a FIFO, a directory) was not
     made by a run: it is refused, not deleted.
     """
-    logged = logged_run(out_dir, identity, logged_pipeline)
+    logged = logged_run(out_dir, identity, pipelines_in(out_dir))
     temporaries = temp_files(out_dir)
     for path in temporaries:
         reason = non_regular(path)
@@ -374,7 +381,7 @@ def _players(pipeline: Pipeline) -> tuple[str, ...]:
     )
 
 
-def _same_settings(another: AnotherRunLogged, pipeline: Pipeline) -> Pipeline:
+def _same_settings(another: AnotherRunLogged, pipeline: Pipeline, out_dir: Path) -> Pipeline:
     """The pipeline of the run ``another`` found logged, if its settings are ``pipeline``'s
     (:func:`same_settings`): a run is its settings, not its text. Else ``another`` is raised:
     a run of other settings is another run, and so is a run of an earlier log format (its
@@ -383,7 +390,7 @@ def _same_settings(another: AnotherRunLogged, pipeline: Pipeline) -> Pipeline:
     if another.logged.log_format != LOG_FORMAT:
         raise another
     try:
-        logged = logged_pipeline(another.logged)
+        logged = logged_pipeline(another.logged, out_dir)
     except ValueError:
         raise another from None
     if not same_settings(logged, pipeline):
@@ -422,11 +429,12 @@ def _run_locked(
     began: float,
 ) -> RunResult:
     """:func:`run_pipeline` once this process holds the directory's writer lock."""
+    pipeline = with_collected(pipeline, out_dir)
     identity = run_identity(pipeline)
     try:
         logged = prepare_run_directory(out_dir, identity)
     except AnotherRunLogged as another:
-        pipeline = _same_settings(another, pipeline)
+        pipeline = _same_settings(another, pipeline, out_dir)
         identity = another.logged
         hooks.note(
             f"{terminal(out_dir)}: resuming run {identity.run_id}, made from another text of "

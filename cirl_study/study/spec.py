@@ -666,16 +666,20 @@ def _conditions(value: Any, _known: Known) -> tuple[str, ...]:
 class ParticipantsSpec:
     """``[participants]``: the people the ``recorded`` human stands for.
 
-    ``file`` names the file of demonstrations (:mod:`cirl_study.study.participants`), relative
-    to the pipeline file's directory; ``conditions`` are the conditions it may name, in the
-    order the report compares them (the first is the baseline); ``design`` says whether each
-    participant is in one condition (``between``) or shows every task in each (``within``).
-    ``demonstrations`` are the file's, checked (set by
-    :func:`cirl_study.study.pipeline_file.parse_pipeline`): two pipelines play the same
-    trials only when their files hold the same demonstrations.
+    Their demonstrations come from the file ``file`` (:mod:`cirl_study.study.participants`),
+    relative to the pipeline file's directory, or, with ``collect = true``, from those the
+    browser experiment collected in the run directory (``cirl-study serve``,
+    :mod:`cirl_study.logs.collection`): exactly one of the two. ``conditions`` are the
+    conditions they may name, in the order the report compares them (the first is the
+    baseline); ``design`` says whether each participant is in one condition (``between``) or
+    shows every task in each (``within``). ``demonstrations`` are the file's, checked (set by
+    :func:`cirl_study.study.pipeline_file.parse_pipeline`; of a collecting pipeline, once its
+    run directory is known): two pipelines play the same trials only when they hold the same
+    demonstrations.
     """
 
-    file: str = setting(_data_file)
+    file: str | None = setting(_data_file, default=None)
+    collect: bool = setting(boolean, default=False)
     conditions: tuple[str, ...] = setting(_conditions)
     design: str = setting(one_of(PARTICIPANT_DESIGNS), default="between")
     demonstrations: Demonstrations | None = derived(lambda _known: None)
@@ -686,9 +690,9 @@ class ParticipantsSpec:
         return self.design == "within"
 
     def shown(self) -> Demonstrations:
-        """The file's demonstrations; an error before they are read."""
+        """The demonstrations; an error before they are read."""
         if self.demonstrations is None:
-            raise ValueError(f"{self.file} has not been read")
+            raise ValueError("the participants' demonstrations have not been read")
         return self.demonstrations
 
 
@@ -1262,10 +1266,10 @@ class Pipeline:
     @property
     def run_id(self) -> str:
         """Id of the run this pipeline describes: its name and the start of its hash; of a
-        pipeline with participants, the hash of its text and its file of demonstrations
-        (SHA-256 of the two hashes, hex, joined by a newline), so another file is another
-        run."""
-        if self.participants is None:
+        pipeline with a file of participants, the hash of its text and of that file (SHA-256
+        of the two hashes, hex, joined by a newline), so another file is another run (a
+        collecting pipeline's run grows with every demonstration collected: its text alone)."""
+        if self.participants is None or self.participants.collect:
             return f"{self.name}-{self.sha256[:12]}"
         both = f"{self.sha256}\n{self.participants.shown().sha256}".encode()
         return f"{self.name}-{hashlib.sha256(both).hexdigest()[:12]}"

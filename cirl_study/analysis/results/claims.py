@@ -50,8 +50,8 @@ claim was made on, whatever else is registered:
    ahead).
 10. ``best_response_vs_pedagogic`` and ``regret_optimal_gap``: questions, answered by the
     measurement without a verdict.
-11. ``showing_beats_doing``, listed in a run of people only, judged where its conditions
-    include ``do`` and ``show`` (results ``participants``): for every robot, each
+11. ``showing_beats_doing``, on the participants of a run whose conditions include ``do``
+    and ``show`` (results ``participants``): for every robot, each
     participant's mean reward L2 distance over her tasks is lower under ``show`` than under
     ``do`` (Welch's t-test, or
     the paired one within participants), Holm p < .05.
@@ -688,11 +688,8 @@ def external_claims(theory: Mapping[str, Any]) -> list[ClaimRow]:
 def evaluate_claims(
     results: StudyResults, theory: Mapping[str, Any] | None = None
 ) -> list[ClaimRow]:
-    """Every claim row: those of :data:`CLAIMS`, then those of ``theory``. A claim on
-    participants (its cells name conditions) is a row of a run of people only: a study of
-    simulated humans lists it nowhere, not even as not tested."""
-    people = results.participants is not None
-    claims = [judged(claim, results) for claim in CLAIMS if people or not claim.needs.conditions]
+    """Every claim row: those of :data:`CLAIMS`, then those of ``theory``."""
+    claims = [judged(claim, results) for claim in CLAIMS]
     ids = {claim.id for claim in claims}
     for claim in external_claims(theory) if theory is not None else []:
         if claim.id in ids:
