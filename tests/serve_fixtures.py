@@ -122,3 +122,35 @@ def start_server(pipeline: Path, run_dir: Path, port: int) -> tuple[subprocess.P
             time.sleep(0.05)
     process.kill()
     raise AssertionError("serve did not answer in 30 s")
+
+
+def through_api(port: int, participant: str, path: list[list[int]]) -> None:
+    """``participant`` through the running server on ``port`` by its HTTP API, as the page
+    goes, every task (and the practice) by ``path``, 0.5 s a move."""
+    import json
+    import urllib.request
+
+    def call(route: str, token: str | None = None, body: object = None) -> dict:
+        headers = {"Content-Type": "application/json"}
+        if token is not None:
+            headers["Authorization"] = f"Bearer {token}"
+        data = None if body is None else json.dumps(body).encode()
+        method = "GET" if body is None and route == "state" else "POST"
+        request = urllib.request.Request(
+            f"http://127.0.0.1:{port}/api/{route}", data=data, headers=headers, method=method
+        )
+        with urllib.request.urlopen(request, timeout=60) as response:
+            return json.loads(response.read())
+
+    state = call("start", body={"participant": participant})
+    token = state["token"]
+    while state["stage"] != "done":
+        if state["stage"] in ("consent", "instructions"):
+            state = call(state["stage"], token)
+            continue
+        shown = {
+            "task": state["task"]["name"],
+            "path": path,
+            "seconds": [0.5 * step for step in range(len(path))],
+        }
+        state = call("practice" if state["stage"] == "practice" else "demonstration", token, shown)

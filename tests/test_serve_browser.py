@@ -1,7 +1,8 @@
 """``cirl-study serve`` as people use it: a real headless Chromium (Debian's, driven by
 Playwright) goes through the consent, the instructions, the practice and every task, by arrow
 keys, by clicks and by taps, reloads on the way; then the collected store holds exactly those
-demonstrations, with the time of every move.
+demonstrations, with the time of every move, and ``run`` and ``analyze`` play and analyse
+them.
 
 Skipped only where Debian's Chromium is not installed (``.ci/run`` installs it)."""
 
@@ -18,9 +19,12 @@ from serve_fixtures import (
     STRAIGHT,
     free_port,
     start_server,
+    through_api,
     write_pipeline,
 )
+from test_logs_helpers import run_records
 
+import cirl_study
 from cirl_study.logs.collection import collected
 from cirl_study.study.pipeline_file import load_pipeline
 
@@ -121,13 +125,17 @@ def test_a_participant_in_chromium_is_stored_exactly(tmp_path: Path) -> None:
             assert page.inner_text("#completion") == "DONE-7"
             assert errors == []
             browser.close()
+        # Three more participants, by the API, so that each condition has two.
+        for participant in ("A02", "A03", "A04"):
+            through_api(port, participant, STRAIGHT)
     finally:
         server.terminate()
         server.wait(30)
 
     stored = collected(run, load_pipeline(pipeline_file).run_id)
-    assert len(stored) == 3
-    for demonstration in stored:
+    mine = [shown for shown in stored if shown.recorded.participant == "B01"]
+    assert len(stored) == 12 and len(mine) == 3
+    for demonstration in mine:
         recorded = demonstration.recorded
         assert recorded.participant == "B01"
         assert [list(cell) for cell in recorded.path] == shown[recorded.order]
@@ -136,3 +144,17 @@ def test_a_participant_in_chromium_is_stored_exactly(tmp_path: Path) -> None:
         gaps = [b - a for a, b in zip(times, times[1:], strict=False)]
         assert all(gap >= PAUSE * 0.8 for gap in gaps[1:]), gaps
         assert times[-1] < 60
+
+    # The run plays the robots on them, and analyses them as it would a file of them.
+    cirl_study.run(pipeline_file, run, workers=1)
+    results = cirl_study.analyze(run)
+    assert results.participants.design.participants == {"do": 2, "show": 2}
+    played = {
+        (r.recorded.participant, r.recorded.order): r.recorded
+        for r in run_records(run)
+        if r.recorded is not None
+    }
+    assert len(played) == 12
+    for demonstration in mine:
+        recorded = demonstration.recorded
+        assert played["B01", recorded.order] == recorded
