@@ -15,6 +15,7 @@ from cirl_study.commands.parameters import Command
 
 USAGES = {
     "run": "[OPTIONS] [PIPELINE]",
+    "serve": "[OPTIONS] PIPELINE",
     "validate": "[OPTIONS] RUN",
     "analyze": "[OPTIONS] RUN",
     "reproduce": "[OPTIONS] [PIPELINE]",
@@ -71,6 +72,7 @@ def _options_taking_a_value() -> list[tuple[str, str]]:
 
 FAILING_ARGUMENTS = {
     "run": ["no/such.toml"],
+    "serve": ["no/such.toml"],
     "reproduce": ["no/such.toml"],
     "validate": ["no/such/run"],
     "analyze": ["no/such/run"],
@@ -89,6 +91,7 @@ BAD_VALUES = {
     ("calibrate", "--workers"): ("all", "'all' is not an integer."),
     ("compare", "--rtol"): ("-1e-9", "'-1e-9' is not a number >= 0."),
     ("compare", "--atol"): ("nan", "'nan' is not a number >= 0."),
+    ("serve", "--port"): ("65536", "'65536' is not a port number (0 to 65535)."),
 }
 """The options whose value is checked as it is parsed, each with a value it refuses."""
 

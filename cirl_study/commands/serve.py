@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -36,12 +36,23 @@ HostOption = Annotated[
     ),
 ]
 
+_PORT = "a port number (0 to 65535)"
+
+
+def _port(value: Any) -> int:
+    """A TCP port, 0 to 65535 (0: one the system chooses)."""
+    port = number(int, _PORT, 0)(value)
+    if port > 65535:
+        raise typer.BadParameter(f"'{port}' is not {_PORT}.")
+    return port
+
+
 PortOption = Annotated[
     int,
     typer.Option(
         "--port",
         metavar="N",
-        parser=number(int, "a port number (0 to 65535)", 0),
+        parser=_port,
         help="Port to listen on; 0 lets the system choose one (printed).",
     ),
 ]
@@ -60,10 +71,7 @@ def serve(
     participants' address and the experimenter's status page (with a token new at each
     start); holds the run directory's lock until stopped (Ctrl-C).
     """
-    from cirl_study.errors import UserError
     from cirl_study.serve.server import serve as serve_experiment
 
-    if port > 65535:
-        raise UserError(f"--port must be a port number (0 to 65535), got {port}")
     spec = load_pipeline(resolve_pipeline(pipeline))
     serve_experiment(spec, out or RUNS_DIRECTORY / spec.name, host, port, typer.echo)

@@ -59,6 +59,18 @@ her own, and the pipeline then needs no ``[lambda_sweep]``::
     conditions = ["do", "show"]  # the conditions the file names, baseline first
     design = "between"           # each participant in one condition, or "within": in each
 
+Its demonstrations may instead be collected in participants' browsers by ``cirl-study serve``
+(``collect = true`` in place of ``file``), whose web experiment ``[experiment]`` describes
+(:class:`ExperimentSpec`, :mod:`cirl_study.serve`)::
+
+    [experiment]
+    consent = "..."              # the text a participant agrees to first
+    instructions.do = "..."      # one text per condition
+    instructions.show = "..."
+    practice = "ooo"             # one of [tasks], or a table of weights of its own
+    completion_code = "C0DE"     # or completion_url = "https://..."
+    participant_parameter = "PROLIFIC_PID"  # optional
+
 A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human, the
 ``literal_observer`` or ``pragmatic`` robot; :mod:`cirl_study.core.teaching`) declares their
 hypothesis space in ``[teaching]``, and then has no ``[lambda_sweep]``::
@@ -1223,8 +1235,10 @@ class Pipeline:
     the pipeline of one universe of a multiverse
     (:func:`cirl_study.study.multiverse.universe_pipeline`), whose trials carry its id;
     ``teaching`` is set exactly when a player needs a hypothesis space, ``gradient_ascent``
-    exactly when that robot plays, and ``participants`` exactly when the ``recorded`` human
-    does. ``text`` is the file's
+    exactly when that robot plays, ``participants`` exactly when the ``recorded`` human
+    does, and ``experiment`` when the file has that table (only where the demonstrations are
+    collected).
+    ``text`` is the file's
     whole text and ``sha256`` the hash of its UTF-8 bytes: two runs are the same run exactly
     when their pipeline files hash alike.
     """
