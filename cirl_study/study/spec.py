@@ -655,6 +655,13 @@ def _conditions(value: Any, _known: Known) -> tuple[str, ...]:
     return tuple(value)
 
 
+def _sums_of_squares(value: Any, _known: Known) -> int:
+    """2 or 3."""
+    if value not in (2, 3) or isinstance(value, bool):
+        raise Invalid("must be 2 or 3 (the type of the ANOVA's sums of squares)")
+    return int(value)
+
+
 @dataclass(frozen=True)
 class ParticipantsSpec:
     """``[participants]``: the people the ``recorded`` human stands for.
@@ -665,7 +672,9 @@ class ParticipantsSpec:
     :mod:`cirl_study.logs.collection`): exactly one of the two. ``conditions`` are the
     conditions they may name, in the order the report compares them (the first is the
     baseline); ``design`` says whether each participant is in one condition (``between``) or
-    shows every task in each (``within``). ``demonstrations`` are the file's, checked (set by
+    shows every task in each (``within``); ``sums_of_squares`` the type of the ANOVA's sums of
+    squares, 2 (as R's ``car``, the project's default) or 3 (``afex``'s default), which differ
+    where the conditions' groups differ in size. ``demonstrations`` are the file's, checked (set by
     :func:`cirl_study.study.pipeline_file.parse_pipeline`; of a collecting pipeline, once its
     run directory is known): two pipelines play the same trials only when they hold the same
     demonstrations.
@@ -675,6 +684,7 @@ class ParticipantsSpec:
     collect: bool = setting(boolean, default=False)
     conditions: tuple[str, ...] = setting(_conditions)
     design: str = setting(one_of(PARTICIPANT_DESIGNS), default="between")
+    sums_of_squares: int = setting(_sums_of_squares, default=2)
     demonstrations: Demonstrations | None = derived(lambda _known: None)
 
     @property
