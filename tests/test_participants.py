@@ -16,6 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from msgspec.structs import replace
 from test_logs_helpers import run_records
+from test_tiles import SMALL
 
 import cirl_study
 from cirl_study.analysis.statistics.anova import repeated_measures_anova
@@ -36,34 +37,9 @@ from cirl_study.study.plan import study_trials, trial_counts
 REPO = Path(__file__).resolve().parent.parent
 PEOPLE = REPO / "pipelines" / "people.toml"
 
-PIPELINE = """\
-name = "people-small"
-description = "Two tasks, four participants"
-seed = 5
-
-[game]
-features = "tiles"
-start = [0, 1]
-learning_steps = 5
-deployment_steps = 5
-demonstrator_stays = false
-deployment_start = "uniform"
-
-[game.tiles]
-layout = \"\"\"
-.aa.
-.bby
-.ab.
-\"\"\"
-legend = { a = "amber", b = "blue", "." = "", y = "" }
-goals = "y"
-step = "step"
-
-[tasks]
-ab = { amber = 0, blue = -1, step = -0.1 }
-ba = { amber = -1, blue = 0, step = -0.1 }
-
-[participants]
+PIPELINE = (
+    SMALL.split("[eta_cv]")[0].replace('"tiles-small"', '"people-small"')
+    + """[participants]
 file = "moves.csv"
 conditions = ["do", "show"]
 design = "DESIGN"
@@ -78,6 +54,8 @@ rationality = 1.0
 humans = ["expert", "recorded"]
 robots = ["map", "posterior_mean"]
 """
+)
+"""The small tile game of tests/test_tiles.py (two tasks) with participants."""
 
 # The goal y is [3, 1]; from the start [0, 1]: straight along the middle row (3 moves), or
 # round by the top row (5 moves).
