@@ -103,13 +103,14 @@ import hashlib
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
+import msgspec
+
 from cirl_study.features import TileFeatures
-from cirl_study.record import GRADIENT_ASCENT
-from cirl_study.study.participants import Demonstrations
+from cirl_study.record import GRADIENT_ASCENT, Recorded
 from cirl_study.study.settings import (
     NOTHING_KNOWN,
     POSITIVE_INTEGER,
@@ -618,6 +619,33 @@ class MainSpec:
         from cirl_study.core.players import reference_robot
 
         return reference_robot(self.robots)
+
+
+class Shown(msgspec.Struct, frozen=True, kw_only=True):
+    """One participant's demonstration of ``task``, from the file's ``line`` on (its first
+    row)."""
+
+    task: str
+    recorded: Recorded
+    line: int
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """A file of demonstrations (:mod:`cirl_study.study.participants`), checked against its
+    pipeline: ``shown`` in the order
+    participants first appear, then conditions and tasks in the pipeline's order. ``sha256``
+    is the hash of the file's bytes, which a run's provenance records; ``text`` the file's
+    text, which the run's logs carry, so a run is analysed, and resumed, from its logs."""
+
+    shown: tuple[Shown, ...]
+    sha256: str
+    text: str = field(compare=False, repr=False)
+
+    @property
+    def participants(self) -> tuple[str, ...]:
+        """Every participant, in order of first appearance."""
+        return tuple(dict.fromkeys(shown.recorded.participant for shown in self.shown))
 
 
 CONDITION_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}")
