@@ -16,8 +16,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from msgspec.structs import replace
 from test_logs_helpers import run_records
+from test_tiles import SMALL
 
 import cirl_study
+from cirl_study.analysis.statistics.anova import repeated_measures_anova
 from cirl_study.core.gridworld import gridworld
 from cirl_study.core.trial import play_trials
 from cirl_study.errors import UserError
@@ -35,34 +37,9 @@ from cirl_study.study.plan import study_trials, trial_counts
 REPO = Path(__file__).resolve().parent.parent
 PEOPLE = REPO / "pipelines" / "people.toml"
 
-PIPELINE = """\
-name = "people-small"
-description = "Two tasks, four participants"
-seed = 5
-
-[game]
-features = "tiles"
-start = [0, 1]
-learning_steps = 5
-deployment_steps = 5
-demonstrator_stays = false
-deployment_start = "uniform"
-
-[game.tiles]
-layout = \"\"\"
-.aa.
-.bby
-.ab.
-\"\"\"
-legend = { a = "amber", b = "blue", "." = "", y = "" }
-goals = "y"
-step = "step"
-
-[tasks]
-ab = { amber = 0, blue = -1, step = -0.1 }
-ba = { amber = -1, blue = 0, step = -0.1 }
-
-[participants]
+PIPELINE = (
+    SMALL.split("[eta_cv]")[0].replace('"tiles-small"', '"people-small"')
+    + """[participants]
 file = "moves.csv"
 conditions = ["do", "show"]
 design = "DESIGN"
@@ -77,6 +54,8 @@ rationality = 1.0
 humans = ["expert", "recorded"]
 robots = ["map", "posterior_mean"]
 """
+)
+"""The small tile game of tests/test_tiles.py (two tasks) with participants."""
 
 # The goal y is [3, 1]; from the start [0, 1]: straight along the middle row (3 moves), or
 # round by the top row (5 moves).
@@ -420,3 +399,36 @@ def test_a_collecting_run_plays_what_was_collected_and_resumes_with_more(
     assert results.participants.design.participants == {"do": 2, "show": 2}
     seconds = {r.recorded.seconds for r in run_records(run) if r.recorded is not None}
     assert seconds == {(0.0, 0.5, 1.0, 1.5), (0.0, 0.5, 1.0, 1.5, 2.0, 2.5)}
+
+
+@pytest.mark.parametrize(("design", "sums_of_squares"), [("between", 3), ("within", 2)])
+def test_the_peoples_anova_is_the_anova_of_their_table(
+    tmp_path: Path, design: str, sums_of_squares: int
+) -> None:
+    """The people's ANOVA is :func:`repeated_measures_anova` of the participants' trials
+    (checked against R's afex in tests/test_analysis_anova.py), with the condition between or
+    within and the pipeline's type of sums of squares; unequal groups make the types differ."""
+    rows = moves(within=design == "within")
+    if design == "between":  # a third participant who did: groups of 3 and 2
+        rows += [r for task in ("ab", "ba") for r in _rows("P5", "do", task, ROUND)]
+    pipeline_file = write(tmp_path, rows, design=design)
+    text = pipeline_file.read_text().replace(
+        f'design = "{design}"', f'design = "{design}"\nsums_of_squares = {sums_of_squares}'
+    )
+    pipeline_file.write_text(text)
+    run = cirl_study.run(pipeline_file, tmp_path / "run", workers=1)
+    people = cirl_study.analyze(run).participants
+    assert people.design.sums_of_squares == sums_of_squares
+    table = cirl_study.load_trials(run)
+    table = table[table["participant"].notna()]
+    within = ["task", "robot"] + (["condition"] if design == "within" else [])
+    between = () if design == "within" else ("condition",)
+    want = repeated_measures_anova(table, "kl", within, between, sums_of_squares=sums_of_squares)
+    got = [row for row in people.anova if row.measure == "kl"]
+    assert [row.effect for row in got] == [row.effect for row in want]
+    np.testing.assert_allclose([r.F for r in got], [r.F for r in want], rtol=1e-12)
+    if design == "between":
+        other = repeated_measures_anova(table, "kl", within, between, sums_of_squares=2)
+        assert abs(other[1].SS - got[1].SS) > 1e-9 * abs(got[1].SS)  # the task effect
+    assert len(people.robots) == len(people.design.conditions) * 4  # 4 measures analysed
+    assert people.cronbach_alpha is not None and people.cronbach_alpha.n_items == 3

@@ -25,7 +25,6 @@ from pathlib import Path
 import msgspec
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
-from mcap.writer import CompressionType, Writer
 
 from cirl_study.errors import UserError
 from cirl_study.files import UnreadableFile, open_for_writing, read_regular_file, remove_file
@@ -60,6 +59,8 @@ def collected_path(run_dir: Path, shown: Collected) -> Path:
 
 
 def _encoded(run_id: str, shown: Collected) -> bytes:
+    from mcap.writer import CompressionType, Writer  # only a server writes: readers start light
+
     stream = io.BytesIO()
     writer = Writer(stream, compression=CompressionType.NONE)
     writer.start(profile="", library="cirl-study")

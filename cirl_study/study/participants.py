@@ -41,17 +41,11 @@ import io
 import math
 import re
 from collections.abc import Iterator, Sequence
-from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
-
-import msgspec
 
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
 from cirl_study.record import Collected, Recorded
-
-if TYPE_CHECKING:
-    from cirl_study.study.spec import GameSpec, Task
+from cirl_study.study.spec import Demonstrations, GameSpec, Shown, Task
 
 MAX_DEMONSTRATIONS_BYTES = 32 << 20
 """Largest file of demonstrations read (32 MiB: some 800,000 moves; Ho et al.'s whole study
@@ -67,32 +61,6 @@ PARTICIPANT = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
 """A participant's id (:data:`cirl_study.record.ParticipantId`)."""
 
 _INTEGER = re.compile(r"[0-9]{1,9}")
-
-
-class Shown(msgspec.Struct, frozen=True, kw_only=True):
-    """One participant's demonstration of ``task``, from the file's ``line`` on (its first
-    row)."""
-
-    task: str
-    recorded: Recorded
-    line: int
-
-
-@dataclass(frozen=True)
-class Demonstrations:
-    """A file of demonstrations, checked against its pipeline: ``shown`` in the order
-    participants first appear, then conditions and tasks in the pipeline's order. ``sha256``
-    is the hash of the file's bytes, which a run's provenance records; ``text`` the file's
-    text, which the run's logs carry, so a run is analysed, and resumed, from its logs."""
-
-    shown: tuple[Shown, ...]
-    sha256: str
-    text: str = field(compare=False, repr=False)
-
-    @property
-    def participants(self) -> tuple[str, ...]:
-        """Every participant, in order of first appearance."""
-        return tuple(dict.fromkeys(shown.recorded.participant for shown in self.shown))
 
 
 def file_text(raw: bytes, label: str) -> str:

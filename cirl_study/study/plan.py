@@ -73,8 +73,7 @@ from cirl_study.study.multiverse import (
     universe_pipeline,
     universes,
 )
-from cirl_study.study.participants import Shown
-from cirl_study.study.spec import GameSpec, Pipeline, Task, Universe
+from cirl_study.study.spec import GameSpec, Pipeline, Shown, Task, Universe
 
 CV_GROUP = "cv"
 """Subject-id prefix of the cross-validation draws."""

@@ -115,13 +115,14 @@ import hashlib
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
+import msgspec
+
 from cirl_study.features import TileFeatures
-from cirl_study.record import GRADIENT_ASCENT
-from cirl_study.study.participants import Demonstrations
+from cirl_study.record import GRADIENT_ASCENT, Recorded
 from cirl_study.study.settings import (
     NOTHING_KNOWN,
     POSITIVE_INTEGER,
@@ -639,6 +640,33 @@ class MainSpec:
         return reference_robot(self.robots)
 
 
+class Shown(msgspec.Struct, frozen=True, kw_only=True):
+    """One participant's demonstration of ``task``, from the file's ``line`` on (its first
+    row)."""
+
+    task: str
+    recorded: Recorded
+    line: int
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """A file of demonstrations (:mod:`cirl_study.study.participants`), checked against its
+    pipeline: ``shown`` in the order
+    participants first appear, then conditions and tasks in the pipeline's order. ``sha256``
+    is the hash of the file's bytes, which a run's provenance records; ``text`` the file's
+    text, which the run's logs carry, so a run is analysed, and resumed, from its logs."""
+
+    shown: tuple[Shown, ...]
+    sha256: str
+    text: str = field(compare=False, repr=False)
+
+    @property
+    def participants(self) -> tuple[str, ...]:
+        """Every participant, in order of first appearance."""
+        return tuple(dict.fromkeys(shown.recorded.participant for shown in self.shown))
+
+
 CONDITION_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}")
 """A condition's name: letters, digits, ``_`` and ``-``, at most 32 (a trial id may carry it)."""
 
@@ -674,6 +702,13 @@ def _conditions(value: Any, _known: Known) -> tuple[str, ...]:
     return tuple(value)
 
 
+def _sums_of_squares(value: Any, _known: Known) -> int:
+    """2 or 3."""
+    if value not in (2, 3) or isinstance(value, bool):
+        raise Invalid("must be 2 or 3 (the type of the ANOVA's sums of squares)")
+    return int(value)
+
+
 @dataclass(frozen=True)
 class ParticipantsSpec:
     """``[participants]``: the people the ``recorded`` human stands for.
@@ -684,7 +719,9 @@ class ParticipantsSpec:
     :mod:`cirl_study.logs.collection`): exactly one of the two. ``conditions`` are the
     conditions they may name, in the order the report compares them (the first is the
     baseline); ``design`` says whether each participant is in one condition (``between``) or
-    shows every task in each (``within``). ``demonstrations`` are the file's, checked (set by
+    shows every task in each (``within``); ``sums_of_squares`` the type of the ANOVA's sums of
+    squares, 2 (as R's ``car``, the project's default) or 3 (``afex``'s default), which differ
+    where the conditions' groups differ in size. ``demonstrations`` are the file's, checked (set by
     :func:`cirl_study.study.pipeline_file.parse_pipeline`; of a collecting pipeline, once its
     run directory is known): two pipelines play the same trials only when they hold the same
     demonstrations.
@@ -694,6 +731,7 @@ class ParticipantsSpec:
     collect: bool = setting(boolean, default=False)
     conditions: tuple[str, ...] = setting(_conditions)
     design: str = setting(one_of(PARTICIPANT_DESIGNS), default="between")
+    sums_of_squares: int = setting(_sums_of_squares, default=2)
     demonstrations: Demonstrations | None = derived(lambda _known: None)
 
     @property

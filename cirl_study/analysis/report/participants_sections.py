@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from collections import Counter
 
-from cirl_study.analysis.report.markdown import ci, formatted, name, number, table
+from cirl_study.analysis.report.markdown import ci, formatted, interval, name, number, table
 from cirl_study.analysis.report.sections import heading
-from cirl_study.analysis.report.study_sections import anova_table
+from cirl_study.analysis.report.study_sections import anova_table, paired_table
 from cirl_study.analysis.results.types import StudyResults
 
 
@@ -28,7 +28,8 @@ def participants(results: StudyResults) -> list[str]:
         heading(2, "participants"),
         "",
         f"Participants: {counts} (conditions {', '.join(design.conditions)}, baseline "
-        f"{design.baseline}; {design.design} participants); each task a reward of the "
+        f"{design.baseline}; {design.design} participants; type {design.sums_of_squares} sums "
+        "of squares); each task a reward of the "
         f"pipeline ({len(design.tasks)}: {', '.join(design.tasks)}); watched by "
         f"{', '.join(name(r) for r in design.robots)}. Complete (every task): {complete}"
         + (f"; left out of the ANOVA: {len(design.left_out)}." if design.left_out else "."),
@@ -69,6 +70,22 @@ def participants(results: StudyResults) -> list[str]:
             [False, False, False, *[True] * 11],
         ),
     ]  # fmt: skip
+    if people.robots:
+        lines += [
+            "",
+            f"Every robot against {name(design.robots[0])}, paired by participant on her mean "
+            "over her tasks, per condition (Holm per measure):",
+            "",
+            paired_table(people.robots, "condition", "robot"),
+        ]
+    alpha = people.cronbach_alpha
+    if alpha is not None:
+        lines += [
+            "",
+            f"Cronbach's alpha of the paper's three measures over {alpha.rows}: raw "
+            f"{number(alpha.raw)} (95% CI {interval(*alpha.ci95)}), standardised "
+            f"{number(alpha.standardised)} (95% CI {interval(*alpha.ci95_standardised)}).",
+        ]
     if people.closest:
         tally = Counter((row.condition, row.closest) for row in people.closest)
         humans = sorted({human for row in people.closest for human in row.distance})

@@ -12,10 +12,13 @@ the analysis tests (:func:`~cirl_study.measure_registry.analysed_measures`):
   within design): ``task`` (and ``robot``, with two robots or more) within, ``condition``
   between participants (``design = "between"``) or within (``"within"``)
   (:func:`~cirl_study.analysis.statistics.anova.repeated_measures_anova`, sphericity tested
-  and corrected);
+  and corrected; sums of squares of type 2, or 3 where ``participants.sums_of_squares`` says);
 * ``conditions``: every condition against the baseline, per robot, on each participant's mean
   over her tasks: Welch's t-test between participants, the paired t-test within, Holm over
   the measure's rows;
+* ``robots``: with two robots or more, every other robot against the first, paired by
+  participant on her mean over her tasks, per condition (Holm per measure);
+* ``cronbach_alpha``: of the paper's three measures, over the participants' trials;
 * ``closest``: for each participant, which simulated human of the run her demonstrations
   are closest to, task by task: the L1 distance of the paths' feature counts
   ``sum_{t >= 1} phi(s_t)`` (the quantity MaxEnt IRL matches) and the Jaccard overlap of
@@ -26,6 +29,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
 import pandas as pd
@@ -37,6 +41,8 @@ from cirl_study.analysis.results.types import (
     ClosestModel,
     ConditionCell,
     ConditionDifference,
+    CronbachAlpha,
+    PairedDifference,
     ParticipantMean,
     ParticipantsDesign,
     ParticipantsSection,
@@ -45,6 +51,7 @@ from cirl_study.analysis.results.types import (
 from cirl_study.analysis.statistics import procedures
 from cirl_study.analysis.statistics.anova import repeated_measures_anova
 from cirl_study.analysis.statistics.tails import t_tail
+from cirl_study.measure_registry import PAPER_MEASURES
 from cirl_study.record import MAIN, Cell, TrialRow
 from cirl_study.study.spec import Pipeline
 
@@ -76,6 +83,7 @@ def participants_section(
         conditions=list(spec.conditions),
         baseline=spec.conditions[0],
         design=spec.design,
+        sums_of_squares=spec.sums_of_squares,
         tasks=tasks,
         robots=robots,
         participants={c: int(per_condition.get(c, 0)) for c in spec.conditions},
@@ -86,8 +94,10 @@ def participants_section(
         design=design,
         cells=_cells(frame),
         means=_means(frame),
-        anova=_anova(complete, spec.within, len(robots) > 1),
+        anova=_anova(complete, spec.within, len(robots) > 1, spec.sums_of_squares),
         conditions=_conditions(frame, spec.conditions, spec.within),
+        robots=_robots(frame, robots),
+        cronbach_alpha=_alpha(frame),
         closest=_closest(trials, pipeline),
     )
 
@@ -133,7 +143,9 @@ def _cells(frame: pd.DataFrame) -> Table[ConditionCell]:
     return rows
 
 
-def _anova(complete: pd.DataFrame, within: bool, robots: bool) -> Table[AnovaEffect]:
+def _anova(
+    complete: pd.DataFrame, within: bool, robots: bool, sums_of_squares: Literal[2, 3]
+) -> Table[AnovaEffect]:
     """The mixed ANOVA of each measure on the complete participants (see the module
     docstring); none where fewer than two participants are complete in some condition."""
     rows = Table(AnovaEffect)
@@ -143,8 +155,34 @@ def _anova(complete: pd.DataFrame, within: bool, robots: bool) -> Table[AnovaEff
     if complete.empty or sizes.min() < 2 or (within and len(sizes) < 2):
         return rows
     for measure, kept in measured(complete):
-        rows += repeated_measures_anova(kept, measure, factors, between)
+        rows += repeated_measures_anova(
+            kept, measure, factors, between, sums_of_squares=sums_of_squares
+        )
     return rows
+
+
+def _robots(frame: pd.DataFrame, robots: Sequence[str]) -> Table[PairedDifference]:
+    """Every other robot against the first, per condition (see the module docstring)."""
+    rows = Table(PairedDifference)
+    if len(robots) < 2:
+        return rows
+    for measure, kept in measured(frame):
+        means = _participant_means(kept, measure)
+        rows += procedures.paired_differences(means, measure, "robot", robots[0], ["condition"])
+    return rows
+
+
+def _alpha(frame: pd.DataFrame) -> CronbachAlpha | None:
+    """Cronbach's alpha of the paper's three measures over the participants' trials that have
+    all three; none with fewer than two such trials."""
+    items = frame[list(PAPER_MEASURES)].dropna().reset_index(drop=True)
+    if len(items) < 2:
+        return None
+    rows = (
+        f"all {len(items)} trials of the participants (every condition, task and robot), one "
+        "row per trial, the three measures on their own scales"
+    )
+    return procedures.cronbach_alpha(items, rows)
 
 
 def _conditions(

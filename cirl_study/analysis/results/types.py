@@ -317,7 +317,7 @@ class PairedComparison(PairedT, kw_only=True):
 class PairedDifference(PairedT, kw_only=True):
     """One row of :func:`cirl_study.analysis.statistics.procedures.paired_differences`: ``level``
     against the baseline in one group (its keys among ``human, robot, num_features, rationality,
-    pooled, universe``); a multiverse's human effects have neither ``level`` nor Holm."""
+    pooled, universe, condition``); a multiverse's human effects have neither ``level`` nor Holm."""
 
     measure: str
     n: int
@@ -332,6 +332,7 @@ class PairedDifference(PairedT, kw_only=True):
     rationality: float | None = None
     pooled: str | None = None
     universe: str | None = None
+    condition: str | None = None
 
 
 class SimpleEffect(PairedT, kw_only=True):
@@ -627,11 +628,12 @@ class ParticipantsDesign(Record, kw_only=True):
     participants meet them (``between`` or ``within``), the tasks and robots, the participants
     per condition, and those of them whose demonstrations entered the ANOVA
     (``complete``: every task, in every condition of a within design); ``left_out`` the others'
-    subject ids."""
+    subject ids; ``sums_of_squares`` the type (2 or 3) of the ANOVA's."""
 
     conditions: list[str]
     baseline: str
     design: str
+    sums_of_squares: int
     tasks: list[str]
     robots: list[str]
     participants: dict[str, int]
@@ -716,6 +718,8 @@ class ParticipantsSection(Record, kw_only=True):
     means: Rows[ParticipantMean]
     anova: Rows[AnovaEffect]
     conditions: Rows[ConditionDifference]
+    robots: Rows[PairedDifference]
+    cronbach_alpha: CronbachAlpha | None
     closest: Rows[ClosestModel]
 
 
