@@ -23,17 +23,10 @@ from pathlib import Path
 from playwright.sync_api import sync_playwright
 
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "tests"))
+from serve_fixtures import CHROMIUM, CHROMIUM_FLAGS  # noqa: E402  (the browser test's)
+
 PIPELINE = ROOT / "pipelines" / "people-browser.toml"
-FLAGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
 KEYS = {(0, 1): "ArrowUp", (0, -1): "ArrowDown", (1, 0): "ArrowRight", (-1, 0): "ArrowLeft"}
 ROUND_THE_TOP = [(0, 2), (0, 3), (0, 4), (1, 4), (2, 4), (3, 4), (4, 4), (5, 4), (5, 3), (5, 2)]
 STRAIGHT = [(0, 2), (1, 2), (2, 2), (3, 2), (4, 2), (5, 2)]
@@ -65,7 +58,7 @@ def main() -> None:
         try:
             with sync_playwright() as playwright:
                 browser = playwright.chromium.launch(
-                    executable_path="/usr/bin/chromium", args=FLAGS
+                    executable_path=str(CHROMIUM), args=CHROMIUM_FLAGS
                 )
                 page = browser.new_page(viewport={"width": 960, "height": 640})
 

@@ -9,31 +9,10 @@ import sys
 import time
 from pathlib import Path
 
-COLLECTING = '''
-name = "collect-test"
-description = "Tiles in a browser"
-seed = 7
+REPO = Path(__file__).resolve().parent.parent
+SHIPPED = (REPO / "pipelines" / "people-browser.toml").read_text()
 
-[game]
-features = "tiles"
-start = [0, 2]
-learning_steps = 13
-deployment_steps = 13
-demonstrator_stays = false
-deployment_start = "uniform"
-
-[game.tiles]
-layout = """
-.oooo.
-.oppp.
-.opccy
-.oppc.
-.cccc.
-"""
-legend = { o = "orange", p = "purple", c = "cyan", "." = "", y = "" }
-goals = "y"
-step = "step"
-
+EXPERIMENT = '''
 [tasks]
 oox = { orange = 0, purple = 0, cyan = -1, step = -0.1 }
 xoo = { orange = -1, purple = 0, cyan = 0, step = -0.1 }
@@ -55,17 +34,32 @@ practice = { orange = -1, purple = 0, cyan = 0, step = -0.1 }
 completion_code = "DONE-7"
 participant_parameter = "PROLIFIC_PID"
 
-[eta_cv]
-subjects = 2
-etas = [1.0]
-rationality = 1.0
-
-[main]
-rationality = 1.0
-humans = ["expert", "recorded"]
-robots = ["map"]
 '''
-"""Three tasks of Ho et al.'s tiles, two conditions between participants."""
+
+COLLECTING = (
+    'name = "collect-test"\ndescription = "Tiles in a browser"\nseed = 7\n\n'
+    + SHIPPED[SHIPPED.index("[game]") : SHIPPED.index("[tasks]")]
+    + EXPERIMENT
+    + SHIPPED[SHIPPED.index("[eta_cv]") : SHIPPED.index("[main]")]
+    + '[main]\nrationality = 1.0\nhumans = ["expert", "recorded"]\nrobots = ["map"]\n'
+)
+"""The shipped browser study's game (Ho et al.'s tiles) with three of its tasks, two
+conditions between participants, and the expert beside the people."""
+
+CHROMIUM = Path("/usr/bin/chromium")
+"""Debian's Chromium, which Playwright drives (its own browser download is not used)."""
+
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+]
+"""Chromium's flags: no sandbox (root), and no connection of its own to anywhere."""
 
 STRAIGHT = [[0, 2], [1, 2], [2, 2], [3, 2], [4, 2], [5, 2]]
 """The shortest path to the goal: right along the middle row (5 moves)."""

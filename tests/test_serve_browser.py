@@ -2,7 +2,7 @@
 Playwright) goes through the consent, the instructions, the practice and every task, by arrow
 keys, by clicks and by taps, reloads on the way; then the collected store holds exactly those
 demonstrations, with the time of every move, and ``run`` and ``analyze`` play and analyse
-them.
+them as they do the same demonstrations brought in a file.
 
 Skipped only where Debian's Chromium is not installed (``.ci/run`` installs it)."""
 
@@ -13,6 +13,9 @@ from pathlib import Path
 
 import pytest
 from serve_fixtures import (
+    CHROMIUM,
+    CHROMIUM_FLAGS,
+    COLLECTING,
     MOVES,
     ROUND_THE_BOTTOM,
     ROUND_THE_TOP,
@@ -25,21 +28,8 @@ from serve_fixtures import (
 from test_logs_helpers import run_records
 
 import cirl_study
-from cirl_study.logs.collection import collected
+from cirl_study.logs.collection import collected, collected_text
 from cirl_study.study.pipeline_file import load_pipeline
-
-CHROMIUM = Path("/usr/bin/chromium")
-FLAGS = [
-    "--headless",
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-quic",
-    "--no-first-run",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-]
-"""Chromium's flags: no sandbox (root), and no connection of its own to anywhere."""
 
 PAUSE = 0.12
 """Seconds between two moves in the browser."""
@@ -70,7 +60,7 @@ def test_a_participant_in_chromium_is_stored_exactly(tmp_path: Path) -> None:
     server, _ = start_server(pipeline_file, run, port)
     try:
         with sync_api.sync_playwright() as playwright:
-            browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=FLAGS)
+            browser = playwright.chromium.launch(executable_path=str(CHROMIUM), args=CHROMIUM_FLAGS)
             context = browser.new_context(has_touch=True, viewport={"width": 1000, "height": 800})
             page = context.new_page()
             errors: list[str] = []
@@ -158,3 +148,12 @@ def test_a_participant_in_chromium_is_stored_exactly(tmp_path: Path) -> None:
     for demonstration in mine:
         recorded = demonstration.recorded
         assert played["B01", recorded.order] == recorded
+
+    # The same demonstrations in a file, as a lab brings them, analyse alike.
+    (tmp_path / "moves.csv").write_text(collected_text(stored))
+    experiment = COLLECTING.index("[experiment]")
+    from_file = COLLECTING[:experiment] + COLLECTING[COLLECTING.index("[eta_cv]") :]
+    filed = tmp_path / "filed.toml"
+    filed.write_text(from_file.replace("collect = true", 'file = "moves.csv"'))
+    cirl_study.run(filed, tmp_path / "filed", workers=1)
+    assert cirl_study.analyze(tmp_path / "filed").participants == results.participants
