@@ -406,8 +406,8 @@ def test_eta_is_searched_only_where_the_target_has_a_cell_it_moves(runs, tmp_pat
 # ---- back to a known eta per feature level --------------------------------------------------
 
 TRUE_ETA = {3: 1.6, 10: 0.2}
-"""The etas a target is made with: where the best response differs from that of the
-neighbouring etas (x2, x1.41, x1.19) at both feature levels of the smoke game."""
+"""The etas a target is made with: where the smoke game's best responses at either feature
+level differ from those at twice the eta and at half of it."""
 
 NOISE = 0.02
 """The target's cell means are its universe's, each times ``exp(NOISE z)``, ``z`` standard

@@ -70,9 +70,16 @@ def test_each_eta_setting_is_spelled_in_the_id_and_the_defaults_in_none():
     # the defaults are the file's own universe: no new universe, no new id
     defaults = parsed('[multiverse.alone]\neta_measure = ["regret"]\nsigma = [0.75]\n')
     assert [u.id for u in defaults.multiverse.universes] == [BASE]
-    # a measure or grid of a universe whose every eta is fixed is no setting of it
-    crossed = parsed('[multiverse.cross]\neta = [{3 = 1, 10 = 0.1}]\neta_measure = ["kl"]\n')
-    assert [u.id for u in crossed.multiverse.universes] == [BASE, f"{BASE},eta=k3:1+k10:0.1"]
+    # a measure or grid of a universe whose every eta is fixed is no setting of it, and "cv"
+    # names the default among fixed levels
+    crossed = parsed(
+        '[multiverse.cross]\neta = ["cv", {3 = 1, 10 = 0.1}]\neta_measure = ["regret", "kl"]\n'
+    )
+    assert [u.id for u in crossed.multiverse.universes] == [
+        BASE,
+        f"{BASE},eta_cv=kl",
+        f"{BASE},eta=k3:1+k10:0.1",
+    ]
 
 
 def test_adding_eta_levels_changes_no_existing_universe_or_trial(tmp_path: Path):
@@ -94,8 +101,9 @@ def test_adding_eta_levels_changes_no_existing_universe_or_trial(tmp_path: Path)
     ("tables", "message"),
     [
         ("[multiverse.alone]\neta = [{4 = 1.0}]\n",
-         "multiverse.alone.eta must be a non-empty list of tables of feature levels (3, 10) and "
-         "their eta, numbers in [1e-06, 1e+06]"),
+         'multiverse.alone.eta must be a non-empty list of "cv" or tables of feature levels '
+         "(3, 10) and their eta, numbers in [1e-06, 1e+06]"),
+        ('[multiverse.alone]\neta = ["CV"]\n', "multiverse.alone.eta must be a non-empty"),
         ("[multiverse.alone]\neta = [{3 = 0.0}]\n", "multiverse.alone.eta must be a non-empty"),
         ("[multiverse.alone]\neta = [{3 = 1e7}]\n", "multiverse.alone.eta must be a non-empty"),
         ("[multiverse.alone]\neta = [1.0]\n", "multiverse.alone.eta must be a non-empty"),

@@ -4,8 +4,8 @@ probe played as a run of its own (``docs/multiverse.md``, *Refinement*).
 The settings searched are the nearest universe's numeric ones (:data:`REFINED_AXES`), the
 eta of each feature level among them (:func:`eta_setting`): at a point, a feature level's eta
 is fixed (a number) or left to the universe's cross-validation (``None``, written
-:data:`CROSS_VALIDATED`), whose choice at that point is where its neighbours are taken from
-(:attr:`~cirl_study.analysis.calibration.refine.SearchAxis.chosen`).
+:data:`~cirl_study.study.spec.CROSS_VALIDATED`), whose choice at that point is where its
+neighbours are taken from (:attr:`~cirl_study.analysis.calibration.refine.SearchAxis.chosen`).
 
 :func:`refine` joins the three steps: the search (:func:`cirl_study.analysis.calibration.refine.
 coordinate_search`) asks for a point's distance; the point is played as a probe
@@ -52,7 +52,7 @@ from cirl_study.record import MAIN, TrialRow
 from cirl_study.study.engines import Engine
 from cirl_study.study.multiverse import universes
 from cirl_study.study.probes import play_probe
-from cirl_study.study.spec import AXES, ETA, Pipeline, Universe
+from cirl_study.study.spec import AXES, CROSS_VALIDATED, ETA, Pipeline, Universe
 
 REFINED_AXES = ("sigma", "eta", "ascent_steps", "learning_rate")
 """The numeric settings the refinement moves, in the order a sweep visits them: the RBF width,
@@ -63,9 +63,6 @@ them."""
 
 INTEGER_AXES = frozenset({"ascent_steps"})
 """The refined settings whose values are integers."""
-
-CROSS_VALIDATED = "cv"
-"""How the refinement writes a feature level's eta left to cross-validation."""
 
 
 def eta_setting(num_features: int) -> str:

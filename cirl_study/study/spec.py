@@ -743,8 +743,9 @@ class Universe:
         """A readable id spelling out every choice that applies, e.g. ``sigma=1.5,
         centers=per_draw,stays=yes,steps=9,lambda=1,robot=map,start=uniform`` (the
         gradient-ascent settings only for that robot, ``...,robot=gradient_ascent,
-        start=uniform,ga_steps=30,ga_rate=0.1``): a function of the choices alone, so adding a
-        level to an axis never renames an existing universe."""
+        start=uniform,ga_steps=30,ga_rate=0.1``, and the eta settings only where they depart
+        from the default, ``...,start=uniform,eta=k3:1+k10:0.1``): a function of the choices
+        alone, so adding a level to an axis never renames an existing universe."""
         return ",".join(
             f"{axis.label}={axis.show(getattr(self, name))}"
             for name, axis in AXES.items()
@@ -803,8 +804,11 @@ class Axis:
     label: str
     show: Callable[[Any], str]
     levels: Callable[[GameSpec], LevelCheck]
-    read: Callable[[GameSpec, MainSpec], Any]
-    apply: Callable[[Pipeline, Any], Pipeline]
+    read: Callable[[GameSpec, MainSpec], Any] = lambda game, main: None
+    """The base universe's level (default: ``None``, an axis without a pipeline key)."""
+    apply: Callable[[Pipeline, Any], Pipeline] = lambda pipeline, level: pipeline
+    """How a level sets a universe's pipeline (default: it sets nothing; the universe
+    carries the level, :attr:`Pipeline.universe`)."""
     convert: Callable[[Any], Any] = lambda value: value
     nested: bool = False
     """Whether the axis refines a level of another (the gradient-ascent settings, the
@@ -867,13 +871,18 @@ def _set_eta_grid(pipeline: Pipeline, level: tuple[float, ...] | None) -> Pipeli
     return replace(pipeline, eta_cv=replace(pipeline.eta_cv, etas=level))
 
 
+CROSS_VALIDATED = "cv"
+"""The level of the ``eta`` axis that fixes no eta: every feature level cross-validates it
+(the default, as a pipeline file may name it among fixed levels)."""
+
+
 def _fixed_eta_levels(game: GameSpec) -> LevelCheck:
-    """``levels`` of the fixed eta: a table of some of the game's feature levels, each with an
-    eta of :data:`ETA`."""
+    """``levels`` of the fixed eta: :data:`CROSS_VALIDATED`, or a table of some of the game's
+    feature levels, each with an eta of :data:`ETA`."""
     keys = {str(k) for k in game.feature_levels}
 
     def valid(value: Any) -> bool:
-        return (
+        return value == CROSS_VALIDATED or (
             isinstance(value, dict)
             and bool(value)
             and all(k in keys for k in value)
@@ -881,11 +890,17 @@ def _fixed_eta_levels(game: GameSpec) -> LevelCheck:
         )
 
     levels = ", ".join(map(str, game.feature_levels))
-    return valid, f"tables of feature levels ({levels}) and their eta, numbers in {ETA}"
+    return valid, (
+        f'"{CROSS_VALIDATED}" or tables of feature levels ({levels}) and their eta, numbers '
+        f"in {ETA}"
+    )
 
 
-def _fixed_etas(value: dict[str, Any]) -> FixedEtas:
-    """A fixed eta's level as stored: ``(K, eta)`` pairs by ``K``."""
+def _fixed_etas(value: str | dict[str, Any]) -> FixedEtas | None:
+    """A fixed eta's level as stored: ``(K, eta)`` pairs by ``K`` (``None``: cross-validated
+    at every level)."""
+    if value == CROSS_VALIDATED:
+        return None
     return tuple(sorted((int(k), float(eta)) for k, eta in value.items()))
 
 
@@ -1007,19 +1022,15 @@ AXES: dict[str, Axis] = {
         label="eta",
         show=_show_fixed_etas,
         levels=_fixed_eta_levels,
-        read=lambda game, main: None,
-        apply=lambda pipeline, level: pipeline,
         convert=_fixed_etas,
         optional=True,
         written=lambda level: {str(k): eta for k, eta in level},
-        unset="cv",
+        unset=CROSS_VALIDATED,
     ),
     "eta_measure": Axis(
         label="eta_cv",
         show=str,
         levels=_eta_measures,
-        read=lambda game, main: None,
-        apply=lambda pipeline, level: pipeline,
         convert=lambda level: None if level == ETA_MEASURE else level,
         nested=True,
         optional=True,
@@ -1029,7 +1040,6 @@ AXES: dict[str, Axis] = {
         label="eta_grid",
         show=lambda level: "+".join(map(shortest_number, level)),
         levels=_passing(numbers_in(ETA), f"lists of distinct numbers in {ETA}"),
-        read=lambda game, main: None,
         apply=_set_eta_grid,
         convert=lambda level: tuple(sorted(float(v) for v in level)),
         nested=True,
