@@ -85,7 +85,8 @@ def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
 
     The columns are those of ``trials.csv`` (``docs/pipelines.md``, *The trial table*):
     ``trial_id, run_id, universe, block, subject, human, robot, num_features, rationality,
-    eta, seed``, a column per registered measure
+    eta, seed`` (then ``task, participant, condition`` in a run with participants), a column
+    per registered measure
     (:data:`cirl_study.measure_registry.MEASURES`: ``regret, kl, reward_l2,
     regret_under_estimate, ...``; NaN where a trial has no value of it), ``converged`` and
     ``file``, the name of the MCAP log file in ``run_dir`` that holds the trial's record (to
@@ -94,9 +95,9 @@ def load_trials(run_dir: str | os.PathLike[str]) -> pd.DataFrame:
     """
     from cirl_study.analysis.table import trial_table
     from cirl_study.logs.reader import read_run
-    from cirl_study.study.pipeline_file import logged_pipeline
+    from cirl_study.study.pipeline_file import pipelines_in
 
-    return trial_table(read_run(Path(run_dir), logged_pipeline).rows)
+    return trial_table(read_run(Path(run_dir), pipelines_in(Path(run_dir))).rows)
 
 
 def analyze(

@@ -46,6 +46,10 @@ PEDAGOGIC, REGRET_OPTIMAL = "pedagogic", "regret_optimal"
 """The teaching humans: Ho et al.'s pedagogic shower, and the demonstration that minimises the
 MAP robot's regret (:mod:`cirl_study.core.teaching`)."""
 
+RECORDED = "recorded"
+"""The human who is a person: each trial shows the demonstration a participant gave for its
+task, read from a file of demonstrations (:mod:`cirl_study.study.participants`)."""
+
 PAPER_HUMANS: tuple[str, ...] = (EXPERT, BEST_RESPONSE)
 """The levels of the paper's within-subjects factor ``human``, baseline first."""
 
@@ -98,6 +102,31 @@ class Demonstration(msgspec.Struct, **_STRUCT):
 Finite = Annotated[float, msgspec.Meta(ge=-sys.float_info.max, le=sys.float_info.max)]
 """A finite number (not an infinity, not NaN)."""
 
+ParticipantId = Annotated[str, msgspec.Meta(pattern=r"^[A-Za-z0-9][A-Za-z0-9_.-]{0,63}$")]
+"""A participant's id: a letter or digit, then letters, digits, ``_``, ``.`` or ``-``, at most
+64 (it is part of the trial ids; a recruitment platform's id, e.g. Prolific's 24 hex digits)."""
+
+Seconds = Annotated[float, msgspec.Meta(ge=0.0, le=sys.float_info.max)]
+
+
+class Recorded(msgspec.Struct, **_STRUCT):
+    """A participant's demonstration of a trial's task, as a file of demonstrations gave it.
+
+    ``path`` is the cells ``s_0..s_T`` the participant moved through, from the task's start
+    (to a goal, in a game with goals); ``seconds``, where the file has times, the time of
+    each cell's arrival since the task began (``seconds[0]`` the first view of the task), a
+    non-decreasing sequence as long as ``path``; ``order`` the task's 1-based position
+    in the participant's sequence, where the file gives it. ``condition`` is the participant's
+    condition (between participants) or the demonstration's (within).
+    """
+
+    participant: ParticipantId
+    condition: NonEmptyText
+    path: Path
+    seconds: tuple[Seconds, ...] | None = None
+    order: PositiveInt | None = None
+
+
 Measures = dict[str, Finite | None]
 """A trial's measures (docs/design.md §4), by the names of the measure registry
 (:data:`~cirl_study.measure_registry.MEASURES`): each a finite number, or ``null`` where the
@@ -112,6 +141,14 @@ measure may be registered later (by a script, or a test), and a record of an ear
 which lacks the measures added since, would need a type of its own. The JSON is the same
 object of numbers either way.
 """
+
+
+class Collected(msgspec.Struct, **_STRUCT):
+    """A demonstration a participant submitted in the browser experiment (``cirl-study
+    serve``): her demonstration of ``task``, with the time of every move."""
+
+    task: NonEmptyText
+    recorded: Recorded
 
 
 class FitDiagnostics(msgspec.Struct, **_STRUCT):
@@ -170,8 +207,10 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
     ``start``); the subject's reward draw is ``theta``. ``seed`` seeds the trial's own
     generator. ``teaching`` is the hypothesis space of a pipeline with teaching players
     (``None`` otherwise); ``gradient_ascent`` the settings of the robot of that name, given
-    exactly for its trials. ``universe`` is the id of the multiverse universe the trial belongs to
-    (:class:`cirl_study.study.spec.Universe`), ``None`` in a single study.
+    exactly for its trials; ``recorded`` the participant's demonstration, given exactly for the
+    ``recorded`` human's trials (whose ``task`` it shows). ``universe`` is the id of the
+    multiverse universe the trial belongs to (:class:`cirl_study.study.spec.Universe`),
+    ``None`` in a single study.
     :func:`cirl_study.core.gridworld.gridworld` and
     :func:`cirl_study.core.gridworld.feature_matrix` turn the game into arrays.
     """
@@ -199,6 +238,7 @@ class TrialSpec(msgspec.Struct, **_STRUCT):
     universe: NonEmptyText | None = None
     teaching: Teaching | None = None
     gradient_ascent: GradientAscent | None = None
+    recorded: Recorded | None = None
 
 
 class TrialRecord(TrialSpec, **_STRUCT):
@@ -236,7 +276,12 @@ class TrialRow(msgspec.Struct, **_STRUCT):
     record without a fit report counts as converged). ``draw``: a
     digest of the subject's reward draw (``num_features``, ``theta``, the features, the grid
     and the start cell), equal for two records exactly when their draws are (up to a
-    BLAKE2b collision), so one subject's trials can be checked to share one draw. ``file``:
+    BLAKE2b collision), so one subject's trials can be checked to share one draw. ``task``: the
+    trial's task (``None`` for a reward draw); ``participant`` and ``condition``: who showed a
+    ``recorded`` human's trial, in which condition (``None`` for every other trial);
+    ``path``: the demonstration's cells, kept for a trial of a task (a tile game's few dozen
+    cells; ``None`` for a reward draw's), whose people are compared with the models path by
+    path. ``file``:
     the name of the log file, in the run directory, the record was read from (empty for a
     row made of a record not read from a run's file).
     """
@@ -255,12 +300,17 @@ class TrialRow(msgspec.Struct, **_STRUCT):
     measures: tuple[float | None, ...]
     converged: bool
     draw: str
+    task: str | None = None
+    participant: str | None = None
+    condition: str | None = None
+    path: tuple[Cell, ...] | None = None
     file: str = ""
 
     @classmethod
     def of(cls, record: TrialRecord, file: str = "") -> TrialRow:
         """The row of ``record``, read from the log file named ``file`` (repeated names are
         interned: one copy per run)."""
+        recorded = record.recorded
         return cls(
             trial_id=record.trial_id,
             run_id=sys.intern(record.run_id),
@@ -276,6 +326,10 @@ class TrialRow(msgspec.Struct, **_STRUCT):
             measures=tuple(record.measures[name] for name in MEASURES),
             converged=record.irl is None or record.irl.converged,
             draw=draw_digest(record),
+            task=record.task,
+            participant=None if recorded is None else recorded.participant,
+            condition=None if recorded is None else sys.intern(recorded.condition),
+            path=None if record.task is None else record.demonstration.states,
             file=sys.intern(file),
         )
 
@@ -325,11 +379,34 @@ def setting_faults(spec: TrialSpec) -> list[str]:
             )
         if not teaching.includes_truth or spec.theta not in teaching.listed:
             faults.append("theta is not one of the listed hypotheses")
+    faults += _recorded_faults(spec)
     if (spec.gradient_ascent is None) == (spec.robot == GRADIENT_ASCENT):
         faults.append(
             f"gradient_ascent is {'null' if spec.gradient_ascent is None else 'given'} for "
             f"robot {spec.robot} (given exactly for robot {GRADIENT_ASCENT})"
         )
+    return faults
+
+
+def _recorded_faults(spec: TrialSpec) -> list[str]:
+    """The rules of ``recorded``: given exactly for the ``recorded`` human, whose trial has a
+    task; a ``seconds`` per cell of its path. Whether the path is one of the game's learning
+    phase the game decides (:meth:`cirl_study.core.maxent.Phase.path_faults`)."""
+    recorded = spec.recorded
+    if (recorded is None) == (spec.human == RECORDED):
+        state = "null" if recorded is None else "given"
+        return [f"recorded is {state} for human {spec.human} (given exactly for {RECORDED})"]
+    if recorded is None:
+        return []
+    faults = [] if spec.task is not None else ["a recorded demonstration has no task"]
+    if recorded.seconds is not None and len(recorded.seconds) != len(recorded.path):
+        faults.append(
+            f"recorded has {len(recorded.seconds)} seconds for {len(recorded.path)} cells"
+        )
+    elif recorded.seconds is not None and any(
+        b < a for a, b in zip(recorded.seconds, recorded.seconds[1:], strict=False)
+    ):
+        faults.append("recorded seconds decrease")
     return faults
 
 

@@ -1,12 +1,13 @@
 """The repeated-measures ANOVA of any factorial design, against R (afex, car) and pingouin.
 
 The R numbers are fixtures made by ``tests/fixtures/factorial/make_fixtures.R`` on its own
-data (non-spherical by construction); pingouin covers one within factor with a between
-factor, and two within factors without one.
+data (non-spherical by construction), type II and type III where the cells are unequal;
+pingouin covers one within factor with a between factor, and two within factors without one.
 """
 
 from __future__ import annotations
 
+import itertools
 import math
 from fractions import Fraction
 from pathlib import Path
@@ -17,6 +18,8 @@ import numpy as np
 import pandas as pd
 import pingouin as pg
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from cirl_study.analysis.report.study_sections import anova_table
 from cirl_study.analysis.results.per_measure import plain
@@ -35,16 +38,23 @@ from cirl_study.analysis.statistics.tails import chi2_tail, f_tail, t_tail
 FIXTURES = Path(__file__).parent / "fixtures" / "factorial"
 
 DESIGNS = {
-    "rm_human3": (["human"], None),
-    "rm_human3_robot2": (["human", "robot"], None),
-    "mixed_human3_robot2_group2": (["human", "robot"], "group"),
-    "mixed_human4_group3": (["human"], "group"),
-    "mixed_human2_robot2_group2": (["human", "robot"], "group"),
-    "mixed_human3_group2_unbalanced": (["human"], "group"),
-    "rm_human8": (["human"], None),
+    "rm_human3": (["human"], []),
+    "rm_human3_robot2": (["human", "robot"], []),
+    "mixed_human3_robot2_group2": (["human", "robot"], ["group"]),
+    "mixed_human4_group3": (["human"], ["group"]),
+    "mixed_human2_robot2_group2": (["human", "robot"], ["group"]),
+    "mixed_human3_group2_unbalanced": (["human"], ["group"]),
+    "rm_human8": (["human"], []),
+    "mixed_human3_group2_cohort2_unbalanced": (["human"], ["group", "cohort"]),
+    "mixed_human2_robot2_group2_cohort3_unbalanced": (["human", "robot"], ["group", "cohort"]),
+    "mixed_human3_group2_cohort2_site2_unbalanced": (["human"], ["group", "cohort", "site"]),
 }
+"""Each design's within and between factors; R's comparisons (the ``_pairwise`` and ``_paired``
+fixtures) only for those with one between factor at most, the study's design."""
 
-RTOL = 1e-9
+COMPARED = sorted(design for design, (_, between) in DESIGNS.items() if len(between) <= 1)
+
+RTOL = 1e-10
 
 
 def read_fixture(name: str) -> pd.DataFrame:
@@ -65,15 +75,30 @@ def close(ours: float, theirs: float, rtol: float = RTOL) -> bool:
     return math.isclose(ours, theirs, rel_tol=rtol, abs_tol=1e-300)
 
 
+def balanced(data: pd.DataFrame, between: list[str]) -> bool:
+    """Whether every between cell of ``data`` holds as many subjects."""
+    if not between:
+        return True
+    return data.groupby(between)["subject"].nunique().nunique() == 1
+
+
+@pytest.mark.parametrize("sums_of_squares", [2, 3])
 @pytest.mark.parametrize("design", sorted(DESIGNS))
-def test_the_anova_equals_afex_and_car(design: str) -> None:
+def test_the_anova_equals_afex_and_car(design: str, sums_of_squares: int) -> None:
     within, between = DESIGNS[design]
     data = read_fixture(f"{design}_data.csv")
     expected = read_fixture(f"{design}_anova.csv")
-    # With unequal groups our within effects weight the group means by size: R's type 2.
-    expected = expected[expected["type"] == expected["type"].min()]
+    if sums_of_squares not in set(expected["type"]):  # R's type 3 serves where the types agree
+        assert balanced(data, between) and set(expected["type"]) == {3}
+        sums_of_squares_in_r = 3
+    else:
+        sums_of_squares_in_r = sums_of_squares
+    expected = expected[expected["type"] == sums_of_squares_in_r]
     table = {
-        by_factors(row.effect): row for row in repeated_measures_anova(data, "y", within, between)
+        by_factors(row.effect): row
+        for row in repeated_measures_anova(
+            data, "y", within, between, sums_of_squares=sums_of_squares
+        )
     }
     assert set(table) == {by_factors(effect) for effect in expected["effect"]}
     for theirs in expected.itertuples():
@@ -102,7 +127,143 @@ def test_the_anova_equals_afex_and_car(design: str) -> None:
             (sphericity.gg.p, theirs.p_gg),
             (sphericity.hf.p, theirs.p_hf),
         ):
-            assert close(mine, reference, 1e-7), (design, theirs.effect, mine, reference)
+            assert close(mine, reference), (design, theirs.effect, mine, reference)
+
+
+def test_effects_are_named_and_ordered_by_stratum_then_term() -> None:
+    data = read_fixture("mixed_human3_group2_cohort2_unbalanced_data.csv")
+    table = repeated_measures_anova(data, "y", ["human"], ["group", "cohort"])
+    assert [row.effect for row in table] == [
+        "group", "cohort", "group:cohort",
+        "human", "human:group", "human:cohort", "human:group:cohort",
+    ]  # fmt: skip
+
+
+def _formulas_of_one_between_factor(
+    frame: pd.DataFrame, within: list[str], levels: list[int]
+) -> tuple[list[tuple[str, int, int, float, float]], float]:
+    """``(effect, df1, df2, SS, error SS)`` of every row by the formulas of one between factor
+    ``group`` (``N |zbar|^2``, ``sum_g n_g |zbar_g - zbar|^2``, ``tr E_T``), in the arithmetic
+    the ANOVA used before it took several between factors, and the sum of the error terms."""
+    ordered = frame.sort_values(["subject", *within])["y"].to_numpy()
+    y = ordered.reshape(frame["subject"].nunique(), -1)
+    group_of = frame.groupby("subject")["group"].first().sort_index()
+    groups = group_of.map({g: i for i, g in enumerate(sorted(group_of.unique()))}).to_numpy()
+    sizes = np.bincount(groups).astype(np.float64)
+    count, subjects = len(sizes), len(y)
+    rows, errors = [], []
+    for size in range(len(within) + 1):
+        for chosen in itertools.combinations(range(len(within)), size):
+            matrix = np.ones((1, 1))
+            for i, n in enumerate(levels):
+                part = contrasts(n) if i in chosen else np.full((n, 1), 1 / math.sqrt(n))
+                matrix = np.kron(matrix, part)
+            z = y @ matrix
+            means = np.zeros((count, z.shape[1]))
+            np.add.at(means, groups, z)
+            means /= sizes[:, None]
+            grand = z.mean(axis=0)
+            residual = z - means[groups]
+            error = float(np.trace(residual.T @ residual))
+            errors.append(error)
+            d, df2 = z.shape[1], (subjects - count) * z.shape[1]
+            name = ":".join(within[i] for i in chosen)
+            if chosen:
+                rows.append((name, d, df2, float(subjects * grand @ grand), error))
+            if count > 1:
+                between = float(sizes @ np.sum((means - grand) ** 2, axis=1))
+                label = f"{name}:group" if chosen else "group"
+                rows.append((label, (count - 1) * d, df2, between, error))
+    return rows, sum(errors)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    seed=st.integers(0, 2**32 - 1),
+    sizes=st.lists(st.integers(1, 6), min_size=1, max_size=4).filter(lambda n: sum(n) > len(n)),
+    levels=st.lists(st.integers(2, 4), max_size=2),
+    offset=st.sampled_from([0.0, 1e3, 1e8]),
+)
+def test_one_between_factor_keeps_its_numbers_exactly(
+    seed: int, sizes: list[int], levels: list[int], offset: float
+) -> None:
+    """With one between factor (of any number of groups, of any sizes) every row, its name,
+    order, degrees of freedom and numbers, is the one-factor formulas' to the last bit."""
+    rng = np.random.default_rng(seed)
+    within = ["human", "robot"][: len(levels)]
+    rows = []
+    for g, n in enumerate(sizes):
+        for s in range(n):
+            base = offset + rng.normal()
+            for cell in np.ndindex(*levels):
+                value = base + rng.normal() + 0.4 * g * sum(cell)
+                cells = dict(zip(within, cell, strict=True))
+                rows.append({"subject": f"{g}-{s}", "group": f"g{g}", "y": value, **cells})
+    frame = pd.DataFrame(rows)
+    table = repeated_measures_anova(frame, "y", within, ["group"])
+    expected, error_total = _formulas_of_one_between_factor(frame, within, levels)
+    assert [(row.effect, row.df1, row.df2) for row in table] == [e[:3] for e in expected]
+    for row, (_, df1, df2, ss, error) in zip(table, expected, strict=True):
+        ours = (row.SS, row.MS, row.F, row.np2, row.ges)
+        f_value = (ss / df1) / (error / df2)
+        assert ours == (ss, ss / df1, f_value, ss / (ss + error), ss / (ss + error_total))
+
+
+def _balanced(seed: int) -> pd.DataFrame:
+    """Three humans, two by three between cells of four subjects each."""
+    rng = np.random.default_rng(seed)
+    rows = []
+    for g, c, s in itertools.product(range(2), range(3), range(4)):
+        base = rng.normal() + g - c
+        for h in range(3):
+            value = base + rng.normal(0, 1 + h) + 0.5 * h * (g + c)
+            rows.append({"subject": f"{g}{c}{s}", "g": g, "c": c, "h": h, "y": value})
+    return pd.DataFrame(rows)
+
+
+@pytest.mark.parametrize("between", [[], ["g"], ["g", "c"]])
+def test_type_2_equals_type_3_in_a_balanced_design(between: list[str]) -> None:
+    frame = _balanced(11)
+    second, third = (
+        repeated_measures_anova(frame, "y", ["h"], between, sums_of_squares=kind) for kind in (2, 3)
+    )
+    assert [row.effect for row in second] == [row.effect for row in third]
+    for a, b in zip(second, third, strict=True):
+        assert (a.df1, a.df2) == (b.df1, b.df2)
+        for mine, theirs in ((a.SS, b.SS), (a.F, b.F), (a.p, b.p), (a.ges, b.ges)):
+            assert close(mine, theirs, 1e-12), (a.effect, mine, theirs)
+        if a.sphericity is None:
+            assert b.sphericity is None
+            continue
+        ours, theirs = a.sphericity, b.sphericity  # one error matrix: the same epsilons
+        assert (ours.mauchly_w, ours.gg_epsilon, ours.hf_epsilon) == (
+            theirs.mauchly_w,
+            theirs.gg_epsilon,
+            theirs.hf_epsilon,
+        )
+        assert close(ours.gg.p, theirs.gg.p, 1e-12) and close(ours.hf.p, theirs.hf.p, 1e-12)
+
+
+def test_an_empty_between_cell_is_refused() -> None:
+    data = read_fixture("mixed_human3_group2_cohort2_unbalanced_data.csv")
+    missing = (data["group"] == "g2") & (data["cohort"] == "c1")
+    with pytest.raises(ValueError, match="no subject in the between cell group=g2, cohort=c1"):
+        repeated_measures_anova(data[~missing], "y", ["human"], ["group", "cohort"])
+
+
+def test_a_subject_in_two_between_cells_is_refused() -> None:
+    data = read_fixture("mixed_human3_group2_cohort2_unbalanced_data.csv")
+    data.loc[data.index[0], "cohort"] = "c2" if data["cohort"].iloc[0] == "c1" else "c1"
+    with pytest.raises(ValueError, match="a subject lies in two levels of cohort"):
+        repeated_measures_anova(data, "y", ["human"], ["group", "cohort"])
+
+
+def test_the_between_factors_are_a_sequence_and_the_type_2_or_3() -> None:
+    data = read_fixture("mixed_human3_group2_unbalanced_data.csv")
+    with pytest.raises(TypeError, match="not a string"):
+        repeated_measures_anova(data, "y", ["human"], "group")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="2 or 3"):
+        repeated_measures_anova(data, "y", ["human"], ["group"], sums_of_squares=1)  # type: ignore[arg-type]
 
 
 def test_the_fixtures_exercise_the_corrections() -> None:
@@ -118,7 +279,7 @@ def test_one_within_factor_with_a_between_factor_equals_pingouin() -> None:
     theirs = pg.mixed_anova(
         data=data, dv="y", within="human", between="group", subject="subject", correction=True
     ).set_index("Source")
-    ours = {row.effect: row for row in repeated_measures_anova(data, "y", ["human"], "group")}
+    ours = {row.effect: row for row in repeated_measures_anova(data, "y", ["human"], ["group"])}
     for source, effect in (("group", "group"), ("human", "human"), ("Interaction", "human:group")):
         assert close(ours[effect].F, theirs.at[source, "F"])
         assert close(ours[effect].p, theirs.at[source, "p_unc"])
@@ -209,7 +370,7 @@ def as_study_columns(data: pd.DataFrame) -> pd.DataFrame:
     return frame
 
 
-@pytest.mark.parametrize("design", sorted(DESIGNS))
+@pytest.mark.parametrize("design", COMPARED)
 def test_pairwise_comparisons_equal_r_paired_t_tests_with_holm(design: str) -> None:
     frame = as_study_columns(read_fixture(f"{design}_data.csv"))
     expected = read_fixture(f"{design}_paired.csv")
@@ -433,7 +594,7 @@ def test_a_stratum_whose_error_is_rounding_reports_no_sphericity() -> None:
     assert cells[5:8] == ["–", "–", "–"]
 
 
-@pytest.mark.parametrize("design", sorted(DESIGNS))
+@pytest.mark.parametrize("design", COMPARED)
 def test_pairwise_differences_are_emmeans_contrasts(design: str) -> None:
     """emmeans' simple contrasts (multivariate model) estimate the same differences; without a
     between factor its error is the pair's own, so its t, df and p are the paired t-test's."""
@@ -476,7 +637,7 @@ def test_an_effect_without_any_variance_is_undefined_not_an_error(humans) -> Non
         for h in humans
     ]
     effects = {
-        r.effect: r for r in repeated_measures_anova(pd.DataFrame(rows), "y", ["human"], "group")
+        r.effect: r for r in repeated_measures_anova(pd.DataFrame(rows), "y", ["human"], ["group"])
     }
     assert pytest.approx(13.5) == effects["group"].F and effects["group"].np2 > 0
     for name in ("human", "human:group"):

@@ -36,6 +36,7 @@ OTHER_IDS = [
     "milli_dragan_robustness",
     "best_response_vs_pedagogic",
     "regret_optimal_gap",
+    "showing_beats_doing",
 ]
 
 
@@ -105,7 +106,8 @@ def test_a_claim_whose_cells_the_run_lacks_is_not_tested(holding):
     assert claims["paper_best_response"].tested
     for claim in OTHER_IDS[1:]:
         assert not claims[claim].tested and claims[claim].reproduced is False
-        assert claims[claim].measurement.startswith("not tested: the run lacks the human")
+        lacks = "participants" if claim == "showing_beats_doing" else "the human"
+        assert claims[claim].measurement.startswith(f"not tested: the run lacks {lacks}")
 
 
 def _human_p(results):
@@ -305,16 +307,17 @@ def test_the_counts_keep_data_theorems_and_untested_claims_apart(holding):
         ]
     }
     counts = count_claims(evaluate_claims(holding, theory))
-    # the paper's claims and paper_best_response judged; the teaching ones and "untested" not
+    # the paper's claims and paper_best_response judged; the teaching ones, the people's and
+    # "untested" not
     assert (counts.data, counts.reproduced + counts.not_reproduced, counts.answered) == (7, 7, 0)
-    assert (counts.theorems, counts.theorems_hold, counts.not_tested) == (2, 1, 5)
+    assert (counts.theorems, counts.theorems_hold, counts.not_tested) == (2, 1, 6)
     assert counts.subjects == 10 < MIN_SUBJECTS and counts.few_subjects
     summary = counts.summary()
     assert summary.startswith(f"7 claims on this run's data: {counts.reproduced} reproduced, ")
     assert "(judged on cells of 10 subjects, fewer than 20: the verdicts mean little)" in summary
     assert summary.endswith(
         "; 2 theorems checked exactly, independent of the run: 1 holds, 1 does not; "
-        "5 claims not tested, the run lacks their cells"
+        "6 claims not tested, the run lacks their cells"
     )
 
 

@@ -19,14 +19,14 @@ def test_analyze_writes_the_report_beside_the_run_by_default(tmp_path, smoke_run
     assert result.output.strip() == (
         f"report of 82 trials written to {out}: 7 claims on this run's data: 1 reproduced, "
         "6 not reproduced (judged on cells of 4 subjects, fewer than 20: the verdicts mean "
-        "little); 4 theorems checked exactly, independent of the run: 4 hold; 4 claims not "
+        "little); 4 theorems checked exactly, independent of the run: 4 hold; 5 claims not "
         "tested, the run lacks their cells"
     )
     results = json.loads((out / "results.json").read_text(encoding="utf-8"))
     kinds = [(claim["kind"], claim["tested"], claim["subjects"]) for claim in results["claims"]]
     assert (
         kinds
-        == [("data", True, 4)] * 7 + [("data", False, None)] * 4 + [("theory", True, None)] * 4
+        == [("data", True, 4)] * 7 + [("data", False, None)] * 5 + [("theory", True, None)] * 4
     )
     text = (out / "report.md").read_text(encoding="utf-8")
     claims = text.split("## Claims\n")[1].split("\n## ")[0]
@@ -34,7 +34,7 @@ def test_analyze_writes_the_report_beside_the_run_by_default(tmp_path, smoke_run
         "**Judged on cells of 4 subjects, fewer than 20: the verdicts mean little.**"
     )
     assert claims.index("### Theorems checked exactly") < claims.index("### Claims not tested")
-    assert claims.count("✅ holds") == 4 and "| 15 |" in claims
+    assert claims.count("✅ holds") == 4 and "| 16 |" in claims
     assert results["pipeline"] == "smoke" and results["partial"] is None
     assert results["run_id"].startswith("smoke-")
     assert {p.name for p in out.glob("*.svg")} == {

@@ -172,7 +172,7 @@ def test_every_claim_has_a_verdict_and_every_link_resolves(reports):
     claims_section = text.split("## Claims\n")[1].split("\n## ")[0]
     numbered = re.findall(r"^\| (\d+) \|", claims_section, flags=re.MULTILINE)
     assert numbered == [str(k) for k in range(1, len(results["claims"]) + 1)]
-    assert len(results["claims"]) == 11  # no theory claims given here
+    assert len(results["claims"]) == 12  # no theory claims given here
     judged = claims_section.split("### Claims on this run's data")[1].split("### ")[0]
     verdicts = re.findall(r"(✅ reproduced|❌ not reproduced|💬 answered)", judged)
     assert len(verdicts) == sum(claim["tested"] for claim in results["claims"])

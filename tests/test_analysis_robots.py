@@ -64,7 +64,7 @@ def split_plot_data(seed: int, subjects: int, levels: int = 2) -> pd.DataFrame:
 
 
 def anova_frame(data: pd.DataFrame, within: list[str]) -> pd.DataFrame:
-    rows = repeated_measures_anova(data, "y", within, "num_features")
+    rows = repeated_measures_anova(data, "y", within, ["num_features"])
     return pd.DataFrame([msgspec.to_builtins(row) for row in rows]).set_index("effect")
 
 
@@ -126,7 +126,7 @@ def test_two_within_factors_match_the_contrast_tests(seed: int, subjects: int) -
 def test_the_anova_refuses_an_incomplete_subject() -> None:
     data = split_plot_data(3, 5)
     with pytest.raises(ValueError, match="exactly one observation in every within cell"):
-        repeated_measures_anova(data.iloc[1:], "y", ["robot", "human"], "num_features")
+        repeated_measures_anova(data.iloc[1:], "y", ["robot", "human"], ["num_features"])
 
 
 def test_paired_differences_are_paired_t_tests_with_holm() -> None:

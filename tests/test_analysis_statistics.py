@@ -33,7 +33,7 @@ ANOVA_ORDER = ["num_features", "human", "human:num_features"]
 
 def mixed_anova(data: pd.DataFrame) -> pd.DataFrame:
     """The ANOVA of ``score``: ``human`` within subjects, ``num_features`` between."""
-    effects = repeated_measures_anova(data, "score", ["human"], "num_features")
+    effects = repeated_measures_anova(data, "score", ["human"], ["num_features"])
     return pd.DataFrame([msgspec.structs.asdict(row) for row in effects]).set_index("effect")
 
 
@@ -425,7 +425,7 @@ def test_a_non_finite_value_is_refused_naming_its_trial_never_averaged(value: fl
         tests(estimates(trials, table, pipeline()), table, pipeline())
     frame = table[table["block"] == "main"]
     with pytest.raises(UserError, match=f"^kl of trial {re.escape(trial)} is"):
-        repeated_measures_anova(frame, "kl", ["human"], "num_features")
+        repeated_measures_anova(frame, "kl", ["human"], ["num_features"])
 
 
 def test_a_measure_a_trial_may_lack_leaves_its_draws_out_as_before() -> None:

@@ -140,7 +140,10 @@ def test_a_run_of_format_8_reads_its_policies_as_humans() -> None:
     results = cirl_study.analyze(run)
     assert results.design.humans == ["expert", "best_response"]
     assert {r.task for r in contents.records({row.trial_id for row in contents.rows})} == {
-        "oo", "ox", "xo", None
+        "oo",
+        "ox",
+        "xo",
+        None,
     }
 
 
@@ -187,7 +190,7 @@ def test_a_log_of_an_unknown_format_is_refused_in_one_line(tmp_path: Path) -> No
 
 
 def test_every_readable_format_is_named_and_the_current_one_is_written() -> None:
-    assert versions.READABLE[-1] == versions.LOG_FORMAT == "9"
+    assert versions.READABLE[-1] == versions.LOG_FORMAT == "10"
     assert (
         versions.readable("5")
         and versions.readable("6")

@@ -206,7 +206,7 @@ def test_collect_provenance() -> None:
     assert all(isinstance(k, str) and isinstance(v, str) for k, v in provenance.items())
     assert provenance["pipeline_name"] == "smoke" and provenance["run_id"] == identity.run_id
     assert provenance["pipeline_toml"] == 'name = "smoke"\n'
-    assert provenance["log_format"] == "9"
+    assert provenance["log_format"] == "10"
     # sha256 of the 15 bytes above, computed independently with `sha256sum`
     assert provenance["pipeline_sha256"] == (
         "69b1f260376d9e58171da83a305b3b2da7f22ab722ca729c9af53174ce8cd422"

@@ -114,7 +114,7 @@ class TestARegisteredMeasure:
         for row in cells:
             cell = kept[(kept["num_features"] == row.num_features) & (kept["human"] == row.human)]
             assert (row.n, row.mean) == (len(cell), pytest.approx(cell["reward_l1"].mean(), 1e-12))
-        between = "num_features" if kept["num_features"].nunique() > 1 else None
+        between = ["num_features"] if kept["num_features"].nunique() > 1 else []
         want = repeated_measures_anova(kept, "reward_l1", ["human"], between)
         assert [row for row in results.anova if row.measure == "reward_l1"] == want
         assert {row.measure for row in results.paper.simple_effects} == set(analysed_measures())

@@ -170,6 +170,4 @@ def test_a_full_disk_while_locking_a_report_is_one_line_and_keeps_it(
 
 def files(directory: Path) -> dict[str, bytes]:
     """Every file of ``directory`` (the run's lock file aside) by name, with its bytes."""
-    return {
-        path.name: path.read_bytes() for path in directory.iterdir() if path.name != LOCK_NAME
-    }
+    return {path.name: path.read_bytes() for path in directory.iterdir() if path.name != LOCK_NAME}

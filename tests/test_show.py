@@ -23,7 +23,7 @@ def test_a_complete_run_is_shown_with_its_counts(smoke_run: Path) -> None:
     result = invoke("show", smoke_run)
     assert result.exit_code == 0, result.output
     first, status, trials = result.stdout.splitlines()
-    assert first.startswith("run smoke-") and first.endswith("log format 9")
+    assert first.startswith("run smoke-") and first.endswith("log format 10")
     assert status == "status: complete"
     assert trials.startswith("trials: 82 of 82 planned, in ")
     assert trials.endswith("eta_cv 18 of 18, main 16 of 16, lambda_sweep 48 of 48")

@@ -164,7 +164,7 @@ REFUSALS: list[tuple[str, Callable[[], str], str]] = [
         lambda: smoke_text(
             humans='["expert", "pedagogic"]', sweep=False, extra=teaching_text(hypotheses="1")
         ),
-        "teaching.hypotheses must be an integer of at least 2, or \"tasks\", got 1",
+        'teaching.hypotheses must be an integer of at least 2, or "tasks", got 1',
     ),
     (
         "alpha = 0",

@@ -493,8 +493,6 @@ def test_a_tile_layout_reads_into_one_hot_features_and_the_step(table) -> None:
                 assert row[-1] == 1.0
 
 
-
-
 @pytest.fixture(scope="module")
 def small_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
     base = tmp_path_factory.mktemp("tiles")

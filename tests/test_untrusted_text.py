@@ -431,7 +431,7 @@ def test_every_csv_we_write_is_safe_to_open_in_a_spreadsheet(tmp_path: Path) -> 
     )
     expected = (
         "subject,regret,'=cmd\n"
-        "\"'=HYPERLINK(\"\"http://x\"\",\"\"y\"\")\",-0.5,a\n"
+        '"\'=HYPERLINK(""http://x"",""y"")",-0.5,a\n'
         "'+1,0.25,b\n'-2,-1.0,c\n'@SUM(A1),0.0,d\n'\tx,1.0,e\nmain,2.0,f\n"
     )
     assert csv_file(frame).decode() == expected

@@ -26,7 +26,7 @@ from cirl_study.logs.reader import read_run
 from cirl_study.logs.run_checks import complete_main_subjects
 from cirl_study.record import TrialRecord, TrialRow
 from cirl_study.study.audit import audit_run, resume_advice
-from cirl_study.study.pipeline_file import logged_pipeline
+from cirl_study.study.pipeline_file import logged_pipeline, pipelines_in
 from cirl_study.study.spec import Pipeline
 
 
@@ -73,13 +73,13 @@ def read_for_analysis(
     """
     contents = read_run(
         run_dir,
-        logged_pipeline,
+        pipelines_in(run_dir),
         salvage=partial,
         meanwhile=_load_report_libraries if outputs is not None else lambda: None,
     )
     for warning in contents.warnings:
         warn(warning)
-    pipeline = logged_pipeline(contents.identity)
+    pipeline = logged_pipeline(contents.identity, run_dir)
     audit = audit_run(pipeline, contents.rows)
     incomplete = not audit.complete or bool(contents.damaged)
     # How to complete the run, only where it is not: the advice hashes the pipeline files it

@@ -39,19 +39,25 @@ IDENTITY: tuple[str, ...] = (
 trial's multiverse universe (empty in a single study)."""
 
 
+PEOPLE: tuple[str, ...] = ("task", "participant", "condition")
+"""The columns a run with participants adds after :data:`IDENTITY`: a trial's task, and the
+participant who showed it, in which condition (empty for a simulated human's trial)."""
+
+
 FILE = "file"
 """The trial table's last column: the name of the log file, in the run directory, that holds
 the trial's record (:attr:`~cirl_study.record.TrialRow.file`). It depends on how the run was cut
 into batches, not on the trial: comparisons of two reports pass over it."""
 
 
-def columns() -> tuple[str, ...]:
-    """Columns of the trial table, in order: :data:`IDENTITY`, every registered measure
+def columns(people: bool = False) -> tuple[str, ...]:
+    """Columns of the trial table, in order: :data:`IDENTITY` (then :data:`PEOPLE` in a run
+    with participants, ``people``), every registered measure
     (:data:`~cirl_study.measure_registry.MEASURES`; NaN where the trial has no value of it:
     undefined for it, or not logged by its log format), ``converged``: the robot's estimate
     met its stopping rule (``irl.converged``; a record without a fit report counts as
     converged), and :data:`FILE`, the log file that holds the trial."""
-    return (*IDENTITY, *MEASURES, "converged", FILE)
+    return (*IDENTITY, *(PEOPLE if people else ()), *MEASURES, "converged", FILE)
 
 
 SORT_KEYS: tuple[str, ...] = (
@@ -70,7 +76,8 @@ SORT_KEYS: tuple[str, ...] = (
 
 def _columns(rows: Sequence[TrialRow]) -> dict[str, list[Any]]:
     """The table's columns, filled row by row (no per-row dict: a run may have millions)."""
-    data = {name: [getattr(row, name) for row in rows] for name in IDENTITY if name != "eta"}
+    named = IDENTITY + (PEOPLE if _with_people(rows) else ())
+    data = {name: [getattr(row, name) for row in rows] for name in named if name != "eta"}
     data["eta"] = [math.nan if row.eta is None else row.eta for row in rows]
     for position, measure in enumerate(MEASURES):
         values = (row.measures[position] for row in rows)
@@ -80,6 +87,10 @@ def _columns(rows: Sequence[TrialRow]) -> dict[str, list[Any]]:
     return data
 
 
+def _with_people(rows: Sequence[TrialRow]) -> bool:
+    return any(row.participant is not None for row in rows)
+
+
 def trial_table(rows: Sequence[TrialRow]) -> pd.DataFrame:
     """The tidy trial table, one row per trial.
 
@@ -87,11 +98,12 @@ def trial_table(rows: Sequence[TrialRow]) -> pd.DataFrame:
         rows: the trials' rows, in any order.
 
     Returns:
-        A frame with the columns :func:`columns` (``eta`` is NaN for the expert, a measure
+        A frame with the columns :func:`columns` (with :data:`PEOPLE` where a row is a
+        participant's; ``eta`` is NaN for the expert, a measure
         where the trial has no value of it), sorted by :data:`SORT_KEYS` and indexed
         ``0 .. n-1``.
     """
-    table = pd.DataFrame(_columns(rows), columns=list(columns()))
+    table = pd.DataFrame(_columns(rows), columns=list(columns(_with_people(rows))))
     return table.sort_values(list(SORT_KEYS), kind="mergesort").reset_index(drop=True)
 
 

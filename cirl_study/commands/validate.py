@@ -29,9 +29,9 @@ def validate(
     from cirl_study.escape import terminal
     from cirl_study.logs.validate import validate_run
     from cirl_study.study.audit import plan_faults
-    from cirl_study.study.pipeline_file import logged_pipeline
+    from cirl_study.study.pipeline_file import pipelines_in
 
-    verdict = validate_run(run, logged_pipeline)
+    verdict = validate_run(run, pipelines_in(run))
     plan = plan_faults(run, verdict.rows) if verdict.rows else []
     verdict = dataclasses.replace(verdict, faults=(*plan, *verdict.faults))
     for file_verdict in verdict.files:

@@ -7,7 +7,8 @@ One object carries what a human or a robot may read (docs/design.md §1-3): the 
 of the learning phase (its dynamics, the trials' features and the robot's :math:`\\lambda`),
 the model of the deployment phase (the regret-optimal human plans for it), and, in a
 pipeline with teaching players, the trials' hypothesis spaces and teaching settings; the
-``gradient_ascent`` robot reads its own settings from it too.
+``gradient_ascent`` robot reads its own settings from it too, and the ``recorded`` human the
+demonstrations her participants gave.
 """
 
 from __future__ import annotations
@@ -31,6 +32,10 @@ class Apprenticeship:
         teaching: the teaching settings the trials share (``None`` likewise).
         gradient_ascent: the settings of the ``gradient_ascent`` robot, for a batch it
             estimates (``None`` otherwise).
+        recorded: ``(B, T + 1)`` the participants' demonstrations as paths of the learning
+            phase (cell indices, padded with the sink after a goal), for a batch with trials
+            of the ``recorded`` human (``None`` otherwise); a row of another human's trial is
+            ``-1``.
     """
 
     learning: MaxEnt
@@ -38,6 +43,7 @@ class Apprenticeship:
     hypotheses: HypothesisSpace | None = None
     teaching: Teaching | None = None
     gradient_ascent: GradientAscent | None = None
+    recorded: IntArray | None = None
 
     def take(self, rows: IntArray) -> Apprenticeship:
         """The game of the trials ``rows`` only (an index array)."""
@@ -47,7 +53,14 @@ class Apprenticeship:
             None if self.hypotheses is None else self.hypotheses.take(rows),
             self.teaching,
             self.gradient_ascent,
+            None if self.recorded is None else self.recorded[rows],
         )
+
+    def replayed(self) -> IntArray:
+        """The participants' demonstrations; an error for a game without them."""
+        if self.recorded is None:
+            raise ValueError("this game has no recorded demonstrations: its trials have none")
+        return self.recorded
 
     def space(self) -> HypothesisSpace:
         """The hypothesis spaces; an error for a game without them."""

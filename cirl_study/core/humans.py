@@ -64,9 +64,7 @@ def expert_paths(model: MaxEnt, theta: FloatArray) -> IntArray:
     :func:`cirl_study.core.planning.optimal_plan`). The robot's :math:`\\lambda` plays no part.
     """
     phase = model.phase
-    plan = optimal_plan(
-        model.cell_rewards(theta), phase.successors, phase.horizon, phase.reachable
-    )
+    plan = optimal_plan(model.cell_rewards(theta), phase.successors, phase.horizon, phase.reachable)
     return follow_policy(phase.successors, np.full(len(theta), phase.start_cell), plan.actions)
 
 

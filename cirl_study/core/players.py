@@ -39,6 +39,7 @@ from cirl_study.record import (
     PEDAGOGIC,
     POSTERIOR_MEAN,
     PRAGMATIC,
+    RECORDED,
     REGRET_OPTIMAL,
 )
 
@@ -64,12 +65,17 @@ class Human:
             (:func:`cirl_study.core.path_search.nearest_paths`), whose time grows about
             fourfold a learning step: a pipeline where she plays is held to
             :data:`cirl_study.study.limits.MAX_SEARCH_STEPS` learning steps.
+        recorded: whether she is a person: her trials' demonstrations are the participants'
+            (``TrialSpec.recorded``), which the game carries
+            (:attr:`~cirl_study.core.apprenticeship.Apprenticeship.recorded`), and she plays
+            the participants of a pipeline's ``[participants]``, not its reward draws.
     """
 
     demonstrate: Callable[[Apprenticeship, FloatArray, FloatArray | None, IntArray], IntArray]
     takes_eta: bool
     needs_hypotheses: bool = False
     path_search: bool = False
+    recorded: bool = False
 
 
 @dataclass(frozen=True)
@@ -320,6 +326,12 @@ def _pragmatic(game: Apprenticeship, demos: IntArray, seeds: IntArray) -> Estima
     return pragmatic_estimate(game, demos, seeds)
 
 
+def _recorded(
+    game: Apprenticeship, theta: FloatArray, eta: FloatArray | None, seeds: IntArray
+) -> IntArray:
+    return game.replayed()
+
+
 register_human(EXPERT, Human(_expert, takes_eta=False))
 register_human(BEST_RESPONSE, Human(_best_response, takes_eta=True, path_search=True))
 register_human(LITERAL, Human(_literal, takes_eta=False))
@@ -328,6 +340,7 @@ register_human(
     REGRET_OPTIMAL,
     Human(_regret_optimal, takes_eta=False, needs_hypotheses=True, path_search=True),
 )
+register_human(RECORDED, Human(_recorded, takes_eta=False, recorded=True))
 
 register_robot(MAP, Robot(_map))
 register_robot(POSTERIOR_MEAN, Robot(_posterior_mean))

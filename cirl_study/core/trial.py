@@ -350,7 +350,8 @@ class _Setting:
         learning = MaxEnt(learning_phase, features, first.rationality)
         deployment = MaxEnt(deployment_phase, features, first.rationality)
         hypotheses = _hypotheses(specs, learning, theta)
-        game = Apprenticeship(learning, deployment, hypotheses, first.teaching)
+        recorded = _recorded_paths(grid, learning_phase, specs)
+        game = Apprenticeship(learning, deployment, hypotheses, first.teaching, None, recorded)
         seeds = np.array([spec.seed for spec in specs], dtype=np.int64)
         return cls(grid, game, theta, seeds)
 
@@ -424,6 +425,28 @@ def _fit_fields(estimate: Estimate, row: int) -> dict[str, object]:
             converged=bool(estimate.converged[row]),
         ),
     }
+
+
+def _recorded_paths(grid: Gridworld, phase: Phase, specs: Sequence[TrialSpec]) -> IntArray | None:
+    """The participants' demonstrations of ``specs`` as paths ``(B, T + 1)`` of the learning
+    ``phase``: each ``recorded.path`` in cell indices, then the sink for every step after its
+    goal; ``-1`` for a trial of another human; ``None`` for a batch without recorded trials.
+    A path of more cells than the phase has steps keeps its first ``T + 1`` (and is refused
+    as the human's fault, :func:`_check_paths`, as a cell off the grid is)."""
+    if all(spec.recorded is None for spec in specs):
+        return None
+    paths = np.full((len(specs), phase.horizon + 1), -1, dtype=np.int64)
+    for row, spec in enumerate(specs):
+        if spec.recorded is None:
+            continue
+        cells = [
+            y * grid.width + x if grid.contains(x, y) else -1
+            for x, y in spec.recorded.path[: phase.horizon + 1]
+        ]
+        paths[row, : len(cells)] = cells
+        if phase.sink is not None:
+            paths[row, len(cells) :] = phase.sink
+    return paths
 
 
 def _hypotheses(

@@ -56,6 +56,10 @@ PIPELINE_FILE_KEY = "pipeline_file"
 PIPELINE_TEXT_KEY = "pipeline_toml"
 PIPELINE_SHA_KEY = "pipeline_sha256"
 LOG_FORMAT_KEY = "log_format"
+DEMONSTRATIONS_TEXT_KEY = "participants_csv"
+DEMONSTRATIONS_SHA_KEY = "participants_sha256"
+"""The file of demonstrations of a run with participants, and the SHA-256 of its UTF-8 text:
+part of the run's identity where the pipeline has ``[participants]``."""
 IDENTITY_KEYS = (
     RUN_ID_KEY,
     PIPELINE_NAME_KEY,

@@ -26,6 +26,8 @@ from pathlib import Path
 from cirl_study.core.players import HUMANS, PACKAGES, ROBOTS
 from cirl_study.escape import terminal
 from cirl_study.logs.format import (
+    DEMONSTRATIONS_SHA_KEY,
+    DEMONSTRATIONS_TEXT_KEY,
     IDENTITY_KEYS,
     LOG_FORMAT_KEY,
     MAX_PIPELINE_BYTES,
@@ -64,7 +66,9 @@ class RunIdentity:
     pipeline copied under another name is the same run). ``pipeline_file`` is where the run
     found the file (as a run names the path of its pipeline), only for advice.
     ``log_format`` is the format the file was written in (:mod:`cirl_study.logs.versions`),
-    in which its pipeline text is read.
+    in which its pipeline text is read. ``demonstrations`` is the text of the file of
+    demonstrations of a pipeline with participants (empty for any other), which the pipeline
+    is read with: the logs carry the people's demonstrations as they carry the pipeline.
     """
 
     run_id: str
@@ -72,6 +76,7 @@ class RunIdentity:
     pipeline_file: str = field(compare=False)
     pipeline_text: str
     log_format: str = field(default=LOG_FORMAT, compare=False)
+    demonstrations: str = field(default="", repr=False)
 
     @property
     def pipeline_sha256(self) -> str:
@@ -79,7 +84,7 @@ class RunIdentity:
 
     def provenance(self) -> dict[str, str]:
         """The identity's entries of a ``provenance`` metadata record."""
-        return {
+        entries = {
             RUN_ID_KEY: self.run_id,
             PIPELINE_NAME_KEY: self.pipeline_name,
             PIPELINE_FILE_KEY: self.pipeline_file,
@@ -87,6 +92,10 @@ class RunIdentity:
             PIPELINE_SHA_KEY: self.pipeline_sha256,
             LOG_FORMAT_KEY: self.log_format,
         }
+        if self.demonstrations:
+            entries[DEMONSTRATIONS_TEXT_KEY] = self.demonstrations
+            entries[DEMONSTRATIONS_SHA_KEY] = _sha256(self.demonstrations)
+        return entries
 
     @classmethod
     def of(cls, provenance: Mapping[str, str]) -> RunIdentity:
@@ -114,12 +123,25 @@ class RunIdentity:
             pipeline_file=provenance[PIPELINE_FILE_KEY],
             pipeline_text=provenance[PIPELINE_TEXT_KEY],
             log_format=log_format,
+            demonstrations=provenance.get(DEMONSTRATIONS_TEXT_KEY, ""),
         )
         if identity.pipeline_sha256 != provenance[PIPELINE_SHA_KEY]:
             raise ValueError(
                 f"provenance's {PIPELINE_SHA_KEY} is not the hash of its {PIPELINE_TEXT_KEY}"
             )
+        if (DEMONSTRATIONS_TEXT_KEY in provenance) != (DEMONSTRATIONS_SHA_KEY in provenance) or (
+            identity.demonstrations
+            and _sha256(identity.demonstrations) != provenance[DEMONSTRATIONS_SHA_KEY]
+        ):
+            raise ValueError(
+                f"provenance's {DEMONSTRATIONS_SHA_KEY} is not the hash of its "
+                f"{DEMONSTRATIONS_TEXT_KEY}"
+            )
         return identity
+
+
+def _sha256(text: str) -> str:
+    return hashlib.sha256(text.encode()).hexdigest()
 
 
 NO_IDENTITY = "no run identity: "

@@ -488,6 +488,12 @@ def _another_run(logged: RunIdentity, asked: RunIdentity) -> str:
             f"holds the logs of another run ({_difference(logged, asked)}); "
             "use another --out directory"
         )
+    if logged.pipeline_text == asked.pipeline_text and logged.demonstrations:
+        return (
+            f"holds run {logged.run_id}, made from another file of demonstrations than "
+            f"{asked.pipeline_file} reads now (run {asked.run_id}); restore the file the run "
+            "was made with to resume it (its logs carry it), or use another --out directory"
+        )
     return (
         f"holds run {logged.run_id}, made from another version of {asked.pipeline_file}, which "
         f"is now run {asked.run_id} with other settings; restore the settings the run was made "

@@ -7,7 +7,10 @@
   digest; so a subject lies at one feature level). In a multiverse this holds within each
   universe (:func:`subject_in_universe`): universes differ in the features by design.
 * The ``main`` block is non-empty, complete and within subjects: every subject in it has
-  exactly one trial of every (robot, human) pair the block plays.
+  exactly one trial of every (robot, human) pair the block plays. A participant (a subject of
+  the ``recorded`` human) is one draw and one set of cells per demonstration
+  (:func:`main_unit`): each of her demonstrations shows one task, which every robot watches
+  once; she need not have shown every task.
 * Cross-validation draws are disjoint from the test draws: no ``eta_cv`` subject appears in
   another block.
 
@@ -91,11 +94,21 @@ def subject_in_universe(row: TrialRow) -> str:
     return row.subject if row.universe is None else f"{row.subject}@{row.universe}"
 
 
+def main_unit(row: TrialRow) -> str:
+    """What shares one reward draw and plays every cell of the ``main`` block once: a subject
+    (:func:`subject_in_universe`), or one demonstration of a participant,
+    ``<subject>:task=<task>`` (``:condition=<condition>`` after it)."""
+    subject = subject_in_universe(row)
+    if row.participant is None:
+        return subject
+    return f"{subject}:task={row.task}:condition={row.condition}"
+
+
 def _subject_faults(rows: Iterable[TrialRow]) -> list[str]:
     first: dict[str, TrialRow] = {}
     disagreeing: list[str] = []
     for row in rows:
-        reference = first.setdefault(subject_in_universe(row), row)
+        reference = first.setdefault(main_unit(row), row)
         if row.draw != reference.draw:
             levels = (
                 f": num_features {row.num_features} against {reference.num_features}"
@@ -133,21 +146,22 @@ def incomplete_main_subjects(
     rows: Iterable[TrialRow],
 ) -> tuple[list[str], dict[str, Counter[str]]]:
     """The ``main`` block's within-subjects cells (``human/robot``, sorted), and each subject
-    (:func:`subject_in_universe`) that lacks exactly one trial of every cell its universe
-    plays, with its trials per cell."""
+    (:func:`main_unit`: a participant's demonstration) that lacks exactly one trial of every
+    cell its universe plays (the recorded human's, for a demonstration; the others', for a
+    subject), with its trials per cell."""
     trials: dict[str, Counter[str]] = defaultdict(Counter)
-    universe_of: dict[str, str | None] = {}
-    cells_of: dict[str | None, set[str]] = defaultdict(set)
+    kind_of: dict[str, tuple[str | None, bool]] = {}
+    cells_of: dict[tuple[str | None, bool], set[str]] = defaultdict(set)
     for row in rows:
         if row.block == MAIN:
-            subject = subject_in_universe(row)
-            trials[subject][_cell(row)] += 1
-            universe_of[subject] = row.universe
-            cells_of[row.universe].add(_cell(row))
+            unit, kind = main_unit(row), (row.universe, row.participant is not None)
+            trials[unit][_cell(row)] += 1
+            kind_of[unit] = kind
+            cells_of[kind].add(_cell(row))
     incomplete = {
-        subject: count
-        for subject, count in trials.items()
-        if any(count[cell] != 1 for cell in cells_of[universe_of[subject]])
+        unit: count
+        for unit, count in trials.items()
+        if any(count[cell] != 1 for cell in cells_of[kind_of[unit]])
     }
     return sorted(set().union(*cells_of.values())), incomplete
 
@@ -187,5 +201,5 @@ def complete_main_subjects(rows: Sequence[TrialRow]) -> tuple[list[TrialRow], li
     and the ids of the subjects whose ``main`` trials were left out.
     """
     _, incomplete = incomplete_main_subjects(rows)
-    kept = [r for r in rows if not (r.block == MAIN and subject_in_universe(r) in incomplete)]
+    kept = [r for r in rows if not (r.block == MAIN and main_unit(r) in incomplete)]
     return kept, sorted(incomplete)

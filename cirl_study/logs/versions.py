@@ -46,6 +46,12 @@ a trial record's player who shows     ``policy``                 ``human``
 the pipeline's humans                 ``main.policies``          ``main.humans``
 ===================================== ========================== ==========================
 
+Format 10 added people, renaming none: a trial of the ``recorded`` human carries the
+participant's demonstration (``recorded``: ``participant``, ``condition``, ``path`` and, where
+the file had them, ``seconds`` and ``order``), and the provenance of a run with participants
+its file of demonstrations (``participants_csv``, ``participants_sha256``), with which its
+pipeline is read; a record of an earlier format reads ``recorded`` as ``null``.
+
 The episode topics (``/cirl/demonstration``, ``/cirl/deployment``) are replay views that no
 reader decodes; their messages keep the name they were logged with.
 
@@ -61,8 +67,9 @@ import msgspec
 
 from cirl_study.measure_registry import MEASURES
 
-LOG_FORMAT = "9"
-"""The format this version writes: 9 the player who demonstrates named ``human`` (see the
+LOG_FORMAT = "10"
+"""The format this version writes: 10 the ``recorded`` human's demonstrations and the run's
+file of them (see the module docstring); 9 the player who demonstrates named ``human`` (see the
 module docstring); 8 ``measures`` by the measure registry, games of any
 feature kind (``features.kind`` ``tiles``) with goal cells (``goals``) and named tasks
 (``task``); 7 the ``gradient_ascent`` robot and its settings, and
@@ -71,7 +78,7 @@ record's ``teaching`` (hypothesis space), and ``seed`` shared by the robots of o
 demonstration; 4 the record's ``demonstrator_stays``, ``deployment_start`` and ``universe``;
 3 the run's identity and pipeline text in every file; 2 the typed record."""
 
-READABLE = ("5", "6", "7", "8", LOG_FORMAT)
+READABLE = ("5", "6", "7", "8", "9", LOG_FORMAT)
 """The formats this version reads."""
 
 _RENAMING = ("5",)
@@ -128,6 +135,7 @@ def _pipeline_value(key: str, value: Any) -> Any:
 _ADDED: dict[str, dict[str, Any]] = {
     "7": {"gradient_ascent": None},
     "8": {"goals": [], "task": None},
+    "10": {"recorded": None},
 }
 """The record's fields each format added, as a record of an earlier format reads them."""
 
@@ -146,16 +154,16 @@ def record_payload(data: bytes, log_format: str) -> bytes:
     no value in its records to take.
 
     >>> msgspec.json.decode(record_payload(b'{"robot":"literal","universe":"centres=x"}', "5"))
-    {'goals': [], 'gradient_ascent': None, 'robot': 'literal_observer', 'task': None, \
-'universe': 'centers=x'}
+    {'goals': [], 'gradient_ascent': None, 'recorded': None, 'robot': 'literal_observer', \
+'task': None, 'universe': 'centers=x'}
     >>> msgspec.json.decode(record_payload(b'{"measures":{"kl":1.5,"regret":0.25}}', "6"))[
     ...     "measures"]
     {'kl': 1.5, 'order_agreement': None, 'regret': 0.25, 'regret_under_estimate': None, \
 'reward_l2': None}
     >>> record_payload(b'{"robot":"map"}', "7")
-    b'{"goals":[],"robot":"map","task":null}'
+    b'{"goals":[],"recorded":null,"robot":"map","task":null}'
     >>> record_payload(b'{"policy":"expert","robot":"map"}', "8")
-    b'{"human":"expert","robot":"map"}'
+    b'{"human":"expert","recorded":null,"robot":"map"}'
     """
     if log_format == LOG_FORMAT or not readable(log_format):
         return data  # the current names; or a format the reader refuses, naming it

@@ -34,6 +34,7 @@ from cirl_study.study.pipeline_file import (
     logged_pipeline,
     path_argument,
     pipeline_search_path,
+    pipelines_in,
 )
 from cirl_study.study.plan import eta_cv_trial_ids, study_trial_ids, trial_counts
 from cirl_study.study.spec import Pipeline
@@ -152,7 +153,7 @@ def plan_faults(
         return []
     (identity,) = identities
     try:
-        pipeline = logged_pipeline(identity)
+        pipeline = logged_pipeline(identity, run_dir)
     except ValueError:
         return []  # a fault of every file already
     rows = [row for _, file_rows, _ in files for row in file_rows]
@@ -247,8 +248,7 @@ class RunStatus:
             f"({self.pipeline.description}), from {identity.pipeline_file}, "
             f"log format {identity.log_format}",
             f"status: {state}",
-            f"trials: {audit.logged} of {audit.planned} planned, in {self.files} file(s): "
-            f"{blocks}",
+            f"trials: {audit.logged} of {audit.planned} planned, in {self.files} file(s): {blocks}",
         ]
         if self.damaged:
             names = ", ".join(path.name for path in self.damaged)
@@ -262,8 +262,8 @@ def run_status(run_dir: Path) -> RunStatus:
     Raises:
         UserError: ``run_dir`` is no run directory, or holds no readable log file.
     """
-    contents = read_run(run_dir, logged_pipeline, salvage=True)
-    pipeline = logged_pipeline(contents.identity)
+    contents = read_run(run_dir, pipelines_in(run_dir), salvage=True)
+    pipeline = logged_pipeline(contents.identity, run_dir)
     return RunStatus(
         identity=contents.identity,
         pipeline=pipeline,

@@ -26,6 +26,7 @@ from typing import Any
 
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
+from cirl_study.logs.collection import COLLECTED_DIRECTORY, collected, collected_text
 from cirl_study.logs.format import (
     MAX_PIPELINE_BYTES,
     PIPELINE_NAME_KEY,
@@ -35,7 +36,9 @@ from cirl_study.logs.format import (
 )
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.versions import pipeline_table
+from cirl_study.record import RECORDED
 from cirl_study.study.limits import check_resources, check_universe_count, single_study_problem
+from cirl_study.study.participants import MAX_DEMONSTRATIONS_BYTES, file_text, read_demonstrations
 from cirl_study.study.plan import trial_counts
 from cirl_study.study.settings import Table, applies, shown
 from cirl_study.study.spec import (
@@ -48,6 +51,7 @@ from cirl_study.study.spec import (
     LambdaSweepSpec,
     MainSpec,
     MultiverseSpec,
+    ParticipantsSpec,
     Pipeline,
     Task,
     TeachingSpec,
@@ -66,7 +70,7 @@ far from the interpreter's recursion limit (the parser itself recurses at about 
 
 TOP_KEYS = (
     "name", "description", "seed", "game", "tasks", "eta_cv", "main", "lambda_sweep",
-    "multiverse", "teaching", "gradient_ascent",
+    "multiverse", "teaching", "gradient_ascent", "participants",
 )  # fmt: skip
 """The keys of a pipeline's top table, in the order they are checked."""
 
@@ -77,6 +81,7 @@ def parse_pipeline(
     *,
     label: str | None = None,
     rename: Callable[[dict[str, Any]], dict[str, Any]] | None = None,
+    demonstrations: str | None = None,
 ) -> Pipeline:
     """Validate the TOML ``text`` of the pipeline file ``path``, and what it plans against the
     limits of one run (:func:`cirl_study.study.limits.check_resources`).
@@ -84,6 +89,9 @@ def parse_pipeline(
     Every error is one line beginning with ``label``, by default ``path`` as the user sees it.
     ``rename`` maps the parsed table to the current names before it is read: how the text a
     log of an earlier format carries is read (:func:`cirl_study.logs.versions.pipeline_table`).
+    A pipeline with ``[participants]`` reads its file of demonstrations, checked whole
+    (:func:`cirl_study.study.participants.read_demonstrations`): ``demonstrations``, its text
+    as a run's logs carry it, or else the file it names, beside ``path``.
     """
     label = _display_path(path) if label is None else label
     # A character is at least one byte: a text of too many is not encoded to be measured.
@@ -138,6 +146,7 @@ def parse_pipeline(
         multiverse=multiverse,
         teaching=_teaching(top, game, main, tasks),
         gradient_ascent=_gradient_ascent(top, main, multiverse, ascent),
+        participants=_participants(top, study, path, demonstrations),
     )
     check_resources(pipeline, label)
     return pipeline
@@ -165,11 +174,80 @@ def _lambda_sweep(top: Table, main: MainSpec) -> LambdaSweepSpec | None:
                 "must not be given with [multiverse] (lambda is one of its axes: rationality)",
             )
         return None
-    if "teaching" in top.data:
-        if "lambda_sweep" in top.data:
-            top.fail("lambda_sweep", "must not be given with [teaching] (its study has no sweep)")
-        return None
+    from cirl_study.core.players import HUMANS
+
+    people = any(HUMANS[human].recorded for human in main.humans)
+    for table in ("teaching", "participants"):
+        if table in top.data or (table == "participants" and people):
+            if "lambda_sweep" in top.data:
+                top.fail(
+                    "lambda_sweep", f"must not be given with [{table}] (its study has no sweep)"
+                )
+            return None
     return top.spec("lambda_sweep", LambdaSweepSpec, ChainMap({"main": main}))
+
+
+def _participants(
+    top: Table, study: Pipeline, path: Path, logged: str | None
+) -> ParticipantsSpec | None:
+    """``[participants]``: required exactly when the ``recorded`` human plays, in a single
+    study of ``[tasks]``; its file of demonstrations read and checked whole (``logged``, its
+    text as a run's logs carry it, else the file beside ``path``). A collecting pipeline's
+    demonstrations are read with its run directory (:func:`with_collected`)."""
+    from cirl_study.core.players import HUMANS
+
+    recorded = [human for human in study.main.humans if HUMANS[human].recorded]
+    if "participants" not in top.data:
+        if recorded:
+            top.fail(
+                "participants", f"is missing ({recorded[0]} shows participants' demonstrations)"
+            )
+        return None
+    if not recorded:
+        top.fail("participants", f"must not be given without the {RECORDED} human in main.humans")
+    if "multiverse" in top.data:
+        top.fail("participants", "must not be given with [multiverse]")
+    if study.tasks is None:
+        top.fail("participants", "must not be given without [tasks] (the tasks people show)")
+    spec = top.spec("participants", ParticipantsSpec)
+    if (spec.file is None) == (not spec.collect):
+        top.fail("participants", "must give exactly one of file and collect = true")
+    if spec.collect:
+        return spec  # collected in the run directory: with_collected
+    label = f"{top.label}: participants.file {spec.file}"
+    if logged is None:
+        file = path.parent / str(spec.file)
+        try:
+            with file.open("rb") as stream:
+                raw = stream.read(MAX_DEMONSTRATIONS_BYTES + 1)
+        except OSError as error:
+            raise UserError(f"{label}: cannot read: {error.strerror}") from None
+        logged = file_text(raw, label)
+    shown = read_demonstrations(
+        logged, label, study.game, study.tasks, spec.conditions, spec.within
+    )
+    return replace(spec, demonstrations=shown)
+
+
+def with_collected(pipeline: Pipeline, run_dir: Path) -> Pipeline:
+    """``pipeline`` with the demonstrations collected in ``run_dir`` (a ``collect = true``
+    pipeline's, :mod:`cirl_study.logs.collection`), checked as a file of them is; any other
+    pipeline as it is.
+
+    Raises:
+        UserError: a collected demonstration is damaged, of another run, or not a legal one.
+    """
+    spec = pipeline.participants
+    if spec is None or not spec.collect:
+        return pipeline
+    text = collected_text(collected(run_dir, pipeline.run_id))
+    label = f"{run_dir / COLLECTED_DIRECTORY}"
+    if len(text.splitlines()) < 2:
+        raise UserError(f"{label}: no demonstration collected yet (cirl-study serve collects them)")
+    shown = read_demonstrations(
+        text, label, pipeline.game, pipeline.tasks or (), spec.conditions, spec.within
+    )
+    return replace(pipeline, participants=replace(spec, demonstrations=shown))
 
 
 def _teaching(
@@ -474,18 +552,27 @@ def load_pipeline(path: Path) -> Pipeline:
     return parse_pipeline(text, path)
 
 
-def logged_pipeline(identity: RunIdentity) -> Pipeline:
+def logged_pipeline(identity: RunIdentity, run_dir: Path | None = None) -> Pipeline:
     """The pipeline a run's logs carry in their ``identity``, validated as a pipeline file is
     (its limits included), read in the identity's log format; its name must be the
     identity's ``pipeline_name`` and its run id (:attr:`~cirl_study.study.spec.Pipeline.run_id`:
     the name and the start of the hash) the identity's ``run_id``. Every reader of a run is
-    given it (:data:`~cirl_study.logs.provenance.PipelineOf`).
+    given it (:data:`~cirl_study.logs.provenance.PipelineOf`). A collecting pipeline's
+    demonstrations are those collected in ``run_dir`` (:func:`with_collected`; none without
+    it), read once for every file of the run while the collection does not change.
 
     Raises:
         ValueError: any of these does not hold; the message names the provenance key.
+        UserError: a collected demonstration is damaged, of another run, or not a legal one:
+            the run directory's fault, not a file's.
     """
     try:
-        pipeline = _parsed(identity.pipeline_text, identity.pipeline_file, identity.log_format)
+        pipeline = _parsed(
+            identity.pipeline_text,
+            identity.pipeline_file,
+            identity.log_format,
+            identity.demonstrations,
+        )
     except UserError as error:
         raise ValueError(f"provenance's {error}") from None
     if identity.pipeline_name != pipeline.name:
@@ -499,15 +586,49 @@ def logged_pipeline(identity: RunIdentity) -> Pipeline:
             f"its pipeline ({pipeline.run_id!r}: the name and the start of its "
             f"{PIPELINE_SHA_KEY})"
         )
-    return pipeline
+    if run_dir is None or pipeline.participants is None or not pipeline.participants.collect:
+        return pipeline
+    return _collected_pipeline(pipeline, run_dir, _listing(run_dir / COLLECTED_DIRECTORY))
+
+
+def pipelines_in(run_dir: Path) -> Callable[[RunIdentity], Pipeline]:
+    """The :data:`~cirl_study.logs.provenance.PipelineOf` of the run in ``run_dir``:
+    :func:`logged_pipeline` with the demonstrations collected there."""
+    return functools.partial(logged_pipeline, run_dir=run_dir)
+
+
+def _listing(folder: Path) -> tuple[tuple[str, int, int], ...]:
+    """What identifies the collected files' contents: each one's name, size and change time."""
+    if not folder.is_dir() or folder.is_symlink():
+        return ()
+    found = []
+    for path in folder.glob("*/*.mcap"):
+        status = path.lstat()
+        found.append((str(path.relative_to(folder)), status.st_size, status.st_mtime_ns))
+    return tuple(sorted(found))
 
 
 @functools.lru_cache(maxsize=4)
-def _parsed(text: str, file: str, log_format: str) -> Pipeline:
+def _collected_pipeline(
+    pipeline: Pipeline, run_dir: Path, listing: tuple[tuple[str, int, int], ...]
+) -> Pipeline:
+    """:func:`with_collected`, once per collection (``listing``)."""
+    return with_collected(pipeline, run_dir)
+
+
+@functools.lru_cache(maxsize=4)
+def _parsed(text: str, file: str, log_format: str, demonstrations: str) -> Pipeline:
     """A logged pipeline text parsed, once per process (every file of a run carries the same
-    text, and each is checked by several readers)."""
+    text, and each is checked by several readers), with the logged file of demonstrations
+    (never a file the text names: a log makes no one read a file)."""
     rename = functools.partial(pipeline_table, log_format=log_format)
-    return parse_pipeline(text, Path(file), label=PIPELINE_TEXT_KEY, rename=rename)
+    return parse_pipeline(
+        text,
+        Path(file),
+        label=PIPELINE_TEXT_KEY,
+        rename=rename,
+        demonstrations=demonstrations,
+    )
 
 
 def pipeline_search_path() -> tuple[Path, ...]:

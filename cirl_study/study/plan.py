@@ -16,6 +16,11 @@ id, e.g. ``main:main-k03-s0001:expert:lambda=1.0:robot=map@sigma=2.5,centers=per
 In a pipeline with ``[tasks]`` (a tile game's) each task is one test subject, its id the
 task's name after the group and level, ``main-k04-oox``, so a task's trials and seeds do not
 depend on the order or number of the tasks; the cross-validation draws stay prior draws.
+A pipeline with ``[participants]`` adds the ``recorded`` human's trials: each participant is a
+subject, ``participant-<id>``, and each of her demonstrations is watched by every robot, its
+trial id naming its task (and its condition, where each participant is in every condition),
+``main:participant-P01:recorded:task=oox:lambda=1.0:robot=map``; they are planned after the
+simulated humans' trials, participant by participant.
 
 Randomness. Every stream is a :class:`numpy.random.SeedSequence` with the pipeline's root
 seed as entropy and, as spawn key, the BLAKE2b hash of the identity string
@@ -68,7 +73,7 @@ from cirl_study.study.multiverse import (
     universe_pipeline,
     universes,
 )
-from cirl_study.study.spec import GameSpec, Pipeline, Task, Universe
+from cirl_study.study.spec import GameSpec, Pipeline, Shown, Task, Universe
 
 CV_GROUP = "cv"
 """Subject-id prefix of the cross-validation draws."""
@@ -94,20 +99,32 @@ def task_subject_id(num_features: int, task: str) -> str:
     return f"{TEST_GROUP}-k{num_features:02d}-{task}"
 
 
+def participant_subject_id(participant: str) -> str:
+    """Id of the subject who is the participant ``participant`` (``participant-P01``)."""
+    return f"participant-{participant}"
+
+
 def demonstration_id(
-    block: str, subject: str, human: str, rationality: float, eta: float | None
+    block: str, subject: str, human: str, rationality: float, eta: float | None, shown: str = ""
 ) -> str:
-    """Stable id of a demonstration: who shows what to a robot of rationality ``lambda``."""
+    """Stable id of a demonstration: who shows what to a robot of rationality ``lambda``;
+    ``shown`` names which of a participant's demonstrations (``:task=oox``)."""
     eta_part = "" if eta is None else f":eta={float(eta)!r}"
-    return f"{block}:{subject}:{human}:lambda={float(rationality)!r}{eta_part}"
+    return f"{block}:{subject}:{human}{shown}:lambda={float(rationality)!r}{eta_part}"
 
 
 def trial_id(
-    block: str, subject: str, human: str, rationality: float, eta: float | None, robot: str
+    block: str,
+    subject: str,
+    human: str,
+    rationality: float,
+    eta: float | None,
+    robot: str,
+    shown: str = "",
 ) -> str:
     """Stable id of a trial of a single study, spelling out its whole identity: its
     demonstration's id and the robot that watches it."""
-    return f"{demonstration_id(block, subject, human, rationality, eta)}:robot={robot}"
+    return f"{demonstration_id(block, subject, human, rationality, eta, shown)}:robot={robot}"
 
 
 def in_universe(trial: str, universe: Universe | None) -> str:
@@ -143,7 +160,8 @@ class Cell(NamedTuple):
 @dataclass(frozen=True, eq=False)
 class Subject:
     """Reward draw ``index`` (1-based) of ``group`` at ``num_features`` features of a pipeline,
-    or, in a pipeline with tasks, the test subject of ``task``.
+    or, in a pipeline with tasks, the test subject of ``task``, or a participant's
+    demonstration of ``task`` (``shown``; the subject is the participant).
 
     Its features and ``theta`` are drawn when first asked for (:func:`draw_reward`; a task's
     are its weights): a plan of trial ids needs only the subject's :attr:`id`.
@@ -154,12 +172,26 @@ class Subject:
     num_features: int
     index: int
     task: Task | None = None
+    shown: Shown | None = None
 
     @property
     def id(self) -> str:
+        if self.shown is not None:
+            return participant_subject_id(self.shown.recorded.participant)
         if self.task is not None:
             return task_subject_id(self.num_features, self.task.name)
         return subject_id(self.group, self.num_features, self.index)
+
+    @property
+    def demonstration(self) -> str:
+        """Which of the subject's demonstrations her trials watch: for a participant, its
+        task (and condition, where she is in every condition), ``:task=oox``; else none."""
+        if self.shown is None:
+            return ""
+        participants = self.pipeline.participants
+        within = participants is not None and participants.within
+        condition = f":condition={self.shown.recorded.condition}" if within else ""
+        return f":task={self.shown.task}{condition}"
 
     @cached_property
     def reward(self) -> tuple[Features, tuple[float, ...]]:
@@ -228,6 +260,20 @@ def lattice_centers(width: int, height: int, count: int) -> np.ndarray:
     return np.array([(x, y) for y in ys for x in xs])
 
 
+def _participants(pipeline: Pipeline, num_features: int) -> list[Subject]:
+    """Every participant's demonstration of a pipeline with ``[participants]``, as a subject
+    of the test group, in the file's order
+    (:class:`~cirl_study.study.participants.Demonstrations`)."""
+    participants = pipeline.participants
+    if participants is None or participants.demonstrations is None:
+        return []  # a collecting pipeline before its run directory is read: none yet
+    tasks = {task.name: task for task in pipeline.tasks or ()}
+    return [
+        Subject(pipeline, TEST_GROUP, num_features, index, tasks[shown.task], shown)
+        for index, shown in enumerate(participants.demonstrations.shown, start=1)
+    ]
+
+
 def _subjects(pipeline: Pipeline, group: str, num_features: int, count: int) -> list[Subject]:
     """The first ``count`` subjects of ``group``: reward draws, or in the test group of a
     pipeline with tasks, its first ``count`` tasks."""
@@ -241,7 +287,7 @@ def _subjects(pipeline: Pipeline, group: str, num_features: int, count: int) -> 
 
 def _trial(pipeline: Pipeline, cell: Cell) -> TrialSpec:
     block, subject, human, rationality, eta, robot = cell
-    shown = demonstration_id(block, subject.id, human, rationality, eta)
+    shown = demonstration_id(block, subject.id, human, rationality, eta, subject.demonstration)
     game = pipeline.game
     return TrialSpec(
         trial_id=_block_and_id(pipeline, cell)[1],
@@ -267,6 +313,7 @@ def _trial(pipeline: Pipeline, cell: Cell) -> TrialSpec:
         universe=None if pipeline.universe is None else pipeline.universe.id,
         teaching=_teaching(pipeline, subject),
         gradient_ascent=gradient_ascent_settings(pipeline, robot),
+        recorded=None if subject.shown is None else subject.shown.recorded,
     )
 
 
@@ -274,7 +321,8 @@ def _block_and_id(pipeline: Pipeline, cell: Cell) -> tuple[str, str]:
     """The block and id of the trial :func:`_trial` builds from the same cell."""
     block, subject, human, rationality, eta, robot = cell
     return block, in_universe(
-        trial_id(block, subject.id, human, rationality, eta, robot), pipeline.universe
+        trial_id(block, subject.id, human, rationality, eta, robot, subject.demonstration),
+        pipeline.universe,
     )
 
 
@@ -403,19 +451,25 @@ def _single_study_plan(
     def eta_of(human: str, k: int) -> float | None:
         return etas[universe, human, k] if human in with_eta else None
 
+    simulated = [human for human in main.humans if human not in recorded_humans(pipeline)]
     main_block = [
         planned(pipeline, Cell(MAIN, subject, human, main.rationality, eta_of(human, k), robot))
         for k in levels
         for subject in subjects[k]
-        for human in main.humans
+        for human in simulated
+        for robot in main.robots
+    ]
+    main_block += [
+        planned(pipeline, Cell(MAIN, subject, human, main.rationality, None, robot))
+        for k in levels
+        for subject in _participants(pipeline, k)
+        for human in recorded_humans(pipeline)
         for robot in main.robots
     ]
     if sweep is None:
         return main_block
     sweep_block = [
-        planned(
-            pipeline, Cell(LAMBDA_SWEEP, subject, human, rationality, eta_of(human, k), robot)
-        )
+        planned(pipeline, Cell(LAMBDA_SWEEP, subject, human, rationality, eta_of(human, k), robot))
         for k in levels
         for rationality in sweep.rationalities
         for subject in subjects[k][: sweep.subjects]
@@ -440,16 +494,28 @@ def trial_counts(pipeline: Pipeline) -> dict[str, int]:
             LAMBDA_SWEEP: 0,
         }
     levels = len(pipeline.game.feature_levels)
-    humans = len(pipeline.main.humans) * len(pipeline.main.robots)
+    recorded = len(recorded_humans(pipeline))
+    robots = len(pipeline.main.robots)
+    humans = (len(pipeline.main.humans) - recorded) * robots
+    shown = len(_participants(pipeline, 0))
     sweep = pipeline.lambda_sweep
     cv = pipeline.eta_cv
     return {
         ETA_CV: levels * cv.subjects * len(cv.etas) * len(pipeline.humans_with_eta),
-        MAIN: levels * pipeline.main.subjects * humans,
+        MAIN: levels * (pipeline.main.subjects * humans + shown * recorded * robots),
         LAMBDA_SWEEP: 0
         if sweep is None
         else levels * sweep.subjects * len(sweep.rationalities) * humans,
     }
+
+
+def recorded_humans(pipeline: Pipeline) -> tuple[str, ...]:
+    """The humans of ``main.humans`` who are people
+    (:attr:`~cirl_study.core.players.Human.recorded`): they play the participants, not the
+    reward draws."""
+    from cirl_study.core.players import HUMANS
+
+    return tuple(human for human in pipeline.main.humans if HUMANS[human].recorded)
 
 
 def _cv_universes(pipeline: Pipeline) -> list[Universe]:

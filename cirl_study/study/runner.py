@@ -51,7 +51,12 @@ from cirl_study.study.audit import resume_command
 from cirl_study.study.engines import Engine, WorkerLost
 from cirl_study.study.eta_cv import EtaChoice, EtaKey, study_etas
 from cirl_study.study.limits import MAX_BATCH
-from cirl_study.study.pipeline_file import logged_pipeline, path_argument
+from cirl_study.study.pipeline_file import (
+    logged_pipeline,
+    path_argument,
+    pipelines_in,
+    with_collected,
+)
 from cirl_study.study.plan import (
     eta_cv_trials,
     gradient_ascent_settings,
@@ -123,6 +128,8 @@ def warm_up(pipeline: Pipeline) -> None:
     from cirl_study.core.trial import demonstrations, play_trials
 
     base = (eta_cv_trials(pipeline) or study_trials(pipeline, _fixed_etas(pipeline)))[0]
+    participants = pipeline.participants
+    shown = None if participants is None else participants.shown().shown[0]
     trials = [
         msgspec.structs.replace(
             base,
@@ -131,6 +138,8 @@ def warm_up(pipeline: Pipeline) -> None:
             eta=1.0 if HUMANS[human].takes_eta else None,
             robot=robot,
             gradient_ascent=gradient_ascent_settings(pipeline, robot),
+            task=shown.task if shown and HUMANS[human].recorded else base.task,
+            recorded=shown.recorded if shown and HUMANS[human].recorded else None,
         )
         for human in pipeline.main.humans
         for robot in pipeline.main.robots
@@ -193,7 +202,16 @@ def batch_file_name(batch: Sequence[TrialSpec]) -> str:
 
 def run_identity(pipeline: Pipeline) -> RunIdentity:
     """The identity every log file of ``pipeline``'s run states in its provenance."""
-    return RunIdentity(pipeline.run_id, pipeline.name, path_argument(pipeline.path), pipeline.text)
+    participants = pipeline.participants
+    return RunIdentity(
+        pipeline.run_id,
+        pipeline.name,
+        path_argument(pipeline.path),
+        pipeline.text,
+        demonstrations=""
+        if participants is None or participants.collect
+        else participants.shown().text,
+    )
 
 
 def prepare_run_directory(out_dir: Path, identity: RunIdentity) -> LoggedRun:
@@ -206,7 +224,7 @@ def prepare_run_directory(out_dir: Path, identity: RunIdentity) -> LoggedRun:
     named like a temporary file that is no regular file (a link, a FIFO, a directory) was not
     made by a run: it is refused, not deleted.
     """
-    logged = logged_run(out_dir, identity, logged_pipeline)
+    logged = logged_run(out_dir, identity, pipelines_in(out_dir))
     temporaries = temp_files(out_dir)
     for path in temporaries:
         reason = non_regular(path)
@@ -373,7 +391,7 @@ def _players(pipeline: Pipeline) -> tuple[str, ...]:
     )
 
 
-def _same_settings(another: AnotherRunLogged, pipeline: Pipeline) -> Pipeline:
+def _same_settings(another: AnotherRunLogged, pipeline: Pipeline, out_dir: Path) -> Pipeline:
     """The pipeline of the run ``another`` found logged, if its settings are ``pipeline``'s
     (:func:`same_settings`): a run is its settings, not its text. Else ``another`` is raised:
     a run of other settings is another run, and so is a run of an earlier log format (its
@@ -382,7 +400,7 @@ def _same_settings(another: AnotherRunLogged, pipeline: Pipeline) -> Pipeline:
     if another.logged.log_format != LOG_FORMAT:
         raise another
     try:
-        logged = logged_pipeline(another.logged)
+        logged = logged_pipeline(another.logged, out_dir)
     except ValueError:
         raise another from None
     if not same_settings(logged, pipeline):
@@ -421,11 +439,12 @@ def _run_locked(
     began: float,
 ) -> RunResult:
     """:func:`run_pipeline` once this process holds the directory's writer lock."""
+    pipeline = with_collected(pipeline, out_dir)
     identity = run_identity(pipeline)
     try:
         logged = prepare_run_directory(out_dir, identity)
     except AnotherRunLogged as another:
-        pipeline = _same_settings(another, pipeline)
+        pipeline = _same_settings(another, pipeline, out_dir)
         identity = another.logged
         hooks.note(
             f"{terminal(out_dir)}: resuming run {identity.run_id}, made from another text of "

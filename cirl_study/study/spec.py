@@ -49,6 +49,16 @@ rewards over those features, each the reward of one subject (docs/tiles.md)::
     [tasks]
     oox = { orange = 0, purple = 0, cyan = -1, step = -0.1 }
 
+A tile game's pipeline may bring people: the ``recorded`` human (in ``main.humans``) shows,
+for each participant and task, the demonstration a file of demonstrations gives
+(:mod:`cirl_study.study.participants`, docs/participants.md); each participant is a subject of
+her own, and the pipeline then needs no ``[lambda_sweep]``::
+
+    [participants]
+    file = "participants.csv"    # relative to the pipeline file's directory
+    conditions = ["do", "show"]  # the conditions the file names, baseline first
+    design = "between"           # each participant in one condition, or "within": in each
+
 A pipeline with teaching players (the ``pedagogic`` or ``regret_optimal`` human, the
 ``literal_observer`` or ``pragmatic`` robot; :mod:`cirl_study.core.teaching`) declares their
 hypothesis space in ``[teaching]``, and then has no ``[lambda_sweep]``::
@@ -89,15 +99,18 @@ integer, got 0``.
 
 from __future__ import annotations
 
+import hashlib
 import math
 import re
 from collections.abc import Callable
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
 
+import msgspec
+
 from cirl_study.features import TileFeatures
-from cirl_study.record import GRADIENT_ASCENT
+from cirl_study.record import GRADIENT_ASCENT, Recorded
 from cirl_study.study.settings import (
     NOTHING_KNOWN,
     POSITIVE_INTEGER,
@@ -616,6 +629,112 @@ class MainSpec:
         return reference_robot(self.robots)
 
 
+class Shown(msgspec.Struct, frozen=True, kw_only=True):
+    """One participant's demonstration of ``task``, from the file's ``line`` on (its first
+    row)."""
+
+    task: str
+    recorded: Recorded
+    line: int
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """A file of demonstrations (:mod:`cirl_study.study.participants`), checked against its
+    pipeline: ``shown`` in the order
+    participants first appear, then conditions and tasks in the pipeline's order. ``sha256``
+    is the hash of the file's bytes, which a run's provenance records; ``text`` the file's
+    text, which the run's logs carry, so a run is analysed, and resumed, from its logs."""
+
+    shown: tuple[Shown, ...]
+    sha256: str
+    text: str = field(compare=False, repr=False)
+
+    @property
+    def participants(self) -> tuple[str, ...]:
+        """Every participant, in order of first appearance."""
+        return tuple(dict.fromkeys(shown.recorded.participant for shown in self.shown))
+
+
+CONDITION_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_-]{0,31}")
+"""A condition's name: letters, digits, ``_`` and ``-``, at most 32 (a trial id may carry it)."""
+
+PARTICIPANT_DESIGNS: tuple[str, ...] = ("between", "within")
+"""How participants meet the conditions: each in one (between), or each in every one
+(within)."""
+
+
+def _data_file(value: Any, _known: Known) -> str:
+    """A relative path of a file, ``/``-separated, that does not climb out of the pipeline's
+    directory (a run is moved with its pipeline and data)."""
+    parts = value.split("/") if isinstance(value, str) else []
+    if not parts or value.startswith("/") or any(part in ("", ".", "..") for part in parts):
+        raise Invalid(
+            "must be a path relative to the pipeline file's directory, without . or .. "
+            '(e.g. "participants.csv" or "data/participants.csv")'
+        )
+    return value
+
+
+def _conditions(value: Any, _known: Known) -> tuple[str, ...]:
+    """A non-empty list of distinct condition names, baseline first."""
+    if (
+        not isinstance(value, list)
+        or not value
+        or not all(isinstance(v, str) and CONDITION_NAME.fullmatch(v) for v in value)
+        or len(set(value)) != len(value)
+    ):
+        raise Invalid(
+            "must be a non-empty list of distinct condition names (a letter or digit, then "
+            "letters, digits, _ or -; at most 32), the baseline first"
+        )
+    return tuple(value)
+
+
+def _sums_of_squares(value: Any, _known: Known) -> int:
+    """2 or 3."""
+    if value not in (2, 3) or isinstance(value, bool):
+        raise Invalid("must be 2 or 3 (the type of the ANOVA's sums of squares)")
+    return int(value)
+
+
+@dataclass(frozen=True)
+class ParticipantsSpec:
+    """``[participants]``: the people the ``recorded`` human stands for.
+
+    Their demonstrations come from the file ``file`` (:mod:`cirl_study.study.participants`),
+    relative to the pipeline file's directory, or, with ``collect = true``, from those the
+    browser experiment collected in the run directory (``cirl-study serve``,
+    :mod:`cirl_study.logs.collection`): exactly one of the two. ``conditions`` are the
+    conditions they may name, in the order the report compares them (the first is the
+    baseline); ``design`` says whether each participant is in one condition (``between``) or
+    shows every task in each (``within``); ``sums_of_squares`` the type of the ANOVA's sums of
+    squares, 2 (as R's ``car``, the project's default) or 3 (``afex``'s default), which differ
+    where the conditions' groups differ in size. ``demonstrations`` are the file's, checked (set by
+    :func:`cirl_study.study.pipeline_file.parse_pipeline`; of a collecting pipeline, once its
+    run directory is known): two pipelines play the same trials only when they hold the same
+    demonstrations.
+    """
+
+    file: str | None = setting(_data_file, default=None)
+    collect: bool = setting(boolean, default=False)
+    conditions: tuple[str, ...] = setting(_conditions)
+    design: str = setting(one_of(PARTICIPANT_DESIGNS), default="between")
+    sums_of_squares: int = setting(_sums_of_squares, default=2)
+    demonstrations: Demonstrations | None = derived(lambda _known: None)
+
+    @property
+    def within(self) -> bool:
+        """Whether each participant shows every task in every condition."""
+        return self.design == "within"
+
+    def shown(self) -> Demonstrations:
+        """The demonstrations; an error before they are read."""
+        if self.demonstrations is None:
+            raise ValueError("the participants' demonstrations have not been read")
+        return self.demonstrations
+
+
 def _hypotheses(value: Any, known: Known) -> int | Literal["tasks"]:
     """An integer of at least 2, or ``"tasks"`` in a study of two or more ``[tasks]`` (the
     hypotheses are then the tasks)."""
@@ -1128,8 +1247,9 @@ class Pipeline:
     required otherwise. ``multiverse`` is ``None`` for a single study; ``universe`` is set on
     the pipeline of one universe of a multiverse
     (:func:`cirl_study.study.multiverse.universe_pipeline`), whose trials carry its id;
-    ``teaching`` is set exactly when a player needs a hypothesis space, and ``gradient_ascent``
-    exactly when that robot plays. ``text`` is the file's
+    ``teaching`` is set exactly when a player needs a hypothesis space, ``gradient_ascent``
+    exactly when that robot plays, and ``participants`` exactly when the ``recorded`` human
+    does. ``text`` is the file's
     whole text and ``sha256`` the hash of its UTF-8 bytes: two runs are the same run exactly
     when their pipeline files hash alike.
     """
@@ -1149,6 +1269,7 @@ class Pipeline:
     universe: Universe | None = None
     teaching: TeachingSpec | None = None
     gradient_ascent: GradientAscentSpec | None = None
+    participants: ParticipantsSpec | None = None
 
     @property
     def hypothesis_count(self) -> int:
@@ -1168,5 +1289,11 @@ class Pipeline:
 
     @property
     def run_id(self) -> str:
-        """Id of the run this pipeline describes: its name and the start of its hash."""
-        return f"{self.name}-{self.sha256[:12]}"
+        """Id of the run this pipeline describes: its name and the start of its hash; of a
+        pipeline with a file of participants, the hash of its text and of that file (SHA-256
+        of the two hashes, hex, joined by a newline), so another file is another run (a
+        collecting pipeline's run grows with every demonstration collected: its text alone)."""
+        if self.participants is None or self.participants.collect:
+            return f"{self.name}-{self.sha256[:12]}"
+        both = f"{self.sha256}\n{self.participants.shown().sha256}".encode()
+        return f"{self.name}-{hashlib.sha256(both).hexdigest()[:12]}"

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
@@ -35,6 +36,7 @@ from matplotlib.font_manager import FontProperties
 from matplotlib.lines import Line2D
 from matplotlib.textpath import TextPath
 from numpy.typing import NDArray
+from scipy import stats
 
 from cirl_study.analysis.report.markdown import HIGHER_IS_BETTER, svg_name
 from cirl_study.core.gridworld import feature_matrix
@@ -482,6 +484,60 @@ def measure_bars(cells: pd.DataFrame, measures: Sequence[str], title: str) -> Re
 
 ROBOT_COLOURS = ("#4c72b0", "#dd8452", "#55a868", "#c44e52", "#8172b3")
 """Colours of a study's robots, in the pipeline's order (up to five distinct)."""
+
+
+def participant_points(
+    means: pd.DataFrame, conditions: Sequence[str], robots: Sequence[str]
+) -> Rendered:
+    """Each participant beside the means: one panel per measure, a group per condition, a
+    column per robot, each participant's mean over her tasks as a point (spread sideways by
+    a fixed pattern, so the figure is the same on every run) and the column's mean with its
+    t-based 95% CI as a bar.
+
+    Args:
+        means: rows ``measure, subject, condition, robot, mean`` (one per participant, robot
+            and measure).
+        conditions: the conditions, in order (baseline first).
+        robots: the robots, in order.
+    """
+    measures = list(dict.fromkeys(means["measure"]))
+    width = 0.8 / max(1, len(robots))
+    with matplotlib.style.context("default"), rc_context(STYLE):
+        figure = _new_figure(max(6.0, 3.6 * len(measures)), 3.6)
+        axes = _panels(figure, 1, len(measures), Margins(bottom=0.75, across=0.7))[0]
+        for panel, measure in zip(axes, measures, strict=True):
+            for r, robot in enumerate(robots):
+                colour = ROBOT_COLOURS[r % len(ROBOT_COLOURS)]
+                for c, condition in enumerate(conditions):
+                    values = means.loc[
+                        (means["measure"] == measure)
+                        & (means["robot"] == robot)
+                        & (means["condition"] == condition),
+                        "mean",
+                    ].to_numpy(dtype=np.float64)
+                    if not len(values):
+                        continue
+                    x = c + (r - (len(robots) - 1) / 2) * width
+                    spread = (np.arange(len(values)) % 7 - 3) * width / 18
+                    panel.scatter(x + spread, values, s=9, color=colour, alpha=0.55, lw=0)
+                    mean = float(values.mean())
+                    half = (
+                        float(stats.t.ppf(0.975, len(values) - 1) * values.std(ddof=1))
+                        / math.sqrt(len(values))
+                        if len(values) > 1
+                        else 0.0
+                    )
+                    panel.errorbar(
+                        x, mean, yerr=half, fmt="_", markersize=14, capsize=5, color="black",
+                        label=None,
+                    )  # fmt: skip
+                panel.scatter([], [], s=16, color=colour, label=robot.replace("_", " "))
+            panel.set_xticks(range(len(conditions)), list(conditions))
+            panel.set_title(_titled(measure))
+            panel.set_ylabel(f"{measure_label(measure)} (participant means)")
+        _figure_legend(figure, axes[0], columns=min(4, len(robots)))
+        figure.suptitle("Each participant's mean over her tasks; bars: mean with 95% CI")
+        return render(figure)
 
 
 WIDE_CELLS = 16

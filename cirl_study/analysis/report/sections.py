@@ -26,6 +26,7 @@ HEADINGS = {
     "milli_dragan": "Milli & Dragan's 2 x 2: literal or pedagogic human, the robot reading each",
     "best_response_vs_pedagogic": "The paper's best response against the pedagogic human",
     "regret_optimal": "How far from the regret-optimal demonstration",
+    "participants": "People",
     "rules": "How the verdicts are decided",
 }
 """Section headings of ``report.md``, by the ``results.json`` key they present (a registered
@@ -46,6 +47,7 @@ FIGURE2_LAMBDA = Figure("figure2_lambda.png", "Figure 2, right")
 ETA_CV_CURVE = Figure("eta_cv.png", "eta curve")
 ROBOTS_LAMBDA = Figure("robots_lambda.png", "robots against lambda")
 CELL_MEANS = Figure("cell_means.png", "cell means")
+PARTICIPANTS = Figure("participants.png", "participants")
 
 FIGURES = {
     "figure1": FIGURE1,
@@ -55,6 +57,7 @@ FIGURES = {
     "eta_cv_curve": ETA_CV_CURVE,
     "robots": ROBOTS_LAMBDA,
     "cell_means": CELL_MEANS,
+    "participants": PARTICIPANTS,
 }
 """Every figure, by the key a claim's ``evidence`` names it with."""
 

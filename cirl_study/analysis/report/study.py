@@ -22,6 +22,7 @@ import msgspec
 from cirl_study import escape
 from cirl_study.analysis.report import figures
 from cirl_study.analysis.report import paper_sections as paper_report
+from cirl_study.analysis.report import participants_sections as participants_report
 from cirl_study.analysis.report import study_sections as study_report
 from cirl_study.analysis.report import teaching_sections as teaching_report
 from cirl_study.analysis.report.markdown import document, measure_name, number, svg_name, table
@@ -34,6 +35,7 @@ from cirl_study.analysis.report.sections import (
     FIGURE2_MEASURES,
     FIGURES,
     OTHER_MEASURES,
+    PARTICIPANTS,
     ROBOTS_LAMBDA,
     heading,
     link,
@@ -303,6 +305,7 @@ def render_markdown(results: StudyResults) -> str:
         teaching_report.milli_dragan(results),
         teaching_report.versus(results),
         teaching_report.regret_optimal(results),
+        participants_report.participants(results),
         _rules(results),
     ]
     return document(sections)
@@ -368,7 +371,7 @@ def _drawings(
                 figures.lambda_curve,
                 (estimated.lambda_sweep.to_frame(), design.humans, design.robots),
             )
-    if not papers_own(design.humans, design.robots):
+    if design.humans and not papers_own(design.humans, design.robots):
         drawings[CELL_MEANS.file] = (
             figures.cell_bars,
             (estimated.cells.to_frame(), design.humans, design.robots),
@@ -377,6 +380,12 @@ def _drawings(
         drawings[ETA_CV_CURVE.file] = (
             figures.eta_curve,
             (estimated.eta_cv.means.to_frame(), estimated.eta_cv.uncertainty.to_frame()),
+        )
+    people = estimated.participants
+    if people is not None and people.means:
+        drawings[PARTICIPANTS.file] = (
+            figures.participant_points,
+            (people.means.to_frame(), people.design.conditions, people.design.robots),
         )
     robots = estimated.robots
     if (

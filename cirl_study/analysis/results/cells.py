@@ -23,11 +23,14 @@ class Design:
     robots: tuple[str, ...]
     feature_levels: tuple[int, ...]
     sweep_rationalities: tuple[float, ...]
+    conditions: tuple[str, ...] = ()
+    """The conditions of the run's participants (none without ``[participants]``)."""
 
     @property
-    def baseline(self) -> str:
-        """The human every other is compared with: the pipeline's first."""
-        return self.humans[0]
+    def baseline(self) -> str | None:
+        """The human every other is compared with: the pipeline's first (``None`` in a run of
+        participants alone)."""
+        return self.humans[0] if self.humans else None
 
 
 def papers_own(humans: Sequence[str], robots: Sequence[str]) -> bool:
@@ -44,7 +47,7 @@ def papers_own(humans: Sequence[str], robots: Sequence[str]) -> bool:
 class Cells:
     """The cells a section or a claim needs: these humans and robots (among others), at
     least ``feature_levels`` feature levels, at least ``rationalities`` rationalities in the
-    sweep, and, when given, this ``baseline`` human.
+    sweep, when given, this ``baseline`` human, and these ``conditions`` of participants.
 
     Examples:
         >>> design = Design(("expert", "best_response"), ("map",), (3, 10), ())
@@ -59,6 +62,7 @@ class Cells:
     feature_levels: int = 1
     rationalities: int = 0
     baseline: str | None = None
+    conditions: tuple[str, ...] = ()
 
     def lacking(self, design: Design) -> str | None:
         """What ``design`` lacks of these cells, in words; ``None`` when it has them all."""
@@ -70,6 +74,9 @@ class Cells:
             missing.append(f"a lambda sweep of at least {self.rationalities} rationalities")
         if self.baseline is not None and design.humans[:1] != (self.baseline,):
             missing.append(f"{self.baseline} as the baseline human")
+        missing += [
+            f"participants in condition {c}" for c in self.conditions if c not in design.conditions
+        ]
         return "; ".join(missing) or None
 
 
@@ -88,3 +95,6 @@ VERSUS_PEDAGOGIC = Cells(humans=(record.BEST_RESPONSE, record.PEDAGOGIC))
 
 REGRET_OPTIMAL_GAP = Cells(humans=(record.REGRET_OPTIMAL,), robots=(record.MAP,))
 """Every human against the demonstration with the lowest MAP regret the search finds."""
+
+SHOW_AND_DO = Cells(conditions=("do", "show"))
+"""Ho et al.'s (2016) two conditions: participants told to do the task, or to show it."""

@@ -50,6 +50,11 @@ claim was made on, whatever else is registered:
    ahead).
 10. ``best_response_vs_pedagogic`` and ``regret_optimal_gap``: questions, answered by the
     measurement without a verdict.
+11. ``showing_beats_doing``, on the participants of a run whose conditions include ``do``
+    and ``show`` (results ``participants``): for every robot, each
+    participant's mean reward L2 distance over her tasks is lower under ``show`` than under
+    ``do`` (Welch's t-test, or
+    the paired one within participants), Holm p < .05.
 """
 
 from __future__ import annotations
@@ -65,6 +70,7 @@ from cirl_study.analysis.results.cells import (
     MILLI_DRAGAN,
     PAPER,
     REGRET_OPTIMAL_GAP,
+    SHOW_AND_DO,
     VERSUS_PEDAGOGIC,
     Cells,
     Design,
@@ -129,6 +135,7 @@ SECTION_HUMAN = "paper, section 4.2"
 SECTION_LAMBDA = "paper, section 4.3"
 MILLI_DRAGAN_2019 = "Milli & Dragan (2019)"
 HO_2016 = "Ho et al. (2016), against the paper's best response"
+HO_SHOWING = "Ho et al. (2016), showing versus doing, on this run's participants"
 REGRET_OPTIMAL_SOURCE = "this study: the regret-optimal demonstration"
 
 
@@ -420,6 +427,25 @@ def _optimal_gap(results: StudyResults) -> Verdict:
     )
 
 
+def _showing(results: StudyResults) -> Verdict:
+    people = results.participants
+    assert people is not None  # the claim's cells are the participants'
+    rows = [
+        row
+        for row in people.conditions
+        if row.measure == "reward_l2" and row.baseline == "do" and row.level == "show"
+    ]
+    ahead = {row.robot: bool(_below(row.p_holm, SIGNIFICANCE) and (row.mean_diff or 0) < 0)
+             for row in rows}  # fmt: skip
+    parts = [
+        f"{row.robot}: show - do {_num(row.mean_diff)} (Holm {p_text(row.log10_p_holm)})"
+        for row in rows
+    ]
+    values = {row.robot: {"mean_diff": row.mean_diff, "p_holm": row.p_holm,
+                          "log10_p_holm": row.log10_p_holm} for row in rows}  # fmt: skip
+    return Verdict("reward L2, " + "; ".join(parts), values, bool(ahead) and all(ahead.values()))
+
+
 CLAIMS: tuple[Claim, ...] = (
     Claim(
         "human_effect",
@@ -538,6 +564,16 @@ CLAIMS: tuple[Claim, ...] = (
         ("regret_optimal",),
         _optimal_gap,
     ),
+    Claim(
+        "showing_beats_doing",
+        HO_SHOWING,
+        "Showing leads a learner to a better estimate of the reward than doing.",
+        "every robot: each participant's mean reward L2 over her tasks lower under show than "
+        f"under do, Holm p < {SIGNIFICANCE:g}",
+        SHOW_AND_DO,
+        ("participants",),
+        _showing,
+    ),
 )
 """Every claim a study's report judges, in the order it lists them."""
 
@@ -545,11 +581,13 @@ CLAIMS: tuple[Claim, ...] = (
 def design_of_results(results: StudyResults) -> Design:
     """The :class:`~cirl_study.analysis.results.cells.Design` of a run's results."""
     design = results.design
+    people = results.participants
     return Design(
         humans=tuple(design.humans),
         robots=tuple(design.robots),
         feature_levels=tuple(design.feature_levels),
         sweep_rationalities=tuple(design.sweep_rationalities),
+        conditions=() if people is None else tuple(people.design.conditions),
     )
 
 
@@ -557,7 +595,11 @@ def cell_subjects(claim: Claim, results: StudyResults) -> int | None:
     """The fewest subjects (reward draws) in a cell of ``results`` that ``claim`` reads
     (``None`` when there is none): in the ``main`` block, the fewest of a feature level (every
     human and robot plays a level's draws); in the ``lambda_sweep``, the fewest trials of a
-    cell of the claim's humans (one per draw and lambda)."""
+    cell of the claim's humans (one per draw and lambda); of a claim on participants, the
+    fewest participants of a condition it compares."""
+    if claim.needs.conditions and results.participants is not None:
+        counts = results.participants.design.participants
+        return min((counts.get(c, 0) for c in claim.needs.conditions), default=None)
     if claim.block == LAMBDA_SWEEP:
         humans = claim.needs.humans
         counts = [row.n for row in results.lambda_sweep if not humans or row.human in humans]

@@ -138,7 +138,7 @@ def paired_rows(
 def _anova(frame: pd.DataFrame, measure: str, within: list[str]) -> list[AnovaEffect]:
     """:func:`~cirl_study.analysis.statistics.anova.repeated_measures_anova` of ``measure`` with
     ``num_features`` between subjects where ``frame`` has two levels or more of it."""
-    between = "num_features" if frame["num_features"].nunique() > 1 else None
+    between = ("num_features",) if frame["num_features"].nunique() > 1 else ()
     return repeated_measures_anova(frame, measure, within, between)
 
 

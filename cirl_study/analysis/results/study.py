@@ -69,6 +69,7 @@ from cirl_study.analysis.results.cells import (
     VERSUS_PEDAGOGIC,
     Design,
 )
+from cirl_study.analysis.results.participants import participants_section
 from cirl_study.analysis.results.per_measure import (
     measured,
     paired_rows,
@@ -117,10 +118,11 @@ from cirl_study.study.spec import Pipeline, TeachingSpec
 
 def design_of(table: pd.DataFrame, pipeline: Pipeline) -> Design:
     """The factors of the trials in ``table`` (:func:`~cirl_study.analysis.table.trial_table`),
-    in the order of ``pipeline``: the humans and robots its ``main`` block plays, its feature
+    in the order of ``pipeline``: the humans and robots its ``main`` block plays (the simulated
+    humans: the participants' are :mod:`cirl_study.analysis.results.participants`'), its feature
     levels, and the rationalities of its sweep."""
     main = table[table["block"] == MAIN]
-    humans, robots = set(main["human"]), set(main["robot"])
+    humans, robots = set(models(main)["human"]), set(main["robot"])
     sweep = table.loc[table["block"] == LAMBDA_SWEEP, "rationality"]
     return Design(
         humans=tuple(h for h in pipeline.main.humans if h in humans),
@@ -338,6 +340,14 @@ def analyse(trials: Sequence[TrialRow], pipeline: Pipeline) -> StudyResults:
     return tests(estimates(trials, everything, pipeline), everything, pipeline)
 
 
+def models(everything: pd.DataFrame) -> pd.DataFrame:
+    """The trials of the simulated humans: ``everything`` but the participants' (which
+    :mod:`cirl_study.analysis.results.participants` analyses)."""
+    if "participant" not in everything:
+        return everything
+    return everything[everything["participant"].isna()]
+
+
 def paper_main_block(everything: pd.DataFrame, design: Design) -> pd.DataFrame:
     """The ``main`` block's trials of the paper's humans watched by the reference robot: the
     table the paper's tests read."""
@@ -371,6 +381,7 @@ def estimates(
     (:func:`~cirl_study.analysis.table.trial_table`).
     """
     design = design_of(everything, pipeline)
+    people_table, everything = everything, models(everything)
     reference = reference_robot(design.robots)
     main = everything[everything["block"] == MAIN]
     sweep = everything[everything["block"] == LAMBDA_SWEEP]
@@ -390,6 +401,7 @@ def estimates(
         else figure1_subject(paper_main_block(everything, design), reference),
         robots=robot_comparison(everything, reference) if len(design.robots) > 1 else None,
         undefined=undefined(everything),
+        participants=participants_section(trials, people_table, pipeline),
     )
 
 
@@ -398,8 +410,10 @@ def tests(estimated: Estimates, everything: pd.DataFrame, pipeline: Pipeline) ->
     """The results of :func:`analyse`: the ``estimated`` sections of the trials' table
     ``everything`` with the tests of the study's design, those the results register
     (:func:`~cirl_study.analysis.results.per_measure.run_tests`), the paper's (``paper``,
-    :func:`paper_tests`) and the teaching sections (:mod:`cirl_study.analysis.results.teaching`)."""
+    :func:`paper_tests`), the teaching sections (:mod:`cirl_study.analysis.results.teaching`)
+    and the people's (:mod:`cirl_study.analysis.results.participants`)."""
     design = design_of(everything, pipeline)
+    everything = models(everything)
     main = everything[everything["block"] == MAIN]
     return StudyResults(
         pipeline=estimated.pipeline,
@@ -425,6 +439,7 @@ def tests(estimated: Estimates, everything: pd.DataFrame, pipeline: Pipeline) ->
         partial=None,
         claims=Table(ClaimRow),
         undefined=estimated.undefined,
+        participants=estimated.participants,
     )
 
 

@@ -317,7 +317,7 @@ class PairedComparison(PairedT, kw_only=True):
 class PairedDifference(PairedT, kw_only=True):
     """One row of :func:`cirl_study.analysis.statistics.procedures.paired_differences`: ``level``
     against the baseline in one group (its keys among ``human, robot, num_features, rationality,
-    pooled, universe``); a multiverse's human effects have neither ``level`` nor Holm."""
+    pooled, universe, condition``); a multiverse's human effects have neither ``level`` nor Holm."""
 
     measure: str
     n: int
@@ -332,6 +332,7 @@ class PairedDifference(PairedT, kw_only=True):
     rationality: float | None = None
     pooled: str | None = None
     universe: str | None = None
+    condition: str | None = None
 
 
 class SimpleEffect(PairedT, kw_only=True):
@@ -568,7 +569,7 @@ class StudyDesign(Record, kw_only=True):
     (:class:`cirl_study.analysis.results.cells.Design`), subjects, lambdas and etas."""
 
     humans: list[str]
-    baseline: str
+    baseline: str | None
     robots: list[str]
     reference_robot: str
     feature_levels: list[int]
@@ -619,6 +620,107 @@ class Estimates(Record, kw_only=True):
     figure1: Figure1 | None
     robots: RobotComparison | None
     undefined: Rows[Undefined] | None = None
+    participants: ParticipantsSection | None = None
+
+
+class ParticipantsDesign(Record, kw_only=True):
+    """The people of a run with ``[participants]``: the conditions (``baseline`` first), how
+    participants meet them (``between`` or ``within``), the tasks and robots, the participants
+    per condition, and those of them whose demonstrations entered the ANOVA
+    (``complete``: every task, in every condition of a within design); ``left_out`` the others'
+    subject ids; ``sums_of_squares`` the type (2 or 3) of the ANOVA's."""
+
+    conditions: list[str]
+    baseline: str
+    design: str
+    sums_of_squares: int
+    tasks: list[str]
+    robots: list[str]
+    participants: dict[str, int]
+    complete: dict[str, int]
+    left_out: list[str]
+
+
+class ConditionCell(Record, kw_only=True):
+    """A measure's mean with its t-based 95% CI over the participants of one condition and
+    robot, on one ``task`` (``None``: each participant's mean over her tasks)."""
+
+    measure: str
+    condition: str
+    robot: str
+    n: int
+    mean: Number
+    sd: Number
+    ci95_low: Number
+    ci95_high: Number
+    task: str | None = None
+
+
+class ConditionDifference(Record, kw_only=True):
+    """``level`` against the ``baseline`` condition for one measure and robot, on each
+    participant's mean over her tasks: Welch's t-test between participants (``df`` Welch's,
+    fractional) or the paired t-test within (``d = level - baseline`` per participant); the
+    t-based CI of the difference of the means, ``d``, Cohen's d on the pooled SD (between) or
+    ``d_z`` (within), Holm over the measure's rows."""
+
+    measure: str
+    robot: str
+    level: str
+    baseline: str
+    paired: bool
+    n_baseline: int
+    n_level: int
+    mean_baseline: Number
+    mean_level: Number
+    mean_diff: Number
+    ci95_low: Number
+    ci95_high: Number
+    t: Number
+    df: Number
+    p: Number
+    log10_p: Number
+    d: Number
+    p_holm: Number
+    log10_p_holm: Number
+
+
+class ParticipantMean(Record, kw_only=True):
+    """One participant's mean of a measure over her tasks, in one condition, with one
+    robot."""
+
+    measure: str
+    subject: str
+    condition: str
+    robot: str
+    mean: Number
+
+
+class ClosestModel(Record, kw_only=True):
+    """Which simulated human a participant's demonstrations are closest to: per model human,
+    the mean over the participant's tasks of the L1 distance between the feature counts of her
+    path and the model's (``distance``) and of the Jaccard overlap of their cells
+    (``overlap``); ``closest`` the model of the least distance (of the larger overlap on a
+    tie)."""
+
+    participant: str
+    condition: str
+    closest: str
+    distance: dict[str, float]
+    overlap: dict[str, float]
+
+
+class ParticipantsSection(Record, kw_only=True):
+    """The people of a run with ``[participants]``
+    (:func:`cirl_study.analysis.results.participants.participants_section`)."""
+
+    design: ParticipantsDesign
+    cells: Rows[ConditionCell]
+    means: Rows[ParticipantMean]
+    anova: Rows[AnovaEffect]
+    conditions: Rows[ConditionDifference]
+    robots: Rows[PairedDifference]
+    cronbach_alpha: CronbachAlpha | None
+    closest: Rows[ClosestModel]
 
 
 class StudyResults(Record, kw_only=True):
@@ -670,6 +772,7 @@ class StudyResults(Record, kw_only=True):
     claims: Rows[ClaimRow]
     theory: dict[str, Any] | None = None
     undefined: Rows[Undefined] | None = None
+    participants: ParticipantsSection | None = None
 
 
 class UniverseClaim(Record, kw_only=True):

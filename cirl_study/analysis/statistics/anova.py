@@ -1,30 +1,52 @@
 """The repeated-measures ANOVA of any factorial design: within factors of any number of levels,
-at most one between factor, sphericity tested and corrected.
+any number of crossed between factors, type II or type III sums of squares, sphericity tested
+and corrected.
 
-Notation: subject ``s`` belongs to group ``g(s)`` of the between factor (``G`` groups of
-``n_g`` subjects, ``N`` in all; one group when there is no between factor) and is observed
-once in each of the ``C`` cells of the crossed within factors ``W_1, ..., W_m`` (``L_i``
-levels each): its row ``y_s in R^C``. For a set ``T`` of within factors, the contrast matrix
-``M_T = (x)_i A_i`` (Kronecker product, in factor order) takes ``A_i = P_i``, an orthonormal
-basis of the contrasts of ``W_i`` (``L_i x (L_i - 1)``), for ``W_i in T`` and ``A_i = 1 /
-sqrt(L_i)`` otherwise, so ``z_s = M_T' y_s`` has ``d_T = prod_{i in T} (L_i - 1)``
-coordinates. With ``zbar_g`` the group means and ``zbar`` the mean over all subjects:
+Notation: the between factors ``B_1, ..., B_k`` (``K_j`` levels each) cross into ``K`` cells,
+cell ``c`` holding ``n_c >= 1`` subjects, ``N`` in all (one cell when there is no between
+factor). Subject ``s``, in cell ``c(s)``, is observed once in each of the ``C`` cells of the
+crossed within factors ``W_1, ..., W_m`` (``L_i`` levels each): its row ``y_s in R^C``. For a
+set ``T`` of within factors, the contrast matrix ``M_T = (x)_i A_i`` (Kronecker product, in
+factor order) takes ``A_i = P_i``, an orthonormal basis of the contrasts of ``W_i`` (``L_i x
+(L_i - 1)``), for ``W_i in T`` and ``A_i = 1 / sqrt(L_i)`` otherwise, so ``z_s = M_T' y_s``
+has ``d_T = prod_{i in T} (L_i - 1)`` coordinates.
 
-* the effect ``T``: ``SS_T = N |zbar|^2`` on ``d_T`` degrees of freedom;
-* its interaction with the between factor: ``SS_{T:B} = sum_g n_g |zbar_g - zbar|^2`` on
-  ``(G - 1) d_T``;
-* their error term: ``E_T = sum_s (z_s - zbar_{g(s)}) (z_s - zbar_{g(s)})'``, ``SS = tr E_T``
-  on ``(N - G) d_T``;
-* ``T`` empty is the between-subjects stratum: the between factor ``B`` against subjects
-  within groups.
+In the stratum ``T`` the rows follow the multivariate linear model ``Z = X B + E`` (``Z`` is
+``N x d_T``), ``X`` the full factorial between design in sum-to-zero coding: for every term
+``A``, a set of between factors (the intercept ``{}``, each main effect, each interaction),
+the columns ``(x)_j (P_j if B_j in A else 1)``. ``X`` has rank ``K`` and fits the cell means
+``zbar_c``. With ``V = (X'X)^-1``, ``Bhat = V X'Z`` and ``L`` selecting the coefficient rows
+of some terms, ``H(L) = (L Bhat)' (L V L')^-1 (L Bhat)``, and ``tr H(L)`` is how much the
+residual sum of squares grows when those terms are dropped. For each term ``A``:
+
+* type III: ``SS_A = tr H(A)``;
+* type II (``car``'s ``Anova.II.mlm``): ``SS_A = tr H(A and the terms containing A) - tr H(the
+  terms containing A)``. The intercept lies in every term: ``SS = N |zbar|^2`` whatever the
+  between design, ``zbar`` the mean over all subjects.
+
+Both compare two nested fits of the cell means ``Zbar`` (``K x d_T``) weighted by the cells'
+sizes: on ``O``, the terms the hypothesis keeps (type III: every other term; type II: the terms
+not containing ``A``), and on ``O`` with ``A``. Their difference is a single projection,
+``SS_A = |Q_A' diag(n)^(1/2) Zbar|^2``, ``Q_A`` the columns of ``A`` in the orthonormal factor
+of the QR decomposition of ``diag(n)^(1/2) [X_O X_A]`` (``X_S`` the columns of the terms
+``S``, a row for each cell), not a difference of two sums of squares; with the intercept in
+``O`` the means are centred first, so a large mean costs no accuracy. With one between factor
+the type II ``SS`` are ``N |zbar|^2`` and ``sum_g n_g |zbar_g - zbar|^2`` (the means weighted
+by size, as ``pingouin.mixed_anova`` weighs them), computed so; type III weighs the cell means
+alike. In a balanced design the types agree.
+
+The effects of the stratum ``T``: its intercept is the within effect ``T`` (``d_T`` degrees
+of freedom; for ``T`` empty, the grand mean, not reported); a between term ``A`` is the
+interaction ``T:A``, on ``d_T prod_{j in A} (K_j - 1)``. Their error term is the residual
+SSCP ``E_T = sum_s (z_s - zbar_{c(s)}) (z_s - zbar_{c(s)})'``, ``SS = tr E_T`` on ``(N - K)
+d_T``; ``T`` empty is the between-subjects stratum, the between terms against subjects within
+cells.
 
 ``F = MS_effect / MS_error``; partial eta squared ``np2 = SS / (SS + SS_error)``; generalised
 eta squared ``ges = SS / (SS + sum of every error term's SS)`` (Olejnik & Algina 2003, every
-factor manipulated). With unequal group sizes the means are weighted by ``n_g``, as
-``pingouin.mixed_anova`` computes them; in a balanced design every type of sums of squares
-agrees with these.
+factor manipulated).
 
-Sphericity, for every effect with ``d_T >= 2``, from ``E_T`` on ``n = N - G`` degrees of
+Sphericity, for every stratum with ``d_T >= 2``, from ``E_T`` on ``n = N - K`` degrees of
 freedom (R's ``mauchly.test``, ``car::Anova``):
 
 * Mauchly's ``W = det(E_T) / (tr(E_T) / d)^d`` and its p-value from the chi-square expansion
@@ -40,7 +62,7 @@ freedom (R's ``mauchly.test``, ``car::Anova``):
   computed (it may exceed 1; infinite where ``n <= d eps_GG``, the estimator's pole) and
   capped at 1 for its p-value;
 * a corrected p tests ``F`` on ``epsilon d_T`` and ``epsilon df_error`` degrees of freedom;
-  the effect's interaction with the between factor takes the same epsilons.
+  every effect of the stratum takes the same epsilons.
 
 Where these are not defined they are ``None`` (NaN until the results are made plain), and
 :attr:`~cirl_study.analysis.results.types.Sphericity.reason` says why (:func:`_sphericity`):
@@ -73,7 +95,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import msgspec
 import numpy as np
@@ -129,30 +151,41 @@ def repeated_measures_anova(
     frame: pd.DataFrame,
     measure: str,
     within: Sequence[str],
-    between: str | None = None,
+    between: Sequence[str] = (),
     subject: str = "subject",
+    sums_of_squares: Literal[2, 3] = 2,
 ) -> list[AnovaEffect]:
-    """The ANOVA table of ``measure``: within factors ``within``, between factor ``between``.
+    """The ANOVA table of ``measure``: within factors ``within``, crossed between factors
+    ``between``, type II or III sums of squares (the module docstring).
 
     Args:
         frame: one row per observation, with the columns ``subject``, ``measure``, every
-            factor of ``within`` and ``between``.
+            factor of ``within`` and of ``between``.
         measure: the dependent variable.
         within: the within-subjects factors, each with at least two levels (their levels
-            sorted); none gives the one-way between-subjects ANOVA of ``between``.
-        between: the between-subjects factor (each subject in one of its levels), or ``None``.
+            sorted); none gives the between-subjects ANOVA of ``between``.
+        between: the between-subjects factors (each subject in one level of each), crossed in
+            full: every cell of their levels needs a subject, in any numbers. A factor of one
+            level has no effect and adds no row.
         subject: the subject column.
+        sums_of_squares: ``2`` (type II, as ``car::Anova`` and ``afex::aov_ez(type = 2)``)
+            or ``3`` (type III, sum-to-zero contrasts, as ``afex``'s default); they differ
+            only with unequal cells.
 
     Returns:
-        The between effect first (when ``between`` has at least two levels), then for every
-        non-empty set of within factors, by size and then in the order of ``within``, its
-        effect and its interaction with ``between``: effect names join the within factors
-        with ``:`` and end with ``:between``.
+        For every set of within factors, by size and then in the order of ``within`` (the
+        empty set first), the within effect (none for the empty set), then its interaction
+        with every term of the between factors, by size and then in the order of
+        ``between``: effect names join the within factors and then the term's between
+        factors with ``:`` (``human``, ``human:group``, ``group:cohort``,
+        ``human:group:cohort``).
 
     Raises:
+        TypeError: ``between`` is a string, not a sequence of factors.
         ValueError: a subject misses a within cell or has two observations in one, a
-            subject lies in two groups, a factor has one level, or an error term has no
-            degrees of freedom.
+            subject lies in two levels of a between factor, a between cell has no subject,
+            a within factor has one level, an error term has no degrees of freedom, or
+            ``sums_of_squares`` is neither 2 nor 3.
         UserError: a value of ``measure`` is not a finite number (NaN or infinite), naming
             its trial (:func:`refuse_non_finite`): it would turn every sum of squares into
             NaN; leave a missing value's subject out first.
@@ -163,36 +196,51 @@ def repeated_measures_anova(
         ...     {"subject": f"{g}-{s}", "group": g, "a": a, "y": rng.normal() + a}
         ...     for g in (0, 1) for s in range(5) for a in (0, 1, 2)
         ... ]
-        >>> table = repeated_measures_anova(pd.DataFrame(rows), "y", ["a"], "group")
+        >>> table = repeated_measures_anova(pd.DataFrame(rows), "y", ["a"], ["group"])
         >>> [(row.effect, row.df1, row.df2) for row in table]
         [('group', 1, 8), ('a', 2, 16), ('a:group', 2, 16)]
         >>> table[1].sphericity.gg_epsilon <= 1
         True
+
+        Two between factors, cells of 2, 3, 3 and 4 subjects, type III:
+
+        >>> sizes = {(0, 0): 2, (0, 1): 3, (1, 0): 3, (1, 1): 4}
+        >>> rows = [
+        ...     {"subject": f"{g}{c}-{s}", "g": g, "c": c, "a": a, "y": rng.normal() + a * g}
+        ...     for (g, c), n in sizes.items() for s in range(n) for a in (0, 1)
+        ... ]
+        >>> frame = pd.DataFrame(rows)
+        >>> table = repeated_measures_anova(frame, "y", ["a"], ["g", "c"], sums_of_squares=3)
+        >>> [(row.effect, row.df1, row.df2) for row in table]  # doctest: +NORMALIZE_WHITESPACE
+        [('g', 1, 8), ('c', 1, 8), ('g:c', 1, 8),
+         ('a', 1, 8), ('a:g', 1, 8), ('a:c', 1, 8), ('a:g:c', 1, 8)]
     """
+    if isinstance(between, str):
+        raise TypeError(f"between is a sequence of factors, not a string: ({between!r},)?")
+    if sums_of_squares not in (2, 3):
+        raise ValueError(f"sums_of_squares is 2 or 3, not {sums_of_squares!r}")
     refuse_non_finite(frame, measure)
-    y, groups, levels = _subject_rows(frame, measure, list(within), between, subject)
-    subjects, group_count = len(y), int(groups.max()) + 1
-    error_df = subjects - group_count
+    y, design = _subject_rows(frame, measure, list(within), list(between), subject)
+    error_df = len(y) - len(design.sizes)
     if error_df < 1:
         raise ValueError(f"{measure}: no degrees of freedom left for the error terms")
-    sizes = np.bincount(groups, minlength=group_count).astype(np.float64)
     strata = []
     for size in range(len(within) + 1):
         for chosen in itertools.combinations(range(len(within)), size):
-            strata.append((chosen, _stratum(y, groups, sizes, _contrast_matrix(levels, chosen))))
+            matrix = _contrast_matrix(design.within_levels, chosen)
+            strata.append((chosen, _stratum(y, design, matrix, sums_of_squares)))
     error_total = sum(stratum.error_ss for _, stratum in strata)
     rows: list[AnovaEffect] = []
     for chosen, stratum in strata:
-        name = ":".join(within[i] for i in chosen)
         d = stratum.dimension
         sphericity = (
             _sphericity(stratum, error_df, y.shape, _rounding_floor(y, d)) if d >= 2 else None
         )
-        effects = [] if not chosen else [(name, stratum.effect_ss, d)]
-        if group_count > 1 and between is not None:
-            label = f"{name}:{between}" if chosen else between
-            effects.append((label, stratum.interaction_ss, (group_count - 1) * d))
-        for label, ss, df1 in effects:
+        for term, ss in zip(design.terms, stratum.term_ss, strict=True):
+            if not chosen and not term:  # the grand mean
+                continue
+            label = ":".join([*(within[i] for i in chosen), *(between[j] for j in term)])
+            df1 = d * math.prod(design.between_levels[j] - 1 for j in term)
             rows.append(
                 _effect_row(
                     measure, label, ss, df1, stratum.error_ss, error_df * d, error_total,
@@ -202,19 +250,32 @@ def repeated_measures_anova(
     return rows
 
 
+class _Design(msgspec.Struct, frozen=True):
+    """The factors of a design: the within factors' level counts; the between factors' level
+    counts, every subject's between cell (in the C order of the factors' sorted levels), the
+    cells' sizes, and the between terms (the intercept ``()`` first, by size and then in
+    factor order; none of a factor of one level) with their columns in the cell space."""
+
+    within_levels: list[int]
+    between_levels: list[int]
+    cells: NDArray[np.intp]
+    sizes: NDArray[np.float64]
+    terms: list[tuple[int, ...]]
+    columns: list[NDArray[np.float64]]
+
+
 class _Stratum(msgspec.Struct, frozen=True):
     dimension: int
-    effect_ss: float
-    interaction_ss: float
+    term_ss: list[float]
     error_ss: float
     error_sscp: NDArray[np.float64]
 
 
 def _subject_rows(
-    frame: pd.DataFrame, measure: str, within: list[str], between: str | None, subject: str
-) -> tuple[NDArray[np.float64], NDArray[np.intp], list[int]]:
-    """``y`` (subjects x cells, cells in the C order of the within factors' sorted levels),
-    each subject's group index, and the within factors' level counts."""
+    frame: pd.DataFrame, measure: str, within: list[str], between: list[str], subject: str
+) -> tuple[NDArray[np.float64], _Design]:
+    """``y`` (subjects x cells, cells in the C order of the within factors' sorted levels,
+    subjects sorted) and the design."""
     levels = [sorted(frame[factor].unique()) for factor in within]
     counts = [len(values) for values in levels]
     single = [factor for factor, n in zip(within, counts, strict=True) if n < 2]
@@ -229,19 +290,51 @@ def _subject_rows(
             f"{measure}: every subject needs exactly one observation in every within cell"
         )
     y = cells.first().to_numpy(dtype=np.float64).reshape(len(subject_ids), cell_count)
-    if between is None:
-        return y, np.zeros(len(subject_ids), dtype=np.intp), counts
-    membership = frame.groupby(subject, sort=True)[between].unique()
-    if (membership.map(len) != 1).any():
-        raise ValueError(f"{measure}: a subject lies in two levels of {between}")
-    group_of = membership.map(lambda values: values[0])
-    group_levels = sorted(group_of.unique())
-    groups = group_of.map({level: i for i, level in enumerate(group_levels)}).to_numpy(np.intp)
-    return y, groups, counts
+    codes, between_levels = [], []
+    for factor in between:
+        membership = frame.groupby(subject, sort=True)[factor].unique()
+        if (membership.map(len) != 1).any():
+            raise ValueError(f"{measure}: a subject lies in two levels of {factor}")
+        level_of = membership.map(lambda values: values[0])
+        names = sorted(level_of.unique())
+        codes.append(level_of.map({level: i for i, level in enumerate(names)}).to_numpy(np.intp))
+        between_levels.append(names)
+    shape = [len(names) for names in between_levels]
+    subject_cells = (
+        np.ravel_multi_index(codes, shape) if between else np.zeros(len(y), dtype=np.intp)
+    )
+    cell_sizes = np.bincount(subject_cells, minlength=math.prod(shape))
+    if not cell_sizes.all():
+        empty = np.unravel_index(int(np.argmin(cell_sizes)), shape)
+        named = ", ".join(
+            f"{factor}={names[i]}"
+            for factor, names, i in zip(between, between_levels, empty, strict=True)
+        )
+        raise ValueError(
+            f"{measure}: no subject in the between cell {named}; the crossed between factors "
+            "need a subject in every cell"
+        )
+    terms = [
+        term
+        for size in range(len(between) + 1)
+        for term in itertools.combinations(range(len(between)), size)
+        if all(shape[j] >= 2 for j in term)
+    ]
+    design = _Design(
+        within_levels=counts,
+        between_levels=shape,
+        cells=subject_cells,
+        sizes=cell_sizes.astype(np.float64),
+        terms=terms,
+        columns=[_contrast_matrix(shape, term) for term in terms],
+    )
+    return y, design
 
 
 def _contrast_matrix(levels: list[int], chosen: tuple[int, ...]) -> NDArray[np.float64]:
-    """``M_T``: contrasts for the factors in ``chosen``, the normalised mean for the others."""
+    """``M_T``: contrasts for the factors in ``chosen``, the normalised mean for the others.
+    Of the between factors, the columns of the term ``chosen`` in the cell space: ``X``'s
+    (module docstring) scaled, spanning the same fits."""
     matrix = np.ones((1, 1))
     for i, count in enumerate(levels):
         part = contrasts(count) if i in chosen else np.full((count, 1), 1 / math.sqrt(count))
@@ -250,31 +343,62 @@ def _contrast_matrix(levels: list[int], chosen: tuple[int, ...]) -> NDArray[np.f
 
 
 def _stratum(
-    y: NDArray[np.float64],
-    groups: NDArray[np.intp],
-    sizes: NDArray[np.float64],
-    matrix: NDArray[np.float64],
+    y: NDArray[np.float64], design: _Design, matrix: NDArray[np.float64], sums_of_squares: int
 ) -> _Stratum:
-    """The sums of squares of one stratum ``z = y M_T`` (see the module docstring).
+    """The sums of squares of one stratum ``z = y M_T`` (see the module docstring), one for
+    each term of ``design`` in its order.
 
-    A sum of squares within the rounding of ``z`` is 0: each entry of ``z`` is a sum over the
+    A sum of squares within the rounding of ``z`` is 0. Each entry of ``z`` is a sum over the
     ``C`` cells of ``y`` times contrasts of at most 1 in size, so it is off by at most about
-    ``C eps max|y|``, and a sum of ``S d`` such squares by ``S d (C eps max|y|)^2``. Below that
-    bound (:func:`_rounding_floor`) an effect is indistinguishable from none; its F is then
-    0 / 0, undefined, not a ratio of rounding errors.
+    ``C eps max|y|``, and where ``z`` is rounding alone, ``|z|^2``, a sum of ``S d`` squares,
+    is at most ``S d (C eps max|y|)^2``. Every sum of squares of the stratum is at most
+    ``|z|^2``, whatever the term, the type and the between cells: each is the squared norm of
+    an orthogonal projection (which enlarges no norm) of the cell means weighted by
+    ``sqrt(n_c)``, centred or not, whose squared norm is at most ``|z|^2``; the error, of the
+    residuals ``z - zbar_{c(s)}``, too. The QR factorisation adds rounding relative to those
+    small inputs. Below that bound (:func:`_rounding_floor`) an effect is indistinguishable
+    from none; its F is then 0 / 0, undefined, not a ratio of rounding errors.
     """
     z = y @ matrix
-    group_means = np.zeros((len(sizes), z.shape[1]))
-    np.add.at(group_means, groups, z)
-    group_means /= sizes[:, None]
+    sizes = design.sizes
+    cell_means = np.zeros((len(sizes), z.shape[1]))
+    np.add.at(cell_means, design.cells, z)
+    cell_means /= sizes[:, None]
     grand = z.mean(axis=0)
-    residual = z - group_means[groups]
+    residual = z - cell_means[design.cells]
     sscp = residual.T @ residual
     floor = _rounding_floor(y, z.shape[1])
+    everything = frozenset(design.terms)
+    weight = np.sqrt(sizes)[:, None]
+
+    def projected(kept: frozenset[tuple[int, ...]], term: tuple[int, ...]) -> float:
+        """``SS_A`` for ``A = term``: the squared norm of the part of the weighted cell means
+        that the columns of ``term`` add to those of ``kept``, read off the last columns of
+        a QR factorisation (one projection, no difference of two fits)."""
+        x = [c for t, c in zip(design.terms, design.columns, strict=True) if t in kept]
+        added = design.columns[design.terms.index(term)]
+        basis = np.linalg.qr(weight * np.hstack([*x, added]))[0][:, -added.shape[1] :]
+        # With the intercept kept, the centred means (those of a larger mean lose less).
+        target = cell_means - grand if () in kept else cell_means
+        return float(np.sum((basis.T @ (weight * target)) ** 2))
+
+    term_ss = []
+    for term in design.terms:
+        if sums_of_squares == 3:
+            kept = everything - {term}
+        else:
+            kept = frozenset(t for t in design.terms if not set(term) <= set(t))
+        if not kept:  # the within effect, type II or without between factors: N |zbar|^2
+            ss = float(len(z) * grand @ grand)
+        elif kept == {()} and kept | {term} == everything:  # one between factor: the
+            # projection off the intercept leaves the centred means as they are
+            ss = float(sizes @ np.sum((cell_means - grand) ** 2, axis=1))
+        else:
+            ss = projected(kept, term)
+        term_ss.append(_above(ss, floor))
     return _Stratum(
         dimension=z.shape[1],
-        effect_ss=_above(float(len(z) * grand @ grand), floor),
-        interaction_ss=_above(float(sizes @ np.sum((group_means - grand) ** 2, axis=1)), floor),
+        term_ss=term_ss,
         error_ss=_above(float(np.trace(sscp)), floor),
         error_sscp=sscp,
     )
@@ -282,7 +406,8 @@ def _stratum(
 
 def _rounding_floor(y: NDArray[np.float64], dimension: int) -> float:
     """The largest sum of squares of a stratum of ``dimension`` contrasts of ``y`` that rounding
-    alone can make (:func:`_stratum`), with a factor of 16 to spare."""
+    alone can make, with a factor of 16 to spare: the bound of ``|z|^2``, and so of every sum
+    of squares of the stratum, of either type and whatever the between cells (:func:`_stratum`)."""
     scale = y.shape[1] * np.finfo(np.float64).eps * float(np.abs(y).max(initial=0.0))
     return 16.0 * y.shape[0] * dimension * scale * scale
 
