@@ -111,7 +111,7 @@ def test_the_chosen_eta_is_the_runs_choice_and_the_main_block_used_it(reports, r
     results = json.loads((first / "results.json").read_text(encoding="utf-8"))
     choices = choose_etas(rows(records))
     assert results["eta_cv"]["chosen"] == [
-        {"num_features": k, "eta": c.eta, "mean": c.mean_regret[c.eta]}
+        {"num_features": k, "eta": c.eta, "mean": c.means[c.eta]}
         for (_, _, k), c in sorted(choices.items())
     ]
     assert results["eta_cv"]["main_block"] == [

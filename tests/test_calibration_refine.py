@@ -96,6 +96,39 @@ def test_a_point_that_cannot_be_ranked_is_never_taken() -> None:
     assert all(e.distance is None and not e.accepted for e in search.evaluations)
 
 
+def test_a_setting_left_to_be_chosen_moves_from_the_value_chosen_at_the_point() -> None:
+    # eta left to cross-validation (None) is chosen as 2 sigma at a point; the distance is
+    # the squared log distance of (sigma, eta) to (1, 0.5), eta the value chosen where None.
+    asked: list[tuple] = []
+
+    def chosen(point: tuple) -> float:
+        asked.append(point)
+        return 2 * point[0]
+
+    eta = SearchAxis("eta_k3", False, lambda v: 1e-6 <= v <= 1e6, chosen=chosen)
+
+    def bowl(point: tuple) -> float:
+        value = 2 * point[0] if point[1] is None else point[1]
+        return math.log(point[0]) ** 2 + math.log(value / 0.5) ** 2
+
+    start = (2.0, None)
+    search = coordinate_search(start, [SIGMA, eta], bowl, known={start: bowl(start)})
+    # sigma 2 -> 1 keeps eta chosen (now 2); its neighbours fix it at 1 and 4, and 1 -> 0.5
+    assert [e.point for e in search.evaluations if e.accepted] == [
+        (1.0, None),
+        (1.0, 1.0),
+        (1.0, 0.5),
+    ]
+    from_chosen = [(e.point, e.origin) for e in search.evaluations if e.origin[1] is None]
+    assert from_chosen == [
+        ((1.0, None), (2.0, None)),
+        ((4.0, None), (2.0, None)),
+        ((1.0, 1.0), (1.0, None)),
+        ((1.0, 4.0), (1.0, None)),
+    ]
+    assert asked == [(1.0, None)] and search.stop == "exact"
+
+
 def test_neighbours_keep_to_integers_and_to_the_constraint() -> None:
     assert neighbours(30, STEPS, 2.0) == [15, 60]
     assert neighbours(30, STEPS, MIN_STEP) == [25, 36]
@@ -198,6 +231,37 @@ def test_a_probe_is_its_universe_with_the_runs_subjects_and_cross_validation(whi
     assert ours == run_s and len(ours) == 18
 
 
+@pytest.mark.parametrize(
+    "setting",
+    [
+        {"eta": ((3, 2.0), (10, 0.5))},
+        {"eta": ((10, 0.5),)},
+        {"eta_measure": "kl"},
+        {"eta_grid": (0.5, 5.0)},
+        {"eta": ((3, 2.0),), "eta_measure": "reward_l2", "robot": "posterior_mean"},
+    ],
+)
+def test_a_probe_of_an_eta_setting_plays_the_trials_the_run_would(setting: dict) -> None:
+    from cirl_study.study.multiverse import cv_universe, universe_pipeline
+    from cirl_study.study.plan import eta_cv_trials, study_trials
+
+    run = parse_pipeline(multiverse_text("[multiverse]\n"), Path("mv.toml"))
+    probe = replace(run.multiverse.base, **setting).fitted(None, run.game.feature_levels)
+    study = probe_pipeline(run, probe, Path("probe/pipeline.toml"))
+    assert study.multiverse.universes[-1] == probe and study.seed == run.seed
+    etas = {(probe.id, human, k): 1.0 for human in ("best_response",) for k in (3, 10)}
+
+    def trials(pipeline):
+        main = study_trials(universe_pipeline(pipeline, probe), etas)
+        cv = cv_universe(pipeline, probe)
+        validation = [] if cv is None else eta_cv_trials(universe_pipeline(pipeline, cv))
+        return [msgspec.structs.replace(t, run_id="") for t in [*validation, *main]]
+
+    assert trials(study) == trials(run) and trials(run)
+    fixed_everywhere = "eta" in setting and len(setting["eta"]) == 2
+    assert (cv_universe(run, probe) is None) == fixed_everywhere
+
+
 # ---- end to end ----------------------------------------------------------------------------
 
 TRUE_SIGMA = 1.5
@@ -252,24 +316,47 @@ def test_the_refinement_returns_to_the_true_sigma_from_a_neighbour(runs, tmp_pat
     assert result.exit_code == 0, result.output
     refinement = results["refinement"]
     assert results["universes"][0]["settings"]["sigma"] == 0.75  # the nearest of the run
-    assert refinement["axes"] == ["sigma"]
+    assert refinement["axes"] == ["sigma", "eta_k3", "eta_k10"]
     final = refinement["final"]
-    assert final["settings"]["sigma"] == TRUE_SIGMA
+    assert final["settings"]["sigma"] == TRUE_SIGMA and "eta" not in final["settings"]
     assert final["mean_squared_log_ratio"] < 1e-28  # its own cell means, to rounding
     assert refinement["stop"] == "converged"
-    assert [p["settings"]["sigma"] for p in refinement["probes"]] == [
+    probes = refinement["probes"]
+    assert [p["settings"]["sigma"] for p in probes if p["axis"] == "sigma"] == [
         0.375, 1.5, 3.0, 1.06, 2.12, 1.26, 1.78,
     ]  # fmt: skip
-    assert [p["source"] for p in refinement["probes"]] == ["played"] * 2 + ["run"] + ["played"] * 4
-    assert (refinement["played"], refinement["reused"]) == (6, 0)
-    assert [p["accepted"] for p in refinement["probes"]] == [False, True] + [False] * 5
+    # each eta is cross-validated at sigma = 1.5 (10 at 3 features, 0.1 at 10), and its
+    # probes fix it at the neighbours of that choice, the other level's left to its own
+    assert [p["settings"]["eta_k3"] for p in probes if p["axis"] == "eta_k3"] == [
+        5.0, 20.0, 7.07, 14.1, 8.41, 11.9,
+    ]  # fmt: skip
+    assert [p["settings"]["eta_k10"] for p in probes if p["axis"] == "eta_k10"] == [
+        0.05, 0.2, 0.0707, 0.141, 0.0841, 0.119,
+    ]  # fmt: skip
+    for p in probes:
+        if p["axis"] != "sigma":
+            assert p["settings"]["sigma"] == TRUE_SIGMA
+            other = "eta_k10" if p["axis"] == "eta_k3" else "eta_k3"
+            assert p["settings"][other] == "cv"
+    assert [p["source"] for p in probes].count("run") == 1 and len(probes) == 19
+    assert (refinement["played"], refinement["reused"]) == (18, 0)
+    assert [p["settings"] for p in probes if p["accepted"]] == [refinement["final_settings"]]
+    assert refinement["final_settings"] == {"sigma": 1.5, "eta_k3": "cv", "eta_k10": "cv"}
     assert result.stdout.splitlines()[-1] == (
-        "refinement over sigma: 6 probe(s) (6 played now, 0 reused), stopped because no "
-        "neighbour at the smallest step is nearer: sigma 0.75 -> 1.5, D = "
-        f"{final['mean_squared_log_ratio']:.4g} (was "
+        "refinement over sigma, eta_k3, eta_k10: 18 probe(s) (18 played now, 0 reused), "
+        "stopped because no neighbour at the smallest step is nearer: sigma 0.75 -> 1.5, "
+        f"eta_k3 cv -> cv, eta_k10 cv -> cv, D = {final['mean_squared_log_ratio']:.4g} (was "
         f"{results['universes'][0]['mean_squared_log_ratio']:.4g})"
     )
-    assert "probe 6 (at most 20): sigma=1.78," in result.stderr
+    assert "probe 14 (at most 40): sigma=1.78," in result.stderr
+    # the eta of a feature level moves only the best response's cells at that level
+    for move in refinement["moves"]:
+        if move["setting"].startswith("eta_k"):
+            level = int(move["setting"].removeprefix("eta_k"))
+            taught = (move["human"], move["num_features"]) == ("best_response", level)
+            assert taught or move["log_ratio"] == 0, move
+    assert any(m["setting"] == "eta_k10" and m["log_ratio"] != 0 for m in refinement["moves"])
+    assert all(m["log_ratio"] != 0 for m in refinement["moves"] if m["setting"] == "sigma")
     probe = tmp_path / "probes" / final["id"]
     assert (probe / "pipeline.toml").is_file() and list(probe.glob("*.mcap"))
     # a probe is a run as any other: the same trials as the source run's, under its own id
@@ -277,16 +364,17 @@ def test_the_refinement_returns_to_the_true_sigma_from_a_neighbour(runs, tmp_pat
     assert validated.exit_code == 0, validated.output
     report = (tmp_path / "calibration" / "report.md").read_text()
     assert "## Refinement" in report and "| `sigma` | `0.75` | `1.5` (moved) |" in report
-    assert (tmp_path / "calibration" / "probes.csv").read_text().count("\n") == 8
+    assert "| measure | K | human | sigma | eta_k3 | eta_k10 |" in report
+    assert (tmp_path / "calibration" / "probes.csv").read_text().count("\n") == 20
 
     # run again: every probe is read back, none replayed, and the search is the same
     before = _probe_files(tmp_path / "probes")
     again, repeated = _refine(runs, tmp_path)
     assert again.exit_code == 0, again.output
     assert _probe_files(tmp_path / "probes") == before
-    assert "0 to play" in again.stderr and "6 played now" not in again.stdout
+    assert "0 to play" in again.stderr and "18 played now" not in again.stdout
     second = repeated["refinement"]
-    assert (second["played"], second["reused"]) == (0, 6)
+    assert (second["played"], second["reused"]) == (0, 18)
     strip = [{k: v for k, v in p.items() if k != "source"} for p in refinement["probes"]]
     assert [{k: v for k, v in p.items() if k != "source"} for p in second["probes"]] == strip
     assert second["final"] == final and second["stop"] == refinement["stop"]
@@ -301,6 +389,86 @@ def test_the_budget_bounds_the_probes(runs, tmp_path) -> None:
     assert refinement["final"]["id"] == results["universes"][0]["id"]
     assert len(list((tmp_path / "probes").iterdir())) == 1
     assert "stopped because it spent its --max-probes" in result.stdout
+
+
+def test_eta_is_searched_only_where_the_target_has_a_cell_it_moves(runs, tmp_path) -> None:
+    target = tmp_path / "expert.csv"
+    lines = runs["target"].read_text().splitlines()
+    target.write_text("\n".join([lines[0], *(line for line in lines if ",expert," in line)]))
+    out = tmp_path / "calibration"
+    command = ["calibrate", str(runs["run"]), "--target", str(target), "--out", str(out)]
+    command += ["--refine", "--workers", "1", "--probes", str(tmp_path / "p"), "--max-probes", "1"]
+    result = CliRunner().invoke(app, command)
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "results.json").read_text())["refinement"]["axes"] == ["sigma"]
+
+
+# ---- back to a known eta per feature level --------------------------------------------------
+
+TRUE_ETA = {3: 1.6, 10: 0.2}
+"""The etas a target is made with: where the smoke game's best responses at either feature
+level differ from those at twice the eta and at half of it."""
+
+NOISE = 0.02
+"""The target's cell means are its universe's, each times ``exp(NOISE z)``, ``z`` standard
+normal: a reading of a figure is not exact."""
+
+
+def _fixed(etas: dict[int, float]) -> str:
+    return "{" + ", ".join(f"{k} = {eta!r}" for k, eta in etas.items()) + "}"
+
+
+@pytest.fixture(scope="module")
+def eta_runs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """A target made from the cell means of the universe with :data:`TRUE_ETA` fixed, with
+    noise, and a multiverse run of the universe at twice those etas (the nearest) and the
+    base (its etas cross-validated), but not at :data:`TRUE_ETA`."""
+    import numpy as np
+
+    from cirl_study.api import load_trials
+    from cirl_study.study.engines import LocalEngine
+    from cirl_study.study.runner import run_pipeline
+
+    directory = tmp_path_factory.mktemp("refine-eta")
+    source = directory / "source.toml"
+    source.write_text(
+        multiverse_text(f"[[multiverse.universes]]\neta = {_fixed(TRUE_ETA)}\n", "source")
+    )
+    run_pipeline(load_pipeline(source), directory / "source", LocalEngine(1))
+    table = load_trials(directory / "source")
+    table = table[(table["block"] == "main") & table["universe"].str.contains(",eta=")]
+    noise = np.random.default_rng(5)
+    rows = ["measure,num_features,human,value"]
+    for (k, human), cell in table.groupby(["num_features", "human"]):
+        for measure in ("regret", "kl", "reward_l2"):
+            value = float(cell[measure].mean()) * math.exp(NOISE * noise.standard_normal())
+            rows.append(f"{measure},{k},{human},{value!r}")
+    target = directory / "target.csv"
+    target.write_text("\n".join(rows) + "\n")
+    twice = {k: 2 * eta for k, eta in TRUE_ETA.items()}
+    pipeline = directory / "mv.toml"
+    pipeline.write_text(multiverse_text(f"[multiverse.alone]\neta = [{_fixed(twice)}]\n"))
+    run_pipeline(load_pipeline(pipeline), directory / "run", LocalEngine(1))
+    return {"run": directory / "run", "target": target}
+
+
+def test_the_refinement_recovers_a_known_eta_per_level_from_a_neighbour(eta_runs, tmp_path):
+    result, results = _refine(eta_runs, tmp_path)
+    assert result.exit_code == 0, result.output
+    refinement = results["refinement"]
+    assert results["universes"][0]["settings"]["eta"] == "k3:3.2+k10:0.4"  # the start
+    assert refinement["start_settings"] == {"sigma": 0.75, "eta_k3": 3.2, "eta_k10": 0.4}
+    assert refinement["final_settings"] == {"sigma": 0.75, "eta_k3": 1.6, "eta_k10": 0.2}
+    assert refinement["final"]["settings"]["eta"] == "k3:1.6+k10:0.2"
+    assert refinement["stop"] == "converged"
+    # the noise is all that is left: within a few of its own variance
+    assert refinement["final"]["mean_squared_log_ratio"] < 3 * NOISE**2
+    moved = [(p["axis"], p["settings"][p["axis"]]) for p in refinement["probes"] if p["accepted"]]
+    assert moved == [("eta_k3", 1.6), ("eta_k10", 0.2)]
+    for move in refinement["moves"]:
+        if move["setting"] == "eta_k3":
+            taught = (move["human"], move["num_features"]) == ("best_response", 3)
+            assert taught == (move["log_ratio"] != 0), move
 
 
 def _refused(result, *fragments: str) -> None:

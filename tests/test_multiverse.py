@@ -40,7 +40,7 @@ from cirl_study.logs.reader import read_run
 from cirl_study.logs.validate import validate_run
 from cirl_study.record import MAIN, encode
 from cirl_study.study.engines import LocalEngine
-from cirl_study.study.multiverse import cv_universe, universe_pipeline
+from cirl_study.study.multiverse import cv_universe, played_universes, universe_pipeline
 from cirl_study.study.pipeline_file import load_pipeline, logged_pipeline, parse_pipeline
 from cirl_study.study.plan import (
     draw_reward,
@@ -80,9 +80,12 @@ def multiverse(tmp_path: Path, tables: str = MULTIVERSE, name: str = "mv") -> Pa
 
 
 def etas_for(pipeline):
-    """The same eta for every cross-validation universe, human and feature level."""
+    """The same eta for every universe that plays trials, human and feature level."""
     return {
-        (trial.universe, trial.human, trial.num_features): 1.0 for trial in eta_cv_trials(pipeline)
+        (universe.id, human, k): 1.0
+        for universe in played_universes(pipeline)
+        for human in pipeline.humans_with_eta
+        for k in pipeline.game.feature_levels
     }
 
 
@@ -552,6 +555,7 @@ def test_the_shipped_multiverse_is_the_paper_study_in_53_universes():
     base = universe_pipeline(pipeline, pipeline.multiverse.base)
     suffix = f"@{pipeline.multiverse.base.id}"
     etas = {(None, "best_response", 3): 0.316, (None, "best_response", 10): 1.0}
+    in_base = {(pipeline.multiverse.base.id, *key[1:]): eta for key, eta in etas.items()}
 
     def without_universe(trials):
         return [
@@ -565,7 +569,7 @@ def test_the_shipped_multiverse_is_the_paper_study_in_53_universes():
         return [msgspec.structs.replace(t, run_id="-") for t in trials if t.block != "lambda_sweep"]
 
     assert without_universe(eta_cv_trials(base)) == of_paper(eta_cv_trials(paper))
-    assert without_universe(study_trials(base, etas)) == of_paper(study_trials(paper, etas))
+    assert without_universe(study_trials(base, in_base)) == of_paper(study_trials(paper, etas))
 
 
 ASCENT = """

@@ -13,6 +13,7 @@ import pytest
 
 from cirl_study.record import Demonstration, Measures, TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.eta_cv import choose_etas
+from cirl_study.study.multiverse import played_universes
 from cirl_study.study.pipeline_file import load_pipeline
 from cirl_study.study.plan import (
     draw_reward,
@@ -53,8 +54,16 @@ def test_the_audits_ids_are_the_plans(name: str) -> None:
     pipeline = load_pipeline(SMOKE.parent / f"{name}.toml")
     cv_trials = eta_cv_trials(pipeline)
     assert eta_cv_trial_ids(pipeline) == [t.trial_id for t in cv_trials]
-    cv = {(t.universe, t.human, t.num_features) for t in cv_trials}
-    etas = {key: 0.1 * (position + 1) for position, key in enumerate(sorted(cv, key=str))}
+    universes = (
+        [None] if pipeline.multiverse is None else [u.id for u in played_universes(pipeline)]
+    )
+    keys = [
+        (universe, human, k)
+        for universe in universes
+        for human in pipeline.humans_with_eta
+        for k in pipeline.game.feature_levels
+    ]
+    etas = {key: 0.1 * (position + 1) for position, key in enumerate(keys)}
     trials = study_trials(pipeline, etas)
     assert study_trial_ids(pipeline, etas) == [(t.block, t.trial_id) for t in trials]
 
@@ -207,7 +216,7 @@ def test_choose_etas_lowest_mean_then_smaller_eta(smoke: Pipeline) -> None:
         (None, "best_response", 10): 1.0,
     }
     choice = choices[None, "best_response", 3]
-    assert choice.mean_regret == {0.1: 3.0, 1.0: 2.0, 10.0: 6.1 / 3}
+    assert choice.means == {0.1: 3.0, 1.0: 2.0, 10.0: 6.1 / 3}
     assert choice.subjects == 3
     # the same records read in another order choose the same; other blocks are ignored
     main = [played(t, 0.0) for t in study_trials(smoke, ETAS)]

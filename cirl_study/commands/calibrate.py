@@ -52,10 +52,10 @@ RefineOption = Annotated[
     bool,
     typer.Option(
         "--refine",
-        help="Then search the numeric settings around the nearest universe (sigma; for the "
-        "gradient-ascent robot its steps and learning rate), one at a time, until the distance "
-        "stops falling; each probe a universe played as a run of its own in --probes "
-        "(docs/multiverse.md, Refinement).",
+        help="Then search the numeric settings around the nearest universe (sigma, the eta "
+        "of each feature level; for the gradient-ascent robot its steps and learning rate), one "
+        "at a time, until the distance stops falling; each probe a universe played as a run of "
+        "its own in --probes (docs/multiverse.md, Refinement).",
     ),
 ]
 
@@ -165,6 +165,7 @@ def calibrate(
             analysed.pipeline,
             results,
             cells,
+            analysed.trials,
             probes=probes_dir,
             engine=lambda: make_engine("local", workers, None),
             max_probes=DEFAULT_MAX_PROBES if max_probes is None else max_probes,
@@ -198,9 +199,9 @@ def refinement_summary(refinement: Refinement, nearest: UniverseDistance) -> str
     from cirl_study.analysis.multiverse.results import level_label
 
     final = refinement.final
+    start, end = refinement.start_settings, refinement.final_settings
     moves = ", ".join(
-        f"{name} {level_label(nearest.settings[name])} -> {level_label(final.settings[name])}"
-        for name in refinement.axes
+        f"{name} {level_label(start[name])} -> {level_label(end[name])}" for name in refinement.axes
     )
     probes = refinement.played + refinement.reused
     return (

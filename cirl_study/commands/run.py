@@ -41,10 +41,15 @@ def _summary(result: RunResult, engine: str) -> str:
     if not result.etas:
         etas = "none (no human has a trade-off)"
     elif universes:
-        etas = f"{len(result.etas)} choices in {len(universes)} universes (see the report)"
+        fixed = sum(choice.fixed for choice in result.etas.values())
+        etas = (
+            f"{len(result.etas) - fixed} choices and {fixed} fixed etas in {len(universes)} "
+            "universes (see the report)"
+        )
     else:
         etas = "; ".join(
-            f"{human} at K={k} -> {choice.eta:g} (mean regret {choice.mean_regret[choice.eta]:.4g})"
+            f"{human} at K={k} -> {choice.eta:g} "
+            f"(mean {choice.measure} {choice.means[choice.eta]:.4g})"
             for (_, human, k), choice in sorted(result.etas.items())
         )
     return "\n".join(

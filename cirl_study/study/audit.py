@@ -4,7 +4,7 @@ Every log file carries the run's pipeline file (:class:`~cirl_study.logs.provena
 so the logs alone say what the run must hold. :func:`audit_run` takes that pipeline (validated
 when the identity was read: :func:`~cirl_study.study.pipeline_file.logged_pipeline`), plans
 block ``eta_cv`` (:func:`~cirl_study.study.plan.eta_cv_trial_ids`), chooses eta from the logged
-cross-validation records exactly as the run did (:func:`~cirl_study.study.eta_cv.choose_etas`),
+cross-validation records exactly as the run did (:func:`~cirl_study.study.eta_cv.study_etas`),
 plans blocks ``main`` and ``lambda_sweep`` with it, and compares trial ids: a planned trial
 that is not logged is *missing*, a logged trial that is not planned is *foreign*. Until every
 cross-validation trial is logged the study blocks cannot be planned trial by trial; they are
@@ -29,7 +29,7 @@ from cirl_study.logs.lock import writer_pid
 from cirl_study.logs.provenance import RunIdentity
 from cirl_study.logs.reader import read_run
 from cirl_study.record import ETA_CV, TrialRow
-from cirl_study.study.eta_cv import choose_etas
+from cirl_study.study.eta_cv import study_etas
 from cirl_study.study.pipeline_file import (
     logged_pipeline,
     path_argument,
@@ -115,7 +115,7 @@ def audit_run(pipeline: Pipeline, rows: Sequence[TrialRow]) -> RunAudit:
     counts = trial_counts(pipeline)
     study_blocks = [block for block in counts if block != ETA_CV]
     if len(cv_logged) == len(cv_ids):
-        etas = {key: choice.eta for key, choice in choose_etas(cv_logged).items()}
+        etas = {key: choice.eta for key, choice in study_etas(pipeline, cv_logged).items()}
         plan = study_trial_ids(pipeline, etas)
         planned = {trial_id for _, trial_id in plan} | cv_ids
         found = Counter(block for block, trial_id in plan if trial_id in logged)

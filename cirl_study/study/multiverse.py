@@ -18,8 +18,10 @@ universe's trials are those of the pipeline played as a single study.
 The eta cross-validation of a universe is played by the base pipeline's robot, as in the
 paper and the robots study: the human's teaching is tuned once, against the paper's learner,
 and each robot then watches the same demonstrations. Universes that differ only in their
-robot therefore share one cross-validation, that of their *cross-validation universe*
-(:func:`cv_universe`).
+robot, in the measure their eta is chosen on, or in the feature levels whose eta they fix,
+therefore share one cross-validation, that of their *cross-validation universe*
+(:func:`cv_universe`): its trials are the same whatever is chosen from them. A universe that
+fixes eta at every feature level has none.
 """
 
 from __future__ import annotations
@@ -64,13 +66,26 @@ def universe_pipeline(pipeline: Pipeline, universe: Universe) -> Pipeline:
     return replace(study, multiverse=None, universe=universe)
 
 
-def cv_universe(pipeline: Pipeline, universe: Universe) -> Universe:
-    """The universe whose cross-validation ``universe`` uses: the one it plays, with the base
-    robot and that robot's settings."""
+def cv_universe(pipeline: Pipeline, universe: Universe) -> Universe | None:
+    """The universe whose cross-validation ``universe`` uses (:func:`tables_universe`);
+    ``None`` where ``universe`` fixes eta at every feature level."""
+    if not universe.cross_validates(pipeline.game.feature_levels):
+        return None
+    return tables_universe(pipeline, universe)
+
+
+def tables_universe(pipeline: Pipeline, universe: Universe) -> Universe:
+    """The universe ``universe`` plays with the base robot and that robot's settings, and its
+    eta cross-validated at every feature level on the default measure (over its own grid):
+    the cross-validation universe of a universe that cross-validates, and the settings a
+    pipeline file of ``universe`` alone is written with (a calibration probe's,
+    :mod:`cirl_study.study.probes`; a file's own universe fixes no eta)."""
     base = base_universe(pipeline)
     return replace(
         universe,
         robot=base.robot,
         ascent_steps=base.ascent_steps,
         learning_rate=base.learning_rate,
+        eta=None,
+        eta_measure=None,
     ).played

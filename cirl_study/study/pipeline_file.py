@@ -337,7 +337,9 @@ def _multiverse(top: Table, study: Pipeline, ascent: GradientAscentSpec | None) 
             "eta_cv.rationality",
             "must equal main.rationality in a multiverse (one axis, rationality, sets both)",
         )
-    base = Universe(**{name: axis.read(game, main) for name, axis in AXES.items()}).fitted(ascent)
+    base = Universe(**{name: axis.read(game, main) for name, axis in AXES.items()}).fitted(
+        ascent, game.feature_levels
+    )
     block = top.table("multiverse", ("cross", "alone", "universes"))
     levels = _AxisLevels(study)
     crossed: dict[str, list[Any]] = {}
@@ -368,7 +370,8 @@ def _multiverse(top: Table, study: Pipeline, ascent: GradientAscentSpec | None) 
     ]
     universes += [replace(base, **{axis: one}) for axis, each in varied.items() for one in each]
     universes += [replace(base, **choice) for choice in chosen]
-    return MultiverseSpec(base, tuple(dict.fromkeys(u.fitted(ascent) for u in universes)))
+    fitted = (u.fitted(ascent, game.feature_levels) for u in universes)
+    return MultiverseSpec(base, tuple(dict.fromkeys(fitted)))
 
 
 class _AxisLevels:
@@ -389,9 +392,10 @@ class _AxisLevels:
         value = table.value(axis)
         if not isinstance(value, list) or not value or not all(ok(v) for v in value):
             table.fail(axis, f"must be a non-empty list of {what}, got {shown(value)}")
-        if len(set(value)) != len(value):
+        converted = [AXES[axis].convert(v) for v in value]
+        if len(set(converted)) != len(converted):
             table.fail(axis, f"must not repeat a level, got {shown(value)}")
-        return [self._within_limits(table, axis, AXES[axis].convert(v)) for v in value]
+        return [self._within_limits(table, axis, level) for level in converted]
 
     def one(self, table: Table, axis: str) -> Any:
         """The one level ``table[axis]`` names."""

@@ -403,9 +403,9 @@ def study_trials(
     multiverse, block ``main`` of every universe).
 
     A human with a trade-off plays at feature level ``K`` with ``etas[universe, human, K]``
-    (the cross-validated choice, :func:`cirl_study.study.eta_cv.choose_etas`; ``universe`` is
-    the id of the cross-validation universe, ``None`` in a single study); the sweep plays the
-    first ``lambda_sweep.subjects`` draws of the main block.
+    (fixed by the universe or cross-validated, :func:`cirl_study.study.eta_cv.study_etas`;
+    ``universe`` is the id of the universe that plays the trial, ``None`` in a single study);
+    the sweep plays the first ``lambda_sweep.subjects`` draws of the main block.
     """
     return _study_plan(pipeline, etas, _trial)
 
@@ -427,34 +427,29 @@ def _study_plan(
     """:func:`study_trials`, each trial given by ``planned`` (:func:`_trial` or
     :func:`_block_and_id`) from its pipeline and :class:`Cell`."""
     if pipeline.multiverse is None:
-        return _single_study_plan(pipeline, None, etas, planned)
+        return _single_study_plan(pipeline, etas, planned)
     return [
         trial
         for universe in played_universes(pipeline)
-        for trial in _single_study_plan(
-            universe_pipeline(pipeline, universe),
-            cv_universe(pipeline, universe).id,
-            etas,
-            planned,
-        )
+        for trial in _single_study_plan(universe_pipeline(pipeline, universe), etas, planned)
     ]
 
 
 def _single_study_plan(
     pipeline: Pipeline,
-    cv: str | None,
     etas: Mapping[tuple[str | None, str, int], float],
     planned: Callable[[Pipeline, Cell], Planned],
 ) -> list[Planned]:
-    """:func:`_study_plan` of a single study, with the etas of cross-validation ``cv``."""
+    """:func:`_study_plan` of a single study (a universe's), with its etas."""
     main, sweep = pipeline.main, pipeline.lambda_sweep
     levels = pipeline.game.feature_levels
     subjects = {k: _subjects(pipeline, TEST_GROUP, k, main.subjects) for k in levels}
 
     with_eta = pipeline.humans_with_eta
+    universe = None if pipeline.universe is None else pipeline.universe.id
 
     def eta_of(human: str, k: int) -> float | None:
-        return etas[cv, human, k] if human in with_eta else None
+        return etas[universe, human, k] if human in with_eta else None
 
     simulated = [human for human in main.humans if human not in recorded_humans(pipeline)]
     main_block = [
@@ -487,10 +482,14 @@ def _single_study_plan(
 def trial_counts(pipeline: Pipeline) -> dict[str, int]:
     """Number of trials of each block (known before eta is chosen)."""
     if pipeline.multiverse is not None:
-        # Every universe plays the same subjects, levels and humans, with one robot.
+        # Every universe plays the same subjects, levels and humans, with one robot; a
+        # cross-validation universe plays its own grid.
         base = trial_counts(universe_pipeline(pipeline, pipeline.multiverse.base))
         return {
-            ETA_CV: base[ETA_CV] * len(_cv_universes(pipeline)),
+            ETA_CV: sum(
+                trial_counts(universe_pipeline(pipeline, cv))[ETA_CV]
+                for cv in _cv_universes(pipeline)
+            ),
             MAIN: base[MAIN] * len(played_universes(pipeline)),
             LAMBDA_SWEEP: 0,
         }
@@ -521,4 +520,5 @@ def recorded_humans(pipeline: Pipeline) -> tuple[str, ...]:
 
 def _cv_universes(pipeline: Pipeline) -> list[Universe]:
     """The distinct cross-validation universes of a multiverse, in the order first needed."""
-    return list(dict.fromkeys(cv_universe(pipeline, u) for u in universes(pipeline)))
+    needed = (cv_universe(pipeline, u) for u in universes(pipeline))
+    return list(dict.fromkeys(cv for cv in needed if cv is not None))

@@ -4,12 +4,14 @@ A *probe* of a multiverse run is a universe the run may lack: the universe neare
 with other values of its numeric settings (:mod:`cirl_study.analysis.calibration.refine`). Its
 pipeline (:func:`probe_pipeline`) is a multiverse of that universe, written as a pipeline file of
 its own: the run's seed and subjects, the tables of the probe's cross-validation universe
-(:func:`~cirl_study.study.multiverse.cv_universe`: the probe with the run's base robot), and,
-where the probe differs from that (another robot, or a reading of regret), the probe as the
-one entry of ``[[multiverse.universes]]``. Universe ids and trial seeds depend on the choices
-alone (:mod:`cirl_study.study.plan`), so a probe's trials are those the run would have played
-for the universe had it listed it, its cross-validation included; a probe of another robot
-than the base's also plays its cross-validation universe's ``main`` block, its pipeline's base.
+(:func:`~cirl_study.study.multiverse.tables_universe`: the probe with the run's base robot and
+its eta cross-validated), and, where the probe differs from that (another robot, a fixed eta
+or another measure to choose it on, or a reading of regret), the probe as the one entry of
+``[[multiverse.universes]]``. Universe ids and trial seeds depend on the choices alone
+(:mod:`cirl_study.study.plan`), so a probe's trials are those the run would have played for
+the universe had it listed it, its cross-validation included; a probe of another robot than
+the base's, or with a fixed eta, also plays that universe's ``main`` block (and its
+cross-validation), its pipeline's base.
 
 A probe lives in ``<probes>/<universe id>/``: its logs, played by
 :func:`~cirl_study.study.runner.run_pipeline` (locked, resumable, and refused where the
@@ -25,7 +27,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +37,7 @@ from cirl_study.files import non_regular, read_regular_file, write_file
 from cirl_study.logs.format import MAX_PIPELINE_BYTES
 from cirl_study.record import GRADIENT_ASCENT
 from cirl_study.study.engines import Engine
-from cirl_study.study.multiverse import cv_universe, universe_pipeline
+from cirl_study.study.multiverse import tables_universe, universe_pipeline
 from cirl_study.study.pipeline_file import parse_pipeline
 from cirl_study.study.runner import ProgressHooks, run_pipeline
 from cirl_study.study.settings import written
@@ -61,13 +63,16 @@ def probe_directory(probes: Path, universe: Universe) -> Path:
 
 
 def _toml_value(value: Any) -> str:
-    """``value`` (a bool, number, string or a list of them) as TOML."""
+    """``value`` (a bool, number, string, or a list or table of them) as TOML."""
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, int | float):
         return repr(value)
     if isinstance(value, str):
         return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
+    if isinstance(value, Mapping):
+        pairs = (f"{_toml_value(key)} = {_toml_value(item)}" for key, item in value.items())
+        return "{" + ", ".join(pairs) + "}"
     return "[" + ", ".join(_toml_value(item) for item in value) + "]"
 
 
@@ -85,7 +90,9 @@ def _settings(spec: Any) -> dict[str, Any]:
 def probe_text(pipeline: Pipeline, universe: Universe) -> str:
     """The text of the pipeline file of the probe of ``universe`` in the multiverse run of
     ``pipeline`` (see the module docstring)."""
-    cv = cv_universe(pipeline, universe)
+    # The file keeps the run's eta grid: another grid is a level of the universe (its base
+    # reads none), so the entry names it.
+    cv = replace(tables_universe(pipeline, universe), eta_grid=None)
     study = universe_pipeline(pipeline, cv)
     ascent = None
     if cv.robot == GRADIENT_ASCENT:
@@ -95,8 +102,8 @@ def probe_text(pipeline: Pipeline, universe: Universe) -> str:
             steps=universe.ascent_steps, learning_rate=universe.learning_rate
         )
     entry = {
-        name: getattr(universe, name)
-        for name in AXES
+        name: axis.written(getattr(universe, name))
+        for name, axis in AXES.items()
         if getattr(universe, name) is not None and getattr(universe, name) != getattr(cv, name)
     }
     top = {

@@ -13,10 +13,10 @@ signal (:class:`~cirl_study.interrupts.Interrupted`) or by the loss of its worke
 (:class:`~cirl_study.errors.RunStopped`), says in its one line how many trials it kept and
 the command that resumes it.
 
-Order of play: block ``eta_cv`` first; then, per feature level, the eta with the lowest
-mean regret over the logged cross-validation records is chosen
-(:func:`~cirl_study.study.eta_cv.choose_etas`), and blocks ``main`` and ``lambda_sweep`` are
-planned with it and played.
+Order of play: block ``eta_cv`` first; then, per feature level, the eta is chosen from the
+logged cross-validation records (by default the lowest mean regret; in a multiverse, as each
+universe sets it, :func:`~cirl_study.study.eta_cv.study_etas`), and blocks ``main`` and
+``lambda_sweep`` are planned with it and played.
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ from cirl_study.logs.writer import TrialLogWriter
 from cirl_study.record import TrialRecord, TrialRow, TrialSpec
 from cirl_study.study.audit import resume_command
 from cirl_study.study.engines import Engine, WorkerLost
-from cirl_study.study.eta_cv import EtaChoice, choose_etas
+from cirl_study.study.eta_cv import EtaChoice, EtaKey, study_etas
 from cirl_study.study.limits import MAX_BATCH
 from cirl_study.study.pipeline_file import (
     logged_pipeline,
@@ -92,7 +92,8 @@ class RunResult:
     """Wall-clock seconds from the start of play (when the progress bar starts) to the last
     trial logged: ``seconds`` less start-up, checks and kernel preparation."""
     workers: int
-    etas: dict[tuple[str | None, str, int], EtaChoice]
+    etas: dict[EtaKey, EtaChoice]
+    """The eta of every human with a trade-off, per universe and feature level."""
 
 
 @dataclass
@@ -126,7 +127,7 @@ def warm_up(pipeline: Pipeline) -> None:
     from cirl_study.core.players import HUMANS
     from cirl_study.core.trial import demonstrations, play_trials
 
-    base = (eta_cv_trials(pipeline) or study_trials(pipeline, {}))[0]
+    base = (eta_cv_trials(pipeline) or study_trials(pipeline, _fixed_etas(pipeline)))[0]
     participants = pipeline.participants
     shown = None if participants is None else participants.shown().shown[0]
     trials = [
@@ -149,6 +150,11 @@ def warm_up(pipeline: Pipeline) -> None:
         demonstrations(trials)
         _watch_stand_ins([trial for trial in watching if trial.robot != watching[0].robot])
     play_trials(trials)
+
+
+def _fixed_etas(pipeline: Pipeline) -> dict[EtaKey, float]:
+    """The etas of ``pipeline``'s study blocks where nothing is cross-validated."""
+    return {key: choice.eta for key, choice in study_etas(pipeline, []).items()}
 
 
 def _watch_stand_ins(trials: Sequence[TrialSpec]) -> list[TrialRecord]:
@@ -278,9 +284,10 @@ class _Session:
 
 
 def _cross_validate(
-    session: _Session, trials: Sequence[TrialSpec]
-) -> dict[tuple[str | None, str, int], EtaChoice]:
-    """Play block ``eta_cv`` and choose eta from its records.
+    session: _Session, pipeline: Pipeline, trials: Sequence[TrialSpec]
+) -> dict[EtaKey, EtaChoice]:
+    """Play block ``eta_cv`` (its ``trials``) and take the etas of ``pipeline``'s study blocks
+    from its records (:func:`~cirl_study.study.eta_cv.study_etas`).
 
     The records of trials logged before this call are read back from the logs (the files
     read when the run was prepared); those played now are taken as they were logged (the log
@@ -297,7 +304,10 @@ def _cross_validate(
     missing = [trial.trial_id for trial in trials if trial.trial_id not in rows]
     if missing:
         raise UserError(f"cross-validation trial {missing[0]} is missing from the logs")
-    return choose_etas(rows[trial.trial_id] for trial in trials)
+    try:
+        return study_etas(pipeline, [rows[trial.trial_id] for trial in trials])
+    except ValueError as error:
+        raise UserError(f"eta cross-validation: {error}") from None
 
 
 def run_pipeline(
@@ -457,7 +467,7 @@ def _run_locked(
             hooks.start(total, resumed)
             play_began = time.perf_counter()
             cv_trials = eta_cv_trials(pipeline)
-            etas = _cross_validate(session, cv_trials)
+            etas = _cross_validate(session, pipeline, cv_trials)
             trials = study_trials(pipeline, {key: choice.eta for key, choice in etas.items()})
             _refuse_unplanned(out_dir, done, [*cv_trials, *trials])
             for _ in session.play(trials):

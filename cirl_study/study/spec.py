@@ -174,6 +174,14 @@ target by less than 5e-7 feature counts, and at ``eta < 1e-6`` it moves it by mo
 farther than any path's counts reach (at most ``T_learn + 1`` per feature for any horizon
 this study can afford): either way the demonstration is that of the limit."""
 
+FixedEtas = tuple[tuple[int, float], ...]
+"""A universe's fixed etas (:attr:`Universe.eta`): ``(K, eta)`` pairs, one per feature level it
+fixes, by ``K``; a level it leaves out takes its eta by cross-validation."""
+
+ETA_MEASURE = "regret"
+"""The measure whose mean over the cross-validation draws chooses eta unless a universe names
+another (``eta_measure``; docs/design.md §3)."""
+
 SIGMA_LOW = 0.02
 """Least RBF width: a center lies within ``sqrt(2)/2`` of a cell, and ``exp(-d^2 / (2
 sigma^2))`` underflows to 0 beyond ``d ~ 38.6 sigma``, so ``sigma >= 0.02`` keeps every
@@ -990,6 +998,9 @@ class Universe:
     deployment_start: str
     ascent_steps: int | None = None
     learning_rate: float | None = None
+    eta: FixedEtas | None = None
+    eta_measure: str | None = None
+    eta_grid: tuple[float, ...] | None = None
     regret: str | None = None
 
     @property
@@ -997,8 +1008,9 @@ class Universe:
         """A readable id spelling out every choice that applies, e.g. ``sigma=1.5,
         centers=per_draw,stays=yes,steps=9,lambda=1,robot=map,start=uniform`` (the
         gradient-ascent settings only for that robot, ``...,robot=gradient_ascent,
-        start=uniform,ga_steps=30,ga_rate=0.1``): a function of the choices alone, so adding a
-        level to an axis never renames an existing universe."""
+        start=uniform,ga_steps=30,ga_rate=0.1``, and the eta settings only where they depart
+        from the default, ``...,start=uniform,eta=k3:1+k10:0.1``): a function of the choices
+        alone, so adding a level to an axis never renames an existing universe."""
         return ",".join(
             f"{axis.label}={axis.show(getattr(self, name))}"
             for name, axis in AXES.items()
@@ -1012,22 +1024,35 @@ class Universe:
         differ only there share their trials."""
         return replace(self, **{n: None for n, axis in AXES.items() if axis.analysis_only})
 
-    def fitted(self, ascent: GradientAscentSpec | None) -> Universe:
-        """This universe with the settings of its robot alone: the gradient-ascent axes are
-        ``None`` for another robot, and for that robot default to ``ascent`` (the pipeline's
-        ``[gradient_ascent]``), so universes that differ only in a setting their robot
-        lacks are one universe."""
+    def fitted(self, ascent: GradientAscentSpec | None, levels: tuple[int, ...]) -> Universe:
+        """This universe with the settings that apply to it alone, so universes that differ
+        only in a setting they lack are one universe: the gradient-ascent axes are ``None``
+        for another robot, and for that robot default to ``ascent`` (the pipeline's
+        ``[gradient_ascent]``); the cross-validation's measure and grid are ``None`` where
+        ``eta`` fixes every feature level of ``levels``."""
+        fitted = self
+        if not self.cross_validates(levels):
+            fitted = replace(fitted, eta_measure=None, eta_grid=None)
         if self.robot != GRADIENT_ASCENT:
-            return replace(self, ascent_steps=None, learning_rate=None)
+            return replace(fitted, ascent_steps=None, learning_rate=None)
         if ascent is None:
-            return self
+            return fitted
         return replace(
-            self,
+            fitted,
             ascent_steps=ascent.steps if self.ascent_steps is None else self.ascent_steps,
             learning_rate=(
                 ascent.learning_rate if self.learning_rate is None else self.learning_rate
             ),
         )
+
+    def fixed_eta(self, num_features: int) -> float | None:
+        """The eta this universe fixes at ``num_features`` features (``None``: cross-validated
+        there)."""
+        return dict(self.eta or ()).get(num_features)
+
+    def cross_validates(self, levels: tuple[int, ...]) -> bool:
+        """Whether some feature level of ``levels`` takes its eta by cross-validation."""
+        return any(self.fixed_eta(k) is None for k in levels)
 
 
 LevelCheck = tuple[Callable[[Any], bool], str]
@@ -1044,8 +1069,11 @@ class Axis:
     label: str
     show: Callable[[Any], str]
     levels: Callable[[GameSpec], LevelCheck]
-    read: Callable[[GameSpec, MainSpec], Any]
-    apply: Callable[[Pipeline, Any], Pipeline]
+    read: Callable[[GameSpec, MainSpec], Any] = lambda game, main: None
+    """The base universe's level (default: ``None``, an axis without a pipeline key)."""
+    apply: Callable[[Pipeline, Any], Pipeline] = lambda pipeline, level: pipeline
+    """How a level sets a universe's pipeline (default: it sets nothing; the universe
+    carries the level, :attr:`Pipeline.universe`)."""
     convert: Callable[[Any], Any] = lambda value: value
     nested: bool = False
     """Whether the axis refines a level of another (the gradient-ascent settings, the
@@ -1055,6 +1083,15 @@ class Axis:
     """Whether the axis changes how the trials are analysed and not the trials (``regret``):
     its default level is ``None``, not spelled in a universe's id, and universes that differ
     only in it share their trials (:attr:`Universe.played`)."""
+    optional: bool = False
+    """Whether the axis is a setting only of the universes that set it (the eta settings): at
+    its default, ``None``, it is absent from a universe's settings as from its id, and from a
+    multiverse's axes where no universe sets it."""
+    written: Callable[[Any], Any] = lambda level: level
+    """A stored level as a pipeline file writes it (a fixed eta: a table by feature level)."""
+    unset: str = "–"
+    """How a report writes a universe without the setting (``None``): an en dash where it
+    does not apply, the default of an optional axis otherwise (an eta ``cv``)."""
 
 
 def _set_game(*fields: str) -> Callable[[Pipeline, Any], Pipeline]:
@@ -1090,6 +1127,58 @@ def _set_ascent(field: str) -> Callable[[Pipeline, Any], Pipeline]:
         )
 
     return apply
+
+
+def _set_eta_grid(pipeline: Pipeline, level: tuple[float, ...] | None) -> Pipeline:
+    """``eta_cv.etas``: the grid a universe cross-validates eta over (``None``: the file's)."""
+    if level is None:
+        return pipeline
+    return replace(pipeline, eta_cv=replace(pipeline.eta_cv, etas=level))
+
+
+CROSS_VALIDATED = "cv"
+"""The level of the ``eta`` axis that fixes no eta: every feature level cross-validates it
+(the default, as a pipeline file may name it among fixed levels)."""
+
+
+def _fixed_eta_levels(game: GameSpec) -> LevelCheck:
+    """``levels`` of the fixed eta: :data:`CROSS_VALIDATED`, or a table of some of the game's
+    feature levels, each with an eta of :data:`ETA`."""
+    keys = {str(k) for k in game.feature_levels}
+
+    def valid(value: Any) -> bool:
+        return value == CROSS_VALIDATED or (
+            isinstance(value, dict)
+            and bool(value)
+            and all(k in keys for k in value)
+            and all(is_positive_number(v) and ETA.low <= v <= ETA.high for v in value.values())
+        )
+
+    levels = ", ".join(map(str, game.feature_levels))
+    return valid, (
+        f'"{CROSS_VALIDATED}" or tables of feature levels ({levels}) and their eta, numbers '
+        f"in {ETA}"
+    )
+
+
+def _fixed_etas(value: str | dict[str, Any]) -> FixedEtas | None:
+    """A fixed eta's level as stored: ``(K, eta)`` pairs by ``K`` (``None``: cross-validated
+    at every level)."""
+    if value == CROSS_VALIDATED:
+        return None
+    return tuple(sorted((int(k), float(eta)) for k, eta in value.items()))
+
+
+def _show_fixed_etas(level: FixedEtas) -> str:
+    """``k3:1+k10:0.1``: each level fixed, with its eta."""
+    return "+".join(f"k{k}:{shortest_number(eta)}" for k, eta in level)
+
+
+def _eta_measures(_game: GameSpec) -> LevelCheck:
+    """``levels`` of the cross-validation's measure: a registered measure's name."""
+    from cirl_study.measure_registry import MEASURES
+
+    return (lambda v: isinstance(v, str) and v in MEASURES), ", ".join(MEASURES)
 
 
 def _game_field(name: str) -> Callable[[GameSpec, MainSpec], Any]:
@@ -1194,6 +1283,35 @@ AXES: dict[str, Axis] = {
         convert=float,
         nested=True,
     ),
+    "eta": Axis(
+        label="eta",
+        show=_show_fixed_etas,
+        levels=_fixed_eta_levels,
+        convert=_fixed_etas,
+        optional=True,
+        written=lambda level: {str(k): eta for k, eta in level},
+        unset=CROSS_VALIDATED,
+    ),
+    "eta_measure": Axis(
+        label="eta_cv",
+        show=str,
+        levels=_eta_measures,
+        convert=lambda level: None if level == ETA_MEASURE else level,
+        nested=True,
+        optional=True,
+        unset=ETA_MEASURE,
+    ),
+    "eta_grid": Axis(
+        label="eta_grid",
+        show=lambda level: "+".join(map(shortest_number, level)),
+        levels=_passing(numbers_in(ETA), f"lists of distinct numbers in {ETA}"),
+        apply=_set_eta_grid,
+        convert=lambda level: tuple(sorted(float(v) for v in level)),
+        nested=True,
+        optional=True,
+        written=list,
+        unset="pipeline",
+    ),
     "regret": Axis(
         label="regret",
         show=str,
@@ -1209,9 +1327,12 @@ AXES: dict[str, Axis] = {
 ``game.demonstrator_stays``, ``steps`` (``game.learning_steps = game.deployment_steps``),
 ``rationality`` (``main.rationality = eta_cv.rationality``), ``robot`` (the one robot of
 ``main.robots``), ``game.deployment_start``, for the ``gradient_ascent`` robot
-``ascent_steps`` and ``learning_rate`` (``[gradient_ascent]``), and ``regret``, the reading of
-regret the claims judge (:data:`REGRET_READINGS`; it changes no trial). A new axis is one entry
-here and one field of :class:`Universe`."""
+``ascent_steps`` and ``learning_rate`` (``[gradient_ascent]``), how the humans with a
+trade-off get their eta per feature level: ``eta`` fixes it at some levels (a table of ``K``
+and eta), the others cross-validate it, on the mean of ``eta_measure`` (a registered measure;
+``regret`` by default) over ``eta_grid`` (``eta_cv.etas``; the file's by default), and
+``regret``, the reading of regret the claims judge (:data:`REGRET_READINGS`; it changes no
+trial). A new axis is one entry here and one field of :class:`Universe`."""
 
 
 @dataclass(frozen=True)

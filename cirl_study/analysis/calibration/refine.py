@@ -13,7 +13,10 @@ the distance of point :math:`x` (``None``, a point that cannot be ranked, counts
   :math:`\\rho(x_a s)` (:math:`\\rho` rounds to :data:`SIGNIFICANT_DIGITS` significant
   digits), or for an integer axis by :math:`\\min(\\mathrm{round}(x_a / s), x_a - 1)` and
   :math:`\\max(\\mathrm{round}(x_a s), x_a + 1)` (round: to the nearest integer); a
-  neighbour outside the setting's own constraint is dropped. Each neighbour's distance is
+  neighbour outside the setting's own constraint is dropped. An axis may leave its value to
+  be chosen by the point's other settings (:attr:`SearchAxis.chosen`: a cross-validated eta,
+  ``None`` in the point); :math:`x_a` is then the value chosen at :math:`x`, and its
+  neighbours fix the setting. Each neighbour's distance is
   measured (once per point: a point measured before, or known beforehand, is not measured
   again), and the nearer of the two,
   :math:`y^*` (the lower value on a tie), becomes the new :math:`x` if
@@ -51,9 +54,10 @@ SIGNIFICANT_DIGITS = 3
 """Digits a probed real value keeps: readable universe ids (as the eta grid's), and a search
 that returns to a level such as 1.5 exactly."""
 
-DEFAULT_MAX_PROBES = 20
+DEFAULT_MAX_PROBES = 40
 """Probes a refinement measures at most, by default: a search over one setting takes 6 to
-10 (two neighbours at each of the three steps, and two more after each move)."""
+10 (two neighbours at each of the three steps, and two more after each move), over sigma and
+the eta of two feature levels about 20."""
 
 Point = tuple[Any, ...]
 """A point of the search: one value per axis, in the axes' order."""
@@ -61,22 +65,26 @@ Point = tuple[Any, ...]
 
 @dataclass(frozen=True)
 class SearchAxis:
-    """One setting the search moves: its name, whether its values are integers, and the
-    setting's own constraint (``valid``: whether a value is a level of it)."""
+    """One setting the search moves: its name, whether its values are integers, the
+    setting's own constraint (``valid``: whether a value is a level of it) and, for a setting
+    a point may leave to its other settings to choose (``None`` in the point), ``chosen``:
+    the value chosen at a point, asked of measured points only."""
 
     name: str
     integer: bool
     valid: Callable[[Any], bool]
+    chosen: Callable[[Point], Any] | None = None
 
 
 @dataclass(frozen=True)
 class Evaluation:
-    """A point the search measured, in the order measured: the axis and step factor of the
-    move that proposed it, its distance (``None``: it cannot be ranked), whether it was
-    ``probed`` (else its distance was known beforehand: a universe of the run) and whether
-    the search moved to it."""
+    """A point the search measured, in the order measured: the point it was proposed from
+    (``origin``), the axis and step factor of that move, its distance (``None``: it cannot be
+    ranked), whether it was ``probed`` (else its distance was known beforehand: a universe of
+    the run) and whether the search moved to it."""
 
     point: Point
+    origin: Point
     axis: str
     step: float
     distance: float | None
@@ -143,7 +151,7 @@ def coordinate_search(
     accepted: set[Point] = set()  # no point is measured twice, so a point names its evaluation
     probes = 0
 
-    def measure(point: Point, axis: str, step: float) -> float:
+    def measure(point: Point, origin: Point, axis: str, step: float) -> float:
         nonlocal probes
         if point in measured:
             return measured[point]
@@ -152,7 +160,7 @@ def coordinate_search(
             raise _BudgetSpent
         value = distance(point) if probed else known[point]
         probes += probed
-        evaluations.append(Evaluation(point, axis, step, value, probed, accepted=False))
+        evaluations.append(Evaluation(point, origin, axis, step, value, probed, accepted=False))
         measured[point] = math.inf if value is None else value
         return measured[point]
 
@@ -162,11 +170,14 @@ def coordinate_search(
             step = FIRST_STEP ** (0.5**halvings)
             moved = False
             for index, axis in enumerate(axes):
+                value = point[index]
+                if value is None and axis.chosen is not None:
+                    value = axis.chosen(point)
                 options = [
-                    point[:index] + (value,) + point[index + 1 :]
-                    for value in neighbours(point[index], axis, step)
+                    point[:index] + (near,) + point[index + 1 :]
+                    for near in neighbours(value, axis, step)
                 ]
-                scored = [(measure(option, axis.name, step), option) for option in options]
+                scored = [(measure(option, point, axis.name, step), option) for option in options]
                 nearest = min(scored, key=lambda pair: pair[0], default=(math.inf, point))
                 if nearest[0] < measured[point]:
                     point, moved = nearest[1], True

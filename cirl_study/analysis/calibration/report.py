@@ -50,20 +50,23 @@ def _label(universe: UniverseDistance) -> str:
     return escape.markdown(universe.id) if universe.id else THE_RUN
 
 
-def _level(value: Any) -> str:
-    """A setting's level as the report writes it: :data:`NOT_APPLICABLE` where the universe's
-    robot lacks the setting, else as the multiverse report does."""
-    return NOT_APPLICABLE if value is None else level_label(value)
+def _optional(axis: str | None) -> bool:
+    """Whether ``axis`` is an optional axis (:attr:`~cirl_study.study.spec.Axis.optional`),
+    whose ``None`` is its default, not a setting that does not apply."""
+    return axis in AXES and AXES[axis].optional
 
 
-def _setting(value: Any) -> str:
+def _setting(value: Any, axis: str | None = None) -> str:
     """A setting's level in a table of ``report.md``: code, or a plain ``n/a``."""
-    return NOT_APPLICABLE if value is None else escape.markdown(level_label(value))
+    if value is None and not _optional(axis):
+        return NOT_APPLICABLE
+    return escape.markdown(level_label(value, axis))
 
 
-def _not_applicable(levels: list[Any]) -> str:
-    """The sentence that says what ``n/a`` means, where ``levels`` hold one."""
-    if all(level is not None for level in levels):
+def _not_applicable(levels: list[tuple[str, Any]]) -> str:
+    """The sentence that says what ``n/a`` means, where ``levels`` (``(axis, level)``) hold
+    one."""
+    if all(level is not None or _optional(axis) for axis, level in levels):
         return ""
     return f" {NOT_APPLICABLE}: the setting does not apply (the universe's robot lacks it)."
 
@@ -158,7 +161,7 @@ def _nearest(results: CalibrationResults) -> list[str]:
             number(math.exp(math.sqrt(u.mean_squared_log_ratio))),
             number(u.chi_square) + (f" ({u.chi_square_df})" if u.chi_square_df else ""),
             p_text(u.log10_p),
-            *[_setting(u.settings[axis]) for axis in varied],
+            *[_setting(u.settings.get(axis), axis) for axis in varied],
         ]
         for rank, u in enumerate(ranked, start=1)
     ]
@@ -169,7 +172,7 @@ def _nearest(results: CalibrationResults) -> list[str]:
         "target; `e^sqrt(D)`: the typical factor between them; the chi-square on the log scale "
         "(its degrees of freedom: the cells with an uncertainty) and its p, where the target "
         "gives uncertainties."
-        + _not_applicable([u.settings.get(axis) for u in ranked for axis in varied]),
+        + _not_applicable([(axis, u.settings.get(axis)) for u in ranked for axis in varied]),
         "",
         table(
             ["rank", "universe", "D", "e^sqrt(D)", "chi-square (df)", "p", *varied],
@@ -252,7 +255,7 @@ def _axes(results: CalibrationResults) -> list[str]:
     rows = [
         [
             escape.markdown(axis.axis),
-            _setting(level.level) + (" (best)" if level.level == axis.best else ""),
+            _setting(level.level, axis.axis) + (" (best)" if level.level == axis.best else ""),
             str(level.universes),
             number(level.nearest_distance),
             number(level.median_distance),
@@ -267,7 +270,9 @@ def _axes(results: CalibrationResults) -> list[str]:
         "Per setting that varies among the ranked universes, each level's nearest and median "
         "distance; the spread is how far the nearest distance moves across the setting's "
         "levels."
-        + _not_applicable([level.level for axis in results.axes for level in axis.levels]),
+        + _not_applicable(
+            [(axis.axis, level.level) for axis in results.axes for level in axis.levels]
+        ),
         "",
         table(
             ["setting", "level", "universes", "nearest D", "median D", "spread"],
@@ -310,11 +315,11 @@ def _refinement(results: CalibrationResults) -> list[str]:
     beside = [
         [
             escape.markdown(axis),
-            _setting(nearest.settings.get(axis)),
-            _setting(final.settings.get(axis))
+            _setting(nearest.settings.get(axis), axis),
+            _setting(final.settings.get(axis), axis)
             + (" (moved)" if nearest.settings.get(axis) != final.settings.get(axis) else ""),
         ]
-        for axis in final.settings
+        for axis in AXES
         if nearest.settings.get(axis) is not None or final.settings.get(axis) is not None
     ]
     beside += [
@@ -355,7 +360,47 @@ def _refinement(results: CalibrationResults) -> list[str]:
         "",
         table(["setting", "nearest of the run", "refined"], beside, [False, True, True]),
         "",
+        *_moves(results),
     ]
+
+
+def _moves(results: CalibrationResults) -> list[str]:
+    """Which target cells each searched setting moves: per cell, the largest factor by which
+    one move of each setting changed its mean."""
+    refinement = results.refinement
+    if refinement is None or not refinement.moves:
+        return []
+    moved = {(m.setting, m.measure, m.num_features, m.human): m.log_ratio for m in refinement.moves}
+    rows = [
+        [
+            measure_name(cell.measure),
+            str(cell.num_features),
+            escape.markdown(cell.human + (f" ({cell.robot})" if cell.robot else "")),
+            *[
+                _factor(moved.get((axis, cell.measure, cell.num_features, cell.human)))
+                for axis in refinement.axes
+            ],
+        ]
+        for cell in results.target
+    ]
+    return [
+        "Which cells each setting moves: per target cell and searched setting, the factor by "
+        "which the setting's move that changed the cell's mean most multiplied it (measured "
+        "over the point the move started from; every move is in `results.json`, "
+        "`refinement.moves`).",
+        "",
+        table(
+            ["measure", "K", "human", *refinement.axes],
+            rows,
+            [False, True, False, *[True] * len(refinement.axes)],
+        ),
+        "",
+    ]
+
+
+def _factor(log_ratio: float | None) -> str:
+    """``x1.52``: a change of a mean on the log scale as a factor (``–``: not measured)."""
+    return "–" if log_ratio is None else f"x{math.exp(log_ratio):.3g}"
 
 
 def render_markdown(results: CalibrationResults) -> str:

@@ -380,12 +380,14 @@ def _axes(ranked: Sequence[UniverseDistance]) -> list[AxisDistance]:
     distances (:class:`~cirl_study.analysis.results.types.AxisDistance`)."""
     summaries = []
     for axis in AXES:
-        levels = list(dict.fromkeys(u.settings[axis] for u in ranked if axis in u.settings))
+        if not any(axis in u.settings for u in ranked):
+            continue
+        levels = list(dict.fromkeys(u.settings.get(axis) for u in ranked))
         if len(levels) < 2:
             continue
         rows = []
         for level in levels:
-            at = [u for u in ranked if u.settings[axis] == level]
+            at = [u for u in ranked if u.settings.get(axis) == level]
             rows.append(
                 LevelDistance(
                     level=level,

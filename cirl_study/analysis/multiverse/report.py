@@ -78,7 +78,7 @@ def _header(results: MultiverseResults) -> list[str]:
         table(
             ["setting", "levels (base first)"],
             [
-                [axis, ", ".join(level_label(level) for level in levels)]
+                [axis, ", ".join(level_label(level, axis) for level in levels)]
                 for axis, levels in varied.items()
             ],
             [False, False],
@@ -127,7 +127,7 @@ def _where(claim: ClaimShare) -> str:
     if claim.reproduced == claim.universes:
         return "everywhere"
     always = [
-        f"{axis} = {level_label(level.level)} ({_share(level)})"
+        f"{axis} = {level_label(level.level, axis)} ({_share(level)})"
         for axis, levels in claim.by_level.items()
         for level in levels
         if level.universes >= 2 and level.reproduced == level.universes
@@ -145,7 +145,7 @@ def _level_tables(results: MultiverseResults) -> list[str]:
         header = [axis, *(claim.id for claim in claims)]
         body = [
             [
-                f"{level_label(level.level)} ({_universe_count(level.universes)})",
+                f"{level_label(level.level, axis)} ({_universe_count(level.universes)})",
                 *(_share(claim.by_level[axis][i]) for claim in claims),
             ]
             for i, level in enumerate(levels)
@@ -298,7 +298,7 @@ def universe_table(results: MultiverseResults) -> pd.DataFrame:
     rows = []
     for universe in results.universes:
         row: dict[str, Any] = {"universe": universe.id, "base": universe.base}
-        row |= {axis: universe.settings[axis] for axis in AXES}
+        row |= {axis: universe.settings.get(axis) for axis in results.axes}
         row |= {claim: universe.claims[claim].reproduced for claim in PAPER_CLAIMS}
         for measure in PAPER_MEASURES:
             effect = effects[universe.id, measure]
@@ -318,7 +318,7 @@ def _universes(results: MultiverseResults) -> list[str]:
     rows = [
         [
             ("**base** " if universe.base else "")
-            + ", ".join(f"{a} = {level_label(universe.settings[a])}" for a in varied),
+            + ", ".join(f"{a} = {level_label(universe.settings.get(a), a)}" for a in varied),
             *("✅" if universe.claims[claim].reproduced else "❌" for claim in PAPER_CLAIMS),
             *(_effect(effects[universe.id, measure]) for measure in PAPER_MEASURES),
         ]
@@ -359,7 +359,10 @@ def render_figures(results: MultiverseResults) -> dict[str, bytes]:
     """The specification curves, PNG and SVG, by file name."""
     varied = _varied(results)
     choices = pd.DataFrame(
-        [{axis: level_label(u.settings[axis]) for axis in varied} for u in results.universes],
+        [
+            {axis: level_label(u.settings.get(axis), axis) for axis in varied}
+            for u in results.universes
+        ],
         index=[u.id for u in results.universes],
     )
     return figures.draw_all(

@@ -77,7 +77,7 @@ def universe_trials(
     """Per universe, the rows its study is analysed on: the ``main`` trials of the universe it
     plays (:attr:`~cirl_study.study.spec.Universe.played`) as its own, read with its
     analysis's settings (:func:`judged_rows`), and the cross-validation trials of its
-    cross-validation universe.
+    cross-validation universe (none where it fixes every eta).
 
     Raises:
         UserError: a universe judges regret under the estimate, which its trials' records do
@@ -90,8 +90,9 @@ def universe_trials(
     for universe in universes(pipeline):
         main = [r for r in by_universe[universe.played.id] if r.block == MAIN]
         judged = judged_rows(main, universe)
-        cv = cv_universe(pipeline, universe).id
-        chosen[universe] = judged + [r for r in by_universe[cv] if r.block == ETA_CV]
+        cv = cv_universe(pipeline, universe)
+        own = [] if cv is None else [r for r in by_universe[cv.id] if r.block == ETA_CV]
+        chosen[universe] = judged + own
     return chosen
 
 
@@ -115,12 +116,14 @@ def judged_rows(rows: list[TrialRow], universe: Universe) -> list[TrialRow]:
     return judged
 
 
-def level_label(value: Any) -> str:
+def level_label(value: Any, axis: str | None = None) -> str:
     """An axis level as the report writes it: ``yes``/``no``, numbers in their shortest exact
-    form (:func:`~cirl_study.study.spec.shortest_number`), names as they are, and an en dash
-    for a setting the universe's robot lacks (``None``)."""
+    form (:func:`~cirl_study.study.spec.shortest_number`), names as they are, and for a
+    universe without the setting (``None``) the ``axis``'s
+    :attr:`~cirl_study.study.spec.Axis.unset` (an en dash where the universe's robot lacks it,
+    ``cv`` for an eta cross-validated)."""
     if value is None:
-        return "–"
+        return "–" if axis is None else AXES[axis].unset
     if isinstance(value, bool):
         return "yes" if value else "no"
     if isinstance(value, float):
@@ -129,8 +132,18 @@ def level_label(value: Any) -> str:
 
 
 def settings(universe: Universe) -> dict[str, Any]:
-    """A universe's choices, by axis."""
-    return {axis: getattr(universe, axis) for axis in AXES}
+    """A universe's choices, by axis: every axis's level (``None`` where it does not apply),
+    but an optional axis (:attr:`~cirl_study.study.spec.Axis.optional`) only where the
+    universe sets it, spelled as in its id (a fixed eta ``k3:1+k10:0.1``, a grid
+    ``0.1+1+10``)."""
+    chosen = {}
+    for name, axis in AXES.items():
+        level = getattr(universe, name)
+        if not axis.optional:
+            chosen[name] = level
+        elif level is not None:
+            chosen[name] = axis.show(level)
+    return chosen
 
 
 def analyse_multiverse(
@@ -209,13 +222,20 @@ def _universe_summary(work: tuple[Universe, list[TrialRow], Pipeline, bool]) -> 
 
 
 def _axes(pipeline: Pipeline) -> dict[str, list[Any]]:
-    """Each axis's levels across the universes, the base level first."""
+    """Each axis's levels across the universes as :func:`settings` gives them (``None`` for a
+    universe without the setting), the base level first; an optional axis only where some
+    universe sets it."""
     levels: dict[str, list[Any]] = {axis: [] for axis in AXES}
     for universe in universes(pipeline):
+        chosen = settings(universe)
         for axis in AXES:
-            if getattr(universe, axis) not in levels[axis]:
-                levels[axis].append(getattr(universe, axis))
-    return levels
+            if chosen.get(axis) not in levels[axis]:
+                levels[axis].append(chosen.get(axis))
+    return {
+        axis: each
+        for axis, each in levels.items()
+        if not AXES[axis].optional or any(level is not None for level in each)
+    }
 
 
 def _effects(main: pd.DataFrame) -> Table[PairedDifference]:
@@ -244,13 +264,13 @@ def _claim_shares(
                 (
                     LevelShare(
                         level=plain(level),
-                        universes=len(at := [u for u in tested if u.settings[axis] == level]),
+                        universes=len(at := [u for u in tested if u.settings.get(axis) == level]),
                         reproduced=sum(u.claims[claim].reproduced for u in at),
                     )
                     for level in levels[axis]
                 ),
             )
-            for axis in AXES
+            for axis in levels
             if len(levels[axis]) > 1
         }
         shares.append(
@@ -274,13 +294,13 @@ def _regression(
     the universes are too few for the model (no residual degrees of freedom). A nested axis
     (:attr:`~cirl_study.study.spec.Axis.nested`) is left out: its levels are confounded with
     the axis it refines."""
-    varied = [axis for axis in AXES if len(levels[axis]) > 1 and not AXES[axis].nested]
-    by_id = {u.id: u for u in universes(pipeline)}
+    varied = [axis for axis in levels if len(levels[axis]) > 1 and not AXES[axis].nested]
+    by_id = {u.id: settings(u) for u in universes(pipeline)}
     data = pd.DataFrame(
         [
             {
                 "effect": row.mean_diff,
-                **{a: level_label(getattr(by_id[row.universe], a)) for a in varied},
+                **{a: level_label(by_id[row.universe].get(a)) for a in varied},
             }
             for row in effects
             if row.measure == measure

@@ -112,7 +112,7 @@ from cirl_study.record import (
     PAPER_HUMANS,
     TrialRow,
 )
-from cirl_study.study.eta_cv import choose_etas
+from cirl_study.study.eta_cv import etas_of_study
 from cirl_study.study.spec import Pipeline, TeachingSpec
 
 
@@ -223,17 +223,22 @@ def _teaching(spec: TeachingSpec, pipeline: Pipeline) -> Teaching:
     )
 
 
-def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> EtaCrossValidation:
+def eta_cv(
+    trials: Sequence[TrialRow], table: pd.DataFrame, pipeline: Pipeline
+) -> EtaCrossValidation:
     """The cross-validation of the best response's eta, and whether the main block used it.
 
     ``means``: mean best-response regret with its CI per feature level and eta
     (:func:`~cirl_study.analysis.statistics.procedures.eta_means`). ``uncertainty``: how clear-cut
-    each choice is (:func:`~cirl_study.analysis.statistics.procedures.eta_choice_uncertainty`).
-    ``chosen``: per feature level, the eta :func:`~cirl_study.study.eta_cv.choose_etas` picks from
-    the ``eta_cv`` rows of ``trials`` (the choice the run made) and its mean regret.
+    each cross-validated choice is
+    (:func:`~cirl_study.analysis.statistics.procedures.eta_choice_uncertainty`).
+    ``chosen``: per feature level, the eta the study of ``pipeline`` plays
+    (:func:`~cirl_study.study.eta_cv.etas_of_study`: picked from the ``eta_cv`` rows of
+    ``trials``, the choice the run made, with its mean on the measure chosen on; or fixed by
+    the universe, without a mean).
     ``main_block``: per feature level of the ``main`` block, the etas its best-response trials were
-    played with (``main_etas``, one in a sound run), the cross-validated eta (``chosen_eta``,
-    ``None`` without cross-validation at that level) and whether they agree (``None`` when there is
+    played with (``main_etas``, one in a sound run), the chosen eta (``chosen_eta``,
+    ``None`` without one at that level) and whether they agree (``None`` when there is
     nothing to compare with).
 
     Raises:
@@ -241,10 +246,10 @@ def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> EtaCrossValidatio
     """
     cv = table[table["block"] == ETA_CV]
     try:
-        choices = choose_etas(trials)
+        choices = etas_of_study(pipeline, trials)
     except ValueError as error:
         raise UserError(f"eta cross-validation: {error}") from None
-    chosen = {k: choice for (_, human, k), choice in choices.items() if human == BEST_RESPONSE}
+    chosen = {k: choice for (human, k), choice in choices.items() if human == BEST_RESPONSE}
     played: dict[int, set[float]] = {}
     for row in trials:
         if row.block == MAIN and row.human == BEST_RESPONSE and row.eta is not None:
@@ -258,7 +263,7 @@ def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> EtaCrossValidatio
         main_block.append(
             EtaMainBlock(num_features=k, main_etas=main_etas, chosen_eta=chosen_eta, agree=agree)
         )
-    chosen_etas = {k: choice.eta for k, choice in chosen.items()}
+    chosen_etas = {k: choice.eta for k, choice in chosen.items() if not choice.fixed}
     return EtaCrossValidation(
         means=statistics.eta_means(cv) if not cv.empty else Table(EtaMean),
         uncertainty=statistics.eta_choice_uncertainty(cv, chosen_etas)
@@ -267,7 +272,7 @@ def eta_cv(trials: Sequence[TrialRow], table: pd.DataFrame) -> EtaCrossValidatio
         chosen=Table(
             EtaChoice,
             (
-                EtaChoice(num_features=k, eta=choice.eta, mean=choice.mean_regret[choice.eta])
+                EtaChoice(num_features=k, eta=choice.eta, mean=choice.means.get(choice.eta))
                 for k, choice in sorted(chosen.items())
             ),
         ),
@@ -390,7 +395,7 @@ def estimates(
         if not sweep.empty
         else Table(CellMean),
         converged=_converged(everything),
-        eta_cv=eta_cv(trials, everything[everything["robot"] == reference]),
+        eta_cv=eta_cv(trials, everything[everything["robot"] == reference], pipeline),
         figure1=None
         if PAPER.lacking(design)
         else figure1_subject(paper_main_block(everything, design), reference),

@@ -960,12 +960,31 @@ class RefinementProbe(Record, kw_only=True):
     accepted: bool
 
 
+class CellMove(Record, kw_only=True):
+    """How far one searched setting moved one target cell's mean: of the setting's points
+    measured with that cell at both ends (``points``), the one that moved it most,
+    ``log_ratio`` :math:`\\ln(\\bar y / \\bar y_o)` against the point it was proposed from,
+    with the setting's value at both (``origin``, ``value``)."""
+
+    setting: str
+    measure: str
+    num_features: int
+    human: str
+    robot: str
+    points: int
+    log_ratio: float
+    origin: Any
+    value: Any
+
+
 class Refinement(Record, kw_only=True):
     """The coordinate search from the nearest universe (``start``) over the numeric settings
     ``axes`` (:mod:`cirl_study.analysis.calibration.refine`): its step factors, from ``first_step``
     down to ``min_step``, its budget, every point measured, the probes played now and reused, why
-    it stopped (``exact``, ``converged`` or ``budget``) and the universe it ended at with its
-    distance (``final``; ``start``'s own when no probe was nearer)."""
+    it stopped (``exact``, ``converged`` or ``budget``), the searched settings' values where it
+    started and where it ended (``start_settings``, ``final_settings``), the universe it ended
+    at with its distance (``final``; ``start``'s own when no probe was nearer), and per searched
+    setting and target cell how far the setting moved the cell (``moves``)."""
 
     start: str
     axes: list[str]
@@ -976,7 +995,10 @@ class Refinement(Record, kw_only=True):
     played: int
     reused: int
     stop: str
+    start_settings: dict[str, Any]
+    final_settings: dict[str, Any]
     final: UniverseDistance
+    moves: Rows[CellMove]
 
 
 class CalibrationResults(Record, kw_only=True):
