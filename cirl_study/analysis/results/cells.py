@@ -74,9 +74,11 @@ class Cells:
             missing.append(f"a lambda sweep of at least {self.rationalities} rationalities")
         if self.baseline is not None and design.humans[:1] != (self.baseline,):
             missing.append(f"{self.baseline} as the baseline human")
-        missing += [
-            f"participants in condition {c}" for c in self.conditions if c not in design.conditions
-        ]
+        absent = [c for c in self.conditions if c not in design.conditions]
+        if absent:
+            missing.append(
+                f"participants in the condition{'s' * (len(absent) > 1)} " + " and ".join(absent)
+            )
         return "; ".join(missing) or None
 
 
