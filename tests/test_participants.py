@@ -24,13 +24,12 @@ from cirl_study.core.gridworld import gridworld
 from cirl_study.core.trial import play_trials
 from cirl_study.errors import UserError
 from cirl_study.logs.collection import collected, collected_path, store
+from cirl_study.logs.format import MAX_DEMONSTRATIONS_BYTES
+from cirl_study.logs.provenance import RunIdentity
+from cirl_study.logs.record_checks import record_faults
 from cirl_study.measure_registry import MEASURES
 from cirl_study.record import RECORDED, Collected, Recorded
-from cirl_study.study.participants import (
-    MAX_DEMONSTRATIONS_BYTES,
-    check_demonstration,
-    file_text,
-)
+from cirl_study.study.participants import check_demonstration, file_text
 from cirl_study.study.pipeline_file import load_pipeline, parse_pipeline
 from cirl_study.study.plan import study_trials, trial_counts
 
@@ -432,3 +431,25 @@ def test_the_peoples_anova_is_the_anova_of_their_table(
         assert abs(other[1].SS - got[1].SS) > 1e-9 * abs(got[1].SS)  # the task effect
     assert len(people.robots) == len(people.design.conditions) * 4  # 4 measures analysed
     assert people.cronbach_alpha is not None and people.cronbach_alpha.n_items == 3
+
+
+def test_a_record_whose_path_is_not_its_participants_is_refused(tmp_path: Path) -> None:
+    pipeline = load_pipeline(write(tmp_path, moves()))
+    (spec,) = [
+        s for s in study_trials(pipeline, {})
+        if s.recorded is not None and s.robot == "map" and s.subject == "participant-P2"
+        and s.task == "ab"
+    ]  # fmt: skip
+    record = play_trials([spec])[0]
+    assert record_faults(record) == []
+    assert record.recorded.path == tuple(ROUND)
+    moved = replace(record, recorded=replace(record.recorded, path=tuple(STRAIGHT)))
+    assert "demonstration.states is not the participant's recorded path" in record_faults(moved)
+
+
+def test_a_logged_file_of_demonstrations_is_bounded() -> None:
+    identity = RunIdentity("r", "p", "p.toml", "x", demonstrations="x")
+    provenance = identity.provenance()
+    provenance["participants_csv"] = "x" * (MAX_DEMONSTRATIONS_BYTES + 1)
+    with pytest.raises(ValueError, match="longer than the 33554432 bytes"):
+        RunIdentity.of(provenance)

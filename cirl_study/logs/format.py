@@ -73,6 +73,11 @@ IDENTITY_KEYS = (
 #: One game step lasts one second of log time, so Foxglove replays an episode at 1 step/s.
 STEP_NS = 1_000_000_000
 
+MAX_DEMONSTRATIONS_BYTES = 32 << 20
+"""Largest file of participants' demonstrations read, as a file or as the text a log's
+provenance carries (32 MiB: some 800,000 moves; Ho et al.'s whole study of 58 participants is
+some 4,000)."""
+
 MAX_PIPELINE_BYTES = 1 << 20
 """Largest pipeline file read, as a file or as the text a log's provenance carries (every log
 file of a run carries the whole text)."""

@@ -30,6 +30,7 @@ from cirl_study.logs.format import (
     DEMONSTRATIONS_TEXT_KEY,
     IDENTITY_KEYS,
     LOG_FORMAT_KEY,
+    MAX_DEMONSTRATIONS_BYTES,
     MAX_PIPELINE_BYTES,
     PIPELINE_FILE_KEY,
     PIPELINE_NAME_KEY,
@@ -128,6 +129,11 @@ class RunIdentity:
         if identity.pipeline_sha256 != provenance[PIPELINE_SHA_KEY]:
             raise ValueError(
                 f"provenance's {PIPELINE_SHA_KEY} is not the hash of its {PIPELINE_TEXT_KEY}"
+            )
+        if len(identity.demonstrations) > MAX_DEMONSTRATIONS_BYTES:
+            raise ValueError(
+                f"provenance's {DEMONSTRATIONS_TEXT_KEY} is longer than the "
+                f"{MAX_DEMONSTRATIONS_BYTES} bytes a file of demonstrations may be"
             )
         if (DEMONSTRATIONS_TEXT_KEY in provenance) != (DEMONSTRATIONS_SHA_KEY in provenance) or (
             identity.demonstrations

@@ -236,6 +236,8 @@ def _inconsistencies(r: TrialRecord) -> Iterator[str]:
                 break
     if not r.demonstrator_stays and "stay" in actions:
         yield "the demonstration stays put, but demonstrator_stays is false"
+    if r.recorded is not None and r.recorded.path != states:
+        yield "demonstration.states is not the participant's recorded path"
     if r.deployment is not None:
         starts, paths = r.deployment.starts, r.deployment.paths
         if r.deployment_start == "demonstration" and any(s != r.start for s in starts):

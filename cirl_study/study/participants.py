@@ -44,12 +44,9 @@ from collections.abc import Iterator, Sequence
 
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
+from cirl_study.logs.format import MAX_DEMONSTRATIONS_BYTES
 from cirl_study.record import Collected, Recorded
 from cirl_study.study.spec import Demonstrations, GameSpec, Shown, Task
-
-MAX_DEMONSTRATIONS_BYTES = 32 << 20
-"""Largest file of demonstrations read (32 MiB: some 800,000 moves; Ho et al.'s whole study
-of 58 participants is some 4,000)."""
 
 REQUIRED_COLUMNS = ("participant", "condition", "task", "step", "x", "y")
 """The columns every file has."""
