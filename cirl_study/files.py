@@ -154,6 +154,20 @@ def write_file(path: Path, data: bytes) -> None:
         stream.write(data)
 
 
+def sync(path: Path) -> None:
+    """``fsync`` the file or directory ``path`` (not through a link): after a rename or link
+    inside a directory, syncing the directory makes the new name durable.
+
+    Raises:
+        OSError: ``path`` cannot be opened (a link among them) or synced.
+    """
+    descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
+    try:
+        os.fsync(descriptor)
+    finally:
+        os.close(descriptor)
+
+
 def remove_file(path: Path) -> None:
     """Remove ``path`` if it is there; a link is removed itself, never what it points to."""
     try:

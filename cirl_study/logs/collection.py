@@ -27,7 +27,13 @@ from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
 from cirl_study.errors import UserError
-from cirl_study.files import UnreadableFile, open_for_writing, read_regular_file, remove_file
+from cirl_study.files import (
+    UnreadableFile,
+    open_for_writing,
+    read_regular_file,
+    remove_file,
+    sync,
+)
 from cirl_study.record import Collected
 
 COLLECTED_DIRECTORY = "collected"
@@ -83,14 +89,6 @@ def _directory(path: Path) -> None:
         raise UserError(f"{path}: is not a directory; refusing to write into it")
 
 
-def _sync(path: Path) -> None:
-    descriptor = os.open(path, os.O_RDONLY | os.O_DIRECTORY)
-    try:
-        os.fsync(descriptor)
-    finally:
-        os.close(descriptor)
-
-
 def store(run_dir: Path, run_id: str, shown: Collected) -> bool:
     """Store ``shown``, durably, as a collected demonstration of the run ``run_id`` in
     ``run_dir`` (the module docstring). Safe to call from several threads or processes at
@@ -123,7 +121,7 @@ def store(run_dir: Path, run_id: str, shown: Collected) -> bool:
                     f"demonstration of task {shown.task} in condition {shown.recorded.condition}"
                 ) from None
             return False
-        _sync(target.parent)
+        sync(target.parent)
         return True
     finally:
         remove_file(temporary)

@@ -24,7 +24,7 @@ from pathlib import Path
 import msgspec
 
 from cirl_study.errors import UserError
-from cirl_study.files import open_descriptor, read_regular_file, remove_file
+from cirl_study.files import open_descriptor, read_regular_file, remove_file, sync
 from cirl_study.record import ParticipantId
 from cirl_study.serve.assignment import Assignment
 
@@ -127,11 +127,7 @@ class SessionFiles:
             os.close(descriptor)
         try:
             os.replace(temporary, path)
-            directory = os.open(self.directory, os.O_RDONLY | os.O_DIRECTORY)
-            try:
-                os.fsync(directory)
-            finally:
-                os.close(directory)
+            sync(self.directory)
         except OSError as error:
             raise UserError(f"{path}: cannot write: {error.strerror}") from None
 

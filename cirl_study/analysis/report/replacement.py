@@ -62,7 +62,7 @@ from pathlib import Path
 
 from cirl_study.errors import UserError
 from cirl_study.escape import terminal
-from cirl_study.files import read_regular_file, remove_file
+from cirl_study.files import read_regular_file, remove_file, sync
 from cirl_study.logs.format import LOG_SUFFIX, TEMP_SUFFIX
 from cirl_study.logs.lock import LOCK_NAME, exclusive_lock
 
@@ -162,11 +162,11 @@ def replacing_report(
                 if mode is not None:
                     _link_the_users_files(absolute, stage)
                 os.chmod(stage, mode if mode is not None else _default_mode())
-                _sync(stage)
+                sync(stage)
                 _swap(stage, absolute, present=mode is not None)
                 if mode is not None:
                     _move_late_entries(stage, absolute)
-                _sync(parent)
+                sync(parent)
         finally:
             with _os_errors(target):
                 _remove(stage)
@@ -303,16 +303,7 @@ def _sync_files(directory: Path) -> None:
     """Sync every regular file directly in ``directory`` to disk (the report's files)."""
     for entry in os.scandir(directory):
         if entry.is_file(follow_symlinks=False):
-            _sync(Path(entry.path))
-
-
-def _sync(path: Path) -> None:
-    """``fsync`` the file or directory ``path`` (not through a link)."""
-    descriptor = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_CLOEXEC)
-    try:
-        os.fsync(descriptor)
-    finally:
-        os.close(descriptor)
+            sync(Path(entry.path))
 
 
 def _swap(stage: Path, target: Path, *, present: bool) -> None:
