@@ -90,13 +90,29 @@ def participants_section(
         complete={c: int(kept.get(c, 0)) for c in spec.conditions},
         left_out=left_out,
     )
+    cells, means = Table(ConditionCell), Table(ParticipantMean)
+    conditions, robot_pairs = Table(ConditionDifference), Table(PairedDifference)
+    for measure, kept in measured(frame):
+        averaged = _participant_means(kept, measure)
+        cells += procedures.group_mean_rows(
+            kept, measure, ["condition", "robot", "task"], ConditionCell
+        )
+        cells += procedures.group_mean_rows(
+            averaged, measure, ["condition", "robot"], ConditionCell
+        )
+        means += _means(averaged, measure)
+        conditions += _conditions(averaged, measure, spec.conditions, spec.within)
+        if len(robots) > 1:
+            robot_pairs += procedures.paired_differences(
+                averaged, measure, "robot", robots[0], ["condition"]
+            )
     return ParticipantsSection(
         design=design,
-        cells=_cells(frame),
-        means=_means(frame),
+        cells=cells,
+        means=means,
         anova=_anova(complete, spec.within, len(robots) > 1, spec.sums_of_squares),
-        conditions=_conditions(frame, spec.conditions, spec.within),
-        robots=_robots(frame, robots),
+        conditions=conditions,
+        robots=robot_pairs,
         cronbach_alpha=_alpha(frame),
         closest=_closest(trials, pipeline),
     )
@@ -118,29 +134,10 @@ def _participant_means(frame: pd.DataFrame, measure: str) -> pd.DataFrame:
     return frame.groupby(keys, as_index=False, sort=True)[measure].mean()
 
 
-def _means(frame: pd.DataFrame) -> Table[ParticipantMean]:
-    return Table(
-        ParticipantMean,
-        (
-            ParticipantMean(measure=measure, **row)
-            for measure, kept in measured(frame)
-            for row in _participant_means(kept, measure)
-            .rename(columns={measure: "mean"})
-            .to_dict(orient="records")
-        ),
-    )
-
-
-def _cells(frame: pd.DataFrame) -> Table[ConditionCell]:
-    rows = Table(ConditionCell)
-    for measure, kept in measured(frame):
-        rows += procedures.group_mean_rows(
-            kept, measure, ["condition", "robot", "task"], ConditionCell
-        )
-        rows += procedures.group_mean_rows(
-            _participant_means(kept, measure), measure, ["condition", "robot"], ConditionCell
-        )
-    return rows
+def _means(averaged: pd.DataFrame, measure: str) -> Table[ParticipantMean]:
+    """The rows of ``averaged`` (:func:`_participant_means` of ``measure``)."""
+    records = averaged.rename(columns={measure: "mean"}).to_dict(orient="records")
+    return Table(ParticipantMean, (ParticipantMean(measure=measure, **row) for row in records))
 
 
 def _anova(
@@ -161,17 +158,6 @@ def _anova(
     return rows
 
 
-def _robots(frame: pd.DataFrame, robots: Sequence[str]) -> Table[PairedDifference]:
-    """Every other robot against the first, per condition (see the module docstring)."""
-    rows = Table(PairedDifference)
-    if len(robots) < 2:
-        return rows
-    for measure, kept in measured(frame):
-        means = _participant_means(kept, measure)
-        rows += procedures.paired_differences(means, measure, "robot", robots[0], ["condition"])
-    return rows
-
-
 def _alpha(frame: pd.DataFrame) -> CronbachAlpha | None:
     """Cronbach's alpha of the paper's three measures over the participants' trials that have
     all three; none with fewer than two such trials."""
@@ -186,38 +172,38 @@ def _alpha(frame: pd.DataFrame) -> CronbachAlpha | None:
 
 
 def _conditions(
-    frame: pd.DataFrame, conditions: Sequence[str], within: bool
+    averaged: pd.DataFrame, measure: str, conditions: Sequence[str], within: bool
 ) -> Table[ConditionDifference]:
+    """Every condition against the baseline, per robot, on the participants' means of
+    ``measure`` (``averaged``; see the module docstring), Holm over the rows."""
     rows = Table(ConditionDifference)
     baseline = conditions[0]
-    for measure, kept in measured(frame):
-        means = _participant_means(kept, measure)
-        found = []
-        for robot, group in means.groupby("robot", sort=False):
-            for level in conditions[1:]:
-                if within:
-                    paired = group.pivot(index="subject", columns="condition", values=measure)
-                    both = paired.reindex(columns=[baseline, level]).dropna()
-                    first, second = both[level].to_numpy(), both[baseline].to_numpy()
-                else:
-                    first = group.loc[group["condition"] == level, measure].to_numpy()
-                    second = group.loc[group["condition"] == baseline, measure].to_numpy()
-                found.append((robot, level, _difference(first, second, within)))
-        adjusted = procedures.holm(np.array([test["p"] for _, _, test in found]))
-        log10 = procedures.holm_log10(np.array([test["log10_p"] for _, _, test in found]))
-        for (robot, level, test), p_holm, log10_p_holm in zip(found, adjusted, log10, strict=True):
-            rows.append(
-                ConditionDifference(
-                    measure=measure,
-                    robot=str(robot),
-                    level=level,
-                    baseline=baseline,
-                    paired=within,
-                    **test,
-                    p_holm=float(p_holm),
-                    log10_p_holm=float(log10_p_holm),
-                )
+    found = []
+    for robot, group in averaged.groupby("robot", sort=False):
+        for level in conditions[1:]:
+            if within:
+                paired = group.pivot(index="subject", columns="condition", values=measure)
+                both = paired.reindex(columns=[baseline, level]).dropna()
+                first, second = both[level].to_numpy(), both[baseline].to_numpy()
+            else:
+                first = group.loc[group["condition"] == level, measure].to_numpy()
+                second = group.loc[group["condition"] == baseline, measure].to_numpy()
+            found.append((robot, level, _difference(first, second, within)))
+    adjusted = procedures.holm(np.array([test["p"] for _, _, test in found]))
+    log10 = procedures.holm_log10(np.array([test["log10_p"] for _, _, test in found]))
+    for (robot, level, test), p_holm, log10_p_holm in zip(found, adjusted, log10, strict=True):
+        rows.append(
+            ConditionDifference(
+                measure=measure,
+                robot=str(robot),
+                level=level,
+                baseline=baseline,
+                paired=within,
+                **test,
+                p_holm=float(p_holm),
+                log10_p_holm=float(log10_p_holm),
             )
+        )
     return rows
 
 
@@ -232,7 +218,7 @@ def _difference(level: np.ndarray, baseline: np.ndarray, paired: bool) -> dict[s
         "mean_level": float(level.mean()) if len(level) else nan,
     }
     if paired:
-        test = procedures._paired_t(level, baseline)
+        test = procedures.paired_t(level, baseline)
         return {**out, **{k: getattr(test, k) for k in (
             "mean_diff", "ci95_low", "ci95_high", "t", "p", "log10_p")},
             "df": float(test.df), "d": test.d_z}  # fmt: skip

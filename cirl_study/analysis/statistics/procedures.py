@@ -82,7 +82,7 @@ def paired_differences(
             both = paired[[baseline, level]].dropna()
             reference, other = both[baseline].to_numpy(), both[level].to_numpy()
             cells.append((dict(zip(by, key, strict=True)), level, reference, other))
-            tests.append(_paired_t(other, reference))
+            tests.append(paired_t(other, reference))
     adjusted = _holm_family(tests)
     return Table(
         PairedDifference,
@@ -135,7 +135,7 @@ def pairwise_differences(
             both = wide[[a, b]].dropna()
             first, second = both[a].to_numpy(), both[b].to_numpy()
             compared.append((cell, a, b, first, second))
-            tests.append(_paired_t(first, second))
+            tests.append(paired_t(first, second))
     adjusted = holm_log10(np.array([test.log10_p for test in tests]))
     # An adjusted p is never below its p: at a multiplier of 1 the round trip through log10
     # can lose the last bit.
@@ -223,7 +223,7 @@ def _d_z(differences: np.ndarray, axis: int = -1) -> np.ndarray:
 
 
 class PairedTest(NamedTuple):
-    """A paired t-test of ``d = first - second`` (:func:`_paired_t`): the fields of
+    """A paired t-test of ``d = first - second`` (:func:`paired_t`): the fields of
     :class:`~cirl_study.analysis.results.types.PairedT`, NaN where undefined."""
 
     mean_diff: float
@@ -236,7 +236,7 @@ class PairedTest(NamedTuple):
     d_z: float
 
 
-def _paired_t(first: np.ndarray, second: np.ndarray) -> PairedTest:
+def paired_t(first: np.ndarray, second: np.ndarray) -> PairedTest:
     """Paired t-test of ``d = first - second``: ``mean_diff``, its t-based CI, ``t``, ``df``,
     ``p`` (two-sided, ``scipy.stats.ttest_rel``), ``log10_p`` (in log space,
     :func:`cirl_study.analysis.statistics.tails.t_tail`) and ``d_z``."""
@@ -420,7 +420,7 @@ def simple_effects(main: pd.DataFrame, measure: str) -> Table[SimpleEffect]:
         expert = paired[EXPERT].to_numpy()
         best = paired[BEST_RESPONSE].to_numpy()
         levels.append((int(level), expert, best))
-        tests.append(_paired_t(best, expert))
+        tests.append(paired_t(best, expert))
         boots.append(bootstrap_mean_d_z(best - expert))
     adjusted = _holm_family(tests)
     return Table(
@@ -737,7 +737,7 @@ def eta_choice_uncertainty(cv: pd.DataFrame, chosen: Mapping[int, float]) -> Tab
         if len(others):
             runner_up = float(others.index[0])
             row |= {"runner_up": runner_up, "runner_up_mean": float(others.iloc[0])}
-            row |= _paired_t(wide[runner_up].to_numpy(), column)._asdict()
+            row |= paired_t(wide[runner_up].to_numpy(), column)._asdict()
         rows.append(EtaUncertainty(**row))
     return Table(EtaUncertainty, rows)
 
