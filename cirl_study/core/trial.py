@@ -440,7 +440,7 @@ def _recorded_paths(grid: Gridworld, phase: Phase, specs: Sequence[TrialSpec]) -
         if spec.recorded is None:
             continue
         cells = [
-            y * grid.width + x if grid.contains(x, y) else -1
+            grid.index(x, y) if grid.contains(x, y) else -1
             for x, y in spec.recorded.path[: phase.horizon + 1]
         ]
         paths[row, : len(cells)] = cells
