@@ -58,7 +58,7 @@ humans = ["expert", "best_response"]
 robots = ["map"]
 
 [lambda_sweep]
-subjects = 1
+subjects = 2
 rationalities = [1.0]
 """
 
